@@ -1,0 +1,1 @@
+"""Workflows: pose-estimator outputs to editable, effector-driven scenes on custom characters."""
