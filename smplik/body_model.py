@@ -18,6 +18,7 @@ previews and export) come from smplx.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import os
@@ -108,6 +109,10 @@ class SafeSMPLUnpickler(pickle.Unpickler):
             return copyreg._reconstructor
         if (module, name) in {("__builtin__", "object"), ("builtins", "object")}:
             return object
+        if (module, name) == ("_codecs", "encode"):  # protocol-2 pickles from Python 3 store bytes this way
+            import codecs
+
+            return codecs.encode
         raise pickle.UnpicklingError(
             f"Refusing to load global '{module}.{name}' from a model pickle: only numpy/scipy arrays and chumpy "
             "objects are allowed (a pickle can run arbitrary code)."
@@ -216,7 +221,8 @@ def make_smplx_layer(arrays: dict[str, np.ndarray], num_betas: int = NUM_BETAS) 
 
     struct = smplx.utils.Struct(**{k: v for k, v in arrays.items() if k in REQUIRED_KEYS})
     extra = _hide_extra_joints() if arrays["v_template"].shape[0] != 6890 else {}
-    return smplx.SMPL(model_path="", data_struct=struct, num_betas=num_betas, **extra)
+    with contextlib.redirect_stdout(io.StringIO()):  # smplx prints a notice about 10-component models
+        return smplx.SMPL(model_path="", data_struct=struct, num_betas=num_betas, **extra)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -18,7 +18,7 @@ body_app = typer.Typer(help="Body models: export, inspect and render.", no_args_
 app.add_typer(body_app, name="body")
 console = Console(stderr=True)
 
-ModelDir = Annotated[Optional[Path], typer.Option("--model-dir", help="Folder with real SMPL files "
+ModelDir = Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                   "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
 GenderOpt = Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model gender.")]
 
@@ -80,8 +80,8 @@ def body_export(out: Annotated[Path, typer.Option("--out", help="Output .npz (SM
 @body_app.command("render")
 def body_render(out: Annotated[Path, typer.Option("--out", help="Output PNG.")],
                 gender: GenderOpt = Gender.NEUTRAL,
-                betas: Annotated[Optional[str], typer.Option(help="Up to 10 shape values, e.g. '1,0,-0.5'.")] = None,
-                pose: Annotated[Optional[Path], typer.Option(help="Pose JSON (global_orient, body_pose, transl).")] = None,
+                betas: Annotated[str | None, typer.Option(help="Up to 10 shape values, e.g. '1,0,-0.5'.")] = None,
+                pose: Annotated[Path | None, typer.Option(help="Pose JSON (global_orient, body_pose, transl).")] = None,
                 model_dir: ModelDir = None,
                 width: int = 640, height: int = 800) -> None:
     """Render the body (front and side views) to a PNG."""
@@ -98,7 +98,8 @@ def body_render(out: Annotated[Path, typer.Option("--out", help="Output PNG.")],
         from smplik.pose import Pose
 
         p = Pose.load(pose)
-        go, bp, tr = (torch.as_tensor(np.asarray(x, np.float32))[None] for x in (p.global_orient, p.body_pose, p.transl))
+        go, bp, tr = (torch.as_tensor(np.asarray(x, np.float32))[None]
+                      for x in (p.global_orient, p.body_pose, p.transl))
         if betas is None:
             beta = torch.as_tensor(np.asarray(p.betas, np.float32))[None]
     verts, _ = model.vertices(go, bp, tr, beta)

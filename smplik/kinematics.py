@@ -71,7 +71,7 @@ def forward_kinematics(
     R_levels: list[Tensor] = [R_local[..., joints_per_level[0].to(R_local.device), :, :]]
     p_levels: list[Tensor] = [offsets[..., joints_per_level[0].to(R_local.device), :]]
     R_done, p_done = R_levels[0], p_levels[0]
-    for joints, parent_pos in zip(joints_per_level[1:], parent_pos_per_level[1:]):
+    for joints, parent_pos in zip(joints_per_level[1:], parent_pos_per_level[1:], strict=True):
         joints, parent_pos = joints.to(R_local.device), parent_pos.to(R_local.device)
         R_par = R_done[..., parent_pos, :, :]
         R_levels.append(R_par @ R_local[..., joints, :, :])

@@ -29,7 +29,7 @@ class MeshItem:
 
     vertices: np.ndarray
     faces: np.ndarray
-    color: RGBA = (0.75, 0.75, 0.8, 1.0)
+    color: RGBA = (0.62, 0.7, 0.86, 1.0)
 
 
 @dataclass(frozen=True)
@@ -133,7 +133,7 @@ def render(
         mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=m.color, metallicFactor=0.0, roughnessFactor=0.7)
         scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
         points.append(tm.vertices)
-    prims = [(trimesh.creation.icosphere(subdivisions=2, radius=s.radius).apply_translation(np.asarray(s.center, float)),
+    prims = [(trimesh.creation.icosphere(subdivisions=2, radius=s.radius).apply_translation(np.asarray(s.center)),
               s.color) for s in spheres]
     prims += [(_segment_mesh(s), s.color) for s in segments]
     for tm, color in prims:
@@ -150,10 +150,14 @@ def render(
         lo, hi = allp.min(0), allp.max(0)
         center, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
         aspect = width / height
-        fov = min(view.yfov, 2 * np.arctan(np.tan(view.yfov / 2) * aspect))
-        dist = radius * view.margin / np.sin(fov / 2)
         d = np.asarray(view.direction, float)
-        T_world_camera = _look_at(center + dist * d / np.linalg.norm(d), center)
+        d = d / np.linalg.norm(d)
+        axes = _look_at(center + d, center)[:3, :3]
+        local = (allp - center) @ axes  # camera-aligned coordinates: x right, y up, z towards camera
+        half_x, half_y = np.abs(local[:, 0]).max(), np.abs(local[:, 1]).max()
+        tan_y = np.tan(view.yfov / 2)
+        dist = view.margin * max(half_y / tan_y, half_x / (tan_y * aspect)) + local[:, 2].max()
+        T_world_camera = _look_at(center + dist * d, center)
         camera = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=aspect, znear=0.05, zfar=dist + 4 * radius)
     scene.add(camera, pose=T_world_camera)
     light = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)

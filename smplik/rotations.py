@@ -124,7 +124,8 @@ def quaternion_to_axis_angle(quaternion: Tensor) -> Tensor:
     sin_half = xyz.norm(dim=-1, keepdim=True)
     angle = 2 * torch.atan2(sin_half, q[..., :1])
     small = sin_half < 1e-6
-    scale = torch.where(small, 2 / q[..., :1].clamp_min(1e-12), angle / torch.where(small, torch.ones_like(sin_half), sin_half))
+    safe_sin = torch.where(small, torch.ones_like(sin_half), sin_half)
+    scale = torch.where(small, 2 / q[..., :1].clamp_min(1e-12), angle / safe_sin)
     return xyz * scale
 
 

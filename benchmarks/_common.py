@@ -1,0 +1,44 @@
+"""Helpers shared by the benchmark scripts: timing, machine facts, result files."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from smplik.atomic import write_json_atomic
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def shared_dir() -> Path:
+    """``../shared`` next to the repository, or ``$SMPLIK_SHARED_DIR``."""
+    return Path(os.environ.get("SMPLIK_SHARED_DIR", Path(__file__).resolve().parents[2] / "shared"))
+
+
+def machine() -> dict[str, Any]:
+    return {"cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(), "torch": torch.__version__,
+            "platform": platform.platform(), "processor": platform.processor()}
+
+
+def time_call(fn: Callable[[], Any], *, min_time: float = 0.5, warmup: int = 3) -> list[float]:
+    """Per-call wall times (seconds) after ``warmup`` calls, repeating for at least ``min_time``."""
+    for _ in range(warmup):
+        fn()
+    times: list[float] = []
+    start = time.perf_counter()
+    while time.perf_counter() - start < min_time or len(times) < 5:
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def save(name: str, data: dict[str, Any]) -> Path:
+    data = {"machine": machine(), **data}
+    return write_json_atomic(RESULTS / f"{name}.json", data)

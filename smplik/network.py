@@ -1,0 +1,185 @@
+"""SMPL-IK: the ProtoRes network conditioned on SMPL shape (beta) and gender.
+
+Pipeline (ProtoRes section 2 and App. A; SMPL-IK section 3):
+
+1. Tokens: per effector ``[data (6), tolerance (1), joint embedding, type embedding, beta (10),
+   gender one-hot (3)]``. Position data and look-at targets are made relative to the centroid of
+   the position effectors (translation invariance); with no position effector the centroid is the
+   origin.
+2. Encoder: ``R`` blocks of ``L`` fully connected layers with the prototype-subtract-accumulate
+   scheme (eq. 2-5); the pose embedding is ``p_R``.
+3. GPD (global position decoder): ``[p_R, beta, gender]`` -> draft joint positions (24 x 3).
+4. IKD (inverse kinematics decoder): ``[p_R, beta, gender, root-relative draft]`` -> 24 local 6D
+   rotations. The root position is the GPD's pelvis.
+5. FK with the rest skeleton ``J(beta, gender)`` -> global rotations and positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import Tensor, nn
+
+from smplik.conventions import NUM_BETAS, NUM_JOINTS, EffectorType
+from smplik.effectors import EffectorBatch
+from smplik.kinematics import forward_kinematics
+from smplik.rotations import rot6d_to_matrix
+
+NUM_GENDERS = 3
+_IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """ProtoRes sizes. Defaults are a small CPU model; :meth:`paper` gives the published sizes."""
+
+    width: int = 256
+    """d: width of every fully connected layer (paper: 1024)."""
+    encoder_blocks: int = 3
+    """R: residual blocks in the encoder (paper: 3)."""
+    decoder_blocks: int = 3
+    """Residual blocks in each of GPD and IKD (paper: 3)."""
+    layers_per_block: int = 2
+    """L: fully connected layers per block (paper: 3)."""
+    embedding_dim: int = 32
+    """Size of the joint-id and effector-type embeddings (paper: 32)."""
+    dropout: float = 0.0
+    """Dropout after each hidden layer (paper: 0.01)."""
+
+    @classmethod
+    def paper(cls) -> NetworkConfig:
+        return cls(width=1024, encoder_blocks=3, decoder_blocks=3, layers_per_block=3, embedding_dim=32, dropout=0.01)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class IKOutput:
+    """Network outputs, world frame. R_local/R_world (B, 24, 3, 3), p_world/draft (B, 24, 3),
+    transl (B, 3) in smplx's convention (pelvis = J0(beta) + transl)."""
+
+    R_local: Tensor
+    R_world: Tensor
+    p_world: Tensor
+    draft: Tensor
+    transl: Tensor
+
+
+def _mlp(in_dim: int, width: int, layers: int, dropout: float) -> nn.Sequential:
+    mods: list[nn.Module] = []
+    for i in range(layers):
+        mods += [nn.Linear(in_dim if i == 0 else width, width), nn.ReLU()]
+        if dropout > 0:
+            mods.append(nn.Dropout(dropout))
+    return nn.Sequential(*mods)
+
+
+class ResidualBlock(nn.Module):
+    """FCR block (ProtoRes Fig. 4): ``h = MLP(x)``, ``b = relu(L x + h)``, ``f = F h``."""
+
+    def __init__(self, in_dim: int, width: int, layers: int, out_dim: int, dropout: float):
+        super().__init__()
+        self.mlp = _mlp(in_dim, width, layers, dropout)
+        self.skip = nn.Linear(in_dim, width)
+        self.forward_out = nn.Linear(width, out_dim)
+
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        h = self.mlp(x)
+        return torch.relu(self.skip(x) + h), self.forward_out(h)
+
+
+class FCRDecoder(nn.Module):
+    """Fully connected residual decoder (eq. 6-7): outputs accumulate over blocks."""
+
+    def __init__(self, in_dim: int, out_dim: int, cfg: NetworkConfig):
+        super().__init__()
+        w, L = cfg.width, cfg.layers_per_block
+        self.blocks = nn.ModuleList(
+            ResidualBlock(in_dim if r == 0 else w, w, L, out_dim, cfg.dropout) for r in range(cfg.decoder_blocks)
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        out = 0
+        for block in self.blocks:
+            x, f = block(x)
+            out = out + f
+        return out
+
+
+def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
+    """PROTOTYPE layer: mean over effectors. x (B, N, C), mask (B, N) -> (B, C)."""
+    m = mask.to(x.dtype)[..., None]
+    return (x * m).sum(1) / m.sum(1).clamp_min(1.0)
+
+
+def position_centroid(eff: EffectorBatch) -> Tensor:
+    """Centroid of the position effectors, the origin where there is none. -> (B, 3)."""
+    is_pos = (eff.type == int(EffectorType.POSITION)) & eff.mask
+    w = is_pos.to(eff.data.dtype)[..., None]
+    return (eff.data[..., :3] * w).sum(1) / w.sum(1).clamp_min(1.0)
+
+
+class ProtoResIK(nn.Module):
+    """ProtoRes conditioned on beta and gender, with the SMPL rest skeletons as buffers.
+
+    Args:
+        cfg: network sizes.
+        J_template: (3, 24, 3) rest joints at beta = 0 per gender (Gender order).
+        J_dirs: (3, 24, 3, 10) rest-joint shape directions per gender.
+    """
+
+    def __init__(self, cfg: NetworkConfig, J_template: Tensor, J_dirs: Tensor):
+        super().__init__()
+        self.cfg = cfg
+        J, E, w = NUM_JOINTS, cfg.embedding_dim, cfg.width
+        self.register_buffer("J_template", J_template.clone().float())
+        self.register_buffer("J_dirs", J_dirs.clone().float())
+        self.joint_embedding = nn.Embedding(J, E)
+        self.type_embedding = nn.Embedding(3, E)
+        cond = NUM_BETAS + NUM_GENDERS
+        token_dim = 6 + 1 + 2 * E + cond
+        self.encoder = nn.ModuleList(
+            ResidualBlock(token_dim if r == 0 else w, w, cfg.layers_per_block, w, cfg.dropout)
+            for r in range(cfg.encoder_blocks)
+        )
+        self.gpd = FCRDecoder(w + cond, 3 * J, cfg)
+        self.ikd = FCRDecoder(w + cond + 3 * J, 6 * J, cfg)
+        self.register_buffer("identity_6d", torch.tensor(_IDENTITY_6D).repeat(J))
+
+    def rest_joints(self, betas: Tensor, gender: Tensor) -> Tensor:
+        """J(beta, gender): betas (B, 10), gender (B,) long -> (B, 24, 3)."""
+        return self.J_template[gender] + torch.einsum("bjcn,bn->bjc", self.J_dirs[gender], betas)
+
+    def encode(self, eff: EffectorBatch, cond: Tensor, centroid: Tensor) -> Tensor:
+        """Effector tokens -> pose embedding p_R (B, width)."""
+        data = eff.data
+        shift = torch.where((eff.type == int(EffectorType.ROTATION))[..., None], 0.0, 1.0) * centroid[:, None, :]
+        data = torch.cat([data[..., :3] - shift, data[..., 3:]], dim=-1)
+        B, N = eff.joint.shape
+        x = torch.cat([data, eff.tolerance[..., None].to(data.dtype), self.joint_embedding(eff.joint),
+                       self.type_embedding(eff.type), cond[:, None, :].expand(B, N, cond.shape[-1])], dim=-1)
+        p = None
+        for r, block in enumerate(self.encoder):
+            if r > 0:
+                x = torch.relu(x - p[:, None, :] / r)  # eq. (2): subtract the running prototype
+            x, f = block(x)
+            proto = masked_mean(f, eff.mask)
+            p = proto if p is None else p + proto  # eq. (5): accumulate
+        return p
+
+    def forward(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput:
+        """eff: B rows of N effectors; betas (B, 10); gender (B,) long in Gender order."""
+        B = betas.shape[0]
+        cond = torch.cat([betas, nn.functional.one_hot(gender, NUM_GENDERS).to(betas.dtype)], dim=-1)
+        centroid = position_centroid(eff)
+        p = self.encode(eff, cond, centroid)
+        draft = self.gpd(torch.cat([p, cond], -1)).view(B, NUM_JOINTS, 3)
+        root_relative = (draft - draft[:, :1]).reshape(B, -1)
+        rot6d = self.ikd(torch.cat([p, cond, root_relative], -1)) + self.identity_6d
+        R_local = rot6d_to_matrix(rot6d.view(B, NUM_JOINTS, 6))
+        J_rest = self.rest_joints(betas, gender)
+        transl = draft[:, 0] - J_rest[:, 0] + centroid
+        R_world, p_world = forward_kinematics(R_local, J_rest, transl)
+        return IKOutput(R_local, R_world, p_world, draft + centroid[:, None, :], transl)
