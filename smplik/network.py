@@ -77,17 +77,21 @@ def _mlp(in_dim: int, width: int, layers: int, dropout: float) -> nn.Sequential:
 
 
 class ResidualBlock(nn.Module):
-    """FCR block (ProtoRes Fig. 4): ``h = MLP(x)``, ``b = relu(L x + h)``, ``f = F h``."""
+    """FCR block (ProtoRes Fig. 4): ``h = MLP(x)``, ``b = relu(L x + h)``, ``f = F h``.
 
-    def __init__(self, in_dim: int, width: int, layers: int, out_dim: int, dropout: float):
+    The last block of a stack has no residual output ``b`` (nothing consumes it).
+    """
+
+    def __init__(self, in_dim: int, width: int, layers: int, out_dim: int, dropout: float, last: bool = False):
         super().__init__()
         self.mlp = _mlp(in_dim, width, layers, dropout)
-        self.skip = nn.Linear(in_dim, width)
+        self.skip = None if last else nn.Linear(in_dim, width)
         self.forward_out = nn.Linear(width, out_dim)
 
-    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, x: Tensor) -> tuple[Tensor | None, Tensor]:
         h = self.mlp(x)
-        return torch.relu(self.skip(x) + h), self.forward_out(h)
+        b = None if self.skip is None else torch.relu(self.skip(x) + h)
+        return b, self.forward_out(h)
 
 
 class FCRDecoder(nn.Module):
@@ -97,7 +101,8 @@ class FCRDecoder(nn.Module):
         super().__init__()
         w, L = cfg.width, cfg.layers_per_block
         self.blocks = nn.ModuleList(
-            ResidualBlock(in_dim if r == 0 else w, w, L, out_dim, cfg.dropout) for r in range(cfg.decoder_blocks)
+            ResidualBlock(in_dim if r == 0 else w, w, L, out_dim, cfg.dropout, last=r == cfg.decoder_blocks - 1)
+            for r in range(cfg.decoder_blocks)
         )
 
     def forward(self, x: Tensor) -> Tensor:
@@ -141,7 +146,8 @@ class ProtoResIK(nn.Module):
         cond = NUM_BETAS + NUM_GENDERS
         token_dim = 6 + 1 + 2 * E + cond
         self.encoder = nn.ModuleList(
-            ResidualBlock(token_dim if r == 0 else w, w, cfg.layers_per_block, w, cfg.dropout)
+            ResidualBlock(token_dim if r == 0 else w, w, cfg.layers_per_block, w, cfg.dropout,
+                          last=r == cfg.encoder_blocks - 1)
             for r in range(cfg.encoder_blocks)
         )
         self.gpd = FCRDecoder(w + cond, 3 * J, cfg)
