@@ -135,8 +135,9 @@ def _register_optional() -> None:
         sub = getattr(mod, attr)
         if name:
             app.add_typer(sub, name=name)
-        else:
-            app.add_typer(sub)
+        else:  # top-level commands: copy each registered command onto the main app
+            for info in sub.registered_commands:
+                app.command(info.name, help=info.help)(info.callback)
 
 
 _register_optional()

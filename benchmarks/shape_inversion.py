@@ -1,0 +1,178 @@
+"""SMPL-SI benchmark -> benchmarks/results/shape_inversion.json.
+
+1. Held-out synthetic bodies of the built-in model (1,000 random (beta, scale) drawn like the bank
+   but with another seed): six-feature error of the recovered shape (mm, median / p95 of the
+   per-body max over the features) and beta / scale error, for the paper's kernel estimate, the
+   refined estimate, and a least-squares baseline (scipy least_squares over (beta, s) from beta=0,
+   s=1, inside the same box).
+2. Real skeletons from ../shared/data (or $SMPLIK_SHARED_DIR/data): the MakeHuman default skeleton
+   and one file per CMU subject (frame 0): head-ankle "stature" and per-bone length errors of the
+   SMPL approximation (mm).
+3. Timings: bank build, estimator build from the cached bank, query per character.
+
+Run: ``python benchmarks/shape_inversion.py [--gender neutral] [--samples 1000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: this file's folder must not shadow the shape_inversion package
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
+import numpy as np  # noqa: E402
+import scipy.optimize  # noqa: E402
+import torch  # noqa: E402
+
+from shape_inversion.bank import BankConfig, sample_bank  # noqa: E402
+from shape_inversion.estimator import EstimatorConfig, ShapeEstimator, ShapeInversionError, features_and_jacobian  # noqa: E402
+from shape_inversion.skeleton_io import prepare_character, read_bvh  # noqa: E402
+from smplik.atomic import write_json_atomic  # noqa: E402
+from smplik.body_model import load_body_model  # noqa: E402
+from smplik.conventions import JOINT_INDEX, NUM_BETAS  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+BONES = (("right_hip", "right_knee"), ("right_knee", "right_ankle"), ("left_hip", "left_knee"),
+         ("left_knee", "left_ankle"), ("right_shoulder", "right_elbow"), ("right_elbow", "right_wrist"),
+         ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("left_hip", "right_hip"),
+         ("left_shoulder", "right_shoulder"), ("head", "right_ankle"), ("head", "right_wrist"))
+
+
+def least_squares_baseline(estimator: ShapeEstimator, query: np.ndarray) -> np.ndarray:
+    """(beta, s) (11,) fitting the six features by bounded least squares from beta = 0, s = 1."""
+    T, D = estimator.pair_template, estimator.pair_dirs
+    lo = np.append(np.full(NUM_BETAS, -5.0), 0.2)
+    hi = np.append(np.full(NUM_BETAS, 5.0), 2.0)
+    sol = scipy.optimize.least_squares(
+        lambda x: features_and_jacobian(T, D, x[:NUM_BETAS], x[NUM_BETAS])[0] - query,
+        np.append(np.zeros(NUM_BETAS), 1.0),
+        jac=lambda x: features_and_jacobian(T, D, x[:NUM_BETAS], x[NUM_BETAS])[1], bounds=(lo, hi), method="trf")
+    return sol.x
+
+
+def _stats(values: np.ndarray) -> dict:
+    return {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)),
+            "mean": float(np.mean(values)), "max": float(np.max(values))}
+
+
+def synthetic(model, estimators: dict[str, ShapeEstimator], n: int, seed: int) -> dict:
+    held = sample_bank(model, BankConfig(num_samples=n, seed=seed))
+    base = estimators["kernel"]
+    rows: dict[str, dict[str, list]] = {k: {"feat": [], "beta": [], "scale": [], "t": []}
+                                        for k in (*estimators, "least_squares")}
+    for f, b, s in zip(held.features, held.betas, held.scales, strict=True):
+        for name, est in estimators.items():
+            t0 = time.perf_counter()
+            e = est.estimate(f)
+            rows[name]["t"].append(time.perf_counter() - t0)
+            rows[name]["feat"].append(e.max_feature_residual_m)
+            rows[name]["beta"].append(np.abs(e.betas - b).mean())
+            rows[name]["scale"].append(abs(e.scale - s))
+        t0 = time.perf_counter()
+        x = least_squares_baseline(base, f)
+        rows["least_squares"]["t"].append(time.perf_counter() - t0)
+        rows["least_squares"]["feat"].append(np.abs(base.features_of(x[:NUM_BETAS], x[NUM_BETAS]) - f).max())
+        rows["least_squares"]["beta"].append(np.abs(x[:NUM_BETAS] - b).mean())
+        rows["least_squares"]["scale"].append(abs(x[NUM_BETAS] - s))
+    return {name: {"max_feature_error_mm": _stats(np.array(r["feat"]) * 1000),
+                   "beta_mean_abs_error": _stats(np.array(r["beta"])),
+                   "scale_abs_error": _stats(np.array(r["scale"])),
+                   "time_ms": _stats(np.array(r["t"]) * 1000)} for name, r in rows.items()}
+
+
+def real_characters(model, estimators: dict[str, ShapeEstimator], shared: Path) -> dict:
+    files: list[tuple[str, Path]] = []
+    mh = shared / "data" / "custom-characters" / "mh_default_tpose.bvh"
+    if mh.is_file():
+        files.append(("makehuman_default", mh))
+    seen = set()
+    for path in sorted((shared / "data" / "cmu").glob("*.bvh")):
+        subject = path.name.split("_")[0]
+        if subject not in seen:
+            seen.add(subject)
+            files.append((f"cmu_{subject} ({path.name})", path))
+    out = {}
+    for label, path in files:
+        char = prepare_character(read_bvh(path))
+        entry: dict = {"rig": char.rig.name, "units_m": char.units_m, "up": char.up,
+                       "head_ankle_height_m": char.head_ankle_height_m}
+        for name, est in estimators.items():
+            try:
+                t0 = time.perf_counter()
+                e = est.estimate(char.features)
+                dt = time.perf_counter() - t0
+            except ShapeInversionError as exc:
+                entry[name] = {"error": str(exc)}
+                continue
+            J = model.rest_joints(torch.tensor(e.betas)).double().numpy() * e.scale
+            ankles = [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]]
+            smpl_height = J[JOINT_INDEX["head"], 1] - J[ankles, 1].mean()
+            bones = {}
+            for a, b in BONES:
+                if a in char.smpl_joints and b in char.smpl_joints:
+                    ref = np.linalg.norm(char.joint(a) - char.joint(b))
+                    got = np.linalg.norm(J[JOINT_INDEX[a]] - J[JOINT_INDEX[b]])
+                    bones[f"{a}-{b}"] = round(float((got - ref) * 1000), 2)
+            entry[name] = {"scale": e.scale, "betas": [round(float(x), 3) for x in e.betas],
+                           "stature_head_ankle_error_mm": float((smpl_height - char.head_ankle_height_m) * 1000),
+                           "bone_length_error_mm": bones,
+                           "bone_mean_abs_error_mm": float(np.mean(np.abs(list(bones.values())))),
+                           "max_feature_residual_mm": e.max_feature_residual_m * 1000,
+                           "effective_samples": e.effective_samples, "query_ms": dt * 1000}
+        out[label] = entry
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--gender", default="neutral")
+    parser.add_argument("--samples", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=20240611, help="held-out seed (the bank uses 0)")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "shape_inversion.json")
+    args = parser.parse_args()
+    shared = Path(os.environ.get("SMPLIK_SHARED_DIR", ROOT.parent / "shared"))
+    model = load_body_model(args.gender)
+
+    t0 = time.perf_counter()
+    sample_bank(model, BankConfig())
+    bank_build_s = time.perf_counter() - t0
+    ShapeEstimator.build(model)  # make sure the bank is cached
+    t0 = time.perf_counter()
+    kernel = ShapeEstimator.build(model)
+    estimator_from_cache_s = time.perf_counter() - t0
+    estimators = {"kernel": kernel,
+                  "kernel_refined": ShapeEstimator.build(model, config=EstimatorConfig(refine=True))}
+    result = {
+        "gender": args.gender, "body_model": {"source": model.source, "fingerprint": model.fingerprint},
+        "bank": {"num_samples": BankConfig().num_samples, "seed": BankConfig().seed, "bandwidth_m": 0.02,
+                 "build_s": bank_build_s, "estimator_build_from_cache_s": estimator_from_cache_s},
+        "held_out": {"num_bodies": args.samples, "seed": args.seed,
+                     **synthetic(model, estimators, args.samples, args.seed)},
+        "characters": real_characters(model, estimators, shared) if (shared / "data").is_dir()
+        else f"skipped: {shared / 'data'} not found",
+    }
+    write_json_atomic(args.out, result)
+    ho = result["held_out"]
+    for name in ("kernel", "kernel_refined", "least_squares"):
+        r = ho[name]
+        print(f"{name:15s} feature err mm median {r['max_feature_error_mm']['median']:.2f} "
+              f"p95 {r['max_feature_error_mm']['p95']:.2f} | beta MAE {r['beta_mean_abs_error']['mean']:.3f} "
+              f"| scale err {r['scale_abs_error']['mean']:.4f} | {r['time_ms']['median']:.2f} ms")
+    print(f"bank build {bank_build_s * 1000:.1f} ms, estimator from cache {estimator_from_cache_s * 1000:.1f} ms")
+    if isinstance(result["characters"], dict):
+        for label, entry in result["characters"].items():
+            k = entry["kernel"]
+            if "error" in k:
+                print(f"{label:28s} ERROR {k['error'][:100]}")
+                continue
+            print(f"{label:28s} stature err {k['stature_head_ankle_error_mm']:7.1f} mm | bone MAE "
+                  f"{k['bone_mean_abs_error_mm']:5.1f} mm | scale {k['scale']:.3f} | {k['query_ms']:.2f} ms")
+    print(f"-> {args.out}")
+
+
+if __name__ == "__main__":
+    main()
