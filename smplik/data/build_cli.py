@@ -1,0 +1,100 @@
+"""``smplik data build``: BVH or AMASS folder -> pose cache ``.npz`` (see :mod:`smplik.data.dataset`).
+
+:func:`build` is a typer command function; mount it with ``app.command("build")(build)``.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+__all__ = ["build", "StorageDtype"]
+
+console = Console(stderr=True)
+
+
+class StorageDtype(str, Enum):
+    """Storage dtype of the cached axis-angle rotations."""
+
+    float32 = "float32"
+    float16 = "float16"
+
+
+OutOpt = Annotated[Path, typer.Option("--out", help="Cache file to write (.npz); replaced atomically.")]
+SplitOpt = Annotated[Path, typer.Option("--split", help="Split file (CMU split.json format).")]
+BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH files (searched recursively).")]
+AmassOpt = Annotated[Path | None, typer.Option("--amass", help="Folder of AMASS .npz files (searched recursively).")]
+FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source).")]
+PresetOpt = Annotated[str, typer.Option("--preset", help="BVH rig preset for retargeting.")]
+DtypeOpt = Annotated[StorageDtype, typer.Option("--dtype", help="Storage dtype of the cached rotations.")]
+SkipOpt = Annotated[bool, typer.Option("--skip-unassigned", help="Leave out clips of no split instead of failing.")]
+ModelDirOpt = Annotated[Path | None, typer.Option("--model-dir", help="Real SMPL files for AMASS's rest pelvis "
+                                                  "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
+
+
+def build(
+    out: OutOpt,
+    split: SplitOpt,
+    bvh: BvhOpt = None,
+    amass: AmassOpt = None,
+    fps: FpsOpt = 30.0,
+    preset: PresetOpt = "cmu",
+    dtype: DtypeOpt = StorageDtype.float32,
+    skip_unassigned: SkipOpt = False,
+    model_dir: ModelDirOpt = None,
+) -> None:
+    """Build a training cache from a BVH folder (--bvh) or an AMASS folder (--amass)."""
+    from smplik.data.dataset import build_cache, find_sources, load_split
+
+    if (bvh is None) == (amass is None):
+        raise typer.BadParameter("give exactly one of --bvh DIR or --amass DIR.")
+    kind, root, option = ("bvh", bvh, "--bvh") if bvh is not None else ("amass", amass, "--amass")
+    assert root is not None
+    if out.suffix != ".npz":
+        raise typer.BadParameter(f"must end in .npz, got {out}.", param_hint="--out")
+    if not fps > 0:
+        raise typer.BadParameter(f"must be positive, got {fps}.", param_hint="--fps")
+    try:
+        sources = find_sources(root, kind)  # type: ignore[arg-type]
+    except (FileNotFoundError, ValueError) as exc:
+        raise typer.BadParameter(str(exc), param_hint=option) from None
+    try:
+        spec = load_split(split)
+    except (FileNotFoundError, ValueError) as exc:
+        raise typer.BadParameter(str(exc), param_hint="--split") from None
+
+    body_models = None
+    if kind == "amass":
+        from smplik.body_model import BodyModelSet
+
+        body_models = BodyModelSet.load(model_dir)
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("{task.fields[clip]}"))
+    with Progress(*columns, console=console, transient=True) as progress:
+        task = progress.add_task(f"reading {kind}", total=len(sources), clip="")
+
+        def advance(src: object) -> None:
+            progress.update(task, advance=1, clip=getattr(src, "name", ""))
+
+        try:
+            summary = build_cache(sources, fps=fps, split=spec, out=out, preset=preset, dtype=dtype.value,
+                                  body_models=body_models, skip_unassigned=skip_unassigned, progress=advance)
+        except (ValueError, FileNotFoundError) as exc:
+            progress.stop()
+            console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+            raise typer.Exit(1) from None
+
+    total = sum(summary.frames.values())
+    console.print(f"wrote {summary.path} ({summary.num_bytes / 2**20:.1f} MiB, {total} frames at {fps:g} fps, "
+                  f"{summary.seconds:.1f} s)", highlight=False)
+    for name in summary.frames:
+        console.print(f"  {name:<10} {summary.frames[name]:>8} frames  {summary.clips[name]:>5} clips", highlight=False)
+    if summary.skipped:
+        console.print(f"  skipped {len(summary.skipped)} clip(s) of no split", highlight=False)
