@@ -22,17 +22,20 @@ from smplik.conventions import PARENTS, tree_depth
 
 @lru_cache(maxsize=16)
 def _levels(parents: tuple[int, ...]) -> tuple[list[Tensor], list[Tensor], Tensor]:
-    """Joint indices per depth level, their parents' positions in level order, and the inverse order."""
+    """Joint indices per depth level, each joint's parent position within the previous level
+    (a parent is always exactly one level up), and the inverse of the level order."""
     depth = tree_depth(parents)
     order: list[int] = []
     joints_per_level: list[Tensor] = []
     parent_pos_per_level: list[Tensor] = []
+    previous: list[int] = []
     for d in range(max(depth) + 1):
         joints = [j for j in range(len(parents)) if depth[j] == d]
-        position = {j: i for i, j in enumerate(order)}
+        position = {j: i for i, j in enumerate(previous)}
         parent_pos_per_level.append(torch.tensor([position.get(parents[j], -1) for j in joints]))
         joints_per_level.append(torch.tensor(joints))
         order.extend(joints)
+        previous = joints
     inverse = torch.empty(len(order), dtype=torch.long)
     inverse[torch.tensor(order)] = torch.arange(len(order))
     return joints_per_level, parent_pos_per_level, inverse
@@ -70,17 +73,15 @@ def forward_kinematics(
     joints_per_level, parent_pos_per_level, inverse = _levels(tuple(parents))
     R_levels: list[Tensor] = [R_local[..., joints_per_level[0].to(R_local.device), :, :]]
     p_levels: list[Tensor] = [offsets[..., joints_per_level[0].to(R_local.device), :]]
-    R_done, p_done = R_levels[0], p_levels[0]
     for joints, parent_pos in zip(joints_per_level[1:], parent_pos_per_level[1:], strict=True):
         joints, parent_pos = joints.to(R_local.device), parent_pos.to(R_local.device)
-        R_par = R_done[..., parent_pos, :, :]
+        R_par = R_levels[-1][..., parent_pos, :, :]
+        p_par = p_levels[-1][..., parent_pos, :]
         R_levels.append(R_par @ R_local[..., joints, :, :])
-        p_levels.append(p_done[..., parent_pos, :] + (R_par @ offsets[..., joints, :, None])[..., 0])
-        R_done = torch.cat([R_done, R_levels[-1]], dim=-3)
-        p_done = torch.cat([p_done, p_levels[-1]], dim=-2)
+        p_levels.append(p_par + (R_par @ offsets[..., joints, :, None])[..., 0])
     inverse = inverse.to(R_local.device)
-    R_world_joint = R_done[..., inverse, :, :]
-    p_world_joint = p_done[..., inverse, :]
+    R_world_joint = torch.cat(R_levels, dim=-3)[..., inverse, :, :]
+    p_world_joint = torch.cat(p_levels, dim=-2)[..., inverse, :]
     if transl is not None:
         p_world_joint = p_world_joint + transl[..., None, :]
     return R_world_joint, p_world_joint
