@@ -34,7 +34,7 @@ _IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 class NetworkConfig:
     """ProtoRes sizes. Defaults are a small CPU model; :meth:`paper` gives the published sizes."""
 
-    width: int = 256
+    width: int = 128
     """d: width of every fully connected layer (paper: 1024)."""
     encoder_blocks: int = 3
     """R: residual blocks in the encoder (paper: 3)."""

@@ -19,7 +19,7 @@ def train_command(
     steps: Annotated[int, typer.Option(help="Total optimizer steps.")] = 20_000,
     batch_size: Annotated[int, typer.Option(help="Global batch size.")] = 512,
     lr: Annotated[float, typer.Option(help="Adam learning rate.")] = 1e-3,
-    width: Annotated[int, typer.Option(help="Layer width d (paper: 1024).")] = 256,
+    width: Annotated[int, typer.Option(help="Layer width d (paper: 1024).")] = 128,
     encoder_blocks: Annotated[int, typer.Option(help="Encoder blocks R.")] = 3,
     decoder_blocks: Annotated[int, typer.Option(help="Blocks per decoder.")] = 3,
     layers_per_block: Annotated[int, typer.Option(help="Layers per block L (paper: 3).")] = 2,

@@ -1,0 +1,103 @@
+"""Effector recovery on CMU test poses: joint error after 1..10 recovered effectors and time per person.
+
+Poses: ~50 frames spread over the test split of ``/work/cache/cmu30.npz`` (or ``--cache``), else a
+cache built from ``../shared/data/cmu`` with :mod:`smplik.data.dataset`; skipped with a message when
+neither exists. Model: ``--checkpoint`` (default: the shipped model). One CPU thread, as in the
+workflows on a 2-core machine.
+
+Prints a table and writes ``benchmarks/results/effector_recovery.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import save, shared_dir  # noqa: E402
+
+from smplik.conventions import Gender  # noqa: E402
+from smplik.pose import Pose  # noqa: E402
+from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors  # noqa: E402
+
+DEFAULT_CACHE = Path("/work/cache/cmu30.npz")
+MAX_EFFECTORS = 10
+TIMED_EFFECTORS = 8
+
+
+def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
+    from smplik.data.dataset import build_cache, find_sources, load_cache, load_split
+
+    if not cache.is_file():
+        cmu = shared_dir() / "data" / "cmu"
+        split = shared_dir() / "data" / "split.json"
+        if not cmu.is_dir() or not split.is_file():
+            return None
+        cache = Path("/tmp/smplik_effector_recovery_cmu.npz")
+        if not cache.is_file():
+            build_cache(find_sources(cmu, "bvh"), fps=30, split=load_split(split), out=cache)
+    test = load_cache(cache).subset("test")
+    index = np.linspace(0, len(test) - 1, count).round().astype(int)
+    poses = []
+    for i in index:
+        g = int(test.gender[i])
+        poses.append(Pose(test.pose[i, 0].double().numpy(), test.pose[i, 1:].double().numpy(),
+                          test.transl[i].double().numpy(), test.betas[i].double().numpy(),
+                          list(Gender)[g] if g >= 0 else Gender.NEUTRAL))
+    return poses
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", type=Path, default=None)
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    parser.add_argument("--poses", type=int, default=50)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    poses = load_test_poses(args.cache, args.poses)
+    if poses is None:
+        print(f"skipped: no pose cache at {args.cache} and no CMU data in {shared_dir() / 'data'}")
+        return
+    from smplik.solver import IKSolver
+
+    solver = IKSolver.load(args.checkpoint)
+    targets = [TargetPose.from_pose(p) for p in poses]
+    full = RecoveryConfig(max_effectors=MAX_EFFECTORS, threshold=0.0)
+    timed = RecoveryConfig(max_effectors=TIMED_EFFECTORS, threshold=0.0)
+    recover_effectors(solver, targets[0], timed)  # warm-up
+    errors = np.array([recover_effectors(solver, t, full).errors for t in targets])  # (P, 10)
+    times = []
+    for t in targets:
+        t0 = time.perf_counter()
+        recover_effectors(solver, t, timed)
+        times.append(time.perf_counter() - t0)
+    mean_mm = errors.mean(0) * 1000
+    print(f"{len(targets)} CMU test poses, model {solver.source} (step {solver.meta.get('step')})")
+    print("effectors  mean joint error (mm)  median (mm)")
+    for k in range(MAX_EFFECTORS):
+        print(f"{k + 1:9d}  {mean_mm[k]:21.1f}  {np.median(errors[:, k]) * 1000:11.1f}")
+    ms = [t * 1000 for t in times]
+    print(f"recovery time for {TIMED_EFFECTORS} effectors: median {statistics.median(ms):.1f} ms, "
+          f"max {max(ms):.1f} ms (target < 100 ms)")
+    path = save("effector_recovery", {
+        "model": solver.source, "model_step": solver.meta.get("step"), "poses": len(targets),
+        "candidates": "24 joints x {position, rotation} + head look-at",
+        "mean_joint_error_mm_by_effectors": {str(k + 1): round(float(mean_mm[k]), 2) for k in range(MAX_EFFECTORS)},
+        "median_joint_error_mm_by_effectors": {str(k + 1): round(float(np.median(errors[:, k]) * 1000), 2)
+                                               for k in range(MAX_EFFECTORS)},
+        "steps_worse_than_previous_fraction": float((np.diff(errors, axis=1) > 0).mean()),
+        "time_ms_for_8_effectors": {"median": round(statistics.median(ms), 2), "max": round(max(ms), 2),
+                                    "mean": round(statistics.fmean(ms), 2)},
+        "torch_threads": 1,
+    })
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,317 @@
+"""Custom characters: SMPL-SI approximation, SMPL <-> custom retargeting, BVH export.
+
+A custom character is a skeleton file (BVH, glTF/GLB, joint JSON; read by
+:mod:`shape_inversion.skeleton_io` with its zero-rotation rest pose, ``rest="offsets"`` for BVH)
+whose joints are mapped to SMPL's by a rig preset (:mod:`shape_inversion.rigs`). SMPL-SI gives the
+SMPL body ``(betas, scale)`` that approximates it; the character's pose is edited on that body.
+
+Frames. ``canon`` is smplik's frame for the character (metres, y-up, left +x, facing +z, from
+:func:`shape_inversion.skeleton_io.prepare_character`): ``p_canon = units * C @ p_file - shift``,
+with the file-to-canon rotation ``C``. Rotations map as ``R_canon = C R_file C^T``. In the rest
+pose every custom joint has the identity global rotation (the OFFSET pose), as every SMPL joint
+has at rest; character space is the SMPL body scaled by ``scale`` about the world origin.
+
+Retargeting (per mapped custom joint ``k`` <-> SMPL joint ``j``):
+
+* Rest alignment ``A_k``: the minimal rotation taking the custom rest direction of ``k``'s aim bone
+  (towards the custom joint mapped to ``j``'s aim child, e.g. spine3 -> neck) onto SMPL's rest
+  direction of the same bone; identity for joints without a mapped child.
+* SMPL -> custom: ``G_custom[k] = G_smpl[j] A_k``; an unmapped custom joint keeps its parent's
+  global rotation (identity local rotation). Locals: ``R_parent_joint = G_parent^T G_joint``.
+* Custom -> SMPL: ``G_smpl[j] = G_custom[k] A_k^T``; an unmapped SMPL joint keeps its parent's.
+* Root position: ``p_custom_root = scale * p_smpl_pelvis + G_smpl_pelvis @ o`` with the rest
+  offset ``o`` between the custom root and the scaled SMPL pelvis, both placed as
+  ``prepare_character`` places skeletons (hips' midpoint above the origin, lowest joint at y = 0).
+
+So SMPL -> custom -> SMPL returns every SMPL joint's rotation exactly when all 24 are mapped
+(Mixamo-style rigs), and the mapped joints' global rotations in every case.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from shape_inversion.estimator import ShapeEstimate
+from shape_inversion.rigs import RigMap
+from shape_inversion.skeleton_io import Character, Skeleton, prepare_character, read_skeleton
+from smplik.atomic import write_text_atomic
+from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, Gender
+from smplik.data.bvh import format_bvh, matrix_to_euler_channels
+from smplik.data.retarget import swing_rotation
+from smplik.kinematics import forward_kinematics, global_to_local
+from smplik.pose import Pose
+from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+
+AIM_CHILD = {"pelvis": "spine1", "spine3": "neck"}
+"""SMPL joints with several children aim at this one; others at their first mapped child."""
+
+ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
+JOINT_CHANNELS = ("Zrotation", "Yrotation", "Xrotation")
+
+
+@dataclass(frozen=True, eq=False)
+class CustomCharacter:
+    """A custom skeleton with its SMPL approximation and retargeting data.
+
+    Attributes:
+        character: the mapped skeleton (metres, canon frame) from ``prepare_character``.
+        estimate: the SMPL-SI estimate (betas, scale, gender).
+        C_canon_file: (3, 3) rotation from file axes to the canon frame.
+        shift: (3,) canon-frame shift (``p_canon = units * C p_file - shift``).
+        smpl_of: (K,) SMPL joint index per custom joint, -1 if unmapped.
+        align: (K, 3, 3) rest alignment ``A_k`` (identity when unmapped or without an aim bone).
+        root_offset: (3,) custom root minus scaled SMPL pelvis at rest, canon frame.
+        smpl_rest: (24, 3) ``J(betas)`` at unit scale (SMPL space).
+        offsets: (K, 3) bone offsets in file units (for BVH export).
+        end_sites: custom joint index -> End Site offset (file units), when the source had them.
+    """
+
+    character: Character
+    estimate: ShapeEstimate
+    C_canon_file: np.ndarray
+    shift: np.ndarray
+    smpl_of: np.ndarray
+    align: np.ndarray
+    root_offset: np.ndarray
+    smpl_rest: np.ndarray
+    offsets: np.ndarray
+    end_sites: dict[int, np.ndarray]
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return self.character.skeleton
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.skeleton.names
+
+    @property
+    def parents(self) -> tuple[int, ...]:
+        return self.skeleton.parents
+
+    @property
+    def betas(self) -> np.ndarray:
+        return self.estimate.betas
+
+    @property
+    def scale(self) -> float:
+        return float(self.estimate.scale)
+
+    @property
+    def gender(self) -> Gender:
+        return self.estimate.gender
+
+    @property
+    def rig(self) -> RigMap:
+        return self.character.rig
+
+    @property
+    def units_m(self) -> float:
+        return float(self.character.units_m)
+
+    def canon_to_file_points(self, p: np.ndarray) -> np.ndarray:
+        """(..., 3) canon metres -> file units and axes."""
+        return ((p + self.shift) @ self.C_canon_file) / self.units_m
+
+    def canon_to_file_rotations(self, R: np.ndarray) -> np.ndarray:
+        """(..., 3, 3) canon -> file axes: ``C^T R C``."""
+        return self.C_canon_file.T @ R @ self.C_canon_file
+
+    def file_to_canon_rotations(self, R: np.ndarray) -> np.ndarray:
+        return self.C_canon_file @ R @ self.C_canon_file.T
+
+
+@dataclass(frozen=True)
+class CustomPose:
+    """A pose of a custom skeleton in its file's units and axes.
+
+    Attributes:
+        local_rotations: (K, 3, 3) ``R_parent_joint`` (root: its global rotation), file axes.
+        root_position: (3,) root joint position, file units.
+    """
+
+    local_rotations: np.ndarray
+    root_position: np.ndarray
+
+    def positions(self, char: CustomCharacter) -> tuple[np.ndarray, np.ndarray]:
+        """Forward kinematics: ``(R_world (K, 3, 3), p_world (K, 3))`` in file units and axes."""
+        K = len(char.parents)
+        R = np.empty((K, 3, 3))
+        p = np.empty((K, 3))
+        for k, par in enumerate(char.parents):
+            if par < 0:
+                R[k], p[k] = self.local_rotations[k], self.root_position
+            else:
+                R[k] = R[par] @ self.local_rotations[k]
+                p[k] = p[par] + R[par] @ char.offsets[k]
+        return R, p
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rotation C minimising ``|C (src - mean) - (dst - mean)|``. (N, 3), (N, 3) -> (3, 3)."""
+    a, b = src - src.mean(0), dst - dst.mean(0)
+    u, _, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def placed(joints: np.ndarray, left_hip: int, right_hip: int) -> np.ndarray:
+    """Place a rest skeleton like ``prepare_character``: hips' midpoint above the origin, lowest joint at y = 0."""
+    centre = (joints[left_hip] + joints[right_hip]) / 2
+    return joints - np.array([centre[0], joints[:, 1].min(), centre[2]])
+
+
+def build_character(skeleton: Skeleton, estimate: ShapeEstimate, *, rig: str | RigMap | None = None,
+                    units: str | float = "auto", up: str = "auto") -> CustomCharacter:
+    """Retargeting data for ``skeleton`` (rest = its positions with identity rotations) and an SMPL-SI estimate."""
+    from smplik.body_model import load_body_model
+
+    if sum(p < 0 for p in skeleton.parents) != 1 or skeleton.parents[0] >= 0:
+        raise ValueError(f"{skeleton.source}: retargeting needs one root joint, listed first.")
+    char = prepare_character(skeleton, rig=rig, units=units, up=up)
+    K = len(skeleton.names)
+    P_file = skeleton.positions
+    P = char.positions
+    C = _kabsch(P_file * char.units_m, P)
+    shift = (P_file * char.units_m) @ C.T - P
+    shift = shift.mean(0)
+    smpl_of = np.full(K, -1, dtype=np.int64)
+    for name, k in char.smpl_joints.items():
+        smpl_of[k] = JOINT_INDEX[name]
+    custom_of = {int(j): k for k, j in enumerate(smpl_of) if j >= 0}
+    model = load_body_model(estimate.gender)
+    smpl_rest = model.rest_joints(torch.as_tensor(estimate.betas, dtype=torch.float32)).double().numpy()
+    s = float(estimate.scale)
+    J_placed = placed(s * smpl_rest, JOINT_INDEX["left_hip"], JOINT_INDEX["right_hip"])
+    align = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
+    for k in range(K):
+        j = int(smpl_of[k])
+        if j < 0:
+            continue
+        children = [c for c in range(NUM_JOINTS) if PARENTS[c] == j and c in custom_of]
+        preferred = JOINT_INDEX.get(AIM_CHILD.get(JOINT_NAMES[j], ""), -1)
+        child = preferred if preferred in children else (children[0] if children else -1)
+        if child < 0:
+            continue
+        d_custom = P[custom_of[child]] - P[k]
+        d_smpl = smpl_rest[child] - smpl_rest[j]
+        align[k] = swing_rotation(d_custom, d_smpl)
+    root_smpl = int(smpl_of[0]) if smpl_of[0] >= 0 else 0
+    root_offset = P[0] - J_placed[root_smpl]
+    offsets = np.zeros((K, 3))
+    for k, par in enumerate(skeleton.parents):
+        offsets[k] = P_file[k] if par < 0 else P_file[k] - P_file[par]
+    end_sites: dict[int, np.ndarray] = {}
+    if skeleton.format == "bvh" and Path(skeleton.source).is_file():
+        from smplik.data.bvh import read_bvh
+
+        motion = read_bvh(skeleton.source)
+        if motion.joint_names == skeleton.names:
+            offsets = motion.offsets.copy()
+            end_sites = {int(j): o.copy() for j, o in zip(motion.end_site_parents, motion.end_site_offsets,
+                                                          strict=True)}
+    return CustomCharacter(char, estimate, C, shift, smpl_of, align, root_offset, smpl_rest, offsets, end_sites)
+
+
+def load_character(path: str | Path, *, rig: str | None = None, gender: Gender | str = Gender.NEUTRAL,
+                   units: str | float = "auto", up: str = "auto") -> CustomCharacter:
+    """Read a skeleton file, estimate its SMPL body with SMPL-SI and prepare retargeting.
+
+    Raises: SkeletonError / RigError / ShapeInversionError (from SMPL-SI), naming the problem.
+    """
+    from shape_inversion.estimator import ShapeEstimator
+    from smplik.body_model import load_body_model
+
+    skeleton = read_skeleton(path, rest="offsets")
+    char = prepare_character(skeleton, rig=rig, units=units, up=up)
+    estimate = ShapeEstimator.build(load_body_model(gender)).estimate(char.features)
+    return build_character(skeleton, estimate, rig=char.rig, units=units, up=up)
+
+
+# ----------------------------------------------------------------------------- retargeting
+
+
+def _smpl_globals(pose: Pose, char: CustomCharacter) -> tuple[np.ndarray, np.ndarray]:
+    """SMPL global rotations (24, 3, 3) and positions (24, 3) of ``pose`` on the character's body (SMPL space)."""
+    aa = torch.as_tensor(np.concatenate([pose.global_orient[None], pose.body_pose]), dtype=torch.float64)
+    R, p = forward_kinematics(axis_angle_to_matrix(aa), torch.as_tensor(char.smpl_rest),
+                              torch.as_tensor(pose.transl, dtype=torch.float64))
+    return R.numpy(), p.numpy()
+
+
+def smpl_to_custom(pose: Pose, char: CustomCharacter) -> CustomPose:
+    """Retarget an SMPL pose (on the character's SMPL body, SMPL space) onto the custom skeleton."""
+    G_s, p_s = _smpl_globals(pose, char)
+    K = len(char.parents)
+    G = np.empty((K, 3, 3))
+    for k, par in enumerate(char.parents):
+        j = int(char.smpl_of[k])
+        if j >= 0:
+            G[k] = G_s[j] @ char.align[k]
+        else:
+            G[k] = G[par] if par >= 0 else G_s[0]
+    root_smpl = int(char.smpl_of[0]) if char.smpl_of[0] >= 0 else 0
+    p_root = char.scale * p_s[root_smpl] + G_s[root_smpl] @ char.root_offset
+    G_file = char.canon_to_file_rotations(G)
+    local = np.empty_like(G_file)
+    for k, par in enumerate(char.parents):
+        local[k] = G_file[k] if par < 0 else G_file[par].T @ G_file[k]
+    return CustomPose(local, char.canon_to_file_points(p_root))
+
+
+def custom_to_smpl(custom: CustomPose, char: CustomCharacter) -> Pose:
+    """Retarget a custom-skeleton pose back to SMPL (the character's SMPL body, SMPL space)."""
+    R_file, _ = custom.positions(char)
+    G = char.file_to_canon_rotations(R_file)
+    G_s = np.empty((NUM_JOINTS, 3, 3))
+    have = np.zeros(NUM_JOINTS, dtype=bool)
+    for k in range(len(char.parents)):
+        j = int(char.smpl_of[k])
+        if j >= 0:
+            G_s[j] = G[k] @ char.align[k].T
+            have[j] = True
+    for j in range(NUM_JOINTS):
+        if not have[j]:
+            G_s[j] = G_s[PARENTS[j]] if j > 0 else G[0]
+    local = global_to_local(torch.as_tensor(G_s)).numpy()
+    aa = matrix_to_axis_angle(torch.as_tensor(local)).numpy()
+    root_smpl = int(char.smpl_of[0]) if char.smpl_of[0] >= 0 else 0
+    p_root = char.C_canon_file @ (custom.root_position * char.units_m) - char.shift
+    p_root_smpl = (p_root - G_s[root_smpl] @ char.root_offset) / char.scale
+    # a custom root mapped to another SMPL joint (a pelvis child): back to the pelvis by the rest bone
+    p_pelvis = p_root_smpl - G_s[0] @ (char.smpl_rest[root_smpl] - char.smpl_rest[0])
+    transl = p_pelvis - char.smpl_rest[0]
+    return Pose(aa[0], aa[1:], transl, np.asarray(char.betas, dtype=np.float64), char.gender)
+
+
+# ----------------------------------------------------------------------------- BVH export
+
+
+def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30) -> str:
+    """BVH text of the custom hierarchy (its own offsets, file units/axes) with one frame per pose.
+
+    Channels: root ``Xposition Yposition Zposition Zrotation Yrotation Xrotation``, other joints
+    ``Zrotation Yrotation Xrotation`` (intrinsic, degrees; see :mod:`smplik.data.bvh`).
+    """
+    if len(poses) == 0:
+        raise ValueError("At least one pose is needed to write a BVH file.")
+    K = len(char.parents)
+    channels = [ROOT_CHANNELS if par < 0 else JOINT_CHANNELS for par in char.parents]
+    rows = []
+    for pose in poses:
+        euler = matrix_to_euler_channels(pose.local_rotations, "ZYX")  # (K, 3)
+        row = [pose.root_position - char.offsets[0], euler[0]] + [euler[k] for k in range(1, K)]
+        rows.append(np.concatenate(row))
+    return format_bvh(char.names, char.parents, char.offsets, channels, np.stack(rows), frame_time,
+                      char.end_sites or None)
+
+
+def export_bvh(path: str | Path, char: CustomCharacter, poses: Sequence[CustomPose],
+               frame_time: float = 1 / 30) -> Path:
+    """Write :func:`custom_bvh_text` to ``path`` atomically."""
+    return write_text_atomic(path, custom_bvh_text(char, poses, frame_time))

@@ -1,0 +1,155 @@
+"""Estimator output -> (SMPL-SI character) -> effector recovery -> editable scene (smpl-ik.txt section 5, App. E).
+
+Per estimated person:
+
+1. Body: the estimator's ``(betas, gender)`` at scale 1, or, with a custom character, the SMPL
+   body SMPL-SI fitted to it (``character.betas``, ``scale``, ``gender``).
+2. Retargeting onto that body: the estimated local rotations are kept; the pelvis stays where the
+   estimator put it in the world (character space), so in SMPL space it is divided by ``scale``.
+3. Effector recovery (:mod:`workflows.recovery`) on that target gives a few effectors and the
+   pose they solve to; both go into the scene.
+4. With a custom character, the solved pose is retargeted onto the custom skeleton
+   (:func:`workflows.character.smpl_to_custom`) for BVH export.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smplik.pose import Pose
+from workflows.character import CustomCharacter, CustomPose, smpl_to_custom
+from workflows.estimators.base import EstimatedPerson
+from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_effectors
+from workflows.scene import Scene, SceneCharacter, SkeletonSource
+
+
+@dataclass(frozen=True)
+class PersonResult:
+    """What the pipeline did for one person."""
+
+    name: str
+    target: Pose
+    recovery: RecoveryResult
+    custom_pose: CustomPose | None
+
+
+def retarget_to_body(person: EstimatedPerson, betas: np.ndarray, gender, scale: float) -> Pose:
+    """The person's local rotations on another SMPL body, pelvis kept at its world position.
+
+    Returns the pose in SMPL space of the new body (``transl = pelvis_world / scale - J0(betas)``).
+    """
+    from workflows.estimators.base import rest_pelvis
+
+    pelvis_world = person.transl + rest_pelvis(person.betas[None], person.gender)[0]
+    J0 = rest_pelvis(np.asarray(betas)[None], gender)[0]
+    return Pose(person.global_orient.copy(), person.body_pose.copy(), pelvis_world / scale - J0,
+                np.asarray(betas, dtype=np.float64).copy(), gender)
+
+
+def scene_from_people(
+    people: Sequence[EstimatedPerson],
+    solver: TensorSolver,
+    *,
+    config: RecoveryConfig | None = None,
+    character: CustomCharacter | None = None,
+    skeleton: SkeletonSource | None = None,
+    source: str | None = None,
+    image: str | None = None,
+) -> tuple[Scene, list[PersonResult]]:
+    """Build an editable scene from estimated people (see the module docstring)."""
+    config = RecoveryConfig() if config is None else config
+    characters = []
+    results = []
+    unique_ids = len({p.person_id for p in people}) == len(people)
+    for i, person in enumerate(people):
+        name = f"person_{person.person_id if unique_ids else i}"
+        if character is None:
+            betas, gender, scale = person.betas, person.gender, 1.0
+        else:
+            betas, gender, scale = character.betas, character.gender, character.scale
+        target = retarget_to_body(person, betas, gender, scale)
+        rec = recover_effectors(solver, TargetPose.from_pose(target), config, scale=scale)
+        custom = smpl_to_custom(rec.pose, character) if character is not None else None
+        characters.append(SceneCharacter(name, gender, np.asarray(betas, dtype=np.float64), float(scale),
+                                         skeleton, rec.effectors, rec.pose))
+        results.append(PersonResult(name, target, rec, custom))
+    camera = next((p.camera for p in people if p.camera is not None), None)
+    return Scene(tuple(characters), source, image, camera), results
+
+
+@dataclass(frozen=True)
+class EstimateOutputs:
+    """Files written by :func:`from_estimate`."""
+
+    scene: Path
+    previews: tuple[Path, ...]
+    plots: tuple[Path, ...]
+    bvh: tuple[Path, ...]
+    results: tuple[PersonResult, ...]
+
+    @property
+    def all_files(self) -> tuple[Path, ...]:
+        return (self.scene, *self.previews, *self.plots, *self.bvh)
+
+
+def from_estimate(
+    results_path: str | Path,
+    out_dir: str | Path,
+    solver: TensorSolver,
+    *,
+    format: str = "auto",
+    character_path: str | Path | None = None,
+    rig: str | None = None,
+    config: RecoveryConfig | None = None,
+    trust_pickle: bool = False,
+    image_path: str | Path | None = None,
+    frame: int | None = None,
+    previews: bool = True,
+) -> EstimateOutputs:
+    """Estimator output -> ``out_dir/scene.json`` (+ previews, recovery plots, BVH with a character).
+
+    Previews: ``scene.png`` (over the image with the estimator's camera when ``image_path`` is given,
+    plus front and side views), ``<person>_character.png`` with a custom character; plots:
+    ``<person>_recovery.png``; BVH: ``<person>.bvh`` (the posed custom character, its own skeleton).
+    """
+    from workflows.character import export_bvh, load_character
+    from workflows.estimators import read_estimate
+    from workflows.scene import save_scene
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config = RecoveryConfig() if config is None else config
+    people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame)  # type: ignore[arg-type]
+    character = skeleton = None
+    if character_path is not None:
+        character = load_character(character_path, rig=rig)
+        skeleton = SkeletonSource(str(Path(character_path).resolve()), character.rig.name)
+    image_ref = str(Path(image_path).resolve()) if image_path is not None else None
+    scene, person_results = scene_from_people(people, solver, config=config, character=character, skeleton=skeleton,
+                                              source=str(Path(results_path).resolve()), image=image_ref)
+    scene_path = save_scene(scene, out_dir / "scene.json")
+    preview_paths: list[Path] = []
+    plot_paths: list[Path] = []
+    bvh_paths: list[Path] = []
+    for r in person_results:
+        if character is not None and r.custom_pose is not None:
+            bvh_paths.append(export_bvh(out_dir / f"{r.name}.bvh", character, [r.custom_pose]))
+    if previews:
+        from smplik.render import save_png
+        from workflows.previews import load_image, plot_recovery_errors, render_custom_character, render_scene
+
+        image = load_image(image_path) if image_path is not None and scene.camera is not None else None
+        preview_paths.append(save_png(render_scene(scene, image=image), out_dir / "scene.png"))
+        for r, c in zip(person_results, scene.characters, strict=True):
+            plot_paths.append(plot_recovery_errors(r.recovery.errors, out_dir / f"{r.name}_recovery.png",
+                                                   title=f"{r.name}: effector recovery",
+                                                   threshold_m=config.threshold))
+            if character is not None and r.custom_pose is not None:
+                img = render_custom_character(character, r.custom_pose, c)
+                preview_paths.append(save_png(img, out_dir / f"{r.name}_character.png"))
+    return EstimateOutputs(scene_path, tuple(preview_paths), tuple(plot_paths), tuple(bvh_paths),
+                           tuple(person_results))

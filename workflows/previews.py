@@ -1,0 +1,180 @@
+"""Scene previews through :mod:`smplik.render` (the only pyrender module) and recovery plots (matplotlib, Agg).
+
+Markers, in character space: position effectors are purple spheres; rotation effectors are RGB
+axes (x red, y green, z blue) of the target global rotation at the character's posed joint;
+look-at effectors are a line from the joint to the target with a small sphere at the target.
+Headless machines need ``PYOPENGL_PLATFORM=egl`` (or ``osmesa``) set before the first render.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from smplik.conventions import EffectorType
+from smplik.render import ImageCamera, MeshItem, Segment, Sphere, View, hstack_images, render
+from workflows.character import CustomCharacter, CustomPose
+from workflows.scene import Scene, SceneCharacter, character_joints
+
+PALETTE: tuple[tuple[float, float, float, float], ...] = (
+    (0.62, 0.70, 0.86, 1.0), (0.86, 0.70, 0.55, 1.0), (0.62, 0.84, 0.64, 1.0), (0.86, 0.62, 0.74, 1.0),
+    (0.80, 0.80, 0.58, 1.0), (0.60, 0.80, 0.84, 1.0),
+)
+EFFECTOR_COLOR = (0.55, 0.15, 0.75, 1.0)
+AXIS_COLORS = ((0.9, 0.1, 0.1, 1.0), (0.1, 0.75, 0.1, 1.0), (0.1, 0.25, 0.95, 1.0))
+
+
+def character_mesh(character: SceneCharacter, color=PALETTE[0]) -> MeshItem | None:
+    """The character's posed SMPL mesh in character space (scaled by ``scale``), or None without a pose."""
+    from smplik.body_model import load_body_model
+
+    pose = character.pose
+    if pose is None:
+        return None
+    model = load_body_model(character.gender)
+
+    def t(x: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(x, dtype=np.float32))[None]
+
+    with torch.no_grad():
+        verts, _ = model.vertices(t(pose.global_orient), t(pose.body_pose), t(pose.transl), t(pose.betas))
+    return MeshItem(verts[0].numpy().astype(np.float64) * character.scale, model.faces, color)
+
+
+def effector_markers(character: SceneCharacter, radius: float = 0.03) -> tuple[list[Sphere], list[Segment]]:
+    """Marker spheres and segments for the character's effectors (character space)."""
+    joints = character_joints(character)
+    spheres: list[Sphere] = []
+    segments: list[Segment] = []
+    axis_len = 0.15 * character.scale
+    for e in character.effectors:
+        at = None if joints is None else joints[e.joint]
+        if e.type == EffectorType.POSITION:
+            spheres.append(Sphere(np.asarray(e.value), radius, EFFECTOR_COLOR))
+        elif e.type == EffectorType.ROTATION:
+            if at is None:
+                continue
+            for k in range(3):
+                segments.append(Segment(at, at + axis_len * np.asarray(e.value)[:, k], radius * 0.3, AXIS_COLORS[k]))
+        else:
+            target = np.asarray(e.value)
+            if at is not None:
+                segments.append(Segment(at, target, radius * 0.25, EFFECTOR_COLOR))
+            spheres.append(Sphere(target, radius * 0.7, EFFECTOR_COLOR))
+    return spheres, segments
+
+
+def custom_skeleton_segments(char: CustomCharacter, pose: CustomPose, color=(0.95, 0.5, 0.1, 1.0),
+                             radius: float = 0.012) -> list[Segment]:
+    """Bones of a posed custom skeleton as segments in character space (canon frame)."""
+    _, p_file = pose.positions(char)
+    p = (p_file * char.units_m) @ char.C_canon_file.T - char.shift
+    return [Segment(p[par], p[k], radius, color) for k, par in enumerate(char.parents) if par >= 0]
+
+
+def scene_items(scene: Scene, *, markers: bool = True) -> tuple[list[MeshItem], list[Sphere], list[Segment]]:
+    """Meshes (one colour per character) and effector markers of every character."""
+    meshes, spheres, segments = [], [], []
+    for i, c in enumerate(scene.characters):
+        mesh = character_mesh(c, PALETTE[i % len(PALETTE)])
+        if mesh is not None:
+            meshes.append(mesh)
+        if markers:
+            s, g = effector_markers(c, radius=0.03 * c.scale)
+            spheres += s
+            segments += g
+    return meshes, spheres, segments
+
+
+def image_camera(scene: Scene, width: int, height: int) -> ImageCamera:
+    """The estimator's camera for an image of this size (world = camera at the origin, OpenGL axes)."""
+    if scene.camera is None:
+        raise ValueError("The scene has no camera; it cannot be drawn over an image.")
+    f = scene.camera.focal_for(width, height)
+    return ImageCamera(f, f, width / 2.0, height / 2.0, np.eye(4))
+
+
+def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[int, int] = (480, 640),
+                 directions: Sequence[Sequence[float]] = ((0.0, 0.2, 1.0), (1.0, 0.2, 0.0)),
+                 extra_segments: Sequence[Segment] = ()) -> np.ndarray:
+    """All characters with markers: over ``image`` (RGB uint8, estimator camera) and/or from ``directions``.
+
+    Returns the panels side by side (RGB uint8). ``size`` = (width, height) of each 3D view.
+    """
+    meshes, spheres, segments = scene_items(scene)
+    segments = segments + list(extra_segments)
+    panels = []
+    if image is not None:
+        h, w = image.shape[:2]
+        panels.append(render(meshes, spheres, segments, size=(w, h), view=image_camera(scene, w, h),
+                             background=np.ascontiguousarray(image[..., :3])))
+    for d in directions:
+        img = render(meshes, spheres, segments, size=size, view=View(direction=tuple(d)),
+                     background=(1.0, 1.0, 1.0, 1.0))
+        if panels and img.shape[0] != panels[0].shape[0]:
+            img = _fit_height(img, panels[0].shape[0])
+        panels.append(img)
+    return hstack_images(panels)
+
+
+def render_custom_character(char: CustomCharacter, pose: CustomPose, character: SceneCharacter,
+                            size: tuple[int, int] = (480, 640)) -> np.ndarray:
+    """Custom skeleton (orange bones) beside its SMPL approximation with effector markers."""
+    bones = custom_skeleton_segments(char, pose)
+    spheres, segments = effector_markers(character, radius=0.03 * character.scale)
+    mesh = character_mesh(character)
+    left = render([mesh] if mesh is not None else [], spheres, segments, size=size, view=View((0.3, 0.2, 1.0)))
+    right = render([], spheres, segments + bones, size=size, view=View((0.3, 0.2, 1.0)))
+    return hstack_images([left, right])
+
+
+def _fit_height(img: np.ndarray, height: int) -> np.ndarray:
+    """Nearest-neighbour resize to ``height`` keeping the aspect ratio."""
+    h, w = img.shape[:2]
+    new_w = max(1, round(w * height / h))
+    rows = (np.arange(height) * h / height).astype(int)
+    cols = (np.arange(new_w) * w / new_w).astype(int)
+    return img[rows][:, cols]
+
+
+def plot_recovery_errors(errors_m: Sequence[float], path: str | Path, *, title: str = "Effector recovery",
+                         threshold_m: float | None = None) -> Path:
+    """Mean per-joint error (mm) versus the number of recovered effectors, as a PNG (atomic)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from smplik.atomic import atomic_path
+
+    fig, ax = plt.subplots(figsize=(4.5, 3.2), dpi=100)
+    k = np.arange(1, len(errors_m) + 1)
+    ax.plot(k, np.asarray(errors_m) * 1000.0, "o-", color="#7b2cbf")
+    if threshold_m is not None:
+        ax.axhline(threshold_m * 1000.0, ls="--", color="grey", label=f"threshold {threshold_m * 1000:.0f} mm")
+        ax.legend()
+    ax.set_xlabel("recovered effectors")
+    ax.set_ylabel("mean joint error (mm)")
+    ax.set_title(title)
+    ax.set_xticks(k)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp)
+    plt.close(fig)
+    return Path(path)
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """An image file as RGB uint8 (H, W, 3)."""
+    import matplotlib.image
+
+    img = matplotlib.image.imread(str(path))
+    if img.dtype != np.uint8:
+        img = (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=-1)
+    return np.ascontiguousarray(img[..., :3])

@@ -1,0 +1,184 @@
+"""Effector recovery (smpl-ik.txt section 5, App. D): a few effectors that reproduce a full pose.
+
+Greedy: start from no effector; at each step try every remaining candidate ``(joint, type)`` added
+to the current set, all candidates in **one** batched solve (row ``b`` = current set + candidate
+``b``); keep the candidate whose solved pose has the lowest mean per-joint L2 error to the target
+in character space; stop at ``max_effectors`` or once the error is below ``threshold``.
+
+Candidates: the 24 joints x {position, rotation}, plus (``include_look_at``) a look-at on the head
+whose target is ``look_at_distance`` metres along the head's forward axis (+z in its frame).
+Effector values are the target pose's exact joint positions / global rotations (tolerance
+``tolerance``).
+
+Spaces: the solver works in SMPL space (the body ``J(betas)`` at unit scale); a character of
+``scale`` s is the SMPL body scaled by s about the world origin (see :mod:`workflows.scene`), so
+the character-space error is ``s`` times the SMPL-space error and recovered effectors are
+returned in character space (positions and look-at targets times s).
+
+Speed: candidate effector data are precomputed once as tensors; each step builds the packed
+``(B, k + 1)`` batch by concatenation, with no per-candidate Python objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from smplik.conventions import JOINT_INDEX, NUM_BETAS, NUM_JOINTS, EffectorType, Gender
+from smplik.effectors import Effector, EffectorBatch
+from smplik.kinematics import forward_kinematics
+from smplik.network import IKOutput
+from smplik.pose import Pose
+from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_rot6d
+
+HEAD_FORWARD = (0.0, 0.0, 1.0)
+"""The head's forward axis in its own frame (SMPL faces +z at rest)."""
+
+
+class TensorSolver(Protocol):
+    """What recovery needs from a solver: ``IKSolver.solve_tensors`` (no validation, batched)."""
+
+    def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput: ...
+
+
+@dataclass(frozen=True)
+class TargetPose:
+    """A pose to recover, in SMPL space (unit scale). p_world (24, 3), R_world (24, 3, 3) float32 tensors."""
+
+    p_world: Tensor
+    R_world: Tensor
+    betas: Tensor
+    gender: Gender
+
+    @classmethod
+    def from_pose(cls, pose: Pose) -> TargetPose:
+        """FK of a :class:`~smplik.pose.Pose` with the body model of its gender."""
+        from smplik.body_model import load_body_model
+
+        model = load_body_model(pose.gender)
+        betas = torch.as_tensor(pose.betas, dtype=torch.float32)
+        aa = torch.as_tensor(np.concatenate([pose.global_orient[None], pose.body_pose]), dtype=torch.float32)
+        R_world, p_world = forward_kinematics(axis_angle_to_matrix(aa), model.rest_joints(betas),
+                                              torch.as_tensor(pose.transl, dtype=torch.float32))
+        return cls(p_world, R_world, betas, pose.gender)
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """Settings of :func:`recover_effectors`."""
+
+    max_effectors: int = 8
+    """Stop after this many effectors."""
+    threshold: float = 0.02
+    """Stop once the mean per-joint error (metres, character space) is below this."""
+    include_look_at: bool = True
+    """Also try a look-at effector on the head."""
+    look_at_distance: float = 1.0
+    """Distance (metres, SMPL space) of the head's look-at target along its forward axis."""
+    tolerance: float = 0.0
+    """Tolerance given to every recovered effector."""
+
+
+@dataclass(frozen=True)
+class RecoveryResult:
+    """Recovered effectors (character space), the error after each step and the final solved pose.
+
+    Attributes:
+        effectors: in the order they were chosen.
+        errors: (K,) mean per-joint L2 error (metres, character space) after 1..K effectors.
+        pose: the pose solved from all recovered effectors (SMPL space).
+        scale: the character scale used.
+    """
+
+    effectors: tuple[Effector, ...]
+    errors: tuple[float, ...]
+    pose: Pose
+    scale: float
+
+
+def candidate_table(target: TargetPose, cfg: RecoveryConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """All candidates as tensors: joint (C,) long, type (C,) long, data (C, 6) (SMPL space)."""
+    J = NUM_JOINTS
+    joints = [torch.arange(J), torch.arange(J)]
+    types = [torch.full((J,), int(EffectorType.POSITION)), torch.full((J,), int(EffectorType.ROTATION))]
+    data = [torch.cat([target.p_world, torch.zeros(J, 3)], -1), matrix_to_rot6d(target.R_world)]
+    if cfg.include_look_at:
+        h = JOINT_INDEX["head"]
+        d = torch.tensor(HEAD_FORWARD)
+        aim = target.p_world[h] + cfg.look_at_distance * (target.R_world[h] @ d)
+        joints.append(torch.tensor([h]))
+        types.append(torch.tensor([int(EffectorType.LOOK_AT)]))
+        data.append(torch.cat([aim, d])[None])
+    return torch.cat(joints), torch.cat(types), torch.cat(data).float()
+
+
+def _to_effector(joint: int, kind: int, data: np.ndarray, scale: float, tolerance: float) -> Effector:
+    if kind == EffectorType.POSITION:
+        return Effector.position(joint, data[:3] * scale, tolerance)
+    if kind == EffectorType.ROTATION:
+        a, b = data[:3], data[3:]
+        R = np.stack([a, b, np.cross(a, b)], axis=1)
+        return Effector.rotation(joint, R, tolerance)
+    return Effector.look_at(joint, data[:3] * scale, data[3:], tolerance)
+
+
+def output_to_pose(out: IKOutput, row: int, betas: Tensor, gender: Gender) -> Pose:
+    """Row ``row`` of a solver output as a :class:`~smplik.pose.Pose` (joints included)."""
+    aa = matrix_to_axis_angle(out.R_local[row].double()).numpy()
+    return Pose(aa[0], aa[1:], out.transl[row].double().numpy(), betas.double().numpy(), gender,
+                out.p_world[row].double().numpy())
+
+
+@torch.inference_mode()
+def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryConfig = RecoveryConfig(), *,
+                      scale: float = 1.0) -> RecoveryResult:
+    """Greedy effector recovery (see the module docstring).
+
+    Args:
+        solver: anything with ``solve_tensors`` (e.g. :class:`smplik.solver.IKSolver`).
+        target: the pose to reproduce (SMPL space).
+        cfg: limits and candidate set.
+        scale: character scale (errors and effectors are reported in character space).
+
+    Returns: :class:`RecoveryResult` with at least one effector.
+    """
+    if cfg.max_effectors < 1:
+        raise ValueError(f"max_effectors must be >= 1, got {cfg.max_effectors}.")
+    if not scale > 0:
+        raise ValueError(f"scale must be positive, got {scale}.")
+    cand_joint, cand_type, cand_data = candidate_table(target, cfg)
+    C = cand_joint.shape[0]
+    remaining = torch.ones(C, dtype=torch.bool)
+    chosen: list[int] = []
+    errors: list[float] = []
+    p_target = target.p_world.float()
+    betas = target.betas.float().reshape(1, NUM_BETAS)
+    gender = torch.tensor([target.gender.index])
+    best_out, best_row = None, 0
+    for k in range(min(cfg.max_effectors, C)):
+        rows = torch.nonzero(remaining)[:, 0]
+        B = rows.shape[0]
+        sel = torch.tensor(chosen, dtype=torch.long)
+        joint = torch.cat([cand_joint[sel].expand(B, k), cand_joint[rows, None]], 1)
+        kind = torch.cat([cand_type[sel].expand(B, k), cand_type[rows, None]], 1)
+        data = torch.cat([cand_data[sel].expand(B, k, 6), cand_data[rows, None]], 1)
+        eff = EffectorBatch(joint, kind, data, torch.full((B, k + 1), float(cfg.tolerance)),
+                            torch.ones(B, k + 1, dtype=torch.bool))
+        out = solver.solve_tensors(eff, betas.expand(B, NUM_BETAS), gender.expand(B))
+        err = (out.p_world.float() - p_target).norm(dim=-1).mean(-1) * scale  # (B,)
+        best = int(torch.argmin(err))
+        chosen.append(int(rows[best]))
+        remaining[rows[best]] = False
+        errors.append(float(err[best]))
+        best_out, best_row = out, best
+        if errors[-1] < cfg.threshold:
+            break
+    effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(), scale,
+                                   cfg.tolerance) for c in chosen)
+    assert best_out is not None
+    return RecoveryResult(effectors, tuple(errors), output_to_pose(best_out, best_row, target.betas, target.gender),
+                          float(scale))
