@@ -61,6 +61,8 @@ class TrainConfig:
     """Std of the Gaussian added to dataset betas (or of betas when the source has none)."""
     model_dir: str | None = None
     """Folder with real SMPL files (default: built-in model)."""
+    init_from: str | None = None
+    """Start a new run from this model's weights (a checkpoint or exported model; same network sizes)."""
     network: NetworkConfig = field(default_factory=NetworkConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
@@ -170,6 +172,12 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
             "effectors": torch.Generator().manual_seed(cfg.seed * 1000 + 2 * rank + 1)}
     step, metrics = 0, {}
     ckpt_path = run / CHECKPOINT
+    if cfg.init_from and not (resume and ckpt_path.exists()):
+        init_model, init_meta = load_model(cfg.init_from)
+        if NetworkConfig(**init_meta["network"]) != cfg.network:
+            raise ValueError(f"--init-from {cfg.init_from}: network sizes {init_meta['network']} differ from this "
+                             f"run's {cfg.network.to_dict()}.")
+        model.load_state_dict(init_model.state_dict())
     if resume and ckpt_path.exists():
         state = torch.load(ckpt_path, map_location="cpu", weights_only=False)
         model.load_state_dict(state["model"])

@@ -31,6 +31,7 @@ def train_command(
     config: Annotated[Optional[Path], typer.Option(help="JSON TrainConfig to start from (flags override).")] = None,
     resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/checkpoint.pt if present.")] = True,
     threads: Annotated[Optional[int], typer.Option(help="torch intra-op threads.")] = None,
+    init_from: Annotated[Optional[Path], typer.Option(help="Start from this model's weights (fine-tuning).")] = None,
 ) -> None:
     """Train SMPL-IK (ProtoRes) on a pose cache; resumable; works under torchrun (gloo)."""
     import torch
@@ -46,7 +47,8 @@ def train_command(
         layers_per_block=layers_per_block, embedding_dim=base.network.embedding_dim, dropout=base.network.dropout)
     cfg = replace(base, data=str(data), out=str(out), steps=steps, batch_size=batch_size, lr=lr, network=net,
                   val_every=val_every, ckpt_every=ckpt_every, seed=seed,
-                  model_dir=str(model_dir) if model_dir else None)
+                  model_dir=str(model_dir) if model_dir else None,
+                  init_from=str(init_from) if init_from else base.init_from)
     metrics = train(cfg, resume=resume)
     typer.echo(json.dumps({"run": str(out), **metrics}, indent=2))
 

@@ -70,3 +70,18 @@ def test_torchrun_two_processes_on_cpu(tiny_cache, tmp_path):
     assert res.returncode == 0, res.stderr[-3000:]
     state = torch.load(run / "checkpoint.pt", weights_only=False)
     assert state["step"] == 3
+
+
+def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
+    first = config(tiny_cache, tmp_path / "a", steps=3)
+    train(first, progress=False)
+    # a 1-step run with lr 0 keeps exactly the weights it started from
+    third = config(tiny_cache, tmp_path / "c", steps=1, lr=0.0, init_from=str(tmp_path / "a" / "checkpoint.pt"))
+    train(third, progress=False)
+    a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
+    c = torch.load(tmp_path / "c" / "checkpoint.pt", weights_only=False)["model"]
+    assert all(torch.equal(a[k], c[k]) for k in a)
+    bad = config(tiny_cache, tmp_path / "d", init_from=str(tmp_path / "a" / "checkpoint.pt"),
+                 network=replace(TINY, width=48))
+    with pytest.raises(ValueError, match="network sizes"):
+        train(bad, progress=False)
