@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -27,11 +27,11 @@ def train_command(
     val_every: int = 500,
     ckpt_every: int = 500,
     seed: int = 0,
-    model_dir: Annotated[Optional[Path], typer.Option(help="Folder with real SMPL files.")] = None,
-    config: Annotated[Optional[Path], typer.Option(help="JSON TrainConfig to start from (flags override).")] = None,
+    model_dir: Annotated[Path | None, typer.Option(help="Folder with real SMPL files.")] = None,
+    config: Annotated[Path | None, typer.Option(help="JSON TrainConfig to start from (flags override).")] = None,
     resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/checkpoint.pt if present.")] = True,
-    threads: Annotated[Optional[int], typer.Option(help="torch intra-op threads.")] = None,
-    init_from: Annotated[Optional[Path], typer.Option(help="Start from this model's weights (fine-tuning).")] = None,
+    threads: Annotated[int | None, typer.Option(help="torch intra-op threads.")] = None,
+    init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights (fine-tuning).")] = None,
 ) -> None:
     """Train SMPL-IK (ProtoRes) on a pose cache; resumable; works under torchrun (gloo)."""
     import torch
