@@ -41,7 +41,8 @@ def train_command(
 
     if threads:
         torch.set_num_threads(threads)
-    base = TrainConfig.from_dict(json.loads(config.read_text())) if config else TrainConfig(data="", out="")
+    base = TrainConfig.from_dict({"data": "", "out": "", **json.loads(config.read_text())}) if config else \
+        TrainConfig(data="", out="")
     net = NetworkConfig.paper() if paper_sizes else NetworkConfig(
         width=width, encoder_blocks=encoder_blocks, decoder_blocks=decoder_blocks,
         layers_per_block=layers_per_block, embedding_dim=base.network.embedding_dim, dropout=base.network.dropout)
