@@ -23,7 +23,16 @@ from smplik.conventions import PARENTS, tree_depth
 @lru_cache(maxsize=16)
 def _levels(parents: tuple[int, ...]) -> tuple[list[Tensor], list[Tensor], Tensor]:
     """Joint indices per depth level, each joint's parent position within the previous level
-    (a parent is always exactly one level up), and the inverse of the level order."""
+    (a parent is always exactly one level up), and the inverse of the level order.
+
+    Built outside inference mode: cached tensors made under ``torch.inference_mode()`` could not
+    be saved for backward by later autograd users of FK.
+    """
+    with torch.inference_mode(False):
+        return _build_levels(parents)
+
+
+def _build_levels(parents: tuple[int, ...]) -> tuple[list[Tensor], list[Tensor], Tensor]:
     depth = tree_depth(parents)
     order: list[int] = []
     joints_per_level: list[Tensor] = []

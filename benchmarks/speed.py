@@ -1,0 +1,180 @@
+"""Solver speed: single-solve latency, batched throughput, and the optimization baseline, in one run.
+
+``python benchmarks/speed.py [--checkpoint FILE] [--data CACHE]`` prints a table and writes
+benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoint``):
+
+* ``solve_tensors`` (network + FK, no validation) and the full ``solve()`` (validation, packing,
+  axis-angle conversion) for one pose of 8 effectors given as Effector objects and as dicts:
+  p50 / p95 latency at 1 and 2 torch threads;
+* ``solve_tensors`` throughput (poses/s) at batch 1, 16, 256, 1024, 4096, and ``solve_batch()`` at 256;
+* the optimization-IK baseline (:class:`smplik.benchmark.OptimizationIK`, default iterations) per
+  solve: one pose alone, and per pose within a batch of 256, at 1 and 2 threads.
+
+Run it on an otherwise idle machine: a second busy process makes the 2-thread numbers meaningless
+(the load average at start is saved with the results).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import save, time_call  # noqa: E402
+
+from smplik.benchmark import BenchmarkSet, OptimizationIK, PosePrior  # noqa: E402
+from smplik.effectors import Effector, EffectorBatch  # noqa: E402
+from smplik.kinematics import forward_kinematics  # noqa: E402
+from smplik.rotations import axis_angle_to_matrix  # noqa: E402
+from smplik.solver import IKSolver  # noqa: E402
+
+N_EFFECTORS = 8
+BATCHES = (1, 16, 256, 1024, 4096)
+
+
+def example_inputs(solver: IKSolver, batch: int, seed: int = 0):
+    """Effectors from random plausible poses: 4 limb positions + pelvis rotation + head look-at + 2 positions."""
+    g = torch.Generator().manual_seed(seed)
+    aa = torch.randn(batch, 24, 3, generator=g) * 0.25
+    R_local = axis_angle_to_matrix(aa)
+    betas = torch.randn(batch, 10, generator=g)
+    gender = torch.randint(0, 3, (batch,), generator=g)
+    J_rest = solver.bodies.rest_joints(betas, gender)
+    R_world, p_world = forward_kinematics(R_local, J_rest, torch.randn(batch, 3, generator=g) * 0.3)
+    joints = torch.tensor([20, 21, 7, 8, 0, 15, 12, 4])
+    kinds = torch.tensor([0, 0, 0, 0, 1, 2, 0, 0])
+    rows = torch.arange(batch)[:, None]
+    p, R = p_world[rows, joints], R_world[rows, joints]
+    data = torch.cat([p, torch.zeros_like(p)], -1)
+    data[:, 4] = torch.cat([R[:, 4, :, 0], R[:, 4, :, 1]], -1)
+    data[:, 5] = torch.cat([p[:, 5] + 2.0 * R[:, 5, :, 2], torch.tensor([0.0, 0.0, 1.0]).expand(batch, 3)], -1)
+    eff = EffectorBatch(joints.expand(batch, -1).clone(), kinds.expand(batch, -1).clone(), data,
+                        torch.zeros(batch, N_EFFECTORS), torch.ones(batch, N_EFFECTORS, dtype=torch.bool))
+    return eff, betas, gender, R_local, p_world
+
+
+def to_effectors(eff: EffectorBatch, row: int = 0) -> list[Effector]:
+    out = []
+    for j, t, d in zip(eff.joint[row].tolist(), eff.type[row].tolist(), eff.data[row].double().numpy(), strict=True):
+        if t == 0:
+            out.append(Effector.position(j, d[:3]))
+        elif t == 1:
+            c0, c1 = d[:3], d[3:]
+            out.append(Effector.rotation(j, np.stack([c0, c1, np.cross(c0, c1)], axis=1)))
+        else:
+            out.append(Effector.look_at(j, d[:3], d[3:]))
+    return out
+
+
+def percentiles(times: list[float]) -> dict[str, float]:
+    ms = np.asarray(times) * 1e3
+    return {"p50_ms": float(np.percentile(ms, 50)), "p95_ms": float(np.percentile(ms, 95)), "calls": len(ms)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", default=None, help="Model file (default: the packaged model).")
+    parser.add_argument("--data", default="/work/cache/cmu30.npz",
+                        help="Pose cache whose train split fits the optimization baseline's prior "
+                             "(a generic prior is used if it is missing).")
+    parser.add_argument("--min-time", type=float, default=1.0, help="Seconds per latency measurement.")
+    args = parser.parse_args()
+
+    load_at_start = os.getloadavg()
+    solver = IKSolver.load(args.checkpoint)
+    eff1, betas1, gender1, _, _ = example_inputs(solver, 1)
+    objects = to_effectors(eff1)
+    dicts = [e.to_dict() for e in objects]
+    beta_np, gender_name = betas1[0].numpy().astype(np.float64), ["neutral", "male", "female"][int(gender1[0])]
+
+    latency: dict[str, dict] = {}
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        latency[f"solve_tensors@{threads}"] = percentiles(time_call(
+            lambda: solver.solve_tensors(eff1, betas1, gender1), min_time=args.min_time, warmup=20))
+        latency[f"solve_effectors@{threads}"] = percentiles(time_call(
+            lambda: solver.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time, warmup=20))
+        latency[f"solve_dicts@{threads}"] = percentiles(time_call(
+            lambda: solver.solve(dicts, betas=beta_np, gender=gender_name), min_time=args.min_time, warmup=20))
+
+    throughput: dict[str, dict] = {}
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        for batch in BATCHES:
+            eff, betas, gender, _, _ = example_inputs(solver, batch, seed=batch)
+            times = time_call(lambda eff=eff, betas=betas, gender=gender: solver.solve_tensors(eff, betas, gender),
+                              min_time=args.min_time, warmup=3)
+            med = statistics.median(times)
+            throughput[f"solve_tensors@{threads}/b{batch}"] = {"median_ms": med * 1e3, "poses_per_s": batch / med}
+        eff, betas, gender, _, _ = example_inputs(solver, 256, seed=256)
+        lists = [to_effectors(eff, r) for r in range(256)]
+        b_np = betas.numpy().astype(np.float64)
+        g_names = [["neutral", "male", "female"][int(g)] for g in gender]
+        times = time_call(lambda lists=lists, b_np=b_np, g_names=g_names: solver.solve_batch(
+            lists, betas=b_np, gender=g_names), min_time=args.min_time, warmup=2)
+        med = statistics.median(times)
+        throughput[f"solve_batch@{threads}/b256"] = {"median_ms": med * 1e3, "poses_per_s": 256 / med}
+
+    try:
+        from smplik.data.dataset import load_cache
+
+        prior = PosePrior.fit(load_cache(args.data).subset("train").pose)
+        prior_source = args.data
+    except (FileNotFoundError, ValueError):
+        prior = PosePrior(torch.tensor([1.0, 0, 0, 0, 1.0, 0]).repeat(24, 1), torch.full((24, 6), 0.3))
+        prior_source = "generic (identity mean, std 0.3)"
+    optim = OptimizationIK(solver.bodies, prior)
+    optim_rows = {}
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        for batch in (1, 256):
+            eff, betas, gender, R_local, p_world = example_inputs(solver, batch, seed=7)
+            bset = BenchmarkSet("speed", "random", N_EFFECTORS, R_local, torch.zeros(batch, 3), betas, gender,
+                                p_world, eff)
+            times = []
+            for _ in range(3 if batch == 1 else 1):
+                t0 = time.perf_counter()
+                optim(bset)
+                times.append(time.perf_counter() - t0)
+            optim_rows[f"optim@{threads}/b{batch}"] = {"ms_per_pose": statistics.median(times) * 1e3 / batch,
+                                                       "iterations": optim.iterations}
+
+    summary = {
+        "single_solve_p50_ms_1thread": latency["solve_tensors@1"]["p50_ms"],
+        "full_solve_p50_ms_1thread": latency["solve_effectors@1"]["p50_ms"],
+        "best_poses_per_s": max(v["poses_per_s"] for k, v in throughput.items() if k.startswith("solve_tensors")),
+        "optim_ms_per_single_solve_1thread": optim_rows["optim@1/b1"]["ms_per_pose"],
+    }
+    for threads in (1, 2):
+        summary[f"speedup_single_{threads}thread"] = (optim_rows[f"optim@{threads}/b1"]["ms_per_pose"]
+                                                      / latency[f"solve_tensors@{threads}"]["p50_ms"])
+        summary[f"speedup_batched_256_{threads}thread"] = (
+            optim_rows[f"optim@{threads}/b256"]["ms_per_pose"]
+            * throughput[f"solve_tensors@{threads}/b256"]["poses_per_s"] / 1e3)
+    print(f"{'measurement':<28}{'p50 ms':>10}{'p95 ms':>10}")
+    for k, v in latency.items():
+        print(f"{k:<28}{v['p50_ms']:>10.3f}{v['p95_ms']:>10.3f}")
+    print(f"\n{'throughput':<28}{'median ms':>10}{'poses/s':>12}")
+    for k, v in throughput.items():
+        print(f"{k:<28}{v['median_ms']:>10.2f}{v['poses_per_s']:>12.0f}")
+    print(f"\n{'optimization baseline':<28}{'ms/pose':>10}")
+    for k, v in optim_rows.items():
+        print(f"{k:<28}{v['ms_per_pose']:>10.2f}")
+    print("\nsummary:", {k: round(v, 3) for k, v in summary.items()})
+    path = save("speed", {"checkpoint": solver.source, "step": solver.meta.get("step"),
+                          "network": solver.meta.get("network"), "effectors_per_pose": N_EFFECTORS,
+                          "latency": latency, "throughput": throughput, "optimization": optim_rows,
+                          "optim_prior": prior_source, "summary": summary,
+                          "load_average_at_start": load_at_start})
+    print("wrote", path)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,126 @@
+"""``smplik benchmark make`` and ``smplik benchmark run`` (see :mod:`smplik.benchmark`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+app = typer.Typer(help="Randomized-effector IK benchmark: make the files, run methods on them.",
+                  no_args_is_help=True, pretty_exceptions_enable=False)
+console = Console(stderr=True)
+ALL_METHODS = ("smplik", "optim", "nn", "rest")
+
+
+@app.command("make")
+def make_command(
+    data: Annotated[Path, typer.Option("--data", help="Pose cache (`smplik data build`).")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder (manifest.json + one .npz per set).")],
+    split: Annotated[str, typer.Option(help="Split to draw frames from.")] = "test",
+    seed: Annotated[int, typer.Option(help="Seed (stored in the manifest).")] = 0,
+    samples_per_count: Annotated[int, typer.Option(help="Poses per set.")] = 500,
+    model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files.")] = None,
+) -> None:
+    """Write the benchmark files: random N = 6..12 effector sets plus the fixed 5- and 6-point sets."""
+    from smplik.benchmark import make_benchmark
+
+    try:
+        manifest = make_benchmark(data, out, split=split, seed=seed, samples_per_count=samples_per_count,
+                                  model_dir=model_dir)
+    except (FileNotFoundError, ValueError) as exc:
+        console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    console.print(f"wrote {manifest}")
+
+
+@app.command("run")
+def run_command(
+    files: Annotated[Path, typer.Option("--files", help="Folder written by `smplik benchmark make`.")],
+    out: Annotated[Path, typer.Option("--out", help="Results JSON.")],
+    methods: Annotated[str, typer.Option(help="Comma-separated subset of smplik,optim,nn,rest.")] = ",".join(
+        ALL_METHODS),
+    checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
+    data: Annotated[Path | None, typer.Option(help="Pose cache with the train split for the prior and the "
+                                                   "nearest neighbour (default: the manifest's source).")] = None,
+    model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files.")] = None,
+    optim_iterations: Annotated[int, typer.Option(help="Adam iterations of the optimization baseline.")] = 200,
+    nn_samples: Annotated[int, typer.Option(help="Train poses indexed by the nearest-neighbour baseline.")] = 20_000,
+    threads: Annotated[int | None, typer.Option(help="torch intra-op threads.")] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Also write the markdown table here.")] = None,
+) -> None:
+    """Evaluate methods on benchmark files; writes per-method, per-set metrics and prints a markdown table."""
+    import torch
+
+    from smplik.atomic import write_text_atomic
+    from smplik.benchmark import (
+        LearnedMethod,
+        NearestNeighborMethod,
+        OptimizationIK,
+        PosePrior,
+        RestPoseMethod,
+        load_benchmark,
+        results_markdown,
+        run_benchmark,
+        save_results,
+    )
+    from smplik.body_model import BodyModelSet
+
+    if threads:
+        torch.set_num_threads(threads)
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in ALL_METHODS]
+    if unknown or not chosen:
+        raise typer.BadParameter(f"unknown method(s) {unknown}; choose from {', '.join(ALL_METHODS)}.")
+    try:
+        bench = load_benchmark(files)
+    except (FileNotFoundError, ValueError) as exc:
+        console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    bodies = BodyModelSet.load(model_dir)
+    settings: dict = {"methods": chosen}
+    runners: dict = {}
+    train_pose = None
+    if {"optim", "nn"} & set(chosen):
+        from smplik.data.dataset import load_cache
+
+        cache = data or Path(bench.manifest["source"]["data"])
+        train_pose = load_cache(cache).subset("train").pose
+        settings["train_data"] = str(cache)
+    for name in chosen:
+        if name == "smplik":
+            from smplik.solver import IKSolver
+
+            try:
+                solver = IKSolver.load(checkpoint, model_dir=model_dir)
+            except (FileNotFoundError, ValueError) as exc:
+                console.print(f"[red]error:[/red] {exc}", highlight=False)
+                raise typer.Exit(1) from None
+            runners[name] = LearnedMethod(solver)
+            settings["checkpoint"] = solver.source
+            settings["checkpoint_step"] = solver.meta.get("step")
+        elif name == "optim":
+            runners[name] = OptimizationIK(bodies, PosePrior.fit(train_pose), iterations=optim_iterations)
+            settings["optim"] = {k: v for k, v in vars(runners[name]).items() if isinstance(v, (int, float))}
+        elif name == "nn":
+            runners[name] = NearestNeighborMethod.from_dataset(train_pose, bodies, max_samples=nn_samples)
+            settings["nn_samples"] = int(runners[name].R_local.shape[0])
+        else:
+            runners[name] = RestPoseMethod(bodies)
+
+    def report(method: str, set_name: str, m) -> None:
+        console.print(f"{method:7s} {set_name:10s} MPJPE {m.mpjpe_mm:7.1f} mm  PA {m.pa_mpjpe_mm:7.1f} mm  "
+                      f"geo {m.geodesic_rad:.4f} rad  {m.time_ms_per_pose:.3f} ms/pose", highlight=False)
+
+    try:
+        results = run_benchmark(bench, runners, bodies, settings=settings, progress=report)
+    except ValueError as exc:
+        console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    save_results(out, results)
+    table = results_markdown(results)
+    if markdown is not None:
+        write_text_atomic(markdown, table)
+    typer.echo(table)
+    console.print(f"wrote {out}")

@@ -1,0 +1,272 @@
+"""IKSolver: a trained SMPL-IK model behind a validated, keyword-only API.
+
+>>> solver = IKSolver.load()                              # the packaged model
+>>> pose = solver.solve([Effector.position("left_wrist", (0.5, 1.2, 0.1)), ...], betas=b, gender="female")
+>>> pose.body_pose.shape, pose.joints.shape
+((23, 3), (24, 3))
+
+Effectors are :class:`~smplik.effectors.Effector` objects or their JSON dicts
+(``{"joint", "type", "value" | "target"/"direction", "tolerance"}``, see
+:mod:`smplik.effector_schema`). The returned :class:`~smplik.pose.Pose` holds smplx's
+``global_orient``, ``body_pose`` and ``transl`` plus ``joints`` (24, 3), equal to
+``smplx.SMPL(...).joints[:, :24]`` for that pose on the body models in use.
+
+The rest skeleton used for the forward kinematics is the one of the body models in use
+(built-in, or real SMPL files from ``model_dir``/``$SMPLIK_MODEL_DIR``); when they differ from the
+models the network was trained on (``body_fingerprint``), a warning says so.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from smplik.body_model import BodyModelSet
+from smplik.conventions import NUM_BETAS, Gender
+from smplik.effectors import Effector, EffectorBatch
+from smplik.network import IKOutput, ProtoResIK
+from smplik.pose import Pose
+
+PACKAGED_MODEL = "smplik_cmu.pt"
+"""File name of the shipped model in ``smplik/checkpoints``."""
+
+EffectorLike = Effector | Mapping[str, Any]
+
+
+def packaged_model_path() -> Path:
+    """Path of the model shipped as package data (it may be absent in a source checkout)."""
+    return Path(str(resources.files("smplik").joinpath("checkpoints", PACKAGED_MODEL)))
+
+
+def as_effector(item: EffectorLike, index: int | None = None) -> Effector:
+    """An :class:`Effector` from itself or its JSON dict; errors name the list position."""
+    if isinstance(item, Effector):
+        return item
+    if isinstance(item, Mapping):
+        try:
+            return Effector.from_dict(item)
+        except ValueError as exc:
+            raise ValueError(f"effectors[{index}]: {exc}" if index is not None else str(exc)) from None
+    where = f"effectors[{index}]: " if index is not None else ""
+    raise ValueError(f"{where}expected an Effector or a dict, got {type(item).__name__}.")
+
+
+def as_effector_list(effectors: Sequence[EffectorLike]) -> list[Effector]:
+    """Validate a non-empty list of effectors (objects or dicts)."""
+    if isinstance(effectors, (Effector, Mapping, str)) or not isinstance(effectors, Sequence):
+        raise ValueError(f"effectors must be a list of Effector objects or dicts, got {type(effectors).__name__}.")
+    if len(effectors) == 0:
+        raise ValueError("The effector list is empty; at least one effector is needed.")
+    return [as_effector(e, i) for i, e in enumerate(effectors)]
+
+
+def check_betas(betas: Any, batch: int | None = None) -> np.ndarray:
+    """Validate betas: None (zeros), (10,) or, with ``batch``, (batch, 10). -> (10,) or (batch, 10) float64."""
+    if betas is None:
+        return np.zeros(NUM_BETAS) if batch is None else np.zeros((batch, NUM_BETAS))
+    try:
+        arr = np.asarray(betas.detach().cpu() if isinstance(betas, Tensor) else betas, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"betas must be {NUM_BETAS} numbers, got {betas!r:.80}.") from None
+    if arr.ndim == 0 or arr.shape[-1] != NUM_BETAS:
+        n = arr.shape[-1] if arr.ndim else "a scalar"
+        raise ValueError(f"Wrong number of betas: got {n}, need exactly {NUM_BETAS} (shape {arr.shape}).")
+    if batch is None and arr.ndim != 1:
+        raise ValueError(f"betas has shape {arr.shape}; expected ({NUM_BETAS},).")
+    if batch is not None:
+        if arr.ndim == 1:
+            arr = np.broadcast_to(arr, (batch, NUM_BETAS))
+        elif arr.shape != (batch, NUM_BETAS):
+            raise ValueError(f"betas has shape {arr.shape}; expected ({NUM_BETAS},) or ({batch}, {NUM_BETAS}).")
+    if not np.isfinite(arr).all():
+        raise ValueError("betas contains NaN or inf.")
+    return arr
+
+
+def _parse_gender(value: Any) -> Gender:
+    if not isinstance(value, (str, Gender)):
+        raise ValueError(f"Unknown gender {value!r}; expected one of: {', '.join(g.value for g in Gender)}.")
+    return Gender.parse(value)
+
+
+def pack_rows(rows: Sequence[Sequence[Effector]], dtype: torch.dtype = torch.float32) -> EffectorBatch:
+    """Pack validated effector lists (padded to the longest, with a mask), building numpy arrays once.
+
+    Same result as :func:`smplik.effectors.pack_effectors`, several times faster for small inputs.
+    """
+    B, N = len(rows), max(len(r) for r in rows)
+    joint = np.zeros((B, N), np.int64)
+    kind = np.zeros((B, N), np.int64)
+    data = np.zeros((B, N, 6), np.float64)
+    tol = np.zeros((B, N), np.float64)
+    mask = np.zeros((B, N), bool)
+    for b, row in enumerate(rows):
+        for i, e in enumerate(row):
+            joint[b, i], kind[b, i], tol[b, i], mask[b, i] = e.joint, int(e.type), e.tolerance, True
+            if e.type == 0:
+                data[b, i, :3] = e.value
+            elif e.type == 1:
+                data[b, i, :3], data[b, i, 3:] = e.value[:, 0], e.value[:, 1]
+            else:
+                data[b, i, :3], data[b, i, 3:] = e.value, e.direction
+    return EffectorBatch(torch.from_numpy(joint), torch.from_numpy(kind), torch.from_numpy(data).to(dtype),
+                         torch.from_numpy(tol).to(dtype), torch.from_numpy(mask))
+
+
+def matrix_to_axis_angle_np(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> axis-angle (..., 3), angle in [0, pi] (numpy, float64).
+
+    Via the quaternion of Shepperd's method (the branch with the largest pivot, stable near 0 and
+    pi); for the small arrays of one solve it is several times faster than the torch or scipy
+    conversions (which orthogonalise by SVD).
+    """
+    m = np.asarray(R, dtype=np.float64)
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    tr = m00 + m11 + m22
+    cands = np.stack([  # (x, y, z, w) candidates, each proportional to the quaternion
+        np.stack([1 + 2 * m00 - tr, m01 + m10, m02 + m20, m21 - m12], -1),
+        np.stack([m01 + m10, 1 + 2 * m11 - tr, m12 + m21, m02 - m20], -1),
+        np.stack([m02 + m20, m12 + m21, 1 + 2 * m22 - tr, m10 - m01], -1),
+        np.stack([m21 - m12, m02 - m20, m10 - m01, 1 + tr], -1),
+    ], -2)
+    pick = np.stack([m00, m11, m22, tr], -1).argmax(-1)
+    q = np.take_along_axis(cands, pick[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., 3:] < 0, -q, q)
+    s = np.linalg.norm(q[..., :3], axis=-1)
+    angle = 2.0 * np.arctan2(s, q[..., 3])
+    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0 / np.maximum(q[..., 3], 1e-12))
+    return q[..., :3] * scale[..., None]
+
+
+@dataclass(frozen=True)
+class IKSolver:
+    """A loaded model and the body models it poses.
+
+    Attributes:
+        model: the network (eval mode, float32) whose rest skeletons are those of ``bodies``.
+        bodies: the body models in use (all three genders).
+        meta: the model file's metadata (network config, step, metrics, body_fingerprint, ...).
+        source: the model file.
+    """
+
+    model: ProtoResIK
+    bodies: BodyModelSet
+    meta: dict[str, Any]
+    source: str
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None) -> IKSolver:
+        """Load a model file (default: the packaged ``smplik/checkpoints/smplik_cmu.pt``).
+
+        Args:
+            path: an exported model (``smplik export-model``) or a training checkpoint.
+            model_dir: folder with real SMPL files (default ``$SMPLIK_MODEL_DIR``, else built-in).
+
+        Raises:
+            FileNotFoundError: no such file (or no packaged model in this installation).
+            ValueError: the file is not an smplik model.
+        """
+        from smplik.train import load_model
+
+        if path is None:
+            path = packaged_model_path()
+            if not path.is_file():
+                raise FileNotFoundError(
+                    f"No packaged model at {path}: this installation ships without one. Train one "
+                    "(`smplik train`), export it (`smplik export-model RUN/checkpoint.pt --out FILE.pt`) and pass "
+                    "it with --checkpoint / IKSolver.load(FILE.pt).")
+        path = Path(path)
+        try:
+            model, meta = load_model(path)
+        except (KeyError, TypeError, RuntimeError, AttributeError) as exc:
+            raise ValueError(f"{path}: not a valid smplik model ({type(exc).__name__}: {exc}).") from exc
+        bodies = BodyModelSet.load(model_dir)
+        trained_on = meta.get("body_fingerprint")
+        if trained_on is not None and trained_on != bodies.fingerprint:
+            warnings.warn(f"{path} was trained on body models with fingerprint {trained_on}, but the body models "
+                          f"in use ({bodies.models[0].source}, ...) have fingerprint {bodies.fingerprint}; the "
+                          "solver uses the current skeletons, so accuracy may be lower.", stacklevel=2)
+        model.J_template.copy_(bodies.J_template)
+        model.J_dirs.copy_(bodies.J_dirs)
+        model.requires_grad_(False)
+        return cls(model, bodies, meta, str(path))
+
+    # ------------------------------------------------------------------------- fast path
+
+    def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput:
+        """Network + FK without validation, under ``torch.inference_mode()``.
+
+        Args: eff (B rows of N), betas (B, 10) float32, gender (B,) long in :class:`Gender` order.
+        """
+        with torch.inference_mode():
+            return self.model(eff, betas, gender)
+
+    # ------------------------------------------------------------------------- validated API
+
+    def solve(self, effectors: Sequence[EffectorLike], *, betas: Any = None,
+              gender: Gender | str = Gender.NEUTRAL) -> Pose:
+        """Solve one pose.
+
+        Args:
+            effectors: non-empty list of :class:`Effector` or JSON dicts.
+            betas: (10,) body shape (default zeros).
+            gender: ``"neutral"``, ``"male"``, ``"female"`` or a :class:`Gender`.
+
+        Raises:
+            ValueError: naming the problem (unknown joint, NaN, shapes, tolerance, rotation, betas, ...).
+        """
+        rows = [as_effector_list(effectors)]
+        b = check_betas(betas)[None]
+        g = _parse_gender(gender)
+        return self._solve_rows(rows, b, [g])[0]
+
+    def solve_batch(self, effector_lists: Sequence[Sequence[EffectorLike]], *, betas: Any = None,
+                    gender: Gender | str | Sequence[Gender | str] = Gender.NEUTRAL) -> list[Pose]:
+        """Solve B poses in one network call (lists may have different lengths).
+
+        Args:
+            effector_lists: B non-empty effector lists.
+            betas: None (zeros), (10,) shared, or (B, 10).
+            gender: one gender for all, or a list of B.
+        """
+        if isinstance(effector_lists, (str, Mapping)) or not isinstance(effector_lists, Sequence):
+            raise ValueError("effector_lists must be a list of effector lists.")
+        if len(effector_lists) == 0:
+            raise ValueError("effector_lists is empty; nothing to solve.")
+        rows = []
+        for b, row in enumerate(effector_lists):
+            try:
+                rows.append(as_effector_list(row))
+            except ValueError as exc:
+                raise ValueError(f"pose {b}: {exc}") from None
+        B = len(rows)
+        beta_arr = check_betas(betas, B)
+        if isinstance(gender, (str, Gender)):
+            genders = [_parse_gender(gender)] * B
+        else:
+            genders = [_parse_gender(g) for g in gender]
+            if len(genders) != B:
+                raise ValueError(f"gender has {len(genders)} entries for {B} poses.")
+        return self._solve_rows(rows, beta_arr, genders)
+
+    def _solve_rows(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
+        eff = pack_rows(rows)
+        out = self.solve_tensors(eff, torch.from_numpy(np.ascontiguousarray(betas, np.float32)),
+                                 torch.tensor([g.index for g in genders]))
+        aa = matrix_to_axis_angle_np(out.R_local.double().numpy())
+        transl = out.transl.double().numpy()
+        joints = out.p_world.double().numpy()
+        return [Pose(global_orient=aa[b, 0].copy(), body_pose=aa[b, 1:].copy(), transl=transl[b].copy(),
+                     betas=np.array(betas[b], dtype=np.float64), gender=genders[b], joints=joints[b].copy())
+                for b in range(len(rows))]

@@ -1,0 +1,198 @@
+"""Benchmark files (reproducible bit for bit), metrics, baselines and the `smplik benchmark` CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import typer
+from typer.testing import CliRunner
+
+from smplik.benchmark import (
+    FIXED_SETS,
+    LIMB_ZONES,
+    ZONES,
+    NearestNeighborMethod,
+    OptimizationIK,
+    PosePrior,
+    Prediction,
+    RestPoseMethod,
+    evaluate_prediction,
+    load_benchmark,
+    make_benchmark,
+    results_markdown,
+    run_benchmark,
+    set_names,
+)
+from smplik.conventions import JOINT_INDEX, JOINT_NAMES
+
+K = 6  # samples per set: small and fast
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, tiny_cache):
+    out = tmp_path_factory.mktemp("bench") / "a"
+    make_benchmark(tiny_cache, out, split="test", seed=3, samples_per_count=K)
+    return out
+
+
+@pytest.fixture(scope="module")
+def bench(files):
+    return load_benchmark(files)
+
+
+def oracle(bset):
+    return Prediction(bset.R_local, bset.transl)
+
+
+def test_zones_cover_every_joint_once():
+    joints = [j for zone in ZONES.values() for j in zone]
+    assert sorted(joints) == sorted(JOINT_NAMES)
+
+
+def test_files_are_reproducible_bit_for_bit(tmp_path, tiny_cache, files):
+    again = tmp_path / "b"
+    make_benchmark(tiny_cache, again, split="test", seed=3, samples_per_count=K)
+    names = sorted(p.name for p in files.iterdir())
+    assert names == sorted(p.name for p in again.iterdir())
+    assert names == sorted([f"{n}.npz" for n in set_names()] + ["manifest.json"])
+    for name in names:
+        if name.endswith(".npz"):
+            with np.load(files / name) as a, np.load(again / name) as b:
+                assert a.files == b.files
+                for key in a.files:
+                    np.testing.assert_array_equal(a[key], b[key])
+        assert (files / name).read_bytes() == (again / name).read_bytes(), name
+    other = tmp_path / "c"
+    make_benchmark(tiny_cache, other, split="test", seed=4, samples_per_count=K)
+    assert (other / "random_08.npz").read_bytes() != (files / "random_08.npz").read_bytes()
+
+
+def test_manifest_and_layout(files, bench):
+    manifest = json.loads((files / "manifest.json").read_text())
+    assert manifest["format"] == "smplik-benchmark" and manifest["version"] == 1 and manifest["seed"] == 3
+    assert [s.name for s in bench.sets] == set_names()
+    for bset in bench.sets:
+        eff = bset.effectors
+        assert len(bset) == K and eff.joint.shape == (K, bset.num_effectors)
+        assert (eff.tolerance == 0).all()
+        if bset.kind == "fixed":
+            assert [JOINT_NAMES[j] for j in eff.joint[0]] == list(FIXED_SETS[bset.name])
+            assert (eff.type == 0).all()
+            continue
+        for s in range(K):
+            pairs = list(zip(eff.joint[s].tolist(), eff.type[s].tolist(), strict=True))
+            assert len(set(pairs)) == len(pairs), "(joint, type) pairs must be distinct"
+            for (j, t), zone in zip(pairs[:4], LIMB_ZONES, strict=True):
+                assert t == 0 and JOINT_NAMES[j] in ZONES[zone]
+
+
+def test_modified_file_is_detected(tmp_path, tiny_cache):
+    out = tmp_path / "m"
+    make_benchmark(tiny_cache, out, samples_per_count=2)
+    with np.load(out / "fixed_5pt.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["joints"] = arrays["joints"] + 1
+    np.savez(out / "fixed_5pt.npz", **arrays)
+    with pytest.raises(ValueError, match="SHA-256"):
+        load_benchmark(out)
+
+
+def test_oracle_is_zero_and_rest_is_not(bench, bodies):
+    for bset in bench.sets:
+        m = evaluate_prediction(bset, oracle(bset), bodies)
+        assert m.mpjpe_mm < 1e-3 and m.pa_mpjpe_mm < 1e-3 and m.geodesic_rad < 2e-3
+        assert m.position_residual_mm < 1e-3
+        assert m.rotation_residual_deg is None or m.rotation_residual_deg < 0.1
+        assert m.lookat_error_deg is None or m.lookat_error_deg < 0.1
+        rest = evaluate_prediction(bset, RestPoseMethod(bodies)(bset), bodies)
+        assert rest.mpjpe_mm > 10 and rest.geodesic_rad > 0.01
+
+
+def test_baselines_beat_the_rest_pose(bench, bodies, tiny_cache):
+    from smplik.data.dataset import load_cache
+
+    train = load_cache(tiny_cache).subset("train").pose
+    methods = {"rest": RestPoseMethod(bodies), "optim": OptimizationIK(bodies, PosePrior.fit(train), iterations=60),
+               "nn": NearestNeighborMethod.from_dataset(train, bodies, max_samples=200)}
+    sub = type(bench)(bench.manifest, tuple(s.head(4) for s in bench.sets[::4]), bench.folder)
+    res = run_benchmark(sub, methods, bodies)
+    means = {k: v["random_mean"] for k, v in res["methods"].items()}
+    assert means["optim"]["position_residual_mm"] < 0.5 * means["rest"]["position_residual_mm"]
+    assert means["optim"]["mpjpe_mm"] < means["rest"]["mpjpe_mm"]
+    assert means["nn"]["mpjpe_mm"] < means["rest"]["mpjpe_mm"]
+    table = results_markdown(res)
+    assert "| optim |" in table and "fixed_6pt" in table
+
+
+def test_nn_returns_exact_train_pose(bodies, bench):
+    """A query made from a train pose on the neutral body, beta = 0, finds that very pose."""
+    from smplik.kinematics import forward_kinematics
+
+    bset = bench.sets[-1].head(3)
+    pose = torch.randn(50, 24, 3, generator=torch.Generator().manual_seed(0)) * 0.4
+    nn = NearestNeighborMethod.from_dataset(pose, bodies)
+    J_rest = bodies.rest_joints(torch.zeros(3, 10), torch.zeros(3, dtype=torch.long))
+    _, p = forward_kinematics(nn.R_local[[7, 21, 33]], J_rest, torch.tensor([1.0, 0.2, -3.0]))
+    data = bset.effectors.data.clone()
+    data[..., :3] = p[torch.arange(3)[:, None], bset.effectors.joint]
+    eff = type(bset.effectors)(bset.effectors.joint, bset.effectors.type, data, bset.effectors.tolerance,
+                               bset.effectors.mask)
+    query = type(bset)(bset.name, bset.kind, bset.num_effectors, bset.R_local, bset.transl, torch.zeros(3, 10),
+                       torch.zeros(3, dtype=torch.long), bset.joints, eff)
+    pred = nn(query)
+    torch.testing.assert_close(pred.R_local, nn.R_local[[7, 21, 33]])
+    torch.testing.assert_close(pred.transl, torch.tensor([1.0, 0.2, -3.0]).expand(3, 3), atol=1e-5, rtol=0)
+
+
+def test_fixed_sets_use_named_joints():
+    assert FIXED_SETS["fixed_6pt"] == ("pelvis", "neck", "left_wrist", "right_wrist", "left_ankle", "right_ankle")
+    assert all(j in JOINT_INDEX for js in FIXED_SETS.values() for j in js)
+
+
+@pytest.fixture(scope="module")
+def cli():
+    from smplik import benchmark_cli
+
+    root = typer.Typer()
+    root.add_typer(benchmark_cli.app, name="benchmark")
+    return root
+
+
+def test_cli_make_and_run(tmp_path, cli, tiny_cache, bodies):
+    from test_solver import write_tiny_model
+
+    out = tmp_path / "files"
+    res = CliRunner().invoke(cli, ["benchmark", "make", "--data", str(tiny_cache), "--out", str(out),
+                                   "--samples-per-count", "3", "--seed", "1"])
+    assert res.exit_code == 0, res.output
+    model = write_tiny_model(tmp_path / "tiny.pt", bodies)
+    results = tmp_path / "results.json"
+    res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--checkpoint", str(model),
+                                   "--methods", "smplik,optim,nn,rest", "--optim-iterations", "3",
+                                   "--out", str(results)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(results.read_text())
+    assert set(data["methods"]) == {"smplik", "optim", "nn", "rest"}
+    for method in data["methods"].values():
+        assert set(method["sets"]) == set(set_names())
+        assert method["random_mean"]["time_ms_per_pose"] > 0
+    assert "| smplik |" in res.output
+    res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--methods", "magic",
+                                   "--out", str(results)])
+    assert res.exit_code != 0
+
+
+def test_optimization_runs_after_inference_mode_fk(bench, bodies):
+    """FK's cached index tensors built under inference_mode must not break the autograd baseline."""
+    from smplik import kinematics
+    from smplik.kinematics import forward_kinematics
+
+    kinematics._levels.cache_clear()
+    with torch.inference_mode():
+        forward_kinematics(torch.eye(3).expand(1, 24, 3, 3), torch.zeros(1, 24, 3))
+    prior = PosePrior(torch.tensor([1.0, 0, 0, 0, 1.0, 0]).repeat(24, 1), torch.full((24, 6), 0.3))
+    pred = OptimizationIK(bodies, prior, iterations=2)(bench.sets[0].head(2))
+    assert pred.R_local.shape == (2, 24, 3, 3)
