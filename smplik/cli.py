@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from smplik.cli_options import GenderOpt, ModelDir, parse_betas
 from smplik.conventions import NUM_BETAS, Gender
 
 app = typer.Typer(help="Morphology-aware learned IK on the SMPL body model.", no_args_is_help=True,
@@ -17,25 +18,6 @@ app = typer.Typer(help="Morphology-aware learned IK on the SMPL body model.", no
 body_app = typer.Typer(help="Body models: export, inspect and render.", no_args_is_help=True)
 app.add_typer(body_app, name="body")
 console = Console(stderr=True)
-
-ModelDir = Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
-                                                  "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
-GenderOpt = Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model gender.")]
-
-
-def parse_betas(text: str | None) -> list[float]:
-    """Parse ``--betas`` as up to 10 comma/space separated numbers (missing ones are 0)."""
-    if not text:
-        return [0.0] * NUM_BETAS
-    parts = [p for p in text.replace(",", " ").split() if p]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise typer.BadParameter(f"--betas must be numbers, got {text!r}.") from None
-    if len(values) > NUM_BETAS:
-        raise typer.BadParameter(f"--betas takes at most {NUM_BETAS} values, got {len(values)}.")
-    return values + [0.0] * (NUM_BETAS - len(values))
-
 
 @body_app.command("info")
 def body_info(gender: GenderOpt = Gender.NEUTRAL, model_dir: ModelDir = None) -> None:

@@ -9,7 +9,8 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from smplik.conventions import NUM_BETAS, EffectorType, Gender
+from smplik.cli_options import parse_betas
+from smplik.conventions import EffectorType, Gender
 
 app = typer.Typer(pretty_exceptions_enable=False)
 console = Console(stderr=True)
@@ -18,17 +19,6 @@ console = Console(stderr=True)
 def _fail(message: str) -> typer.Exit:
     console.print(f"[red]error:[/red] {message}", markup=True, highlight=False)
     return typer.Exit(1)
-
-
-def _parse_betas(text: str) -> np.ndarray:
-    parts = [p for p in text.replace(",", " ").split() if p]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise typer.BadParameter(f"--betas must be numbers, got {text!r}.") from None
-    if len(values) > NUM_BETAS:
-        raise typer.BadParameter(f"--betas takes at most {NUM_BETAS} values, got {len(values)}.")
-    return np.asarray(values + [0.0] * (NUM_BETAS - len(values)))
 
 
 def effector_markers(effectors: Any, joints: np.ndarray, *, axis_length: float = 0.25,
@@ -103,7 +93,7 @@ def solve_command(
         doc = load_effector_file(effectors)
     except ValueError as exc:
         raise _fail(str(exc)) from None
-    beta = _parse_betas(betas) if betas is not None else doc.betas
+    beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
     g = gender or doc.gender or Gender.NEUTRAL
     try:
         solver = IKSolver.load(checkpoint, model_dir=model_dir)
