@@ -46,6 +46,10 @@ class NetworkConfig:
     """Size of the joint-id and effector-type embeddings (paper: 32)."""
     dropout: float = 0.0
     """Dropout after each hidden layer (paper: 0.01)."""
+    effector_slots: bool = False
+    """Extension: also feed both decoders the effectors scattered into per-joint slots (by joint id,
+    duplicates averaged; permutation and translation invariant), so a narrow model can read exact
+    effector values. False is the paper's architecture."""
 
     @classmethod
     def paper(cls) -> NetworkConfig:
@@ -119,6 +123,28 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
     return (x * m).sum(1) / m.sum(1).clamp_min(1.0)
 
 
+SLOT_FEATURES = 21
+"""Per joint: position (3) + present + tolerance, rotation 6D (6) + present + tolerance,
+look-at target (3) + direction (3) + present + tolerance."""
+
+
+def effector_slots(eff: EffectorBatch, data: Tensor) -> Tensor:
+    """Scatter effectors into per-joint slots. data (B, N, 6) centroid-relative -> (B, 24 * 21).
+
+    Several effectors of one type on one joint are averaged; empty slots are zero.
+    """
+    onehot = nn.functional.one_hot(eff.joint, NUM_JOINTS).to(data.dtype) * eff.mask.to(data.dtype)[..., None]
+    parts = []
+    for kind, width in ((EffectorType.POSITION, 3), (EffectorType.ROTATION, 6), (EffectorType.LOOK_AT, 6)):
+        sel = onehot * (eff.type == int(kind)).to(data.dtype)[..., None]  # (B, N, J)
+        count = sel.sum(1)  # (B, J)
+        denom = count.clamp_min(1.0)[..., None]
+        values = torch.einsum("bnj,bnc->bjc", sel, data[..., :width]) / denom
+        tol = torch.einsum("bnj,bn->bj", sel, eff.tolerance.to(data.dtype))[..., None] / denom
+        parts += [values, (count > 0).to(data.dtype)[..., None], tol]
+    return torch.cat(parts, dim=-1).reshape(data.shape[0], -1)
+
+
 def position_centroid(eff: EffectorBatch) -> Tensor:
     """Centroid of the position effectors, the origin where there is none. -> (B, 3)."""
     is_pos = (eff.type == int(EffectorType.POSITION)) & eff.mask
@@ -150,19 +176,23 @@ class ProtoResIK(nn.Module):
                           last=r == cfg.encoder_blocks - 1)
             for r in range(cfg.encoder_blocks)
         )
-        self.gpd = FCRDecoder(w + cond, 3 * J, cfg)
-        self.ikd = FCRDecoder(w + cond + 3 * J, 6 * J, cfg)
+        slots = J * SLOT_FEATURES if cfg.effector_slots else 0
+        self.gpd = FCRDecoder(w + cond + slots, 3 * J, cfg)
+        self.ikd = FCRDecoder(w + cond + slots + 3 * J, 6 * J, cfg)
         self.register_buffer("identity_6d", torch.tensor(_IDENTITY_6D).repeat(J))
 
     def rest_joints(self, betas: Tensor, gender: Tensor) -> Tensor:
         """J(beta, gender): betas (B, 10), gender (B,) long -> (B, 24, 3)."""
         return self.J_template[gender] + torch.einsum("bjcn,bn->bjc", self.J_dirs[gender], betas)
 
-    def encode(self, eff: EffectorBatch, cond: Tensor, centroid: Tensor) -> Tensor:
-        """Effector tokens -> pose embedding p_R (B, width)."""
-        data = eff.data
+    @staticmethod
+    def relative_data(eff: EffectorBatch, centroid: Tensor) -> Tensor:
+        """Effector data with positions and look-at targets relative to the centroid. -> (B, N, 6)."""
         shift = torch.where((eff.type == int(EffectorType.ROTATION))[..., None], 0.0, 1.0) * centroid[:, None, :]
-        data = torch.cat([data[..., :3] - shift, data[..., 3:]], dim=-1)
+        return torch.cat([eff.data[..., :3] - shift, eff.data[..., 3:]], dim=-1)
+
+    def encode(self, eff: EffectorBatch, data: Tensor, cond: Tensor) -> Tensor:
+        """Effector tokens (centroid-relative ``data`` (B, N, 6)) -> pose embedding p_R (B, width)."""
         B, N = eff.joint.shape
         x = torch.cat([data, eff.tolerance[..., None].to(data.dtype), self.joint_embedding(eff.joint),
                        self.type_embedding(eff.type), cond[:, None, :].expand(B, N, cond.shape[-1])], dim=-1)
@@ -180,10 +210,13 @@ class ProtoResIK(nn.Module):
         B = betas.shape[0]
         cond = torch.cat([betas, nn.functional.one_hot(gender, NUM_GENDERS).to(betas.dtype)], dim=-1)
         centroid = position_centroid(eff)
-        p = self.encode(eff, cond, centroid)
-        draft = self.gpd(torch.cat([p, cond], -1)).view(B, NUM_JOINTS, 3)
+        data = self.relative_data(eff, centroid)
+        p = self.encode(eff, data, cond)
+        context = torch.cat([p, cond, effector_slots(eff, data)], -1) if self.cfg.effector_slots else \
+            torch.cat([p, cond], -1)
+        draft = self.gpd(context).view(B, NUM_JOINTS, 3)
         root_relative = (draft - draft[:, :1]).reshape(B, -1)
-        rot6d = self.ikd(torch.cat([p, cond, root_relative], -1)) + self.identity_6d
+        rot6d = self.ikd(torch.cat([context, root_relative], -1)) + self.identity_6d
         R_local = rot6d_to_matrix(rot6d.view(B, NUM_JOINTS, 6))
         J_rest = self.rest_joints(betas, gender)
         transl = draft[:, 0] - J_rest[:, 0] + centroid

@@ -24,6 +24,8 @@ def train_command(
     decoder_blocks: Annotated[int, typer.Option(help="Blocks per decoder.")] = 3,
     layers_per_block: Annotated[int, typer.Option(help="Layers per block L (paper: 3).")] = 2,
     paper_sizes: Annotated[bool, typer.Option("--paper-sizes", help="Use the paper's network sizes.")] = False,
+    effector_slots: Annotated[bool, typer.Option(help="Also feed the decoders per-joint effector slots "
+                                                 "(extension; off = the paper's architecture).")] = False,
     val_every: int = 500,
     ckpt_every: int = 500,
     seed: int = 0,
@@ -45,7 +47,8 @@ def train_command(
         TrainConfig(data="", out="")
     net = NetworkConfig.paper() if paper_sizes else NetworkConfig(
         width=width, encoder_blocks=encoder_blocks, decoder_blocks=decoder_blocks,
-        layers_per_block=layers_per_block, embedding_dim=base.network.embedding_dim, dropout=base.network.dropout)
+        layers_per_block=layers_per_block, embedding_dim=base.network.embedding_dim, dropout=base.network.dropout,
+        effector_slots=effector_slots)
     cfg = replace(base, data=str(data), out=str(out), steps=steps, batch_size=batch_size, lr=lr, network=net,
                   val_every=val_every, ckpt_every=ckpt_every, seed=seed,
                   model_dir=str(model_dir) if model_dir else None,

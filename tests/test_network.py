@@ -15,10 +15,11 @@ from smplik.rotations import axis_angle_to_matrix
 SMALL = NetworkConfig(width=64, encoder_blocks=2, decoder_blocks=2, layers_per_block=2)
 
 
-@pytest.fixture(scope="module")
-def model(bodies):
+@pytest.fixture(scope="module", params=[False, True], ids=["paper", "effector_slots"])
+def model(bodies, request):
     torch.manual_seed(0)
-    return ProtoResIK(SMALL, bodies.J_template, bodies.J_dirs).eval()
+    return ProtoResIK(dataclasses.replace(SMALL, effector_slots=request.param), bodies.J_template,
+                      bodies.J_dirs).eval()
 
 
 def ground_truth(bodies, B=8, seed=0):
@@ -88,9 +89,24 @@ def test_beta_and_gender_change_bone_lengths(model, bodies):
     assert shin_g[1] > shin_g[2]  # male shin longer than female
 
 
-def test_a_few_steps_reduce_the_loss_on_a_fixed_batch(bodies):
+def test_effector_slots_hold_exact_values():
+    from smplik.network import SLOT_FEATURES, effector_slots
+
+    eff = pack_effectors([Effector.position("left_wrist", [0.5, 1.2, 0.1], tolerance=0.2),
+                          Effector.position("left_wrist", [0.7, 1.0, 0.1], tolerance=0.4),
+                          Effector.look_at("head", [0, 1.6, 2.0], [0, 0, 1])])
+    slots = effector_slots(eff, eff.data).view(24, SLOT_FEATURES)
+    wrist, head = slots[JOINT_INDEX["left_wrist"]], slots[JOINT_INDEX["head"]]
+    torch.testing.assert_close(wrist[:5], torch.tensor([0.6, 1.1, 0.1, 1.0, 0.3]))  # averaged duplicates
+    assert wrist[5:].abs().sum() == 0
+    torch.testing.assert_close(head[13:21], torch.tensor([0, 1.6, 2.0, 0, 0, 1, 1.0, 0.0]))
+    assert slots[JOINT_INDEX["pelvis"]].abs().sum() == 0
+
+
+@pytest.mark.parametrize("slots", [False, True])
+def test_a_few_steps_reduce_the_loss_on_a_fixed_batch(bodies, slots):
     torch.manual_seed(0)
-    net = ProtoResIK(SMALL, bodies.J_template, bodies.J_dirs)
+    net = ProtoResIK(dataclasses.replace(SMALL, effector_slots=slots), bodies.J_template, bodies.J_dirs)
     R_local, R_world, p_world, betas, gender, g = ground_truth(bodies, B=32)
     sampled = sample_effectors(p_world, R_world, EffectorSamplingConfig(), g, num_effectors=8)
     opt = torch.optim.Adam(net.parameters(), lr=1e-3)
