@@ -26,18 +26,11 @@ from torch import Tensor
 
 from smplik.conventions import JOINT_NAMES, NUM_JOINTS, EffectorType, joint_index
 from smplik.rotations import euler_to_matrix, matrix_to_rot6d
+from smplik.validation import finite_array
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...], joint: str) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"Effector on '{joint}': {name} must be numbers, got {value!r:.60}.") from None
-    if arr.shape != shape:
-        raise ValueError(f"Effector on '{joint}': {name} has shape {arr.shape}; expected {shape}.")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"Effector on '{joint}': {name} contains NaN or inf.")
-    return arr
+    return finite_array(value, shape, f"Effector on '{joint}': {name}")
 
 
 @dataclass(frozen=True)

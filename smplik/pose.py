@@ -16,6 +16,7 @@ import numpy as np
 
 from smplik.atomic import write_json_atomic
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, Gender
+from smplik.validation import finite_array
 
 POSE_KEYS = ("global_orient", "body_pose", "transl", "betas", "gender", "joints")
 _SHAPES = {"global_orient": (3,), "body_pose": (NUM_JOINTS - 1, 3), "transl": (3,), "betas": (NUM_BETAS,),
@@ -23,15 +24,7 @@ _SHAPES = {"global_orient": (3,), "body_pose": (NUM_JOINTS - 1, 3), "transl": (3
 
 
 def _array(name: str, value: Any, source: str = "pose") -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{source}: '{name}' must be numbers, got {value!r:.80}.") from None
-    if arr.shape != _SHAPES[name]:
-        raise ValueError(f"{source}: '{name}' has shape {arr.shape}; expected {_SHAPES[name]}.")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{source}: '{name}' contains NaN or inf.")
-    return arr
+    return finite_array(value, _SHAPES[name], f"{source}: '{name}'")
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,6 @@ state, so an interrupted run resumes exactly; ``RUN_DIR/config.json`` sits next 
 from __future__ import annotations
 
 import csv
-import json
 import os
 import time
 from collections.abc import Callable
@@ -291,6 +290,3 @@ def load_model(path: str | Path) -> tuple[ProtoResIK, dict[str, Any]]:
     model.eval()
     return model, {k: v for k, v in state.items() if k not in {"model", "optimizer", "rng"}}
 
-
-def config_json(cfg: TrainConfig) -> str:
-    return json.dumps(cfg.to_dict(), indent=2)

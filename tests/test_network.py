@@ -153,5 +153,5 @@ def test_effector_validation_errors():
         Effector.rotation("pelvis", [[1, 0, 0], [0, 1, 0], [0, 0, -1]])
     with pytest.raises(ValueError, match="zero vector"):
         Effector.look_at("head", [0, 0, 1], [0, 0, 0])
-    with pytest.raises(ValueError, match=r"value has shape \(2,\)"):
+    with pytest.raises(ValueError, match=r"value: has shape \(2,\)"):
         Effector.position("head", [0, 0])

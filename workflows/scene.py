@@ -47,6 +47,7 @@ from smplik.atomic import write_json_atomic
 from smplik.conventions import NUM_BETAS, EffectorType, Gender
 from smplik.effectors import Effector
 from smplik.pose import Pose
+from smplik.validation import finite_array
 from workflows.estimators.base import CameraInfo
 
 SCENE_FORMAT = "smplik-scene"
@@ -122,15 +123,7 @@ def _expect(value: Any, kind: type | tuple[type, ...], path: str, what: str) -> 
 
 
 def _numbers(value: Any, shape: tuple[int, ...], path: str) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(f"{path}: must be numbers, got {value!r:.60}.") from None
-    if arr.shape != shape:
-        raise SceneError(f"{path}: has shape {arr.shape}; expected {shape}.")
-    if not np.isfinite(arr).all():
-        raise SceneError(f"{path}: contains NaN or inf.")
-    return arr
+    return finite_array(value, shape, path, SceneError)
 
 
 def _effector(data: Any, path: str) -> Effector:
