@@ -37,7 +37,9 @@ wall time per pose (ms; the method runs on the whole set in batches).
 
 Methods
 -------
-* :class:`LearnedMethod`: the SMPL-IK network (:meth:`IKSolver.solve_tensors`).
+* :class:`LearnedMethod`: the SMPL-IK solver (:meth:`IKSolver.solve_tensors`): ``smplik`` is its
+  default (network, then two Gauss-Newton refinement steps anchored to the network's pose,
+  :mod:`smplik.refine`), ``smplik_net`` the network's pose alone.
 * :class:`OptimizationIK`: batched Adam over local 6D rotations and the root translation, our FK
   with ``J(beta, gender)``, on the same effector losses plus a pose prior: a diagonal Gaussian
   over the 6D local rotations of joints 1..23 fitted to the train split (:class:`PosePrior`); the
@@ -430,10 +432,14 @@ class RestPoseMethod:
 
 @dataclass(frozen=True)
 class LearnedMethod:
-    """SMPL-IK: the network's local rotations and translation, in batches of ``batch_size``."""
+    """SMPL-IK: the solver's local rotations and translation, in batches of ``batch_size``.
+
+    ``refine`` (a :class:`smplik.refine.RefineConfig`) overrides the solver's refinement; None keeps it.
+    """
 
     solver: Any  # smplik.solver.IKSolver (not imported here: keeps this module free of the solver)
     batch_size: int = 1024
+    refine: Any = None
 
     def __call__(self, bset: BenchmarkSet) -> Prediction:
         Rs, ts = [], []
@@ -441,7 +447,7 @@ class LearnedMethod:
         for s in range(0, len(bset), self.batch_size):
             sl = slice(s, s + self.batch_size)
             chunk = EffectorBatch(e.joint[sl], e.type[sl], e.data[sl], e.tolerance[sl], e.mask[sl])
-            out = self.solver.solve_tensors(chunk, bset.betas[sl], bset.gender[sl])
+            out = self.solver.solve_tensors(chunk, bset.betas[sl], bset.gender[sl], refine=self.refine)
             Rs.append(out.R_local)
             ts.append(out.transl)
         return Prediction(torch.cat(Rs), torch.cat(ts))
@@ -599,7 +605,8 @@ class NearestNeighborMethod:
 # ----------------------------------------------------------------------------- running and reporting
 
 METHOD_DESCRIPTIONS = {
-    "smplik": "SMPL-IK network (batched solve_tensors)",
+    "smplik": "SMPL-IK solver: network + 2 Gauss-Newton refinement steps (batched solve_tensors)",
+    "smplik_net": "SMPL-IK network alone (no refinement)",
     "optim": "Adam IK on SMPL + diagonal Gaussian 6D pose prior (train split)",
     "nn": "nearest neighbour in the train split (scikit-learn)",
     "rest": "rest pose at the effector centroid",

@@ -11,7 +11,7 @@ from rich.console import Console
 app = typer.Typer(help="Randomized-effector IK benchmark: make the files, run methods on them.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
 console = Console(stderr=True)
-ALL_METHODS = ("smplik", "optim", "nn", "rest")
+ALL_METHODS = ("smplik", "smplik_net", "optim", "nn", "rest")
 
 
 @app.command("make")
@@ -39,7 +39,7 @@ def make_command(
 def run_command(
     files: Annotated[Path, typer.Option("--files", help="Folder written by `smplik benchmark make`.")],
     out: Annotated[Path, typer.Option("--out", help="Results JSON.")],
-    methods: Annotated[str, typer.Option(help="Comma-separated subset of smplik,optim,nn,rest.")] = ",".join(
+    methods: Annotated[str, typer.Option(help="Comma-separated subset of smplik,smplik_net,optim,nn,rest.")] = ",".join(
         ALL_METHODS),
     checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
     data: Annotated[Path | None, typer.Option(help="Pose cache with the train split for the prior and the "
@@ -88,18 +88,23 @@ def run_command(
         cache = data or Path(bench.manifest["source"]["data"])
         train_pose = load_cache(cache).subset("train").pose
         settings["train_data"] = str(cache)
+    solver = None
     for name in chosen:
-        if name == "smplik":
+        if name in ("smplik", "smplik_net"):
+            from smplik.refine import NO_REFINEMENT
             from smplik.solver import IKSolver
 
-            try:
-                solver = IKSolver.load(checkpoint, model_dir=model_dir)
-            except (FileNotFoundError, ValueError) as exc:
-                console.print(f"[red]error:[/red] {exc}", highlight=False)
-                raise typer.Exit(1) from None
-            runners[name] = LearnedMethod(solver)
+            if solver is None:
+                try:
+                    solver = IKSolver.load(checkpoint, model_dir=model_dir)
+                except (FileNotFoundError, ValueError) as exc:
+                    console.print(f"[red]error:[/red] {exc}", highlight=False)
+                    raise typer.Exit(1) from None
+            runners[name] = LearnedMethod(solver, refine=NO_REFINEMENT if name == "smplik_net" else None)
             settings["checkpoint"] = solver.source
             settings["checkpoint_step"] = solver.meta.get("step")
+            if name == "smplik":
+                settings["refine"] = solver.refine.to_dict()
         elif name == "optim":
             runners[name] = OptimizationIK(bodies, PosePrior.fit(train_pose), iterations=optim_iterations)
             settings["optim"] = {k: v for k, v in vars(runners[name]).items() if isinstance(v, (int, float))}
@@ -110,7 +115,7 @@ def run_command(
             runners[name] = RestPoseMethod(bodies)
 
     def report(method: str, set_name: str, m) -> None:
-        console.print(f"{method:7s} {set_name:10s} MPJPE {m.mpjpe_mm:7.1f} mm  PA {m.pa_mpjpe_mm:7.1f} mm  "
+        console.print(f"{method:10s} {set_name:10s} MPJPE {m.mpjpe_mm:7.1f} mm  PA {m.pa_mpjpe_mm:7.1f} mm  "
                       f"geo {m.geodesic_rad:.4f} rad  {m.time_ms_per_pose:.3f} ms/pose", highlight=False)
 
     try:

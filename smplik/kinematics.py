@@ -12,6 +12,7 @@ steps), which keeps small batches fast.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
 import torch
@@ -20,34 +21,44 @@ from torch import Tensor
 from smplik.conventions import PARENTS, tree_depth
 
 
+@dataclass(frozen=True)
+class _Levels:
+    """The skeleton in depth-level order: ``order`` (J,) joints sorted by depth, ``parent_of_order``
+    (J,) each one's parent (the root its own), ``bounds`` the [start, end) of each level in that
+    order, ``parent_pos`` per level (from 1) the parent's position within the previous level (a
+    parent is always exactly one level up), and ``inverse`` (J,) the inverse permutation."""
+
+    order: Tensor
+    parent_of_order: Tensor
+    bounds: tuple[tuple[int, int], ...]
+    parent_pos: tuple[Tensor, ...]
+    inverse: Tensor
+
+
 @lru_cache(maxsize=16)
-def _levels(parents: tuple[int, ...]) -> tuple[list[Tensor], list[Tensor], Tensor]:
-    """Joint indices per depth level, each joint's parent position within the previous level
-    (a parent is always exactly one level up), and the inverse of the level order.
+def _levels(parents: tuple[int, ...]) -> _Levels:
+    """Cached :class:`_Levels` of a parent list.
 
     Built outside inference mode: cached tensors made under ``torch.inference_mode()`` could not
     be saved for backward by later autograd users of FK.
     """
     with torch.inference_mode(False):
-        return _build_levels(parents)
-
-
-def _build_levels(parents: tuple[int, ...]) -> tuple[list[Tensor], list[Tensor], Tensor]:
-    depth = tree_depth(parents)
-    order: list[int] = []
-    joints_per_level: list[Tensor] = []
-    parent_pos_per_level: list[Tensor] = []
-    previous: list[int] = []
-    for d in range(max(depth) + 1):
-        joints = [j for j in range(len(parents)) if depth[j] == d]
-        position = {j: i for i, j in enumerate(previous)}
-        parent_pos_per_level.append(torch.tensor([position.get(parents[j], -1) for j in joints]))
-        joints_per_level.append(torch.tensor(joints))
-        order.extend(joints)
-        previous = joints
-    inverse = torch.empty(len(order), dtype=torch.long)
-    inverse[torch.tensor(order)] = torch.arange(len(order))
-    return joints_per_level, parent_pos_per_level, inverse
+        depth = tree_depth(parents)
+        order: list[int] = []
+        bounds: list[tuple[int, int]] = []
+        parent_pos: list[Tensor] = []
+        previous: list[int] = []
+        for d in range(max(depth) + 1):
+            joints = [j for j in range(len(parents)) if depth[j] == d]
+            position = {j: i for i, j in enumerate(previous)}
+            parent_pos.append(torch.tensor([position.get(parents[j], 0) for j in joints]))
+            bounds.append((len(order), len(order) + len(joints)))
+            order.extend(joints)
+            previous = joints
+        inverse = torch.empty(len(order), dtype=torch.long)
+        inverse[torch.tensor(order)] = torch.arange(len(order))
+        return _Levels(torch.tensor(order), torch.tensor([max(parents[j], 0) for j in order]), tuple(bounds),
+                       tuple(parent_pos), inverse)
 
 
 def forward_kinematics(
@@ -73,22 +84,21 @@ def forward_kinematics(
     if J_rest.shape[-2:] != (J, 3):
         raise ValueError(f"Invalid rest joints shape {tuple(J_rest.shape)}; expected (..., {J}, 3).")
     batch = torch.broadcast_shapes(R_parent_joint.shape[:-3], J_rest.shape[:-2])
-    R_local = R_parent_joint.expand(*batch, J, 3, 3)
-    J_rest = J_rest.expand(*batch, J, 3)
-    parent_idx = torch.tensor([max(p, 0) for p in parents], device=J_rest.device)
-    offsets = J_rest - J_rest[..., parent_idx, :]
-    offsets[..., 0, :] = J_rest[..., 0, :]
-
-    joints_per_level, parent_pos_per_level, inverse = _levels(tuple(parents))
-    R_levels: list[Tensor] = [R_local[..., joints_per_level[0].to(R_local.device), :, :]]
-    p_levels: list[Tensor] = [offsets[..., joints_per_level[0].to(R_local.device), :]]
-    for joints, parent_pos in zip(joints_per_level[1:], parent_pos_per_level[1:], strict=True):
-        joints, parent_pos = joints.to(R_local.device), parent_pos.to(R_local.device)
+    lv = _levels(tuple(parents))
+    dev = R_parent_joint.device
+    order = lv.order.to(dev)
+    # Everything in level order: one gather each, then each level is a contiguous slice.
+    R_local = R_parent_joint[..., order, :, :].expand(*batch, J, 3, 3)
+    J_ordered = J_rest[..., order, :]
+    offsets = (J_ordered - J_rest[..., lv.parent_of_order.to(dev), :]).expand(*batch, J, 3)
+    R_levels: list[Tensor] = [R_local[..., :1, :, :]]
+    p_levels: list[Tensor] = [J_ordered[..., :1, :].expand(*batch, 1, 3)]
+    for (start, end), parent_pos in zip(lv.bounds[1:], lv.parent_pos[1:], strict=True):
+        parent_pos = parent_pos.to(dev)
         R_par = R_levels[-1][..., parent_pos, :, :]
-        p_par = p_levels[-1][..., parent_pos, :]
-        R_levels.append(R_par @ R_local[..., joints, :, :])
-        p_levels.append(p_par + (R_par @ offsets[..., joints, :, None])[..., 0])
-    inverse = inverse.to(R_local.device)
+        R_levels.append(R_par @ R_local[..., start:end, :, :])
+        p_levels.append(p_levels[-1][..., parent_pos, :] + (R_par @ offsets[..., start:end, :, None])[..., 0])
+    inverse = lv.inverse.to(dev)
     R_world_joint = torch.cat(R_levels, dim=-3)[..., inverse, :, :]
     p_world_joint = torch.cat(p_levels, dim=-2)[..., inverse, :]
     if transl is not None:

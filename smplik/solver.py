@@ -11,6 +11,11 @@ Effectors are :class:`~smplik.effectors.Effector` objects or their JSON dicts
 ``global_orient``, ``body_pose`` and ``transl`` plus ``joints`` (24, 3), equal to
 ``smplx.SMPL(...).joints[:, :24]`` for that pose on the body models in use.
 
+A solve is the network's pose followed by a short effector refinement (:mod:`smplik.refine`: two
+Gauss-Newton steps anchored to the network's local rotations, weighted by each effector's
+tolerance), which takes exact effectors from a few centimetres to about a millimetre. Load with
+``refine=RefineConfig(iterations=0)`` (``smplik solve --refine-steps 0``) for the network alone.
+
 The rest skeleton used for the forward kinematics is the one of the body models in use
 (built-in, or real SMPL files from ``model_dir``/``$SMPLIK_MODEL_DIR``); when they differ from the
 models the network was trained on (``body_fingerprint``), a warning says so.
@@ -34,6 +39,7 @@ from smplik.conventions import NUM_BETAS, Gender
 from smplik.effectors import Effector, EffectorBatch
 from smplik.network import IKOutput, ProtoResIK
 from smplik.pose import Pose
+from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, refine_output
 
 PACKAGED_MODEL = "smplik_cmu.pt"
 """File name of the shipped model in ``smplik/checkpoints``."""
@@ -158,20 +164,25 @@ class IKSolver:
         bodies: the body models in use (all three genders).
         meta: the model file's metadata (network config, step, metrics, body_fingerprint, ...).
         source: the model file.
+        refine: the effector refinement applied after the network (:mod:`smplik.refine`);
+            ``RefineConfig(iterations=0)`` gives the network's pose alone.
     """
 
     model: ProtoResIK
     bodies: BodyModelSet
     meta: dict[str, Any]
     source: str
+    refine: RefineConfig = DEFAULT_REFINEMENT
 
     @classmethod
-    def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None) -> IKSolver:
+    def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None,
+             refine: RefineConfig = DEFAULT_REFINEMENT) -> IKSolver:
         """Load a model file (default: the packaged ``smplik/checkpoints/smplik_cmu.pt``).
 
         Args:
             path: an exported model (``smplik export-model``) or a training checkpoint.
             model_dir: folder with real SMPL files (default ``$SMPLIK_MODEL_DIR``, else built-in).
+            refine: refinement after the network (default: 2 Gauss-Newton steps; ``iterations=0``: none).
 
         Raises:
             FileNotFoundError: no such file (or no packaged model in this installation).
@@ -200,17 +211,23 @@ class IKSolver:
         model.J_template.copy_(bodies.J_template)
         model.J_dirs.copy_(bodies.J_dirs)
         model.requires_grad_(False)
-        return cls(model, bodies, meta, str(path))
+        return cls(model, bodies, meta, str(path), refine)
 
     # ------------------------------------------------------------------------- fast path
 
-    def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput:
-        """Network + FK without validation, under ``torch.inference_mode()``.
+    def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor, *,
+                      refine: RefineConfig | None = None) -> IKOutput:
+        """Network + FK, then the effector refinement, without validation, under ``torch.inference_mode()``.
 
-        Args: eff (B rows of N), betas (B, 10) float32, gender (B,) long in :class:`Gender` order.
+        Args: eff (B rows of N), betas (B, 10) float32, gender (B,) long in :class:`Gender` order;
+        refine: overrides the solver's ``refine`` (``RefineConfig(iterations=0)``: the network alone).
         """
+        cfg = self.refine if refine is None else refine
         with torch.inference_mode():
-            return self.model(eff, betas, gender)
+            out = self.model(eff, betas, gender)
+            if cfg.iterations > 0:
+                out = refine_output(out, self.model.rest_joints(betas, gender), eff, cfg)
+            return out
 
     # ------------------------------------------------------------------------- validated API
 

@@ -84,9 +84,12 @@ def solve_command(
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                    "(default: $SMPLIK_MODEL_DIR, else the built-in model).")] = None,
     render: Annotated[Path | None, typer.Option(help="Also write a PNG preview (body + effector markers).")] = None,
+    refine_steps: Annotated[int, typer.Option(min=0, help="Gauss-Newton refinement steps after the network "
+                                                          "(0: the network's pose alone).")] = 2,
 ) -> None:
     """Solve an SMPL pose for the effectors in a JSON file."""
     from smplik.effector_schema import load_effector_file
+    from smplik.refine import RefineConfig
     from smplik.solver import IKSolver
 
     try:
@@ -96,7 +99,7 @@ def solve_command(
     beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
     g = gender or doc.gender or Gender.NEUTRAL
     try:
-        solver = IKSolver.load(checkpoint, model_dir=model_dir)
+        solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=RefineConfig(iterations=refine_steps))
         pose = solver.solve(list(doc.effectors), betas=beta, gender=g)
     except (FileNotFoundError, ValueError) as exc:
         raise _fail(str(exc)) from None

@@ -171,11 +171,14 @@ def test_cli_make_and_run(tmp_path, cli, tiny_cache, bodies):
     model = write_tiny_model(tmp_path / "tiny.pt", bodies)
     results = tmp_path / "results.json"
     res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--checkpoint", str(model),
-                                   "--methods", "smplik,optim,nn,rest", "--optim-iterations", "3",
+                                   "--methods", "smplik,smplik_net,optim,nn,rest", "--optim-iterations", "3",
                                    "--out", str(results)])
     assert res.exit_code == 0, res.output
     data = json.loads(results.read_text())
-    assert set(data["methods"]) == {"smplik", "optim", "nn", "rest"}
+    assert set(data["methods"]) == {"smplik", "smplik_net", "optim", "nn", "rest"}
+    assert data["settings"]["refine"]["iterations"] == 2
+    refined, raw = (data["methods"][m]["random_mean"]["position_residual_mm"] for m in ("smplik", "smplik_net"))
+    assert refined < 0.5 * raw, (refined, raw)
     for method in data["methods"].values():
         assert set(method["sets"]) == set(set_names())
         assert method["random_mean"]["time_ms_per_pose"] > 0

@@ -22,6 +22,7 @@ from smplik.effector_schema import (
 from smplik.effectors import Effector
 from smplik.network import NetworkConfig, ProtoResIK
 from smplik.pose import Pose
+from smplik.refine import RefineConfig
 from smplik.solver import IKSolver, pack_rows, packaged_model_path
 
 TINY = NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=2, layers_per_block=1)
@@ -298,6 +299,13 @@ def test_cli_solve_writes_pose(tmp_path, cli, model_path, solver):
     assert res.exit_code == 0, res.output
     pose = Pose.load(out)
     assert pose.gender == Gender.MALE and list(pose.betas[:3]) == [1.0, 2.0, 0.0]
+    res = CliRunner().invoke(cli, ["solve", str(eff), "--checkpoint", str(model_path), "--out", str(out),
+                                   "--refine-steps", "0"])
+    assert res.exit_code == 0, res.output
+    network_only = IKSolver.load(model_path, refine=RefineConfig(iterations=0))
+    expected_raw = network_only.solve(effector_objects(), betas=np.full(10, 0.5), gender="female")
+    np.testing.assert_allclose(Pose.load(out).joints, expected_raw.joints, atol=1e-9)
+    assert np.abs(expected_raw.joints - expected.joints).max() > 1e-3  # the refinement did move the pose
 
 
 def test_cli_solve_reports_file_errors(tmp_path, cli, model_path):

@@ -1,0 +1,195 @@
+"""Effector refinement: a few damped Gauss-Newton (Levenberg-Marquardt) steps from the network's pose.
+
+The network's pose is close to the effectors but does not meet them exactly (the shipped
+0.5 M-parameter model misses position effectors by about 4-6 cm). :func:`refine_output` moves it
+onto them while staying near it: each step solves, per pose, the linear least-squares problem
+
+``min_delta  sum_i w_i |r_i + J_i delta|^2  +  |e + delta|^2 / sigma_prior^2  +  damping |delta|^2 / sigma_prior^2``
+
+over ``delta``: one world-frame rotation increment per joint (3 J) plus a translation increment (3).
+A world-frame increment ``delta_j`` rotates joint ``j``'s subtree about the joint, so it changes only
+joint ``j``'s local rotation (by ``exp(R_world_parent^T delta_j)``); ``e`` is the current deviation of
+each local rotation from the network's, in the same frame, so the prior keeps the learned pose and
+the network still decides everything the effectors leave open.
+
+Residuals ``r_i`` (3 per effector) and their analytic Jacobians (first order):
+
+* position: ``p_k - target``; ``d p_k / d delta_j = -[p_k - p_j]_x`` for strict ancestors ``j`` of
+  ``k``, identity for the translation;
+* rotation: ``vee(skew(R_k R_target^T))`` (``sin(angle) * axis``, world frame);
+  ``d / d delta_j = I`` for ``j = k`` and its ancestors;
+* look-at: ``f - u`` with ``f = R_k direction`` and ``u`` the unit ray from the joint to the target
+  (``|f - u|`` is about the angle); ``d f / d delta_j = -[f]_x``, ``d u / d p_k = -(I - u u^T) / dist``.
+
+Weights ``w_i = W(tolerance) / sigma_type^2`` with ``W`` the training sampler's tolerance weight
+relative to its cap (1 at tolerance 0, about 0.01 at tolerance 1), so loose effectors pull less,
+as they do for the network.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+
+import torch
+from torch import Tensor
+
+from smplik.conventions import PARENTS, EffectorType
+from smplik.effectors import EffectorBatch
+from smplik.kinematics import forward_kinematics
+from smplik.network import IKOutput
+from smplik.rotations import axis_angle_to_matrix, rot6d_to_matrix
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Settings of :func:`refine_output` (chosen on validation-split benchmark files)."""
+
+    iterations: int = 2
+    """Gauss-Newton steps; 0 returns the network's pose unchanged."""
+    sigma_pos: float = 0.01
+    """Position residual scale (metres)."""
+    sigma_rot: float = 0.1
+    """Rotation residual scale (about radians)."""
+    sigma_lookat: float = 0.1
+    """Look-at residual scale (about radians)."""
+    sigma_prior: float = 0.5
+    """Prior scale (radians per joint) around the network's local rotations."""
+    damping: float = 1.0
+    """Levenberg-Marquardt damping of each step, in units of 1 / sigma_prior^2."""
+    tolerance_eta: float = 4.0
+    """Exponent of the tolerance weight ``min(1, 1 / (100 tolerance^eta))`` (the sampler's
+    ``W / W_M`` with sigma_M = 0.1 m and W_M = 1000)."""
+
+    def __post_init__(self) -> None:
+        if self.iterations < 0:
+            raise ValueError(f"RefineConfig.iterations must be >= 0, got {self.iterations}.")
+        for name in ("sigma_pos", "sigma_rot", "sigma_lookat", "sigma_prior"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"RefineConfig.{name} must be > 0, got {getattr(self, name)}.")
+        if self.damping < 0:
+            raise ValueError(f"RefineConfig.damping must be >= 0, got {self.damping}.")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+DEFAULT_REFINEMENT = RefineConfig()
+"""What :class:`~smplik.solver.IKSolver` applies unless told otherwise."""
+NO_REFINEMENT = RefineConfig(iterations=0)
+"""The network's pose as it is."""
+
+
+@lru_cache(maxsize=4)
+def _ancestor_masks(parents: tuple[int, ...]) -> tuple[Tensor, Tensor]:
+    """(J, J) masks: ``strict[k, j]`` = j is a strict ancestor of k; ``inclusive`` adds j = k.
+
+    Built outside inference mode (like the FK level cache) so later autograd users can save them.
+    """
+    with torch.inference_mode(False):
+        J = len(parents)
+        strict = torch.zeros(J, J)
+        for k in range(J):
+            j = parents[k]
+            while j >= 0:
+                strict[k, j] = 1.0
+                j = parents[j]
+        return strict, strict + torch.eye(J)
+
+
+def _cross_matrix(v: Tensor) -> Tensor:
+    """(..., 3) -> (..., 3, 3) with ``M @ x = v x x``."""
+    x, y, z = v.unbind(-1)
+    zero = torch.zeros_like(x)
+    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).unflatten(-1, (3, 3))
+
+
+def _vee_skew(M: Tensor) -> Tensor:
+    """``vee((M - M^T) / 2)``: ``sin(angle) * axis`` of a rotation matrix. (..., 3, 3) -> (..., 3)."""
+    return 0.5 * torch.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0],
+                              M[..., 1, 0] - M[..., 0, 1]], -1)
+
+
+def tolerance_weight(tolerance: Tensor, eta: float = 4.0) -> Tensor:
+    """``min(1, 1 / (100 tolerance^eta))`` in (0, 1]: 1 up to tolerance ~0.3, 0.01 at 1. (...) -> (...)."""
+    return torch.clamp(1.0 / (100.0 * tolerance.pow(eta)).clamp_min(1e-12), max=1.0)
+
+
+def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: RefineConfig = DEFAULT_REFINEMENT,
+                  parents: tuple[int, ...] = PARENTS) -> IKOutput:
+    """Refine network poses towards their effectors (module docstring).
+
+    Args:
+        out: the network's output for B poses (its local rotations are also the prior's centre).
+        J_rest: (B, J, 3) rest joints of each body (``ProtoResIK.rest_joints``).
+        eff: the B rows of N effectors the network was given.
+        cfg: steps, residual scales, prior and damping.
+
+    Returns:
+        An :class:`IKOutput` with refined ``R_local``, ``R_world``, ``p_world`` and ``transl``
+        (``draft`` is the network's); ``out`` itself when ``cfg.iterations == 0``.
+    """
+    if cfg.iterations == 0:
+        return out
+    B, N = eff.joint.shape
+    J = len(parents)
+    dt = torch.float64  # the normal equations are stiff (1 / sigma_pos^2 against the prior)
+    out_dtype = out.R_local.dtype
+    strict, inclusive = (m.to(dt) for m in _ancestor_masks(tuple(parents)))
+    rows = torch.arange(B)[:, None]
+    k = eff.joint
+    is_pos = ((eff.type == int(EffectorType.POSITION)) & eff.mask).to(dt)
+    is_rot = ((eff.type == int(EffectorType.ROTATION)) & eff.mask).to(dt)
+    is_look = ((eff.type == int(EffectorType.LOOK_AT)) & eff.mask).to(dt)
+    w = tolerance_weight(eff.tolerance.to(dt), cfg.tolerance_eta) * (
+        is_pos / cfg.sigma_pos ** 2 + is_rot / cfg.sigma_rot ** 2 + is_look / cfg.sigma_lookat ** 2)
+    w3 = w.repeat_interleave(3, dim=1)  # (B, 3N)
+    target = eff.data[..., :3].to(dt)
+    R_target_T = rot6d_to_matrix(eff.data.to(dt) * is_rot[..., None]
+                                 + torch.tensor([1.0, 0, 0, 0, 1.0, 0], dtype=dt) * (1 - is_rot[..., None]))
+    R_target_T = R_target_T.transpose(-1, -2)
+    look_dir = eff.data[..., 3:].to(dt)
+    A_strict, A_incl = strict[k][..., None, None], inclusive[k][..., None, None]  # (B, N, J, 1, 1)
+    eye = torch.eye(3, dtype=dt)
+    parent_idx = torch.tensor([max(p, 0) for p in parents])
+    root_frame = torch.zeros(J, 1, 1, dtype=dt)
+    root_frame[0] = 1.0
+    prior = 1.0 / cfg.sigma_prior ** 2
+    H_diag = torch.diag(torch.cat([torch.full((3 * J,), prior * (1.0 + cfg.damping), dtype=dt),
+                                   torch.full((3,), prior * cfg.damping, dtype=dt)]))
+    p_type, r_type, l_type = is_pos[..., None], is_rot[..., None], is_look[..., None]
+    look = is_look.bool()
+
+    R_net = R_local = out.R_local.to(dt)
+    transl, R_world, p_world, J_rest = out.transl.to(dt), out.R_world.to(dt), out.p_world.to(dt), J_rest.to(dt)
+    for _ in range(cfg.iterations):
+        p_k, R_k = p_world[rows, k], R_world[rows, k]  # (B, N, 3), (B, N, 3, 3)
+        J_lever = -_cross_matrix(p_k[:, :, None, :] - p_world[:, None, :, :]) * A_strict  # (B, N, J, 3, 3)
+        f = (R_k @ look_dir[..., None])[..., 0]
+        ray = target - p_k
+        dist = ray.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        u = ray / dist
+        proj = (eye - u[..., :, None] * u[..., None, :]) / dist[..., None]  # (B, N, 3, 3)
+        r = p_type * (p_k - target) + r_type * _vee_skew(R_k @ R_target_T) + l_type * (f - u)  # (B, N, 3)
+        s_pos, s_rot, s_look = (t[..., None, None, None] for t in (is_pos, is_rot, is_look))  # (B, N, 1, 1, 1)
+        J_rotations = J_lever * s_pos + (s_rot * eye - s_look * _cross_matrix(f)[:, :, None]) * A_incl
+        # look-at rows also move with the joint's position: d u / d p_k = -proj.
+        if look.any():
+            J_rotations[look] += proj[look][:, None] @ J_lever[look]
+        J_transl = p_type[..., None] * eye + l_type[..., None] * proj  # (B, N, 3, 3)
+        Jac = torch.cat([J_rotations.permute(0, 1, 3, 2, 4).reshape(B, N, 3, 3 * J), J_transl], -1)
+        Jac = Jac.reshape(B, 3 * N, 3 * J + 3)
+        JtW = Jac.transpose(1, 2) * w3[:, None, :]
+        # prior: deviation of each local rotation from the network's, as a world-frame increment
+        R_world_parent = R_world[:, parent_idx] * (1 - root_frame) + eye * root_frame
+        e = (R_world_parent @ _vee_skew(R_local @ R_net.transpose(-1, -2))[..., None])[..., 0]
+        g = (JtW @ r.reshape(B, 3 * N, 1))[..., 0]
+        g = g + torch.cat([prior * e.reshape(B, 3 * J), torch.zeros(B, 3, dtype=dt)], -1)
+        L = torch.linalg.cholesky(JtW @ Jac + H_diag)  # symmetric positive definite (prior + damping)
+        delta = -torch.cholesky_solve(g[..., None], L)[..., 0]  # (B, 3J + 3)
+        d_local = (R_world_parent.transpose(-1, -2) @ delta[:, :3 * J].reshape(B, J, 3, 1))[..., 0]
+        R_local = axis_angle_to_matrix(d_local) @ R_local
+        transl = transl + delta[:, 3 * J:]
+        R_world, p_world = forward_kinematics(R_local, J_rest, transl, parents)
+    return IKOutput(R_local.to(out_dtype), R_world.to(out_dtype), p_world.to(out_dtype), out.draft,
+                    transl.to(out_dtype))
