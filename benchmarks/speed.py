@@ -3,10 +3,12 @@
 ``python benchmarks/speed.py [--checkpoint FILE] [--data CACHE]`` prints a table and writes
 benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoint``):
 
-* ``solve_tensors`` (network + FK, no validation) and the full ``solve()`` (validation, packing,
-  axis-angle conversion) for one pose of 8 effectors given as Effector objects and as dicts:
-  p50 / p95 latency at 1 and 2 torch threads;
-* ``solve_tensors`` throughput (poses/s) at batch 1, 16, 256, 1024, 4096, and ``solve_batch()`` at 256;
+* ``solve_tensors`` (no validation) twice: ``network`` (network + FK, ``refine=NO_REFINEMENT``) and
+  ``refined`` (the solver's default: network, then 3 Levenberg-Marquardt refinement steps), and the full
+  ``solve()`` (validation, packing, refinement, axis-angle conversion) for one pose of 8 effectors
+  given as Effector objects and as dicts: p50 / p95 latency at 1 and 2 torch threads;
+* ``network`` and ``refined`` throughput (poses/s) at batch 1, 16, 256, 1024, 4096, and
+  ``solve_batch()`` at 256;
 * the optimization-IK baseline (:class:`smplik.benchmark.OptimizationIK`, default iterations) per
   solve: one pose alone, and per pose within a batch of 256, at 1 and 2 threads.
 
@@ -32,6 +34,7 @@ from _common import save, time_call  # noqa: E402
 from smplik.benchmark import BenchmarkSet, OptimizationIK, PosePrior  # noqa: E402
 from smplik.effectors import Effector, EffectorBatch  # noqa: E402
 from smplik.kinematics import forward_kinematics  # noqa: E402
+from smplik.refine import NO_REFINEMENT  # noqa: E402
 from smplik.rotations import axis_angle_to_matrix  # noqa: E402
 from smplik.solver import IKSolver  # noqa: E402
 
@@ -97,7 +100,10 @@ def main() -> None:
     latency: dict[str, dict] = {}
     for threads in (1, 2):
         torch.set_num_threads(threads)
-        latency[f"solve_tensors@{threads}"] = percentiles(time_call(
+        latency[f"network@{threads}"] = percentiles(time_call(
+            lambda: solver.solve_tensors(eff1, betas1, gender1, refine=NO_REFINEMENT), min_time=args.min_time,
+            warmup=20))
+        latency[f"refined@{threads}"] = percentiles(time_call(
             lambda: solver.solve_tensors(eff1, betas1, gender1), min_time=args.min_time, warmup=20))
         latency[f"solve_effectors@{threads}"] = percentiles(time_call(
             lambda: solver.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time, warmup=20))
@@ -109,10 +115,11 @@ def main() -> None:
         torch.set_num_threads(threads)
         for batch in BATCHES:
             eff, betas, gender, _, _ = example_inputs(solver, batch, seed=batch)
-            times = time_call(lambda eff=eff, betas=betas, gender=gender: solver.solve_tensors(eff, betas, gender),
-                              min_time=args.min_time, warmup=3)
-            med = statistics.median(times)
-            throughput[f"solve_tensors@{threads}/b{batch}"] = {"median_ms": med * 1e3, "poses_per_s": batch / med}
+            for name, refine in (("network", NO_REFINEMENT), ("refined", None)):
+                times = time_call(lambda eff=eff, betas=betas, gender=gender, refine=refine: solver.solve_tensors(
+                    eff, betas, gender, refine=refine), min_time=args.min_time, warmup=2)
+                med = statistics.median(times)
+                throughput[f"{name}@{threads}/b{batch}"] = {"median_ms": med * 1e3, "poses_per_s": batch / med}
         eff, betas, gender, _, _ = example_inputs(solver, 256, seed=256)
         lists = [to_effectors(eff, r) for r in range(256)]
         b_np = betas.numpy().astype(np.float64)
@@ -147,17 +154,20 @@ def main() -> None:
                                                        "iterations": optim.iterations}
 
     summary = {
-        "single_solve_p50_ms_1thread": latency["solve_tensors@1"]["p50_ms"],
+        "network_single_solve_p50_ms_1thread": latency["network@1"]["p50_ms"],
+        "refined_single_solve_p50_ms_1thread": latency["refined@1"]["p50_ms"],
         "full_solve_p50_ms_1thread": latency["solve_effectors@1"]["p50_ms"],
-        "best_poses_per_s": max(v["poses_per_s"] for k, v in throughput.items() if k.startswith("solve_tensors")),
+        "network_best_poses_per_s": max(v["poses_per_s"] for k, v in throughput.items() if k.startswith("network")),
+        "refined_best_poses_per_s": max(v["poses_per_s"] for k, v in throughput.items() if k.startswith("refined")),
         "optim_ms_per_single_solve_1thread": optim_rows["optim@1/b1"]["ms_per_pose"],
     }
-    for threads in (1, 2):
-        summary[f"speedup_single_{threads}thread"] = (optim_rows[f"optim@{threads}/b1"]["ms_per_pose"]
-                                                      / latency[f"solve_tensors@{threads}"]["p50_ms"])
-        summary[f"speedup_batched_256_{threads}thread"] = (
-            optim_rows[f"optim@{threads}/b256"]["ms_per_pose"]
-            * throughput[f"solve_tensors@{threads}/b256"]["poses_per_s"] / 1e3)
+    for name in ("network", "refined"):
+        for threads in (1, 2):
+            summary[f"{name}_speedup_single_{threads}thread"] = (optim_rows[f"optim@{threads}/b1"]["ms_per_pose"]
+                                                                 / latency[f"{name}@{threads}"]["p50_ms"])
+            summary[f"{name}_speedup_batched_256_{threads}thread"] = (
+                optim_rows[f"optim@{threads}/b256"]["ms_per_pose"]
+                * throughput[f"{name}@{threads}/b256"]["poses_per_s"] / 1e3)
     print(f"{'measurement':<28}{'p50 ms':>10}{'p95 ms':>10}")
     for k, v in latency.items():
         print(f"{k:<28}{v['p50_ms']:>10.3f}{v['p95_ms']:>10.3f}")
@@ -170,7 +180,8 @@ def main() -> None:
     print("\nsummary:", {k: round(v, 3) for k, v in summary.items()})
     path = save("speed", {"checkpoint": solver.source, "step": solver.meta.get("step"),
                           "network": solver.meta.get("network"), "effectors_per_pose": N_EFFECTORS,
-                          "latency": latency, "throughput": throughput, "optimization": optim_rows,
+                          "refine": solver.refine.to_dict(), "latency": latency, "throughput": throughput,
+                          "optimization": optim_rows,
                           "optim_prior": prior_source, "summary": summary,
                           "load_average_at_start": load_at_start})
     print("wrote", path)

@@ -38,7 +38,7 @@ wall time per pose (ms; the method runs on the whole set in batches).
 Methods
 -------
 * :class:`LearnedMethod`: the SMPL-IK solver (:meth:`IKSolver.solve_tensors`): ``smplik`` is its
-  default (network, then two Gauss-Newton refinement steps anchored to the network's pose,
+  default (network, then three Levenberg-Marquardt refinement steps anchored to the network's pose,
   :mod:`smplik.refine`), ``smplik_net`` the network's pose alone.
 * :class:`OptimizationIK`: batched Adam over local 6D rotations and the root translation, our FK
   with ``J(beta, gender)``, on the same effector losses plus a pose prior: a diagonal Gaussian
@@ -605,7 +605,7 @@ class NearestNeighborMethod:
 # ----------------------------------------------------------------------------- running and reporting
 
 METHOD_DESCRIPTIONS = {
-    "smplik": "SMPL-IK solver: network + 2 Gauss-Newton refinement steps (batched solve_tensors)",
+    "smplik": "SMPL-IK solver: network + 3 Levenberg-Marquardt refinement steps (batched solve_tensors)",
     "smplik_net": "SMPL-IK network alone (no refinement)",
     "optim": "Adam IK on SMPL + diagonal Gaussian 6D pose prior (train split)",
     "nn": "nearest neighbour in the train split (scikit-learn)",

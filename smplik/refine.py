@@ -1,16 +1,18 @@
-"""Effector refinement: a few damped Gauss-Newton (Levenberg-Marquardt) steps from the network's pose.
+"""Effector refinement: a few Levenberg-Marquardt steps from the network's pose.
 
 The network's pose is close to the effectors but does not meet them exactly (the shipped
 0.5 M-parameter model misses position effectors by about 4-6 cm). :func:`refine_output` moves it
 onto them while staying near it: each step solves, per pose, the linear least-squares problem
 
-``min_delta  sum_i w_i |r_i + J_i delta|^2  +  |e + delta|^2 / sigma_prior^2  +  damping |delta|^2 / sigma_prior^2``
+``min_delta  sum_i w_i |r_i + J_i delta|^2  +  |e + delta|^2 / sigma_prior^2  +  lambda |delta|^2``
 
 over ``delta``: one world-frame rotation increment per joint (3 J) plus a translation increment (3).
 A world-frame increment ``delta_j`` rotates joint ``j``'s subtree about the joint, so it changes only
 joint ``j``'s local rotation (by ``exp(R_world_parent^T delta_j)``); ``e`` is the current deviation of
 each local rotation from the network's, in the same frame, so the prior keeps the learned pose and
-the network still decides everything the effectors leave open.
+the network still decides everything the effectors leave open. A step is kept only where it lowers
+the objective (effector terms plus prior); ``lambda`` starts at ``damping / sigma_prior^2`` and, per
+pose, grows 10x after a rejected step and shrinks 0.3x after an accepted one.
 
 Residuals ``r_i`` (3 per effector) and their analytic Jacobians (first order):
 
@@ -45,8 +47,8 @@ from smplik.rotations import axis_angle_to_matrix, rot6d_to_matrix
 class RefineConfig:
     """Settings of :func:`refine_output` (chosen on validation-split benchmark files)."""
 
-    iterations: int = 2
-    """Gauss-Newton steps; 0 returns the network's pose unchanged."""
+    iterations: int = 3
+    """Levenberg-Marquardt steps; 0 returns the network's pose unchanged."""
     sigma_pos: float = 0.01
     """Position residual scale (metres)."""
     sigma_rot: float = 0.1
@@ -55,8 +57,9 @@ class RefineConfig:
     """Look-at residual scale (about radians)."""
     sigma_prior: float = 0.5
     """Prior scale (radians per joint) around the network's local rotations."""
-    damping: float = 1.0
-    """Levenberg-Marquardt damping of each step, in units of 1 / sigma_prior^2."""
+    damping: float = 30.0
+    """Initial Levenberg-Marquardt damping, in units of 1 / sigma_prior^2; per pose it grows 10x after a
+    step that would raise the objective (that step is not taken) and shrinks 0.3x after one that lowers it."""
     tolerance_eta: float = 4.0
     """Exponent of the tolerance weight ``min(1, 1 / (100 tolerance^eta))`` (the sampler's
     ``W / W_M`` with sigma_M = 0.1 m and W_M = 1000)."""
@@ -155,22 +158,35 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
     root_frame = torch.zeros(J, 1, 1, dtype=dt)
     root_frame[0] = 1.0
     prior = 1.0 / cfg.sigma_prior ** 2
-    H_diag = torch.diag(torch.cat([torch.full((3 * J,), prior * (1.0 + cfg.damping), dtype=dt),
-                                   torch.full((3,), prior * cfg.damping, dtype=dt)]))
+    H_prior = torch.diag(torch.cat([torch.full((3 * J,), prior, dtype=dt), torch.zeros(3, dtype=dt)]))
     p_type, r_type, l_type = is_pos[..., None], is_rot[..., None], is_look[..., None]
     look = is_look.bool()
 
-    R_net = R_local = out.R_local.to(dt)
-    transl, R_world, p_world, J_rest = out.transl.to(dt), out.R_world.to(dt), out.p_world.to(dt), J_rest.to(dt)
-    for _ in range(cfg.iterations):
-        p_k, R_k = p_world[rows, k], R_world[rows, k]  # (B, N, 3), (B, N, 3, 3)
-        J_lever = -_cross_matrix(p_k[:, :, None, :] - p_world[:, None, :, :]) * A_strict  # (B, N, J, 3, 3)
+    def effector_terms(R_world: Tensor, p_world: Tensor) -> tuple[Tensor, ...]:
+        """Effector joints' p_k (B, N, 3), R_k (B, N, 3, 3), facing f, unit ray u, distance, residual r."""
+        p_k, R_k = p_world[rows, k], R_world[rows, k]
         f = (R_k @ look_dir[..., None])[..., 0]
         ray = target - p_k
         dist = ray.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         u = ray / dist
+        r = p_type * (p_k - target) + r_type * _vee_skew(R_k @ R_target_T) + l_type * (f - u)
+        return p_k, R_k, f, u, dist, r
+
+    def cost(r: Tensor, R_local: Tensor) -> Tensor:
+        """The objective per pose (B,): weighted effector residuals plus the prior."""
+        dev = _vee_skew(R_local @ R_net.transpose(-1, -2))
+        return (w[..., None] * r.square()).sum((1, 2)) + prior * dev.square().sum((1, 2))
+
+    R_net = R_local = out.R_local.to(dt)
+    transl, R_world, p_world, J_rest = out.transl.to(dt), out.R_world.to(dt), out.p_world.to(dt), J_rest.to(dt)
+    terms = effector_terms(R_world, p_world)
+    current = cost(terms[-1], R_local)
+    lam = torch.full((B, 1, 1), prior * cfg.damping, dtype=dt)
+    eye_n = torch.eye(3 * J + 3, dtype=dt)
+    for _ in range(cfg.iterations):
+        p_k, R_k, f, u, dist, r = terms
+        J_lever = -_cross_matrix(p_k[:, :, None, :] - p_world[:, None, :, :]) * A_strict  # (B, N, J, 3, 3)
         proj = (eye - u[..., :, None] * u[..., None, :]) / dist[..., None]  # (B, N, 3, 3)
-        r = p_type * (p_k - target) + r_type * _vee_skew(R_k @ R_target_T) + l_type * (f - u)  # (B, N, 3)
         s_pos, s_rot, s_look = (t[..., None, None, None] for t in (is_pos, is_rot, is_look))  # (B, N, 1, 1, 1)
         J_rotations = J_lever * s_pos + (s_rot * eye - s_look * _cross_matrix(f)[:, :, None]) * A_incl
         # look-at rows also move with the joint's position: d u / d p_k = -proj.
@@ -185,11 +201,24 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         e = (R_world_parent @ _vee_skew(R_local @ R_net.transpose(-1, -2))[..., None])[..., 0]
         g = (JtW @ r.reshape(B, 3 * N, 1))[..., 0]
         g = g + torch.cat([prior * e.reshape(B, 3 * J), torch.zeros(B, 3, dtype=dt)], -1)
-        L = torch.linalg.cholesky(JtW @ Jac + H_diag)  # symmetric positive definite (prior + damping)
+        L = torch.linalg.cholesky(JtW @ Jac + H_prior + lam * eye_n)  # symmetric positive definite
         delta = -torch.cholesky_solve(g[..., None], L)[..., 0]  # (B, 3J + 3)
         d_local = (R_world_parent.transpose(-1, -2) @ delta[:, :3 * J].reshape(B, J, 3, 1))[..., 0]
-        R_local = axis_angle_to_matrix(d_local) @ R_local
-        transl = transl + delta[:, 3 * J:]
-        R_world, p_world = forward_kinematics(R_local, J_rest, transl, parents)
+        R_local_new = axis_angle_to_matrix(d_local) @ R_local
+        transl_new = transl + delta[:, 3 * J:]
+        R_world_new, p_world_new = forward_kinematics(R_local_new, J_rest, transl_new, parents)
+        terms_new = effector_terms(R_world_new, p_world_new)
+        new = cost(terms_new[-1], R_local_new)
+        # Levenberg-Marquardt: keep a step only where it lowers the objective; otherwise damp harder.
+        ok = new < current
+        a1, a2, a3 = ok[:, None], ok[:, None, None], ok[:, None, None, None]
+        R_local = torch.where(a3, R_local_new, R_local)
+        R_world = torch.where(a3, R_world_new, R_world)
+        p_world = torch.where(a2, p_world_new, p_world)
+        transl = torch.where(a1, transl_new, transl)
+        terms = tuple(torch.where(ok.view(B, *([1] * (t.dim() - 1))), t_new, t) for t, t_new in zip(terms, terms_new,
+                                                                                                     strict=True))
+        current = torch.where(ok, new, current)
+        lam = torch.where(a2, lam * 0.3, lam * 10.0)
     return IKOutput(R_local.to(out_dtype), R_world.to(out_dtype), p_world.to(out_dtype), out.draft,
                     transl.to(out_dtype))

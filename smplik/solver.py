@@ -11,9 +11,9 @@ Effectors are :class:`~smplik.effectors.Effector` objects or their JSON dicts
 ``global_orient``, ``body_pose`` and ``transl`` plus ``joints`` (24, 3), equal to
 ``smplx.SMPL(...).joints[:, :24]`` for that pose on the body models in use.
 
-A solve is the network's pose followed by a short effector refinement (:mod:`smplik.refine`: two
-Gauss-Newton steps anchored to the network's local rotations, weighted by each effector's
-tolerance), which takes exact effectors from a few centimetres to about a millimetre. Load with
+A solve is the network's pose followed by a short effector refinement (:mod:`smplik.refine`: three
+Levenberg-Marquardt steps anchored to the network's local rotations, weighted by each effector's
+tolerance), which takes reachable exact effectors from a few centimetres to a millimetre or two. Load with
 ``refine=RefineConfig(iterations=0)`` (``smplik solve --refine-steps 0``) for the network alone.
 
 The rest skeleton used for the forward kinematics is the one of the body models in use
@@ -182,7 +182,7 @@ class IKSolver:
         Args:
             path: an exported model (``smplik export-model``) or a training checkpoint.
             model_dir: folder with real SMPL files (default ``$SMPLIK_MODEL_DIR``, else built-in).
-            refine: refinement after the network (default: 2 Gauss-Newton steps; ``iterations=0``: none).
+            refine: refinement after the network (default: 3 Levenberg-Marquardt steps; ``iterations=0``: none).
 
         Raises:
             FileNotFoundError: no such file (or no packaged model in this installation).

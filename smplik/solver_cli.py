@@ -84,12 +84,15 @@ def solve_command(
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                    "(default: $SMPLIK_MODEL_DIR, else the built-in model).")] = None,
     render: Annotated[Path | None, typer.Option(help="Also write a PNG preview (body + effector markers).")] = None,
-    refine_steps: Annotated[int, typer.Option(min=0, help="Gauss-Newton refinement steps after the network "
-                                                          "(0: the network's pose alone).")] = 2,
+    refine_steps: Annotated[int | None, typer.Option(min=0, help="Refinement steps after the network (default: "
+                                                                 "RefineConfig's, 3; 0: the network's pose "
+                                                                 "alone).")] = None,
 ) -> None:
     """Solve an SMPL pose for the effectors in a JSON file."""
+    from dataclasses import replace
+
     from smplik.effector_schema import load_effector_file
-    from smplik.refine import RefineConfig
+    from smplik.refine import DEFAULT_REFINEMENT
     from smplik.solver import IKSolver
 
     try:
@@ -99,7 +102,8 @@ def solve_command(
     beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
     g = gender or doc.gender or Gender.NEUTRAL
     try:
-        solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=RefineConfig(iterations=refine_steps))
+        solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=DEFAULT_REFINEMENT if refine_steps is None else
+                               replace(DEFAULT_REFINEMENT, iterations=refine_steps))
         pose = solver.solve(list(doc.effectors), betas=beta, gender=g)
     except (FileNotFoundError, ValueError) as exc:
         raise _fail(str(exc)) from None

@@ -27,6 +27,7 @@ from smplik.benchmark import (
     set_names,
 )
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES
+from smplik.refine import RefineConfig
 
 K = 6  # samples per set: small and fast
 
@@ -176,7 +177,7 @@ def test_cli_make_and_run(tmp_path, cli, tiny_cache, bodies):
     assert res.exit_code == 0, res.output
     data = json.loads(results.read_text())
     assert set(data["methods"]) == {"smplik", "smplik_net", "optim", "nn", "rest"}
-    assert data["settings"]["refine"]["iterations"] == 2
+    assert data["settings"]["refine"] == RefineConfig().to_dict()
     refined, raw = (data["methods"][m]["random_mean"]["position_residual_mm"] for m in ("smplik", "smplik_net"))
     assert refined < 0.5 * raw, (refined, raw)
     for method in data["methods"].values():
