@@ -82,3 +82,22 @@ def test_higher_tolerance_means_weaker_adherence(model, fixed_set):
 def test_effectors_move_the_pose(model, fixed_set):
     """A 12 cm pull of the effectors moves their joints a substantial way along it."""
     assert tracking_mm(model, fixed_set, 0.0) > 40.0
+
+
+def test_refined_solver_keeps_the_tolerance_order(model, fixed_set):
+    """With the default refinement, tighter effectors are still met more closely and tracked further,
+    also when the 12 cm pulls make some of them unreachable."""
+    from smplik.solver import IKSolver
+
+    solver = IKSolver.load(SHIPPED)
+    truth, betas, gender = fixed_set
+    targets = pulled(fixed_set)
+    base = solver.solve_tensors(positions(truth, 0.0), betas, gender).p_world[:, JOINTS]
+    residual, tracking = [], []
+    for tol in (0.0, 0.5, 1.0):
+        moved = solver.solve_tensors(positions(targets, tol), betas, gender).p_world[:, JOINTS]
+        residual.append(float((moved - targets).norm(dim=-1).mean() * 1000))
+        tracking.append(float(((moved - base) * (targets - truth)).sum(-1).mean() / 0.12 * 1000))
+    assert residual[0] < residual[1] < residual[2], residual
+    assert tracking[0] > tracking[1] > tracking[2], tracking
+    assert tracking[0] > tracking_mm(model, fixed_set, 0.0) + 20.0  # refinement tracks much further than the network
