@@ -18,7 +18,7 @@ CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
 class CountingOracle(OracleSolver):
     calls = 0
 
-    def solve_tensors(self, eff, betas, gender):
+    def solve_tensors(self, eff, betas, gender, *, refine=None):
         self.calls += 1
         return super().solve_tensors(eff, betas, gender)
 
@@ -27,7 +27,8 @@ def test_greedy_lowers_the_error_with_each_effector_and_stops_at_the_threshold()
     target = TargetPose.from_pose(synthetic_pose(0))
     solver = CountingOracle(target.p_world)
     res = recover_effectors(solver, target, RecoveryConfig(max_effectors=6, threshold=0.0))
-    assert len(res.effectors) == 6 and solver.calls == 6  # one batched solve per step
+    assert len(res.effectors) == 6 and solver.calls == 7  # one batched solve per step, then the final pose
+    assert res.final_error == pytest.approx(res.errors[-1], rel=1e-6)
     assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))
     # the oracle rewards rotations of joints with many children: spine3 (4 joints) first
     assert res.effectors[0].type == EffectorType.ROTATION and res.effectors[0].joint_name == "spine3"
@@ -52,6 +53,8 @@ def _check_quality(res):
     errs = np.array(res.errors)
     assert len(errs) >= 3 and np.all(np.diff(errs) < 0), errs  # each kept effector lowers the error
     assert errs[-1] < 0.6 * errs[0], errs
+    # the final pose (full refinement of the chosen set) is at least about as close as the search's
+    assert res.final_error < errs[-1] + 0.002, (res.final_error, errs[-1])
 
 
 @pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped model")
@@ -90,3 +93,9 @@ def test_stand_in_runs_and_returns_a_solved_pose():
     assert 1 <= len(res.effectors) <= 3 and res.pose.joints.shape == (24, 3)
     assert len({(e.joint, e.type) for e in res.effectors}) == len(res.effectors)  # no candidate twice
     assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))  # only improving steps kept
+
+
+def test_negative_search_steps_are_refused():
+    target = TargetPose.from_pose(synthetic_pose(2))
+    with pytest.raises(ValueError, match="search_refine_steps"):
+        recover_effectors(OracleSolver(target.p_world), target, RecoveryConfig(search_refine_steps=-1))

@@ -44,7 +44,8 @@ class OracleSolver:
     def __init__(self, target_joints: torch.Tensor):
         self.target = target_joints.float()
 
-    def solve_tensors(self, eff: EffectorBatch, betas: torch.Tensor, gender: torch.Tensor) -> IKOutput:
+    def solve_tensors(self, eff: EffectorBatch, betas: torch.Tensor, gender: torch.Tensor, *,
+                      refine: object = None) -> IKOutput:
         B = eff.joint.shape[0]
         fixed = torch.zeros(B, NUM_JOINTS, dtype=torch.bool)
         fixed[torch.arange(B)[:, None], eff.joint] = True

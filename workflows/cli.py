@@ -66,7 +66,8 @@ def from_estimate_cmd(
         _fail(exc)
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
-        console.print(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}")
+        console.print(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "
+                      f"final pose {r.recovery.final_error * 1000:.0f} mm")
     for path in outputs.all_files:
         console.print(f"wrote {path}")
 
@@ -135,6 +136,6 @@ def demo_cmd(
     for r in outputs.smpl.results + outputs.character.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         console.print(f"{r.name}: effectors {[f'{e.joint_name}:{e.type.name.lower()}' for e in r.recovery.effectors]}"
-                      f"; error after each (mm): {errs}")
+                      f"; error after each (mm): {errs}; final pose {r.recovery.final_error * 1000:.0f} mm")
     for path in outputs.all_files:
         console.print(f"wrote {path}")

@@ -17,13 +17,15 @@ Spaces: the solver works in SMPL space (the body ``J(betas)`` at unit scale); a 
 the character-space error is ``s`` times the SMPL-space error and recovered effectors are
 returned in character space (positions and look-at targets times s).
 
-Speed: candidate effector data are precomputed once as tensors; each step builds the packed
+Candidates are scored with a cheap solve (the network plus ``search_refine_steps`` refinement
+steps); the chosen set is then solved once more with the solver's full refinement for the final
+pose. Speed: candidate effector data are precomputed once as tensors; each step builds the packed
 ``(B, k + 1)`` batch by concatenation, with no per-candidate Python objects.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -35,6 +37,7 @@ from smplik.effectors import Effector, EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
 from smplik.pose import Pose
+from smplik.refine import DEFAULT_REFINEMENT, RefineConfig
 from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_rot6d
 
 HEAD_FORWARD = (0.0, 0.0, 1.0)
@@ -42,9 +45,11 @@ HEAD_FORWARD = (0.0, 0.0, 1.0)
 
 
 class TensorSolver(Protocol):
-    """What recovery needs from a solver: ``IKSolver.solve_tensors`` (no validation, batched)."""
+    """What recovery needs from a solver: ``IKSolver.solve_tensors`` (no validation, batched; ``refine``
+    overrides the solver's effector refinement, None keeps it)."""
 
-    def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput: ...
+    def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor, *,
+                      refine: RefineConfig | None = None) -> IKOutput: ...
 
 
 @dataclass(frozen=True)
@@ -83,6 +88,9 @@ class RecoveryConfig:
     """Distance (metres, SMPL space) of the head's look-at target along its forward axis."""
     tolerance: float = 0.0
     """Tolerance given to every recovered effector."""
+    search_refine_steps: int = 1
+    """Refinement steps (:mod:`smplik.refine`) while scoring candidates; the final pose gets the
+    solver's own refinement. One step keeps 8 effectors under 100 ms on one CPU thread."""
 
 
 @dataclass(frozen=True)
@@ -91,15 +99,18 @@ class RecoveryResult:
 
     Attributes:
         effectors: in the order they were chosen.
-        errors: (K,) mean per-joint L2 error (metres, character space) after 1..K effectors.
-        pose: the pose solved from all recovered effectors (SMPL space).
+        errors: (K,) mean per-joint L2 error (metres, character space) after 1..K effectors, as
+            scored during the search.
+        pose: the pose solved from all recovered effectors (SMPL space) with the solver's refinement.
         scale: the character scale used.
+        final_error: mean per-joint L2 error of ``pose`` (metres, character space).
     """
 
     effectors: tuple[Effector, ...]
     errors: tuple[float, ...]
     pose: Pose
     scale: float
+    final_error: float
 
 
 def candidate_table(target: TargetPose, cfg: RecoveryConfig) -> tuple[Tensor, Tensor, Tensor]:
@@ -152,6 +163,8 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
         raise ValueError(f"max_effectors must be >= 1, got {cfg.max_effectors}.")
     if not scale > 0:
         raise ValueError(f"scale must be positive, got {scale}.")
+    if cfg.search_refine_steps < 0:
+        raise ValueError(f"search_refine_steps must be >= 0, got {cfg.search_refine_steps}.")
     cand_joint, cand_type, cand_data = candidate_table(target, cfg)
     C = cand_joint.shape[0]
     remaining = torch.ones(C, dtype=torch.bool)
@@ -160,7 +173,8 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
     p_target = target.p_world.float()
     betas = target.betas.float().reshape(1, NUM_BETAS)
     gender = torch.tensor([target.gender.index])
-    best_out, best_row = None, 0
+    search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
+    best_eff: EffectorBatch | None = None
     for k in range(min(cfg.max_effectors, C)):
         rows = torch.nonzero(remaining)[:, 0]
         B = rows.shape[0]
@@ -170,7 +184,7 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
         data = torch.cat([cand_data[sel].expand(B, k, 6), cand_data[rows, None]], 1)
         eff = EffectorBatch(joint, kind, data, torch.full((B, k + 1), float(cfg.tolerance)),
                             torch.ones(B, k + 1, dtype=torch.bool))
-        out = solver.solve_tensors(eff, betas.expand(B, NUM_BETAS), gender.expand(B))
+        out = solver.solve_tensors(eff, betas.expand(B, NUM_BETAS), gender.expand(B), refine=search)
         err = (out.p_world.float() - p_target).norm(dim=-1).mean(-1) * scale  # (B,)
         best = int(torch.argmin(err))
         if errors and float(err[best]) >= errors[-1]:
@@ -178,11 +192,14 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
         chosen.append(int(rows[best]))
         remaining[rows[best]] = False
         errors.append(float(err[best]))
-        best_out, best_row = out, best
+        best_eff = EffectorBatch(joint[best:best + 1], kind[best:best + 1], data[best:best + 1],
+                                 eff.tolerance[best:best + 1], eff.mask[best:best + 1])
         if errors[-1] < cfg.threshold:
             break
     effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(), scale,
                                    cfg.tolerance) for c in chosen)
-    assert best_out is not None
-    return RecoveryResult(effectors, tuple(errors), output_to_pose(best_out, best_row, target.betas, target.gender),
-                          float(scale))
+    assert best_eff is not None
+    final = solver.solve_tensors(best_eff, betas, gender)
+    final_error = float((final.p_world[0].float() - p_target).norm(dim=-1).mean()) * scale
+    return RecoveryResult(effectors, tuple(errors), output_to_pose(final, 0, target.betas, target.gender),
+                          float(scale), final_error)
