@@ -211,14 +211,17 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         new = cost(terms_new[-1], R_local_new)
         # Levenberg-Marquardt: keep a step only where it lowers the objective; otherwise damp harder.
         ok = new < current
-        a1, a2, a3 = ok[:, None], ok[:, None, None], ok[:, None, None, None]
-        R_local = torch.where(a3, R_local_new, R_local)
-        R_world = torch.where(a3, R_world_new, R_world)
-        p_world = torch.where(a2, p_world_new, p_world)
-        transl = torch.where(a1, transl_new, transl)
-        terms = tuple(torch.where(ok.view(B, *([1] * (t.dim() - 1))), t_new, t) for t, t_new in zip(terms, terms_new,
-                                                                                                     strict=True))
+        if bool(ok.all()):
+            R_local, R_world, p_world, transl, terms = R_local_new, R_world_new, p_world_new, transl_new, terms_new
+        elif bool(ok.any()):
+            a1, a3 = ok[:, None], ok[:, None, None, None]
+            R_local = torch.where(a3, R_local_new, R_local)
+            R_world = torch.where(a3, R_world_new, R_world)
+            p_world = torch.where(ok[:, None, None], p_world_new, p_world)
+            transl = torch.where(a1, transl_new, transl)
+            terms = tuple(torch.where(ok.view(B, *([1] * (t.dim() - 1))), t_new, t)
+                          for t, t_new in zip(terms, terms_new, strict=True))
         current = torch.where(ok, new, current)
-        lam = torch.where(a2, lam * 0.3, lam * 10.0)
+        lam = torch.where(ok[:, None, None], lam * 0.3, lam * 10.0)
     return IKOutput(R_local.to(out_dtype), R_world.to(out_dtype), p_world.to(out_dtype), out.draft,
                     transl.to(out_dtype))
