@@ -85,3 +85,18 @@ def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
                  network=replace(TINY, width=48))
     with pytest.raises(ValueError, match="network sizes"):
         train(bad, progress=False)
+
+
+def test_shipped_recipe_configs_parse():
+    """The fine-tuning configs of the shipped model's recipe (README) load as TrainConfig overrides."""
+    import json
+    from pathlib import Path
+
+    from smplik.train import TrainConfig
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    cfgs = {n: TrainConfig.from_dict({"data": "", "out": "", **json.loads((root / f"shipped_{n}.json").read_text())})
+            for n in ("ft1", "ft2")}
+    assert (cfgs["ft1"].loss.w_rot_local, cfgs["ft2"].loss.w_rot_local) == (2.0, 4.0)
+    for cfg in cfgs.values():
+        assert cfg.loss.w_pos_rnd == 1000.0 and cfg.effectors.eta == 4.0 and cfg.effectors.max_effectors == 16
