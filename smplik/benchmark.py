@@ -77,6 +77,7 @@ from smplik.conventions import JOINT_INDEX, NUM_BETAS, NUM_JOINTS, EffectorType,
 from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.metrics import local_geodesic, mpjpe, pa_mpjpe
+from smplik.refine import RefineConfig
 from smplik.rotations import axis_angle_to_matrix, geodesic_distance, matrix_to_rot6d, rot6d_to_matrix
 
 BENCHMARK_FORMAT = "smplik-benchmark"
@@ -434,12 +435,12 @@ class RestPoseMethod:
 class LearnedMethod:
     """SMPL-IK: the solver's local rotations and translation, in batches of ``batch_size``.
 
-    ``refine`` (a :class:`smplik.refine.RefineConfig`) overrides the solver's refinement; None keeps it.
+    ``refine`` overrides the solver's refinement; None keeps it.
     """
 
     solver: Any  # smplik.solver.IKSolver (not imported here: keeps this module free of the solver)
     batch_size: int = 1024
-    refine: Any = None
+    refine: RefineConfig | None = None
 
     def __call__(self, bset: BenchmarkSet) -> Prediction:
         Rs, ts = [], []

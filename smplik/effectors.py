@@ -193,6 +193,14 @@ class EffectorSamplingConfig:
     """Std (metres) of the folded normal giving the look-at target distance (plus 0.1 m minimum)."""
 
 
+def tolerance_loss_weight(tolerance: Tensor, cfg: EffectorSamplingConfig) -> Tensor:
+    """ProtoRes' per-effector loss weight ``W = min(W_M, 1 / sigma)`` with ``sigma = sigma_M tolerance^eta``.
+
+    tolerance (...) -> (...)."""
+    sigma = cfg.sigma_max * tolerance.pow(cfg.eta)
+    return torch.clamp(1.0 / sigma.clamp_min(1e-12), max=cfg.weight_max)
+
+
 @dataclass(frozen=True)
 class SampledEffectors:
     effectors: EffectorBatch
@@ -220,7 +228,7 @@ def sample_effectors(p_world: Tensor, R_world: Tensor, cfg: EffectorSamplingConf
     joint = perms[torch.arange(B)[:, None], kind, rank]
     tol = torch.rand(B, N, generator=g, dtype=dt)
     sigma = cfg.sigma_max * tol.pow(cfg.eta)
-    weight = torch.clamp(1.0 / sigma.clamp_min(1e-12), max=cfg.weight_max)
+    weight = tolerance_loss_weight(tol, cfg)
 
     bi = torch.arange(B)[:, None]
     g_pos = p_world[bi, joint]  # (B, N, 3)

@@ -37,10 +37,10 @@ import torch
 from torch import Tensor
 
 from smplik.conventions import PARENTS, EffectorType
-from smplik.effectors import EffectorBatch
+from smplik.effectors import EffectorBatch, EffectorSamplingConfig, tolerance_loss_weight
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
-from smplik.rotations import axis_angle_to_matrix, rot6d_to_matrix
+from smplik.rotations import axis_angle_to_matrix, rot6d_to_matrix, skew_matrix
 
 
 @dataclass(frozen=True)
@@ -100,13 +100,6 @@ def _ancestor_masks(parents: tuple[int, ...]) -> tuple[Tensor, Tensor]:
         return strict, strict + torch.eye(J)
 
 
-def _cross_matrix(v: Tensor) -> Tensor:
-    """(..., 3) -> (..., 3, 3) with ``M @ x = v x x``."""
-    x, y, z = v.unbind(-1)
-    zero = torch.zeros_like(x)
-    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).unflatten(-1, (3, 3))
-
-
 def _vee_skew(M: Tensor) -> Tensor:
     """``vee((M - M^T) / 2)``: ``sin(angle) * axis`` of a rotation matrix. (..., 3, 3) -> (..., 3)."""
     return 0.5 * torch.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0],
@@ -114,8 +107,10 @@ def _vee_skew(M: Tensor) -> Tensor:
 
 
 def tolerance_weight(tolerance: Tensor, eta: float = 4.0) -> Tensor:
-    """``min(1, 1 / (100 tolerance^eta))`` in (0, 1]: 1 up to tolerance ~0.3, 0.01 at 1. (...) -> (...)."""
-    return torch.clamp(1.0 / (100.0 * tolerance.pow(eta)).clamp_min(1e-12), max=1.0)
+    """The training sampler's loss weight relative to its cap, ``W / W_M`` (sigma_M = 0.1 m, W_M = 1000):
+    ``min(1, 1 / (100 tolerance^eta))`` in (0, 1], 1 up to tolerance ~0.3, 0.01 at 1. (...) -> (...)."""
+    cfg = EffectorSamplingConfig(eta=eta)
+    return tolerance_loss_weight(tolerance, cfg) / cfg.weight_max
 
 
 def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: RefineConfig = DEFAULT_REFINEMENT,
@@ -162,33 +157,35 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
     p_type, r_type, l_type = is_pos[..., None], is_rot[..., None], is_look[..., None]
     look = is_look.bool()
 
-    def effector_terms(R_world: Tensor, p_world: Tensor) -> tuple[Tensor, ...]:
-        """Effector joints' p_k (B, N, 3), R_k (B, N, 3, 3), facing f, unit ray u, distance, residual r."""
+    def state_terms(R_local: Tensor, R_world: Tensor, p_world: Tensor) -> tuple[Tensor, ...]:
+        """Per pose: effector joints' p_k (B, N, 3), R_k (B, N, 3, 3), facing f, unit ray u, distance,
+        residual r (B, N, 3), and each local rotation's deviation from the network's, dev (B, J, 3)."""
         p_k, R_k = p_world[rows, k], R_world[rows, k]
         f = (R_k @ look_dir[..., None])[..., 0]
         ray = target - p_k
         dist = ray.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         u = ray / dist
         r = p_type * (p_k - target) + r_type * _vee_skew(R_k @ R_target_T) + l_type * (f - u)
-        return p_k, R_k, f, u, dist, r
+        dev = _vee_skew(R_local @ R_net.transpose(-1, -2))  # parent frame
+        return p_k, R_k, f, u, dist, r, dev
 
-    def cost(r: Tensor, R_local: Tensor) -> Tensor:
+    def cost(terms: tuple[Tensor, ...]) -> Tensor:
         """The objective per pose (B,): weighted effector residuals plus the prior."""
-        dev = _vee_skew(R_local @ R_net.transpose(-1, -2))
+        r, dev = terms[-2], terms[-1]
         return (w[..., None] * r.square()).sum((1, 2)) + prior * dev.square().sum((1, 2))
 
     R_net = R_local = out.R_local.to(dt)
     transl, R_world, p_world, J_rest = out.transl.to(dt), out.R_world.to(dt), out.p_world.to(dt), J_rest.to(dt)
-    terms = effector_terms(R_world, p_world)
-    current = cost(terms[-1], R_local)
+    terms = state_terms(R_local, R_world, p_world)
+    current = cost(terms)
     lam = torch.full((B, 1, 1), prior * cfg.damping, dtype=dt)
     eye_n = torch.eye(3 * J + 3, dtype=dt)
     for _ in range(cfg.iterations):
-        p_k, R_k, f, u, dist, r = terms
-        J_lever = -_cross_matrix(p_k[:, :, None, :] - p_world[:, None, :, :]) * A_strict  # (B, N, J, 3, 3)
+        p_k, R_k, f, u, dist, r, dev = terms
+        J_lever = -skew_matrix(p_k[:, :, None, :] - p_world[:, None, :, :]) * A_strict  # (B, N, J, 3, 3)
         proj = (eye - u[..., :, None] * u[..., None, :]) / dist[..., None]  # (B, N, 3, 3)
         s_pos, s_rot, s_look = (t[..., None, None, None] for t in (is_pos, is_rot, is_look))  # (B, N, 1, 1, 1)
-        J_rotations = J_lever * s_pos + (s_rot * eye - s_look * _cross_matrix(f)[:, :, None]) * A_incl
+        J_rotations = J_lever * s_pos + (s_rot * eye - s_look * skew_matrix(f)[:, :, None]) * A_incl
         # look-at rows also move with the joint's position: d u / d p_k = -proj.
         if look.any():
             J_rotations[look] += proj[look][:, None] @ J_lever[look]
@@ -198,7 +195,7 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         JtW = Jac.transpose(1, 2) * w3[:, None, :]
         # prior: deviation of each local rotation from the network's, as a world-frame increment
         R_world_parent = R_world[:, parent_idx] * (1 - root_frame) + eye * root_frame
-        e = (R_world_parent @ _vee_skew(R_local @ R_net.transpose(-1, -2))[..., None])[..., 0]
+        e = (R_world_parent @ dev[..., None])[..., 0]
         g = (JtW @ r.reshape(B, 3 * N, 1))[..., 0]
         g = g + torch.cat([prior * e.reshape(B, 3 * J), torch.zeros(B, 3, dtype=dt)], -1)
         L = torch.linalg.cholesky(JtW @ Jac + H_prior + lam * eye_n)  # symmetric positive definite
@@ -207,8 +204,8 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         R_local_new = axis_angle_to_matrix(d_local) @ R_local
         transl_new = transl + delta[:, 3 * J:]
         R_world_new, p_world_new = forward_kinematics(R_local_new, J_rest, transl_new, parents)
-        terms_new = effector_terms(R_world_new, p_world_new)
-        new = cost(terms_new[-1], R_local_new)
+        terms_new = state_terms(R_local_new, R_world_new, p_world_new)
+        new = cost(terms_new)
         # Levenberg-Marquardt: keep a step only where it lowers the objective; otherwise damp harder.
         ok = new < current
         if bool(ok.all()):

@@ -35,8 +35,8 @@ def _check_last(x: Tensor, dims: tuple[int, ...], name: str) -> None:
         raise ValueError(f"Invalid {name} shape {tuple(x.shape)}; expected (..., {', '.join(map(str, dims))}).")
 
 
-def _skew(v: Tensor) -> Tensor:
-    """(..., 3) -> (..., 3, 3) cross-product matrix."""
+def skew_matrix(v: Tensor) -> Tensor:
+    """(..., 3) -> (..., 3, 3) cross-product matrix: ``skew_matrix(v) @ x = v x x``."""
     x, y, z = v.unbind(-1)
     zero = torch.zeros_like(x)
     return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(*v.shape[:-1], 3, 3)
@@ -52,7 +52,7 @@ def axis_angle_to_matrix(axis_angle: Tensor) -> Tensor:
     # sin(t)/t and (1-cos t)/t^2 with Taylor fallbacks near zero.
     a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
     b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / theta2_safe)
-    K = _skew(axis_angle)
+    K = skew_matrix(axis_angle)
     eye = torch.eye(3, dtype=axis_angle.dtype, device=axis_angle.device).expand_as(K)
     return eye + a * K + b * (K @ K)
 
