@@ -155,7 +155,7 @@ def test_fixed_sets_use_named_joints():
 
 @pytest.fixture(scope="module")
 def cli():
-    from smplik import benchmark_cli
+    from smplik.cli import benchmark as benchmark_cli
 
     root = typer.Typer()
     root.add_typer(benchmark_cli.app, name="benchmark")

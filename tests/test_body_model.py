@@ -7,7 +7,7 @@ import torch
 from typer.testing import CliRunner
 
 from smplik.body_model import BodyModelSet, load_body_model, read_model_arrays
-from smplik.cli import app
+from smplik.cli.main import app
 from smplik.conventions import Gender
 
 

@@ -183,7 +183,7 @@ def test_joints_equal_plain_smplx_on_exported_model(tmp_path, solver, gender):
     import smplx
     from smplx.vertex_ids import vertex_ids
 
-    from smplik.cli import app
+    from smplik.cli.main import app
 
     out = tmp_path / f"SMPL_{gender.upper()}.npz"
     res = CliRunner().invoke(app, ["body", "export", "--gender", gender, "--out", str(out)])
@@ -276,7 +276,7 @@ def test_schema_validates_example_when_jsonschema_is_installed():
 
 @pytest.fixture(scope="module")
 def cli():
-    from smplik import solver_cli
+    from smplik.cli import solve as solver_cli
 
     root = typer.Typer()
     root.command("solve")(solver_cli.solve_command)

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from smplik.cli_options import parse_betas
+from smplik.cli.options import parse_betas
 from smplik.conventions import EffectorType, Gender
 
 app = typer.Typer(pretty_exceptions_enable=False)

@@ -1,22 +1,18 @@
-"""The ``smplik`` command line. Each command group lives next to the code it drives."""
+"""``smplik body ...``: export, inspect and render body models."""
 
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 
-from smplik.cli_options import GenderOpt, ModelDir, parse_betas
+from smplik.cli.options import GenderOpt, ModelDir, parse_betas
 from smplik.conventions import NUM_BETAS, Gender
 
-app = typer.Typer(help="Morphology-aware learned IK on the SMPL body model.", no_args_is_help=True,
-                  pretty_exceptions_enable=False)
 body_app = typer.Typer(help="Body models: export, inspect and render.", no_args_is_help=True)
-app.add_typer(body_app, name="body")
 console = Console(stderr=True)
 
 @body_app.command("info")
@@ -93,43 +89,3 @@ def body_render(out: Annotated[Path, typer.Option("--out", help="Output PNG.")],
         raise typer.Exit(1) from None
     save_png(hstack_images(images), out)
     console.print(f"wrote {out}")
-
-
-def _register_optional() -> None:
-    """Attach the command groups of the other components."""
-    from importlib import import_module
-
-    for module, attr, name in (
-        ("smplik.data.cli", "app", "data"),
-        ("smplik.train_cli", "app", None),
-        ("smplik.solver_cli", "app", None),
-        ("smplik.benchmark_cli", "app", "benchmark"),
-        ("shape_inversion.cli", "app", None),
-        ("workflows.cli", "scene_app", "scene"),
-        ("workflows.cli", "demo_app", None),
-    ):
-        try:
-            mod = import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name and module.startswith(exc.name):
-                continue  # component not present in this build
-            raise
-        sub = getattr(mod, attr)
-        if name:
-            app.add_typer(sub, name=name)
-        else:  # top-level commands: copy each registered command onto the main app
-            for info in sub.registered_commands:
-                app.command(info.name, help=info.help)(info.callback)
-
-
-_register_optional()
-
-
-def main() -> None:
-    """Console-script entry point."""
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # headless rendering by default
-    app()
-
-
-if __name__ == "__main__":
-    main()
