@@ -11,14 +11,15 @@ from typing import Any
 
 import torch
 
+from smplik import paths
 from smplik.atomic import write_json_atomic
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def shared_dir() -> Path:
-    """``../shared`` next to the repository, or ``$SMPLIK_SHARED_DIR``."""
-    return Path(os.environ.get("SMPLIK_SHARED_DIR", Path(__file__).resolve().parents[2] / "shared"))
+    """:func:`smplik.paths.shared_dir` (``$SMPLIK_SHARED_DIR``, else ``../shared``), or the default path when absent."""
+    return paths.shared_dir() or paths.repo_root().parent / "shared"
 
 
 def machine() -> dict[str, Any]:

@@ -1,7 +1,7 @@
 """Retargeting quality on the CMU clips: angle between retargeted SMPL bones and source bones.
 
-For every ``*.bvh`` in the CMU folder (``--cmu-dir``, else ``$SMPLIK_CMU_DIR``, else
-``<repo>/../shared/data/cmu``) the clip is retargeted with the ``cmu`` preset onto the neutral
+For every ``*.bvh`` in the CMU folder (``--cmu-dir``, else :func:`smplik.paths.cmu_dir`:
+``$SMPLIK_CMU_DIR``, else ``<repo>/../shared/data/cmu``) the clip is retargeted with the ``cmu`` preset onto the neutral
 built-in body (or ``$SMPLIK_MODEL_DIR``), and for each scored bone (thighs, shins, feet, spine,
 neck, upper arms, forearms) the angle between the SMPL bone (our FK on ``J(beta)``) and the
 source bone is taken, skipping the rest frame 0 and using every ``--stride``-th frame.
@@ -17,7 +17,6 @@ Usage: ``python benchmarks/retarget_quality.py [--cmu-dir DIR] [--stride 4] [--o
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -28,11 +27,8 @@ sys.path.insert(0, str(REPO))
 from smplik.atomic import write_json_atomic  # noqa: E402
 from smplik.data.bvh import read_bvh  # noqa: E402
 from smplik.data.retarget import DIAGNOSTIC_BONES, bone_direction_errors, retarget_bvh  # noqa: E402
-
-
-def default_cmu_dir() -> Path:
-    env = os.environ.get("SMPLIK_CMU_DIR", "")
-    return Path(env) if env else REPO.parent / "shared" / "data" / "cmu"
+from smplik.paths import cmu_dir as default_cmu_dir  # noqa: E402
+from smplik.paths import missing_cmu_reason  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -43,6 +39,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "retarget_quality.json")
     args = parser.parse_args(argv)
     cmu_dir = args.cmu_dir or default_cmu_dir()
+    if cmu_dir is None:
+        parser.error(missing_cmu_reason())
     files = sorted(cmu_dir.glob("*.bvh"))
     if not files:
         parser.error(f"no .bvh files in {cmu_dir} (use --cmu-dir or $SMPLIK_CMU_DIR)")

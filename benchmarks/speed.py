@@ -34,6 +34,7 @@ from _common import save, time_call  # noqa: E402
 from smplik.benchmark import BenchmarkSet, OptimizationIK, PosePrior  # noqa: E402
 from smplik.effectors import Effector, EffectorBatch  # noqa: E402
 from smplik.kinematics import forward_kinematics  # noqa: E402
+from smplik.paths import pose_cache  # noqa: E402
 from smplik.refine import NO_REFINEMENT  # noqa: E402
 from smplik.rotations import axis_angle_to_matrix  # noqa: E402
 from smplik.solver import IKSolver  # noqa: E402
@@ -84,9 +85,10 @@ def percentiles(times: list[float]) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", default=None, help="Model file (default: the packaged model).")
-    parser.add_argument("--data", default="/work/cache/cmu30.npz",
+    parser.add_argument("--data", default=str(pose_cache()),
                         help="Pose cache whose train split fits the optimization baseline's prior "
-                             "(a generic prior is used if it is missing).")
+                             "(default: $SMPLIK_POSE_CACHE, else <cache>/cmu30.npz; a generic prior is used if it "
+                             "is missing).")
     parser.add_argument("--min-time", type=float, default=1.0, help="Seconds per latency measurement.")
     args = parser.parse_args()
 

@@ -1,6 +1,6 @@
 """How tolerance changes adherence: the shipped model on 12 cm effector pulls, network alone vs solver.
 
-Scenario (the one ``tests/test_shipped_model.py`` asserts on, imported from there): 256 random
+Scenario (:mod:`smplik.benchmark.tolerance`, the one ``tests/test_shipped_model.py`` asserts on): 256 random
 bodies; six position effectors (pelvis, head, wrists, ankles) at the joints of a plausible pose
 the model itself produced; then every effector pulled 12 cm in a random direction (some pulls are
 out of reach). For tolerances 0, 0.25, 0.5, 0.75, 1, with the network alone and with the solver's
@@ -12,17 +12,23 @@ Prints a table and writes ``benchmarks/results/tolerance_tracking.json``.
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 
 import torch
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import save  # noqa: E402
-from test_shipped_model import JOINTS, make_fixed_set, positions, pulled  # noqa: E402
 
+from smplik.benchmark.tolerance import (  # noqa: E402
+    PULL_M,
+    make_fixed_set,
+    pulled,
+    residual_mm,
+    tracked_joints,
+    tracking_mm,
+)
 from smplik.refine import NO_REFINEMENT  # noqa: E402
 from smplik.solver import IKSolver  # noqa: E402
 
@@ -32,22 +38,21 @@ TOLERANCES = (0.0, 0.25, 0.5, 0.75, 1.0)
 def main() -> None:
     torch.set_num_threads(1)
     solver = IKSolver.load()
-    fixed = make_fixed_set(solver.model)
-    truth, betas, gender = fixed
-    targets = pulled(fixed)
+    truth, betas, gender = make_fixed_set(solver.model)
+    targets = pulled(truth)
     rows: dict[str, dict[str, dict[str, float]]] = {}
     print(f"{'path':<10}{'tolerance':>10}{'tracking mm':>13}{'residual mm':>13}")
     for name, refine in (("network", NO_REFINEMENT), ("solver", None)):
-        base = solver.solve_tensors(positions(truth, 0.0), betas, gender, refine=refine).p_world[:, JOINTS]
+        solve = functools.partial(solver.solve_tensors, refine=refine)
+        base = tracked_joints(solve, truth, betas, gender, 0.0)
         rows[name] = {}
         for tol in TOLERANCES:
-            moved = solver.solve_tensors(positions(targets, tol), betas, gender, refine=refine).p_world[:, JOINTS]
-            tracking = float(((moved - base) * (targets - truth)).sum(-1).mean() / 0.12 * 1000)
-            residual = float((moved - targets).norm(dim=-1).mean() * 1000)
+            moved = tracked_joints(solve, targets, betas, gender, tol)
+            tracking, residual = tracking_mm(base, moved, truth, targets), residual_mm(moved, targets)
             rows[name][str(tol)] = {"tracking_mm": round(tracking, 1), "residual_mm": round(residual, 1)}
             print(f"{name:<10}{tol:>10.2f}{tracking:>13.1f}{residual:>13.1f}")
     path = save("tolerance_tracking", {"model": solver.source, "model_step": solver.meta.get("step"),
-                                       "poses": int(truth.shape[0]), "pull_m": 0.12,
+                                       "poses": int(truth.shape[0]), "pull_m": PULL_M,
                                        "refine": solver.refine.to_dict(), "results": rows})
     print("wrote", path)
 

@@ -5,15 +5,14 @@ Per gender (smpl-ik.txt section 4): ``num_samples`` draws of ``beta ~ U(-5, 5)^1
 :mod:`shape_inversion.features`. Sampling uses a ``numpy.random.Generator`` seeded from
 ``seed`` only, so a bank is a pure function of (body model, gender, num_samples, seed).
 
-Banks are cached as ``.npz`` under ``$SMPLIK_CACHE_DIR/shape_inversion`` (default
-``~/.cache/smplik/shape_inversion``), written atomically. The file name holds
+Banks are cached as ``.npz`` under ``<smplik.paths.cache_dir()>/shape_inversion`` (``$SMPLIK_CACHE_DIR``,
+default ``~/.cache/smplik``), written atomically. The file name holds
 :data:`BANK_VERSION`, the body model's fingerprint, the gender, the sample count and the seed,
 so a different model (or a change to the sampling code, with a version bump) never reuses a bank.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,11 +23,10 @@ from shape_inversion.features import joints_to_features
 from smplik.atomic import savez_atomic
 from smplik.body_model import BodyModel
 from smplik.conventions import NUM_BETAS, Gender
+from smplik.paths import cache_dir
 
 BANK_VERSION = "1"
 """Bump whenever the sampling or the features change; it is part of the cache key."""
-
-CACHE_DIR_ENV = "SMPLIK_CACHE_DIR"
 
 
 @dataclass(frozen=True)
@@ -79,14 +77,6 @@ def sample_bank(model: BodyModel, config: BankConfig = BankConfig()) -> SampleBa
     joints = model.rest_joints(torch.from_numpy(betas)) * torch.from_numpy(scales)[:, None, None]
     features = joints_to_features(joints).numpy()
     return SampleBank(model.gender, model.fingerprint, config, betas, scales, features)
-
-
-def cache_dir(override: str | Path | None = None) -> Path:
-    """``override``, else ``$SMPLIK_CACHE_DIR``, else ``~/.cache/smplik``."""
-    if override is not None:
-        return Path(override)
-    env = os.environ.get(CACHE_DIR_ENV, "")
-    return Path(env) if env else Path.home() / ".cache" / "smplik"
 
 
 def bank_cache_path(fingerprint: str, gender: Gender, config: BankConfig, root: str | Path | None = None) -> Path:

@@ -47,7 +47,6 @@ adults):
 from __future__ import annotations
 
 import hashlib
-import os
 import zipfile
 from dataclasses import dataclass
 from functools import lru_cache
@@ -61,6 +60,7 @@ from scipy.spatial import cKDTree
 
 from smplik.atomic import atomic_path
 from smplik.conventions import JOINT_INDEX, LEFT_RIGHT, NUM_BETAS, NUM_JOINTS, PARENTS, Gender
+from smplik.paths import cache_dir as default_cache_dir
 
 BUILTIN_VERSION = "1"
 """Version of the generator; bump it whenever the generated arrays change (it is part of the cache path)."""
@@ -554,12 +554,10 @@ def _write_npz(fh: BinaryIO, arrays: dict[str, np.ndarray]) -> None:
 def builtin_cache_dir(cache_dir: str | Path | None = None) -> Path:
     """Folder of the built-in model files.
 
-    ``<cache_dir or $SMPLIK_CACHE_DIR or ~/.cache/smplik>/builtin-<BUILTIN_VERSION>-<source hash>``:
+    ``<cache_dir or smplik.paths.cache_dir()>/builtin-<BUILTIN_VERSION>-<source hash>``:
     the hash of this module's source keys the cache, so an edited generator never reuses stale files.
     """
-    if cache_dir is None:
-        cache_dir = os.environ.get("SMPLIK_CACHE_DIR") or Path.home() / ".cache" / "smplik"
-    return Path(cache_dir).expanduser() / f"builtin-{BUILTIN_VERSION}-{_source_hash()}"
+    return default_cache_dir(cache_dir) / f"builtin-{BUILTIN_VERSION}-{_source_hash()}"
 
 
 @lru_cache(maxsize=1)
@@ -570,7 +568,7 @@ def _source_hash() -> str:
 def builtin_model_path(gender: Gender | str, cache_dir: str | Path | None = None) -> Path:
     """Path of ``SMPL_{NEUTRAL,MALE,FEMALE}.npz`` for the built-in model, generating it on first use.
 
-    The file goes into ``cache_dir`` or ``$SMPLIK_CACHE_DIR`` or ``~/.cache/smplik``, under a
+    The file goes into ``cache_dir`` or :func:`smplik.paths.cache_dir` (``$SMPLIK_CACHE_DIR``), under a
     sub-folder ``builtin-{BUILTIN_VERSION}``. It is written atomically (a temporary file in the same
     folder, then :func:`os.replace`, via :func:`smplik.atomic.atomic_path`), so a crash never
     leaves a half-written file.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from smplik.benchmark import (
     make_benchmark,
     results_markdown,
     run_benchmark,
+    sample_subjects,
     set_names,
 )
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES
@@ -148,9 +150,89 @@ def test_nn_returns_exact_train_pose(bodies, bench):
     torch.testing.assert_close(pred.transl, torch.tensor([1.0, 0.2, -3.0]).expand(3, 3), atol=1e-5, rtol=0)
 
 
-def test_fixed_sets_use_named_joints():
-    assert FIXED_SETS["fixed_6pt"] == ("pelvis", "neck", "left_wrist", "right_wrist", "left_ankle", "right_ankle")
-    assert all(j in JOINT_INDEX for js in FIXED_SETS.values() for j in js)
+def test_fixed_set_effectors_are_the_named_joints_ground_truth(bench):
+    """The fixed sets put exact position effectors on their named joints, at the ground-truth joint positions."""
+    for bset in bench.sets:
+        if bset.kind != "fixed":
+            continue
+        eff = bset.effectors
+        names = [[JOINT_NAMES[j] for j in row] for row in eff.joint.tolist()]
+        assert all(row == list(FIXED_SETS[bset.name]) for row in names), bset.name
+        joints = torch.tensor([JOINT_INDEX[n] for n in FIXED_SETS[bset.name]])
+        torch.testing.assert_close(eff.data[..., :3], bset.joints[:, joints], atol=1e-6, rtol=0)
+        assert (eff.data[..., 3:] == 0).all()
+
+
+# ----------------------------------------------------------------------------- per subject
+
+
+@pytest.fixture(scope="module")
+def subject_bench(tmp_path_factory, two_subject_cache):
+    out = tmp_path_factory.mktemp("bench-subjects")
+    make_benchmark(two_subject_cache, out, split="test", seed=0, samples_per_count=12)
+    return load_benchmark(out)
+
+
+def test_sample_subjects_come_from_the_cache_clip_names(subject_bench, two_subject_cache, tiny_cache):
+    from smplik.data.dataset import load_cache
+
+    dataset = load_cache(two_subject_cache)
+    labels = sample_subjects(subject_bench, dataset)
+    assert list(labels) == set_names()
+    test = dataset.subset("test")
+    for bset in subject_bench.sets:
+        clips = [test.clip_names[test.clip_id[f]] for f in bset.frame.tolist()]
+        assert list(labels[bset.name]) == [c.split("_")[0] for c in clips]  # 13_01.npz -> 13, 86_05.npz -> 86
+    assert set().union(*labels.values()) == {"13", "86"}
+    assert sample_subjects(subject_bench, test) == labels  # the split itself works too
+    with pytest.raises(ValueError, match="frames"):
+        sample_subjects(subject_bench, load_cache(tiny_cache))
+
+
+def test_per_subject_results_do_not_let_one_subject_hide_another(subject_bench, two_subject_cache, bodies):
+    """A method exact on subject 13 and at the rest pose on subject 86: the per-subject report shows both."""
+    from smplik.data.dataset import load_cache
+
+    labels = sample_subjects(subject_bench, load_cache(two_subject_cache))
+    rest = RestPoseMethod(bodies)
+
+    def half_oracle(bset):
+        good = torch.tensor([s == "13" for s in labels[bset.name]])
+        guess = rest(bset)
+        return Prediction(torch.where(good[:, None, None, None], bset.R_local, guess.R_local),
+                          torch.where(good[:, None], bset.transl, guess.transl))
+
+    res = run_benchmark(subject_bench, {"half": half_oracle, "rest": rest}, bodies, subjects=labels)
+    randoms = [s for s in subject_bench.sets if s.kind == "random"]
+    counts = {k: sum(list(labels[s.name]).count(k) for s in randoms) for k in ("13", "86")}
+    assert res["subjects"] == counts and counts["13"] != counts["86"]
+    half = res["methods"]["half"]
+    assert half["subjects"]["13"]["mpjpe_mm"] < 1e-3 and half["subjects"]["13"]["samples"] == counts["13"]
+    assert half["subjects"]["86"]["mpjpe_mm"] == pytest.approx(res["methods"]["rest"]["subjects"]["86"]["mpjpe_mm"])
+    assert half["subjects"]["86"]["mpjpe_mm"] > 10
+    for key in ("mpjpe_mm", "geodesic_rad", "position_residual_mm"):
+        expected = (half["subjects"]["13"][key] + half["subjects"]["86"][key]) / 2  # unweighted over subjects
+        assert half["subject_mean"][key] == pytest.approx(expected)
+    pooled = (counts["86"] * half["subjects"]["86"]["mpjpe_mm"]) / sum(counts.values())
+    assert half["subject_mean"]["mpjpe_mm"] != pytest.approx(pooled)  # not a mean over samples
+    table = results_markdown(res)
+    assert "mean over subjects" in table and "| 13 |" in table and "| 86 |" in table
+
+
+def test_ik_benchmark_script_reports_subjects(tmp_path, two_subject_cache):
+    """benchmarks/ik_benchmark.py (reduced run) writes the per-subject results and table."""
+    import runpy
+
+    script = runpy.run_path(str(Path(__file__).resolve().parents[1] / "benchmarks" / "ik_benchmark.py"))
+    code = script["main"](["--data", str(two_subject_cache), "--files", str(tmp_path / "files"), "--threads", "1",
+                           "--samples-per-count", "4", "--methods", "rest,optim", "--optim-iterations", "2",
+                           "--results", str(tmp_path / "results"), "--name", "reduced"])
+    assert code == 0
+    data = json.loads((tmp_path / "results" / "reduced.json").read_text())
+    assert set(data["subjects"]) == {"13", "86"}
+    assert set(data["methods"]["optim"]["subjects"]) == {"13", "86"}
+    assert "mean over subjects" in (tmp_path / "results" / "reduced.md").read_text()
+    assert script["main"](["--data", str(tmp_path / "absent.npz")]) == 1
 
 
 @pytest.fixture(scope="module")
@@ -162,14 +244,12 @@ def cli():
     return root
 
 
-def test_cli_make_and_run(tmp_path, cli, tiny_cache, bodies):
-    from test_solver import write_tiny_model
-
+def test_cli_make_and_run(tmp_path, cli, tiny_cache, tiny_model):
     out = tmp_path / "files"
     res = CliRunner().invoke(cli, ["benchmark", "make", "--data", str(tiny_cache), "--out", str(out),
                                    "--samples-per-count", "3", "--seed", "1"])
     assert res.exit_code == 0, res.output
-    model = write_tiny_model(tmp_path / "tiny.pt", bodies)
+    model = tiny_model
     results = tmp_path / "results.json"
     res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--checkpoint", str(model),
                                    "--methods", "smplik,smplik_net,optim,nn,rest", "--optim-iterations", "3",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -77,15 +79,36 @@ def mirror_perm(v: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------- API
 
 
-def test_public_constants() -> None:
-    assert STATURE_BETA == 0
-    assert len(BETA_DESCRIPTIONS) == NUM_BETAS
-    assert all(isinstance(d, str) and d and "\n" not in d for d in BETA_DESCRIPTIONS)
-    assert "stature" in BETA_DESCRIPTIONS[STATURE_BETA]
+def test_beta_descriptions_state_what_the_model_does(models) -> None:
+    """The per-unit amounts in BETA_DESCRIPTIONS (listed in the module docstring) are the model's."""
     doc = builtin_body.__doc__ or ""
-    for d in BETA_DESCRIPTIONS:
-        assert d.split(":")[0] in doc
-    assert isinstance(BUILTIN_VERSION, str) and BUILTIN_VERSION
+    assert len(BETA_DESCRIPTIONS) == NUM_BETAS and all(d.split(":")[0] in doc for d in BETA_DESCRIPTIONS)
+    assert BETA_DESCRIPTIONS[STATURE_BETA].startswith("stature")
+    m = models[Gender.NEUTRAL]
+
+    def stated(k: int) -> float:
+        value, unit = re.search(r"\+([\d.]+) ?(m|cm|%)", BETA_DESCRIPTIONS[k]).groups()
+        return float(value) * {"m": 1.0, "cm": 0.01, "%": 0.01}[unit]
+
+    def chain(joints: np.ndarray, *names: str) -> float:
+        return sum(bone(joints, a, b) for a, b in zip(names, names[1:], strict=False))
+
+    def delta(k: int, measure) -> float:
+        return measure(rest_joints(m, unit_beta(k, 1.0)), shaped_vertices(m, unit_beta(k, 1.0))) - measure(
+            rest_joints(m), shaped_vertices(m))
+
+    leg = ("left_hip", "left_knee", "left_ankle")
+    arm = ("left_shoulder", "left_elbow", "left_wrist")
+    measured = {
+        STATURE_BETA: delta(STATURE_BETA, lambda j, v: stature(v)),
+        2: delta(2, lambda j, v: chain(j, *leg)),
+        3: delta(3, lambda j, v: chain(j, *arm) / chain(rest_joints(m), *arm)),
+        4: delta(4, lambda j, v: j[J["left_shoulder"], 0]),
+        9: delta(9, lambda j, v: j[J["head"], 1]),
+    }
+    for k, value in measured.items():
+        assert value == pytest.approx(stated(k), rel=0.25), (BETA_DESCRIPTIONS[k], value)
+    assert abs(delta(2, lambda j, v: stature(v))) < 1e-3  # leg-to-torso ratio keeps the stature
 
 
 def test_unknown_gender_raises() -> None:

@@ -20,29 +20,14 @@ from smplik.effector_schema import (
     save_effector_file,
 )
 from smplik.effectors import Effector
-from smplik.network import NetworkConfig, ProtoResIK
 from smplik.pose import Pose
 from smplik.refine import RefineConfig
 from smplik.solver import IKSolver, pack_rows, packaged_model_path
 
-TINY = NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=2, layers_per_block=1)
-
-
-def write_tiny_model(path, bodies, seed=0):
-    """A train-free model in the exported format (through smplik.train.export_model)."""
-    from smplik.train import export_model
-
-    torch.manual_seed(seed)
-    model = ProtoResIK(TINY, bodies.J_template, bodies.J_dirs)
-    ckpt = path.with_suffix(".ckpt")
-    torch.save({"format": "smplik-checkpoint", "version": 1, "step": 0, "config": {}, "network": TINY.to_dict(),
-                "model": model.state_dict(), "body_fingerprint": bodies.fingerprint, "metrics": {}}, ckpt)
-    return export_model(ckpt, path)
-
 
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory, bodies):
-    return write_tiny_model(tmp_path_factory.mktemp("model") / "tiny.pt", bodies)
+def model_path(tiny_model):
+    return tiny_model
 
 
 @pytest.fixture(scope="module")
@@ -78,12 +63,19 @@ def test_load_missing_and_non_model_files(tmp_path):
         IKSolver.load(junk)
 
 
-def test_default_model_is_the_packaged_file():
-    if not packaged_model_path().is_file():
-        with pytest.raises(FileNotFoundError, match="No packaged model"):
-            IKSolver.load()
-    else:
-        assert IKSolver.load().source == str(packaged_model_path())
+def test_default_model_is_the_packaged_file(monkeypatch, tmp_path, model_path, solver):
+    """Without a path, load() reads packaged_model_path(); when that file is missing it says so."""
+    import smplik.solver as solver_module
+
+    assert packaged_model_path().name == "smplik_cmu.pt" and packaged_model_path().parent.name == "checkpoints"
+    monkeypatch.setattr(solver_module, "packaged_model_path", lambda: model_path)
+    default = IKSolver.load()
+    assert default.source == str(model_path)
+    eff = [Effector.position("left_wrist", [0.4, 1.1, 0.2]), Effector.position("pelvis", [0.0, 0.9, 0.0])]
+    np.testing.assert_array_equal(default.solve(eff).joints, solver.solve(eff).joints)
+    monkeypatch.setattr(solver_module, "packaged_model_path", lambda: tmp_path / "absent.pt")
+    with pytest.raises(FileNotFoundError, match=f"No packaged model at {tmp_path / 'absent.pt'}"):
+        IKSolver.load()
 
 
 def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):

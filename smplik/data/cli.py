@@ -5,7 +5,6 @@ Add further commands to :data:`app` with ``@app.command(...)``.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated
 
@@ -13,28 +12,23 @@ import typer
 from rich.console import Console
 
 from smplik.conventions import Gender
+from smplik.paths import CMU_DIR_ENV, cmu_dir, missing_cmu_reason
 
 app = typer.Typer(help="Motion data: BVH import, retargeting, previews.", no_args_is_help=True)
 console = Console(stderr=True)
 
-CMU_DIR_ENV = "SMPLIK_CMU_DIR"
-
-
-def default_cmu_dir() -> Path:
-    """``$SMPLIK_CMU_DIR`` if set, else ``<repo>/../shared/data/cmu``."""
-    env = os.environ.get(CMU_DIR_ENV, "")
-    return Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cmu"
-
-
 def resolve_clip(clip: str) -> Path:
-    """A BVH path, or a clip name such as ``07_01`` looked up in :func:`default_cmu_dir`."""
+    """A BVH path, or a clip name such as ``07_01`` looked up in :func:`smplik.paths.cmu_dir`."""
     path = Path(clip)
     if path.is_file():
         return path
-    candidate = default_cmu_dir() / (clip if clip.endswith(".bvh") else f"{clip}.bvh")
+    folder = cmu_dir()
+    if folder is None:
+        raise typer.BadParameter(f"{clip!r} is not a file, and {missing_cmu_reason()}")
+    candidate = folder / (clip if clip.endswith(".bvh") else f"{clip}.bvh")
     if candidate.is_file():
         return candidate
-    raise typer.BadParameter(f"{clip!r} is neither a file nor a clip in {default_cmu_dir()} (set ${CMU_DIR_ENV}).")
+    raise typer.BadParameter(f"{clip!r} is neither a file nor a clip in {folder} (set ${CMU_DIR_ENV}).")
 
 
 _VIEWS = {"front": (0.0, 0.15, 1.0), "side": (1.0, 0.15, 0.0), "three-quarter": (1.0, 0.3, 1.0)}
