@@ -47,18 +47,16 @@ adults):
 from __future__ import annotations
 
 import hashlib
-import zipfile
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 import scipy.optimize
 import scipy.sparse
 from scipy.spatial import cKDTree
 
-from smplik.atomic import atomic_path
+from smplik.atomic import write_npz_deterministic
 from smplik.conventions import JOINT_INDEX, LEFT_RIGHT, NUM_BETAS, NUM_JOINTS, PARENTS, Gender
 from smplik.paths import cache_dir as default_cache_dir
 
@@ -542,15 +540,6 @@ def generate_builtin_model(gender: Gender | str) -> dict[str, np.ndarray]:
     }
 
 
-def _write_npz(fh: BinaryIO, arrays: dict[str, np.ndarray]) -> None:
-    """Write ``arrays`` as an uncompressed ``.npz`` with fixed timestamps, so the bytes are reproducible."""
-    with zipfile.ZipFile(fh, mode="w", compression=zipfile.ZIP_STORED) as zf:
-        for name in sorted(arrays):
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            with zf.open(info, mode="w", force_zip64=True) as member:
-                np.lib.format.write_array(member, np.asarray(arrays[name]), allow_pickle=False)
-
-
 def builtin_cache_dir(cache_dir: str | Path | None = None) -> Path:
     """Folder of the built-in model files.
 
@@ -570,7 +559,7 @@ def builtin_model_path(gender: Gender | str, cache_dir: str | Path | None = None
 
     The file goes into ``cache_dir`` or :func:`smplik.paths.cache_dir` (``$SMPLIK_CACHE_DIR``), under a
     sub-folder ``builtin-{BUILTIN_VERSION}``. It is written atomically (a temporary file in the same
-    folder, then :func:`os.replace`, via :func:`smplik.atomic.atomic_path`), so a crash never
+    folder, then :func:`os.replace`, via :func:`smplik.atomic.write_npz_deterministic`), so a crash never
     leaves a half-written file.
     """
     g = Gender.parse(gender)
@@ -578,7 +567,4 @@ def builtin_model_path(gender: Gender | str, cache_dir: str | Path | None = None
     path = folder / _FILE_NAMES[g]
     if path.is_file():
         return path
-    model = generate_builtin_model(g)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _write_npz(fh, model)
-    return path
+    return write_npz_deterministic(path, generate_builtin_model(g), compressed=False)

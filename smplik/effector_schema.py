@@ -21,13 +21,15 @@ the joint's own frame (default ``[0, 0, 1]``, the body's forward axis at rest); 
 [0, 1] (default 0: meet the constraint as closely as possible). A bare JSON list is read as the
 ``effectors`` list alone.
 
-Every error is a ``ValueError`` naming the file and the JSON path of the offending item, e.g.
-``poses/wave.json: effectors[2].value: has shape (2,); expected (3,)``.
+Every error is an :class:`~smplik.effectors.EffectorError` (a ``ValueError``) naming the file and the
+JSON path of the offending item, e.g. ``poses/wave.json: effectors[2].value: has shape (2,); expected (3,)``.
+The reader is strict: unknown keys, a tolerance given as a string, booleans where numbers belong,
+NaN/inf, positions or look-at targets beyond 1 km (:data:`smplik.validation.MAX_ABS_POSITION_M`),
+|beta| > 20 and more than :data:`MAX_EFFECTORS` effectors are refused.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,12 +39,14 @@ import numpy as np
 
 from smplik.atomic import write_json_atomic
 from smplik.conventions import JOINT_NAMES, NUM_BETAS, EffectorType, Gender
-from smplik.effectors import Effector
+from smplik.effectors import Effector, EffectorError, parse_effector_dict
+from smplik.validation import JSONPathError, check_betas, read_json
 
 EFFECTORS_FORMAT = "smplik-effectors"
 EFFECTORS_VERSION = 1
 _TOP_KEYS = ("format", "version", "betas", "gender", "effectors")
-_TYPE_NAMES = tuple(t.name.lower() for t in EffectorType)
+MAX_EFFECTORS = 64
+"""Most effectors accepted in one file (the network was trained with at most 16)."""
 
 
 @dataclass(frozen=True)
@@ -70,145 +74,63 @@ class EffectorFile:
         return out
 
 
-class _Path:
-    """Builds ``source: json.path: message`` errors."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def error(self, path: str, message: str) -> ValueError:
-        return ValueError(f"{self.source}: {path}: {message}" if path else f"{self.source}: {message}")
-
-
-def _numbers(err: _Path, path: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    if isinstance(value, (str, bytes, Mapping)) or value is None or isinstance(value, bool):
-        raise err.error(path, f"must be {_shape_words(shape)}, got {json.dumps(value)[:60]}.")
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise err.error(path, f"must be {_shape_words(shape)}, got {json.dumps(value, default=str)[:60]}.") from None
-    if arr.shape != shape:
-        raise err.error(path, f"has shape {arr.shape}; expected {shape}.")
-    if not np.isfinite(arr).all():
-        raise err.error(path, "contains NaN or inf.")
-    return arr
-
-
-def _shape_words(shape: tuple[int, ...]) -> str:
-    return f"a list of {shape[0]} numbers" if len(shape) == 1 else f"{shape[0]} rows of {shape[1]} numbers"
-
-
-def _parse_effector(err: _Path, path: str, data: Any) -> Effector:
-    if not isinstance(data, Mapping):
-        raise err.error(path, f"an effector must be a JSON object, got {type(data).__name__}.")
-    for key in ("joint", "type"):
-        if key not in data:
-            raise err.error(path, f"missing key '{key}'.")
-    joint = data["joint"]
-    if not isinstance(joint, str) or joint not in JOINT_NAMES:
-        raise err.error(f"{path}.joint", f"unknown joint {joint!r}; valid names: {', '.join(JOINT_NAMES)}.")
-    kind_text = data["type"]
-    if not isinstance(kind_text, str):
-        raise err.error(f"{path}.type", f"must be one of {', '.join(_TYPE_NAMES)}, got {kind_text!r}.")
-    try:
-        kind = EffectorType.parse(kind_text)
-    except ValueError as exc:
-        raise err.error(f"{path}.type", str(exc)) from None
-    allowed = {"joint", "type", "tolerance"} | ({"target", "direction"} if kind == EffectorType.LOOK_AT else {"value"})
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise err.error(path, f"unknown key(s) {unknown} for a {kind.name.lower()} effector; "
-                              f"allowed: {sorted(allowed)}.")
-    tol = data.get("tolerance", 0.0)
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)):
-        raise err.error(f"{path}.tolerance", f"must be a number in [0, 1], got {json.dumps(tol, default=str)}.")
-    if not np.isfinite(tol) or not 0.0 <= tol <= 1.0:
-        raise err.error(f"{path}.tolerance", f"{tol} is outside [0, 1].")
-    if kind == EffectorType.LOOK_AT:
-        if "target" not in data:
-            raise err.error(path, "missing key 'target' (look-at effectors need a target).")
-        target = _numbers(err, f"{path}.target", data["target"], (3,))
-        direction = _numbers(err, f"{path}.direction", data.get("direction", (0.0, 0.0, 1.0)), (3,))
-        if np.linalg.norm(direction) < 1e-8:
-            raise err.error(f"{path}.direction", "look-at direction is the zero vector.")
-        return Effector.look_at(joint, target, direction, float(tol))
-    if "value" not in data:
-        raise err.error(path, "missing key 'value'.")
-    if kind == EffectorType.POSITION:
-        return Effector.position(joint, _numbers(err, f"{path}.value", data["value"], (3,)), float(tol))
-    R = _numbers(err, f"{path}.value", data["value"], (3, 3))
-    try:
-        return Effector.rotation(joint, R, float(tol))
-    except ValueError as exc:
-        raise err.error(f"{path}.value", str(exc).split(": ", 1)[-1]) from None
-
-
 def parse_effector_document(data: Any, source: str = "<effectors>") -> EffectorFile:
     """Validate and parse the JSON form (a dict, or a bare list of effectors).
 
     Raises:
         ValueError: naming ``source`` and the JSON path of the problem.
     """
-    err = _Path(source)
+    err = JSONPathError(source, EffectorError)
     if isinstance(data, list):
         data = {"effectors": data}
     if not isinstance(data, Mapping):
-        raise err.error("", f"expected a JSON object with keys {', '.join(_TOP_KEYS)}, got {type(data).__name__}.")
+        raise err("", f"expected a JSON object with keys {', '.join(_TOP_KEYS)}, got {type(data).__name__}.")
     unknown = sorted(set(data) - set(_TOP_KEYS))
     if unknown:
-        raise err.error("", f"unknown key(s) {unknown}; valid keys: {', '.join(_TOP_KEYS)}.")
+        raise err("", f"unknown key(s) {unknown}; valid keys: {', '.join(_TOP_KEYS)}.")
     if "format" in data and data["format"] != EFFECTORS_FORMAT:
-        raise err.error("format", f"expected {EFFECTORS_FORMAT!r}, got {data['format']!r}.")
+        raise err("format", f"expected {EFFECTORS_FORMAT!r}, got {data['format']!r}.")
     if "version" in data:
         version = data["version"]
         if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= EFFECTORS_VERSION:
-            raise err.error("version", f"unsupported version {version!r}; this smplik reads version "
+            raise err("version", f"unsupported version {version!r}; this smplik reads version "
                                        f"{EFFECTORS_VERSION}.")
     betas = None
     if data.get("betas") is not None:
         raw = data["betas"]
         if isinstance(raw, list) and len(raw) != NUM_BETAS:
-            raise err.error("betas", f"has {len(raw)} values; expected exactly {NUM_BETAS}.")
-        betas = _numbers(err, "betas", raw, (NUM_BETAS,))
+            raise err("betas", f"has {len(raw)} values; expected exactly {NUM_BETAS}.")
+        betas = check_betas(raw, where=f"{source}: betas", error=EffectorError)
     gender = None
     if data.get("gender") is not None:
         try:
             gender = Gender.parse(data["gender"]) if isinstance(data["gender"], str) else Gender.parse("?")
         except ValueError:
             valid = ", ".join(g.value for g in Gender)
-            raise err.error("gender", f"unknown gender {data['gender']!r}; expected one of: {valid}.") from None
+            raise err("gender", f"unknown gender {data['gender']!r}; expected one of: {valid}.") from None
     if "effectors" not in data:
-        raise err.error("", "missing key 'effectors'.")
+        raise err("", "missing key 'effectors'.")
     items = data["effectors"]
     if not isinstance(items, list):
-        raise err.error("effectors", f"must be a list, got {type(items).__name__}.")
+        raise err("effectors", f"must be a list, got {type(items).__name__}.")
     if not items:
-        raise err.error("effectors", "is empty; at least one effector is needed.")
-    effectors = tuple(_parse_effector(err, f"effectors[{i}]", item) for i, item in enumerate(items))
+        raise err("effectors", "is empty; at least one effector is needed.")
+    if len(items) > MAX_EFFECTORS:
+        raise err("effectors", f"has {len(items)} effectors; at most {MAX_EFFECTORS} are accepted.")
+    effectors = tuple(parse_effector_dict(item, f"effectors[{i}]", err) for i, item in enumerate(items))
     seen: dict[tuple[int, EffectorType], int] = {}
     for i, e in enumerate(effectors):
         key = (e.joint, e.type)
         if key in seen:
-            raise err.error(f"effectors[{i}]", f"duplicate {e.type.name.lower()} effector on '{e.joint_name}' "
+            raise err(f"effectors[{i}]", f"duplicate {e.type.name.lower()} effector on '{e.joint_name}' "
                                                f"(also effectors[{seen[key]}]).")
         seen[key] = i
     return EffectorFile(effectors, betas, gender)
 
 
 def load_effector_file(path: str | Path) -> EffectorFile:
-    """Read an effector file (see the module docstring). Raises ``ValueError`` naming the file."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ValueError(f"Effector file not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read effector file ({exc}).") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: invalid JSON ({exc}).") from None
-    return parse_effector_document(data, source=str(path))
+    """Read an effector file (see the module docstring). Raises :class:`EffectorError` naming the file."""
+    return parse_effector_document(read_json(path, EffectorError, what="effector file"), source=str(path))
 
 
 def save_effector_file(path: str | Path, effectors: Sequence[Effector], *, betas: Any = None,

@@ -26,17 +26,26 @@ from torch import Tensor
 
 from smplik.conventions import JOINT_NAMES, NUM_JOINTS, EffectorType, joint_index
 from smplik.rotations import euler_to_matrix, matrix_to_rot6d
-from smplik.validation import finite_array
+from smplik.validation import MAX_ABS_POSITION_M, JSONPathError, finite_array, short_repr
+
+_TYPE_NAMES = tuple(t.name.lower() for t in EffectorType)
 
 
-def _finite_array(name: str, value: Any, shape: tuple[int, ...], joint: str) -> np.ndarray:
-    return finite_array(value, shape, f"Effector on '{joint}': {name}")
+class EffectorError(ValueError):
+    """An effector is invalid; the message names the joint or the JSON path."""
+
+
+def _finite_array(name: str, value: Any, shape: tuple[int, ...], joint: str,
+                  max_abs: float | None = None) -> np.ndarray:
+    return finite_array(value, shape, f"Effector on '{joint}': {name}", EffectorError, max_abs=max_abs)
 
 
 @dataclass(frozen=True)
 class Effector:
     """One constraint on one joint. Build with :meth:`position`, :meth:`rotation`, :meth:`look_at`
-    or :meth:`from_dict`; the constructors validate their input and raise ``ValueError``."""
+    or :meth:`from_dict`; the constructors validate their input and raise :class:`EffectorError`.
+
+    Positions and look-at targets must lie within ``MAX_ABS_POSITION_M`` (1 km) per coordinate."""
 
     joint: int
     type: EffectorType
@@ -46,9 +55,12 @@ class Effector:
 
     def __post_init__(self) -> None:
         name = JOINT_NAMES[self.joint] if 0 <= self.joint < NUM_JOINTS else str(self.joint)
+        if isinstance(self.tolerance, bool) or not isinstance(self.tolerance, (int, float, np.floating, np.integer)):
+            raise EffectorError(f"Effector on '{name}': tolerance must be a number in [0, 1], "
+                                f"got {self.tolerance!r:.40}.")
         tol = float(self.tolerance)
         if not np.isfinite(tol) or not 0.0 <= tol <= 1.0:
-            raise ValueError(f"Effector on '{name}': tolerance {self.tolerance} is outside [0, 1].")
+            raise EffectorError(f"Effector on '{name}': tolerance {self.tolerance} is outside [0, 1].")
 
     @property
     def joint_name(self) -> str:
@@ -56,59 +68,38 @@ class Effector:
 
     @classmethod
     def position(cls, joint: str | int, xyz: Any, tolerance: float = 0.0) -> Effector:
-        j = joint_index(joint)
-        return cls(j, EffectorType.POSITION, _finite_array("value", xyz, (3,), JOINT_NAMES[j]), None, tolerance)
+        j = _joint(joint)
+        value = _finite_array("value", xyz, (3,), JOINT_NAMES[j], MAX_ABS_POSITION_M)
+        return cls(j, EffectorType.POSITION, value, None, tolerance)
 
     @classmethod
     def rotation(cls, joint: str | int, matrix: Any, tolerance: float = 0.0) -> Effector:
-        j = joint_index(joint)
+        j = _joint(joint)
         R = _finite_array("value", matrix, (3, 3), JOINT_NAMES[j])
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
-            raise ValueError(f"Effector on '{JOINT_NAMES[j]}': value is not a rotation matrix "
-                             f"(needs R^T R = I and det R = +1; det = {np.linalg.det(R):.4f}).")
+            raise EffectorError(f"Effector on '{JOINT_NAMES[j]}': value is not a rotation matrix "
+                                f"(needs R^T R = I and det R = +1; det = {np.linalg.det(R):.4f}).")
         u, _, vt = np.linalg.svd(R)  # project to the nearest exact rotation
         return cls(j, EffectorType.ROTATION, u @ vt, None, tolerance)
 
     @classmethod
     def look_at(cls, joint: str | int, target: Any, direction: Any = (0.0, 0.0, 1.0),
                 tolerance: float = 0.0) -> Effector:
-        j = joint_index(joint)
-        t = _finite_array("target", target, (3,), JOINT_NAMES[j])
+        j = _joint(joint)
+        t = _finite_array("target", target, (3,), JOINT_NAMES[j], MAX_ABS_POSITION_M)
         d = _finite_array("direction", direction, (3,), JOINT_NAMES[j])
         n = np.linalg.norm(d)
-        if n < 1e-8:
-            raise ValueError(f"Effector on '{JOINT_NAMES[j]}': look-at direction is the zero vector.")
+        if not n >= 1e-8 or not np.isfinite(n):
+            raise EffectorError(f"Effector on '{JOINT_NAMES[j]}': look-at direction is the zero vector "
+                                "(or not normalisable).")
         return cls(j, EffectorType.LOOK_AT, t, d / n, tolerance)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Effector:
-        """Parse the JSON form: ``{"joint", "type", "value" | ("target", "direction"), "tolerance"}``."""
-        if not isinstance(data, Mapping):
-            raise ValueError(f"An effector must be a JSON object, got {type(data).__name__}.")
-        for key in ("joint", "type"):
-            if key not in data:
-                raise ValueError(f"Effector {dict(data)!r:.80} is missing key '{key}'.")
-        kind = EffectorType.parse(data["type"])
-        tol = data.get("tolerance", 0.0)
-        try:
-            tol = float(tol)
-        except (TypeError, ValueError):
-            raise ValueError(f"Effector on {data['joint']!r}: tolerance must be a number, got {tol!r}.") from None
-        allowed = {"joint", "type", "tolerance"} | ({"target", "direction"} if kind == EffectorType.LOOK_AT
-                                                   else {"value"})
-        unknown = set(data) - allowed
-        if unknown:
-            raise ValueError(f"Effector on {data['joint']!r}: unknown key(s) {sorted(unknown)} for a "
-                             f"{kind.name.lower()} effector; allowed: {sorted(allowed)}.")
-        if kind == EffectorType.LOOK_AT:
-            if "target" not in data:
-                raise ValueError(f"Look-at effector on {data['joint']!r} is missing key 'target'.")
-            return cls.look_at(data["joint"], data["target"], data.get("direction", (0.0, 0.0, 1.0)), tol)
-        if "value" not in data:
-            raise ValueError(f"Effector on {data['joint']!r} is missing key 'value'.")
-        if kind == EffectorType.POSITION:
-            return cls.position(data["joint"], data["value"], tol)
-        return cls.rotation(data["joint"], data["value"], tol)
+    def from_dict(cls, data: Mapping[str, Any], path: str = "") -> Effector:
+        """Parse the JSON form: ``{"joint", "type", "value" | ("target", "direction"), "tolerance"}``.
+
+        Errors are :class:`EffectorError` reading ``<path>: <problem>`` (see :func:`parse_effector_dict`)."""
+        return parse_effector_dict(data, path)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"joint": self.joint_name, "type": self.type.name.lower()}
@@ -127,6 +118,82 @@ class Effector:
         if self.type == EffectorType.ROTATION:
             return np.concatenate([self.value[:, 0], self.value[:, 1]])
         return np.concatenate([self.value, self.direction])  # type: ignore[arg-type]
+
+
+def _joint(joint: Any) -> int:
+    try:
+        return joint_index(joint)
+    except (ValueError, KeyError, TypeError, IndexError):
+        raise EffectorError(f"Unknown joint {joint!r:.60}; valid names: {', '.join(JOINT_NAMES)}.") from None
+
+
+def parse_effector_dict(data: Any, path: str = "", error: JSONPathError | None = None) -> Effector:
+    """The one parser of an effector's JSON form, shared by effector files, scenes and the solver API.
+
+    Strict: unknown keys, a non-string joint or type, a tolerance that is not a number (``"0.5"``,
+    ``true``), booleans among the numbers, NaN/inf, wrong shapes and out-of-range values are refused.
+
+    Args:
+        data: the dict ``{"joint", "type", "value" | ("target", "direction"), "tolerance"}``.
+        path: the JSON path of ``data`` for messages (``effectors[2]``).
+        error: builds the error (source file and error class); default :class:`EffectorError`.
+
+    Raises:
+        The error class of ``error`` (default :class:`EffectorError`): ``<source>: <path>.<key>: <problem>``.
+    """
+    err = error or JSONPathError("", EffectorError)
+
+    def sub(key: str) -> str:
+        return f"{path}.{key}" if path else key
+
+    if not isinstance(data, Mapping):
+        raise err(path, f"an effector must be a JSON object, got {type(data).__name__}.")
+    for key in ("joint", "type"):
+        if key not in data:
+            raise err(path, f"missing key '{key}'.")
+    joint = data["joint"]
+    if not isinstance(joint, str) or joint not in JOINT_NAMES:
+        raise err(sub("joint"), f"unknown joint {joint!r:.60}; valid names: {', '.join(JOINT_NAMES)}.")
+    kind_text = data["type"]
+    try:
+        if not isinstance(kind_text, str):
+            raise ValueError
+        kind = EffectorType.parse(kind_text)
+    except (ValueError, KeyError):
+        raise err(sub("type"), f"must be one of {', '.join(_TYPE_NAMES)}, got {short_repr(kind_text)}.") from None
+    allowed = {"joint", "type", "tolerance"} | ({"target", "direction"} if kind == EffectorType.LOOK_AT else {"value"})
+    unknown = sorted(str(k) for k in set(data) - allowed)
+    if unknown:
+        raise err(path, f"unknown key(s) {unknown} for a {kind.name.lower()} effector; allowed: {sorted(allowed)}.")
+    tol = data.get("tolerance", 0.0)
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)):
+        raise err(sub("tolerance"), f"must be a number in [0, 1], got {short_repr(tol)}.")
+    if not np.isfinite(tol) or not 0.0 <= tol <= 1.0:
+        raise err(sub("tolerance"), f"{tol} is outside [0, 1].")
+
+    def numbers(key: str, value: Any, shape: tuple[int, ...], max_abs: float | None = None) -> np.ndarray:
+        try:
+            return finite_array(value, shape, "", EffectorError, max_abs=max_abs)
+        except EffectorError as exc:
+            raise err(sub(key), str(exc)[2:]) from None
+
+    if kind == EffectorType.LOOK_AT:
+        if "target" not in data:
+            raise err(path, "missing key 'target' (look-at effectors need a target).")
+        target = numbers("target", data["target"], (3,), MAX_ABS_POSITION_M)
+        direction = numbers("direction", data.get("direction", [0.0, 0.0, 1.0]), (3,))
+        if not np.linalg.norm(direction) >= 1e-8:
+            raise err(sub("direction"), "look-at direction is the zero vector.")
+        return Effector.look_at(joint, target, direction, float(tol))
+    if "value" not in data:
+        raise err(path, "missing key 'value'.")
+    if kind == EffectorType.POSITION:
+        return Effector.position(joint, numbers("value", data["value"], (3,), MAX_ABS_POSITION_M), float(tol))
+    R = numbers("value", data["value"], (3, 3))
+    try:
+        return Effector.rotation(joint, R, float(tol))
+    except EffectorError as exc:
+        raise err(sub("value"), str(exc).split(": ", 1)[-1]) from None
 
 
 @dataclass(frozen=True)
@@ -150,26 +217,32 @@ class EffectorBatch:
 
 def pack_effectors(effectors: Sequence[Effector] | Sequence[Sequence[Effector]],
                    dtype: torch.dtype = torch.float32) -> EffectorBatch:
-    """Pack one list (-> batch of 1) or a batch of lists (padded to the longest, with a mask)."""
+    """The one effector packing: one list (-> batch of 1) or a batch of lists (padded to the longest,
+    with a mask), building numpy arrays once (fast for the small inputs of one solve)."""
     if len(effectors) == 0:
-        raise ValueError("At least one effector is needed.")
-    batch = [effectors] if isinstance(effectors[0], Effector) else effectors
-    N = max(len(row) for row in batch)
-    if any(len(row) == 0 for row in batch):
-        raise ValueError("Every pose in a batch needs at least one effector.")
-    B = len(batch)
-    joint = torch.zeros(B, N, dtype=torch.long)
-    kind = torch.zeros(B, N, dtype=torch.long)
-    data = np.zeros((B, N, 6))
-    tol = torch.zeros(B, N, dtype=dtype)
-    mask = torch.zeros(B, N, dtype=torch.bool)
-    for b, row in enumerate(batch):
-        for i, eff in enumerate(row):
-            if not isinstance(eff, Effector):
-                raise ValueError(f"Expected Effector objects, got {type(eff).__name__}.")
-            joint[b, i], kind[b, i], tol[b, i], mask[b, i] = eff.joint, int(eff.type), eff.tolerance, True
-            data[b, i] = eff.data6()
-    return EffectorBatch(joint, kind, torch.as_tensor(data, dtype=dtype), tol, mask)
+        raise EffectorError("At least one effector is needed.")
+    rows = [effectors] if isinstance(effectors[0], Effector) else effectors
+    if any(len(row) == 0 for row in rows):
+        raise EffectorError("Every pose in a batch needs at least one effector.")
+    B, N = len(rows), max(len(r) for r in rows)
+    joint = np.zeros((B, N), np.int64)
+    kind = np.zeros((B, N), np.int64)
+    data = np.zeros((B, N, 6), np.float64)
+    tol = np.zeros((B, N), np.float64)
+    mask = np.zeros((B, N), bool)
+    for b, row in enumerate(rows):
+        for i, e in enumerate(row):
+            if not isinstance(e, Effector):
+                raise EffectorError(f"Expected Effector objects, got {type(e).__name__}.")
+            joint[b, i], kind[b, i], tol[b, i], mask[b, i] = e.joint, int(e.type), e.tolerance, True
+            if e.type == EffectorType.POSITION:
+                data[b, i, :3] = e.value
+            elif e.type == EffectorType.ROTATION:
+                data[b, i, :3], data[b, i, 3:] = e.value[:, 0], e.value[:, 1]
+            else:
+                data[b, i, :3], data[b, i, 3:] = e.value, e.direction
+    return EffectorBatch(torch.from_numpy(joint), torch.from_numpy(kind), torch.from_numpy(data).to(dtype),
+                         torch.from_numpy(tol).to(dtype), torch.from_numpy(mask))
 
 
 # ----------------------------------------------------------------------------- training-time sampling

@@ -11,8 +11,9 @@ A world-frame increment ``delta_j`` rotates joint ``j``'s subtree about the join
 joint ``j``'s local rotation (by ``exp(R_world_parent^T delta_j)``); ``e`` is the current deviation of
 each local rotation from the network's, in the same frame, so the prior keeps the learned pose and
 the network still decides everything the effectors leave open. A step is kept only where it lowers
-the objective (effector terms plus prior); ``lambda`` starts at ``damping / sigma_prior^2`` and, per
-pose, grows 10x after a rejected step and shrinks 0.3x after an accepted one.
+the objective (effector terms plus prior) and its normal equations factorise with finite numbers (a
+failed Cholesky factorisation keeps that pose's previous iterate; it never raises); ``lambda`` starts
+at ``damping / sigma_prior^2`` and, per pose, grows 10x after a rejected step and shrinks 0.3x after an accepted one.
 
 Residuals ``r_i`` (3 per effector) and their analytic Jacobians (first order):
 
@@ -198,8 +199,15 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         e = (R_world_parent @ dev[..., None])[..., 0]
         g = (JtW @ r.reshape(B, 3 * N, 1))[..., 0]
         g = g + torch.cat([prior * e.reshape(B, 3 * J), torch.zeros(B, 3, dtype=dt)], -1)
-        L = torch.linalg.cholesky(JtW @ Jac + H_prior + lam * eye_n)  # symmetric positive definite
+        A = JtW @ Jac + H_prior + lam * eye_n  # symmetric positive definite, unless the numbers overflow
+        A = torch.where(torch.isfinite(A).all(-1, keepdim=True).all(-2, keepdim=True), A, eye_n)
+        L, info = torch.linalg.cholesky_ex(A)
+        factored = info == 0
+        if not bool(factored.all()):  # a failed factorisation: that pose keeps its current iterate
+            L = torch.where(factored[:, None, None], L, eye_n)
         delta = -torch.cholesky_solve(g[..., None], L)[..., 0]  # (B, 3J + 3)
+        factored = factored & torch.isfinite(delta).all(-1)
+        delta = torch.where(factored[:, None], delta, 0.0)
         d_local = (R_world_parent.transpose(-1, -2) @ delta[:, :3 * J].reshape(B, J, 3, 1))[..., 0]
         R_local_new = axis_angle_to_matrix(d_local) @ R_local
         transl_new = transl + delta[:, 3 * J:]
@@ -207,7 +215,7 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         terms_new = state_terms(R_local_new, R_world_new, p_world_new)
         new = cost(terms_new)
         # Levenberg-Marquardt: keep a step only where it lowers the objective; otherwise damp harder.
-        ok = new < current
+        ok = (new < current) & factored & torch.isfinite(new)
         if bool(ok.all()):
             R_local, R_world, p_world, transl, terms = R_local_new, R_world_new, p_world_new, transl_new, terms_new
         elif bool(ok.any()):

@@ -51,11 +51,16 @@ class Segment:
 
 @dataclass(frozen=True)
 class View:
-    """Camera placement: look at the scene's centre from ``direction`` (world, y-up)."""
+    """Camera placement: look at the scene's centre from ``direction`` (world, y-up).
+
+    ``center`` and ``distance`` default to fitting the rendered items; :func:`fit_views` sets them so
+    that several views of the same items share one scale."""
 
     direction: Sequence[float] = (0.0, 0.0, 1.0)
     yfov: float = np.pi / 5
     margin: float = 1.15
+    center: Sequence[float] | None = None
+    distance: float | None = None
 
 
 @dataclass(frozen=True)
@@ -104,6 +109,42 @@ def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return T
 
 
+def _unit(direction: Sequence[float]) -> np.ndarray:
+    d = np.asarray(direction, float)
+    n = float(np.linalg.norm(d)) if d.shape == (3,) else 0.0
+    if not n > 1e-9 or not np.isfinite(n):
+        raise RenderError(f"View direction {tuple(direction)} is not a non-zero 3-vector.")
+    return d / n
+
+
+def _fit(points: np.ndarray, view: View, aspect: float) -> tuple[np.ndarray, float, float]:
+    """Centre, camera distance and radius that fit ``points`` (P, 3) in ``view``."""
+    lo, hi = points.min(0), points.max(0)
+    center = (lo + hi) / 2 if view.center is None else np.asarray(view.center, float)
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.05)
+    d = _unit(view.direction)
+    axes = _look_at(center + d, center)[:3, :3]
+    local = (points - center) @ axes  # camera-aligned coordinates: x right, y up, z towards camera
+    half_x, half_y = max(np.abs(local[:, 0]).max(), 0.05), max(np.abs(local[:, 1]).max(), 0.05)
+    tan_y = np.tan(view.yfov / 2)
+    dist = view.margin * max(half_y / tan_y, half_x / (tan_y * aspect)) + max(local[:, 2].max(), 0.0)
+    return center, dist, radius
+
+
+def fit_views(points: np.ndarray, directions: Sequence[Sequence[float]], *, size: tuple[int, int],
+              yfov: float = np.pi / 5, margin: float = 1.15) -> list[View]:
+    """Views from ``directions`` that all show ``points`` (P, 3) at one common scale (same centre and
+    distance: the largest any single view needs), for side-by-side panels of ``size = (width, height)``."""
+    points = np.asarray(points, float).reshape(-1, 3)
+    if len(points) == 0 or size[0] < 1 or size[1] < 1:
+        raise RenderError(f"Cannot fit views of {len(points)} points in an image of size {size}.")
+    aspect = size[0] / size[1]
+    fits = [_fit(points, View(tuple(d), yfov, margin), aspect) for d in directions]
+    center = (points.min(0) + points.max(0)) / 2
+    distance = max(f[1] for f in fits)
+    return [View(tuple(d), yfov, margin, tuple(center), distance) for d in directions]
+
+
 def render(
     meshes: Sequence[MeshItem] = (),
     spheres: Sequence[Sphere] = (),
@@ -112,21 +153,30 @@ def render(
     size: tuple[int, int] = (480, 640),
     view: View | ImageCamera = View(),
     background: np.ndarray | RGBA = (1.0, 1.0, 1.0, 1.0),
+    markers_on_top: bool = True,
 ) -> np.ndarray:
     """Render the items; returns an RGB uint8 image (H, W, 3) with ``size = (width, height)``.
 
-    ``background`` is a colour, or an RGB image of the output size to draw over (overlay).
+    ``background`` is a colour, or an RGB image of the output size to draw over (overlay). With
+    ``markers_on_top`` the spheres and segments stay visible where a mesh hides them (a met position
+    target sits inside the body): a second pass of the markers alone is blended over the image.
     """
+    width, height = int(size[0]), int(size[1])
+    if width < 1 or height < 1 or width > 16384 or height > 16384:
+        raise RenderError(f"Image size {width} x {height} is outside 1..16384 pixels.")
     pyrender = _pyrender()
     import trimesh
 
-    width, height = size
     bg_image = None
     if isinstance(background, np.ndarray) and background.ndim == 3:
+        if background.shape[:2] != (height, width):
+            raise RenderError(f"Background image of shape {background.shape[:2]} does not match the size "
+                              f"{height} x {width}.")
         bg_image, bg_color = background[..., :3], (0.0, 0.0, 0.0, 0.0)
     else:
         bg_color = tuple(float(c) for c in background)  # pyrender wants floats
     scene = pyrender.Scene(bg_color=bg_color, ambient_light=(0.35, 0.35, 0.35))
+    marker_scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=(0.35, 0.35, 0.35))
     points = []
     for m in meshes:
         tm = trimesh.Trimesh(np.asarray(m.vertices, float), np.asarray(m.faces), process=False)
@@ -139,29 +189,30 @@ def render(
     for tm, color in prims:
         mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=color, metallicFactor=0.0, roughnessFactor=0.5)
         scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=False))
+        marker_scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=False))
         points.append(tm.vertices)
     if not points:
         raise RenderError("Nothing to render.")
     allp = np.concatenate(points)
+    if not np.isfinite(allp).all():
+        raise RenderError("The items to render contain NaN or inf coordinates.")
     if isinstance(view, ImageCamera):
+        if not all(np.isfinite(v) and v > 0 for v in (view.fx, view.fy)):
+            raise RenderError(f"Image camera focal lengths must be positive and finite, got {view.fx}, {view.fy}.")
         camera = pyrender.IntrinsicsCamera(view.fx, view.fy, view.cx, view.cy, znear=0.05, zfar=100.0)
         T_world_camera = np.asarray(view.T_world_camera, float)
     else:
-        lo, hi = allp.min(0), allp.max(0)
-        center, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
-        aspect = width / height
-        d = np.asarray(view.direction, float)
-        d = d / np.linalg.norm(d)
-        axes = _look_at(center + d, center)[:3, :3]
-        local = (allp - center) @ axes  # camera-aligned coordinates: x right, y up, z towards camera
-        half_x, half_y = np.abs(local[:, 0]).max(), np.abs(local[:, 1]).max()
-        tan_y = np.tan(view.yfov / 2)
-        dist = view.margin * max(half_y / tan_y, half_x / (tan_y * aspect)) + local[:, 2].max()
+        center, dist, radius = _fit(allp, view, width / height)
+        if view.distance is not None:
+            dist = float(view.distance)
+        d = _unit(view.direction)
         T_world_camera = _look_at(center + dist * d, center)
-        camera = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=aspect, znear=0.05, zfar=dist + 4 * radius)
-    scene.add(camera, pose=T_world_camera)
+        camera = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=width / height, znear=0.05,
+                                            zfar=dist + 4 * radius)
     light = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
-    scene.add(light, pose=T_world_camera)
+    for sc in (scene, marker_scene):
+        sc.add(camera, pose=T_world_camera)
+        sc.add(light, pose=T_world_camera)
     try:
         renderer = pyrender.OffscreenRenderer(width, height)
     except Exception as exc:
@@ -174,9 +225,14 @@ def render(
             color, _ = renderer.render(scene, flags=pyrender.RenderFlags.RGBA)
             alpha = color[..., 3:4].astype(np.float32) / 255.0
             out = color[..., :3] * alpha + bg_image.astype(np.float32) * (1 - alpha)
-            return out.astype(np.uint8)
-        color, _ = renderer.render(scene)
-        return np.ascontiguousarray(color[..., :3])
+        else:
+            color, _ = renderer.render(scene)
+            out = color[..., :3].astype(np.float32)
+        if markers_on_top and prims and meshes:
+            marks, _ = renderer.render(marker_scene, flags=pyrender.RenderFlags.RGBA)
+            a = 0.7 * marks[..., 3:4].astype(np.float32) / 255.0  # hidden markers show through at 70 %
+            out = marks[..., :3] * a + out * (1 - a)
+        return np.ascontiguousarray(np.clip(out, 0, 255).astype(np.uint8))
     finally:
         renderer.delete()
 

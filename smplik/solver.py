@@ -35,11 +35,14 @@ import torch
 from torch import Tensor
 
 from smplik.body_model import BodyModelSet
-from smplik.conventions import NUM_BETAS, Gender
-from smplik.effectors import Effector, EffectorBatch
+from smplik.conventions import EffectorType, Gender
+from smplik.effectors import Effector, EffectorBatch, EffectorError, pack_effectors, parse_effector_dict
+from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput, ProtoResIK
 from smplik.pose import Pose
 from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, refine_output
+from smplik.rotations import axis_angle_to_matrix
+from smplik.validation import check_betas
 
 PACKAGED_MODEL = "smplik_cmu.pt"
 """File name of the shipped model in ``smplik/checkpoints``."""
@@ -57,74 +60,24 @@ def as_effector(item: EffectorLike, index: int | None = None) -> Effector:
     if isinstance(item, Effector):
         return item
     if isinstance(item, Mapping):
-        try:
-            return Effector.from_dict(item)
-        except ValueError as exc:
-            raise ValueError(f"effectors[{index}]: {exc}" if index is not None else str(exc)) from None
+        return parse_effector_dict(item, f"effectors[{index}]" if index is not None else "")
     where = f"effectors[{index}]: " if index is not None else ""
-    raise ValueError(f"{where}expected an Effector or a dict, got {type(item).__name__}.")
+    raise EffectorError(f"{where}expected an Effector or a dict, got {type(item).__name__}.")
 
 
 def as_effector_list(effectors: Sequence[EffectorLike]) -> list[Effector]:
     """Validate a non-empty list of effectors (objects or dicts)."""
     if isinstance(effectors, (Effector, Mapping, str)) or not isinstance(effectors, Sequence):
-        raise ValueError(f"effectors must be a list of Effector objects or dicts, got {type(effectors).__name__}.")
+        raise EffectorError(f"effectors must be a list of Effector objects or dicts, got {type(effectors).__name__}.")
     if len(effectors) == 0:
-        raise ValueError("The effector list is empty; at least one effector is needed.")
+        raise EffectorError("The effector list is empty; at least one effector is needed.")
     return [as_effector(e, i) for i, e in enumerate(effectors)]
-
-
-def check_betas(betas: Any, batch: int | None = None) -> np.ndarray:
-    """Validate betas: None (zeros), (10,) or, with ``batch``, (batch, 10). -> (10,) or (batch, 10) float64."""
-    if betas is None:
-        return np.zeros(NUM_BETAS) if batch is None else np.zeros((batch, NUM_BETAS))
-    try:
-        arr = np.asarray(betas.detach().cpu() if isinstance(betas, Tensor) else betas, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"betas must be {NUM_BETAS} numbers, got {betas!r:.80}.") from None
-    if arr.ndim == 0 or arr.shape[-1] != NUM_BETAS:
-        n = arr.shape[-1] if arr.ndim else "a scalar"
-        raise ValueError(f"Wrong number of betas: got {n}, need exactly {NUM_BETAS} (shape {arr.shape}).")
-    if batch is None and arr.ndim != 1:
-        raise ValueError(f"betas has shape {arr.shape}; expected ({NUM_BETAS},).")
-    if batch is not None:
-        if arr.ndim == 1:
-            arr = np.broadcast_to(arr, (batch, NUM_BETAS))
-        elif arr.shape != (batch, NUM_BETAS):
-            raise ValueError(f"betas has shape {arr.shape}; expected ({NUM_BETAS},) or ({batch}, {NUM_BETAS}).")
-    if not np.isfinite(arr).all():
-        raise ValueError("betas contains NaN or inf.")
-    return arr
 
 
 def _parse_gender(value: Any) -> Gender:
     if not isinstance(value, (str, Gender)):
         raise ValueError(f"Unknown gender {value!r}; expected one of: {', '.join(g.value for g in Gender)}.")
     return Gender.parse(value)
-
-
-def pack_rows(rows: Sequence[Sequence[Effector]], dtype: torch.dtype = torch.float32) -> EffectorBatch:
-    """Pack validated effector lists (padded to the longest, with a mask), building numpy arrays once.
-
-    Same result as :func:`smplik.effectors.pack_effectors`, several times faster for small inputs.
-    """
-    B, N = len(rows), max(len(r) for r in rows)
-    joint = np.zeros((B, N), np.int64)
-    kind = np.zeros((B, N), np.int64)
-    data = np.zeros((B, N, 6), np.float64)
-    tol = np.zeros((B, N), np.float64)
-    mask = np.zeros((B, N), bool)
-    for b, row in enumerate(rows):
-        for i, e in enumerate(row):
-            joint[b, i], kind[b, i], tol[b, i], mask[b, i] = e.joint, int(e.type), e.tolerance, True
-            if e.type == 0:
-                data[b, i, :3] = e.value
-            elif e.type == 1:
-                data[b, i, :3], data[b, i, 3:] = e.value[:, 0], e.value[:, 1]
-            else:
-                data[b, i, :3], data[b, i, 3:] = e.value, e.direction
-    return EffectorBatch(torch.from_numpy(joint), torch.from_numpy(kind), torch.from_numpy(data).to(dtype),
-                         torch.from_numpy(tol).to(dtype), torch.from_numpy(mask))
 
 
 def matrix_to_axis_angle_np(R: np.ndarray) -> np.ndarray:
@@ -153,6 +106,45 @@ def matrix_to_axis_angle_np(R: np.ndarray) -> np.ndarray:
     angle = 2.0 * np.arctan2(s, q[..., 3])
     scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0 / np.maximum(q[..., 3], 1e-12))
     return q[..., :3] * scale[..., None]
+
+
+@dataclass(frozen=True)
+class EffectorResidual:
+    """How far a solved pose is from one effector: ``value`` in mm (position) or degrees (rotation: the
+    geodesic angle; look-at: the angle between the joint's direction and the ray to the target)."""
+
+    effector: Effector
+    value: float
+
+    @property
+    def unit(self) -> str:
+        return "mm" if self.effector.type == EffectorType.POSITION else "deg"
+
+    def __str__(self) -> str:
+        return f"{self.effector.joint_name} {self.effector.type.name.lower()}: {self.value:.1f} {self.unit}"
+
+
+def effector_residuals(pose: Pose, effectors: Sequence[Effector], bodies: BodyModelSet) -> list[EffectorResidual]:
+    """Each effector's residual on ``pose`` (FK on ``bodies`` of the pose's gender), in effector order."""
+    aa = torch.as_tensor(np.concatenate([pose.global_orient[None], pose.body_pose]), dtype=torch.float64)
+    J_rest = bodies[pose.gender].rest_joints(torch.as_tensor(pose.betas, dtype=torch.float64))
+    R_world, p_world = forward_kinematics(axis_angle_to_matrix(aa), J_rest, torch.as_tensor(pose.transl))
+    R_world, p_world = R_world.numpy(), p_world.numpy()
+    out = []
+    for e in effectors:
+        R, p = R_world[e.joint], p_world[e.joint]
+        if e.type == EffectorType.POSITION:
+            value = 1000.0 * float(np.linalg.norm(p - e.value))
+        elif e.type == EffectorType.ROTATION:
+            cos = (np.trace(R @ np.asarray(e.value).T) - 1.0) / 2.0
+            value = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        else:
+            ray = np.asarray(e.value) - p
+            axis = R @ np.asarray(e.direction)
+            cos = float(axis @ ray) / max(float(np.linalg.norm(ray) * np.linalg.norm(axis)), 1e-12)
+            value = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        out.append(EffectorResidual(e, value))
+    return out
 
 
 @dataclass(frozen=True)
@@ -278,7 +270,7 @@ class IKSolver:
         return self._solve_rows(rows, beta_arr, genders)
 
     def _solve_rows(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
-        eff = pack_rows(rows)
+        eff = pack_effectors(rows)
         out = self.solve_tensors(eff, torch.from_numpy(np.ascontiguousarray(betas, np.float32)),
                                  torch.tensor([g.index for g in genders]))
         aa = matrix_to_axis_angle_np(out.R_local.double().numpy())

@@ -19,10 +19,10 @@ from smplik.effector_schema import (
     parse_effector_document,
     save_effector_file,
 )
-from smplik.effectors import Effector
+from smplik.effectors import Effector, pack_effectors
 from smplik.pose import Pose
 from smplik.refine import RefineConfig
-from smplik.solver import IKSolver, pack_rows, packaged_model_path
+from smplik.solver import IKSolver, packaged_model_path
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +91,8 @@ def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):
 
 
 @pytest.mark.parametrize(("effectors", "kwargs", "message"), [
-    ([{"joint": "left_wirst", "type": "position", "value": [0, 0, 0]}], {}, "Unknown joint 'left_wirst'; valid names"),
+    ([{"joint": "left_wirst", "type": "position", "value": [0, 0, 0]}], {},
+         r"effectors\[0\].joint: unknown joint 'left_wirst'; valid names"),
     ([{"joint": "head", "type": "position", "value": [0, float("nan"), 0]}], {}, "NaN or inf"),
     ([{"joint": "head", "type": "position", "value": [0, float("inf"), 0]}], {}, "NaN or inf"),
     ([{"joint": "head", "type": "position", "value": [0, 0]}], {}, r"shape \(2,\); expected \(3,\)"),
@@ -100,10 +101,11 @@ def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):
     ([{"joint": "head", "type": "rotation", "value": [[1, 0, 0], [0, 1, 0], [0, 0, 2]]}], {}, "not a rotation matrix"),
     ([{"joint": "head", "type": "rotation", "value": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}], {}, "not a rotation matrix"),
     ([{"joint": "head", "type": "look_at", "target": [0, 1, 1], "direction": [0, 0, 0]}], {}, "zero vector"),
-    ([{"joint": "head", "type": "wiggle", "value": [0, 0, 0]}], {}, "Unknown effector type 'wiggle'"),
+    ([{"joint": "head", "type": "wiggle", "value": [0, 0, 0]}], {},
+         "type: must be one of position, rotation, look_at, got \"wiggle\""),
     (EFFECTOR_DICTS, {"betas": np.zeros(9)}, "Wrong number of betas: got 9, need exactly 10"),
     (EFFECTOR_DICTS, {"betas": np.zeros(11)}, "Wrong number of betas: got 11"),
-    (EFFECTOR_DICTS, {"betas": [0.0] * 9 + [float("nan")]}, "betas contains NaN"),
+    (EFFECTOR_DICTS, {"betas": [0.0] * 9 + [float("nan")]}, "betas: contains NaN"),
     (EFFECTOR_DICTS, {"gender": "robot"}, "Unknown gender 'robot'; expected one of: neutral, male, female"),
     ([], {}, "effector list is empty"),
     ([42], {}, r"effectors\[0\]: expected an Effector or a dict"),
@@ -120,7 +122,7 @@ def test_effector_index_is_named_for_dicts(solver):
 
 
 def test_batch_validation(solver):
-    with pytest.raises(ValueError, match=r"betas has shape \(3, 10\); expected \(10,\) or \(2, 10\)"):
+    with pytest.raises(ValueError, match=r"betas: has shape \(3, 10\); expected \(10,\) or \(2, 10\)"):
         solver.solve_batch([EFFECTOR_DICTS, EFFECTOR_DICTS], betas=np.zeros((3, 10)))
     with pytest.raises(ValueError, match="gender has 1 entries for 2 poses"):
         solver.solve_batch([EFFECTOR_DICTS, EFFECTOR_DICTS], gender=["male"])
@@ -143,13 +145,16 @@ def test_dicts_and_effectors_give_identical_results(solver):
     assert a.body_pose.shape == (23, 3) and a.joints.shape == (24, 3)
 
 
-def test_pack_rows_matches_pack_effectors():
-    from smplik.effectors import pack_effectors
-
+def test_pack_effectors_packs_data6_and_pads_with_a_mask():
     rows = [effector_objects(), effector_objects()[:2]]
-    a, b = pack_rows(rows), pack_effectors(rows)
-    for f in ("joint", "type", "data", "tolerance", "mask"):
-        torch.testing.assert_close(getattr(a, f), getattr(b, f))
+    packed = pack_effectors(rows)
+    assert packed.shape == (2, len(rows[0]))
+    for b, row in enumerate(rows):
+        assert packed.mask[b].tolist() == [True] * len(row) + [False] * (len(rows[0]) - len(row))
+        for i, e in enumerate(row):
+            assert int(packed.joint[b, i]) == e.joint and int(packed.type[b, i]) == int(e.type)
+            np.testing.assert_allclose(packed.data[b, i].numpy(), e.data6(), atol=1e-6)
+            assert float(packed.tolerance[b, i]) == pytest.approx(e.tolerance)
 
 
 def test_batch_equals_single(solver):
@@ -165,7 +170,7 @@ def test_batch_equals_single(solver):
 
 
 def test_solve_tensors_runs_in_inference_mode(solver):
-    eff = pack_rows([effector_objects()])
+    eff = pack_effectors([effector_objects()])
     out = solver.solve_tensors(eff, torch.zeros(1, 10), torch.zeros(1, dtype=torch.long))
     assert out.p_world.is_inference() and out.R_local.shape == (1, 24, 3, 3)
 

@@ -78,7 +78,7 @@ def test_validation_errors_name_the_json_path(scene):
         scene_from_dict(data, "s.json")
     data = scene.to_dict()
     data["characters"][0]["betas"] = [0.0] * 3
-    with pytest.raises(SceneError, match=r"characters\[0\]\.betas.*\(10,\)"):
+    with pytest.raises(SceneError, match=r"characters\[0\]\.betas: Wrong number of betas: got 3, need exactly 10"):
         scene_from_dict(data, "s.json")
     data = scene.to_dict()
     data["version"] = 99

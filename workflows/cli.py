@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
+
+from smplik.cli.errors import say, user_errors
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
-console = Console(stderr=True)
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
 FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "plain")
@@ -23,15 +24,27 @@ def _solver(checkpoint: Path | None):
     from smplik.solver import IKSolver
 
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
-    try:
+    with user_errors():
         return IKSolver.load(checkpoint)
-    except (FileNotFoundError, ValueError) as exc:
-        _fail(exc)
 
 
-def _fail(exc: Exception) -> None:
-    console.print(f"[red]error:[/red] {exc}", soft_wrap=True, markup=True, highlight=False)
-    raise typer.Exit(1) from None
+def character_residuals(before, after, solver) -> list[str]:  # noqa: ANN001 - SceneCharacter, IKSolver
+    """Lines with each effector's residual (mm / degrees) of a re-solved character, the network's before
+    the refinement in brackets."""
+    from dataclasses import replace
+
+    from smplik.cli.solve import report_residuals
+    from smplik.refine import RefineConfig
+    from workflows.scene import scale_effector, solve_character
+
+    if after.pose is None or not after.effectors or after is before:
+        return [f"{after.name}: no effectors, pose unchanged"]
+    steps = solver.refine.iterations
+    network = solve_character(before, replace(solver, refine=RefineConfig(iterations=0))).pose
+    smpl_effectors = [scale_effector(e, 1.0 / after.scale) for e in after.effectors]
+    lines = report_residuals(network, after.pose, smpl_effectors, solver.bodies, steps)
+    note = "" if after.scale == 1 else f" (SMPL space: character scale {after.scale:g})"
+    return [f"{after.name}: {lines[0]}{note}", *lines[1:]]
 
 
 @scene_app.command("from-estimate")
@@ -51,25 +64,22 @@ def from_estimate_cmd(
     no_previews: Annotated[bool, typer.Option("--no-previews", help="Skip the PNG previews.")] = False,
 ) -> None:
     """Estimator output -> SMPL-SI (with --character) -> effector recovery -> OUT/scene.json (+ previews, BVH)."""
-    from smplik.render import RenderError
     from workflows.pipeline import from_estimate
     from workflows.recovery import RecoveryConfig
 
     if format not in FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
     solver = _solver(checkpoint)
-    try:
+    with user_errors():
         outputs = from_estimate(results, out, solver, format=format, character_path=character, rig=rig,
                                 config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
                                 trust_pickle=trust_pickle, image_path=image, frame=frame, previews=not no_previews)
-    except (ValueError, OSError, RenderError) as exc:
-        _fail(exc)
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
-        console.print(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "
+        say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "
                       f"final pose {r.recovery.final_error * 1000:.0f} mm")
     for path in outputs.all_files:
-        console.print(f"wrote {path}")
+        say(f"wrote {path}")
 
 
 @scene_app.command("solve")
@@ -81,16 +91,15 @@ def solve_cmd(
     """Re-solve every character from its (edited) effectors and shape."""
     from workflows.scene import load_scene, save_scene, solve_scene
 
-    try:
+    with user_errors():
         loaded = load_scene(scene)
-    except ValueError as exc:
-        _fail(exc)
-    try:
-        solved = solve_scene(loaded, _solver(checkpoint))
-    except ValueError as exc:
-        _fail(exc)
-    path = save_scene(solved, out or scene)
-    console.print(f"wrote {path}")
+        solver = _solver(checkpoint)
+        solved = solve_scene(loaded, solver)
+        for before, after in zip(loaded.characters, solved.characters, strict=True):
+            for line in character_residuals(before, after, solver):
+                say(line)
+        path = save_scene(solved, out or scene)
+    say(f"wrote {path}")
 
 
 @scene_app.command("render")
@@ -100,23 +109,20 @@ def render_cmd(
     image: Annotated[Path | None, typer.Option("--image", help="Background image (default: the scene's).")] = None,
 ) -> None:
     """Render all characters with their effector markers (over the source image when known)."""
-    from smplik.render import RenderError, save_png
+    from smplik.render import save_png
     from workflows.previews import load_image, render_scene
     from workflows.scene import load_scene
 
-    try:
+    with user_errors():
         loaded = load_scene(scene)
-    except ValueError as exc:
-        _fail(exc)
-    src = image or (Path(loaded.image) if loaded.image else None)
-    if src is not None and not src.is_absolute() and image is None:
-        src = scene.parent / src
-    background = load_image(src) if src is not None and src.is_file() and loaded.camera is not None else None
-    try:
+        src = image or (Path(loaded.image) if loaded.image else None)
+        if src is not None and not src.is_absolute() and image is None:
+            src = scene.parent / src
+        if image is not None and not image.is_file():
+            raise FileNotFoundError(errno.ENOENT, "--image: no such file", str(image))
+        background = load_image(src) if src is not None and src.is_file() and loaded.camera is not None else None
         save_png(render_scene(loaded, image=background), out)
-    except RenderError as exc:
-        _fail(exc)
-    console.print(f"wrote {out}")
+    say(f"wrote {out}")
 
 
 @demo_app.command("demo")
@@ -125,17 +131,14 @@ def demo_cmd(
     checkpoint: Checkpoint = None,
 ) -> None:
     """Whole chain on built-in material: estimator file -> SMPL-SI character -> effector recovery -> scene, BVH."""
-    from smplik.render import RenderError
     from workflows.demo import run_demo
 
     solver = _solver(checkpoint)
-    try:
+    with user_errors():
         outputs = run_demo(out, solver)
-    except (ValueError, OSError, RenderError) as exc:
-        _fail(exc)
     for r in outputs.smpl.results + outputs.character.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
-        console.print(f"{r.name}: effectors {[f'{e.joint_name}:{e.type.name.lower()}' for e in r.recovery.effectors]}"
+        say(f"{r.name}: effectors {[f'{e.joint_name}:{e.type.name.lower()}' for e in r.recovery.effectors]}"
                       f"; error after each (mm): {errs}; final pose {r.recovery.final_error * 1000:.0f} mm")
     for path in outputs.all_files:
-        console.print(f"wrote {path}")
+        say(f"wrote {path}")

@@ -28,8 +28,12 @@ about the world origin (scaling about the camera centre keeps the image projecti
 (smplx parameters of the unscaled body; its ``joints`` times ``scale`` are the character's joints).
 :func:`solve_scene` divides effector positions and look-at targets by ``scale`` before solving.
 
-Errors are ``ValueError`` naming the file and the JSON path, e.g.
-``scene.json: characters[1].effectors[0].value: has shape (2,); expected (3,)``.
+Errors are :class:`SceneError` (a ``ValueError``) naming the file and the JSON path, e.g.
+``scene.json: characters[1].effectors[0].value: has shape (2,); expected (3,)``. The reader is strict:
+the allowed keys are the fields of :class:`Scene`, :class:`SceneCharacter`, :class:`SkeletonSource` and
+:class:`~workflows.estimators.base.CameraInfo`; a character's ``pose`` must have the character's betas and
+gender; the focal length must be a positive finite number (or null), the scale in [0.001, 1000], at most
+:data:`MAX_CHARACTERS` characters with unique names, effectors as in effector files.
 """
 
 from __future__ import annotations
@@ -45,13 +49,25 @@ import numpy as np
 
 from smplik.atomic import write_json_atomic
 from smplik.conventions import NUM_BETAS, EffectorType, Gender
-from smplik.effectors import Effector
+from smplik.effector_schema import MAX_EFFECTORS
+from smplik.effectors import Effector, parse_effector_dict
 from smplik.pose import Pose
-from smplik.validation import finite_array
+from smplik.validation import (
+    MAX_ABS_POSITION_M,
+    MAX_SCALE,
+    MIN_SCALE,
+    JSONPathError,
+    check_betas,
+    finite_array,
+    read_json,
+    short_repr,
+)
 from workflows.estimators.base import CameraInfo
 
 SCENE_FORMAT = "smplik-scene"
 SCENE_VERSION = 1
+MAX_CHARACTERS = 100
+"""Most characters a scene file may hold (``load_scene(..., max_characters=)`` raises it)."""
 
 
 class SceneError(ValueError):
@@ -118,7 +134,7 @@ class Scene:
 
 def _expect(value: Any, kind: type | tuple[type, ...], path: str, what: str) -> Any:
     if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise SceneError(f"{path}: expected {what}, got {type(value).__name__} {value!r:.60}.")
+        raise SceneError(f"{path}: expected {what}, got {type(value).__name__} {short_repr(value)}.")
     return value
 
 
@@ -126,102 +142,138 @@ def _numbers(value: Any, shape: tuple[int, ...], path: str) -> np.ndarray:
     return finite_array(value, shape, path, SceneError)
 
 
-def _effector(data: Any, path: str) -> Effector:
-    _expect(data, Mapping, path, "an effector object")
-    for key, shape in (("value", (3, 3) if str(data.get("type", "")).lower() == "rotation" else (3,)),
-                       ("target", (3,)), ("direction", (3,))):
-        if key in data:
-            _numbers(data[key], shape, f"{path}.{key}")
-    try:
-        return Effector.from_dict(data)
-    except ValueError as exc:
-        raise SceneError(f"{path}: {exc}") from None
+def _field_names(cls: type) -> set[str]:
+    """The JSON keys of a scene record: its dataclass fields (so a new field is a new allowed key)."""
+    return {f.name for f in dataclasses.fields(cls)}
+
+
+def _check_keys(data: Mapping[str, Any], allowed: set[str], path: str) -> None:
+    unknown = sorted(str(k) for k in set(data) - allowed)
+    if unknown:
+        raise SceneError(f"{path}: unknown key(s) {unknown}; allowed: {sorted(allowed)}.")
 
 
 def _character(data: Any, path: str) -> SceneCharacter:
     _expect(data, Mapping, path, "a character object")
-    allowed = {"name", "gender", "betas", "scale", "skeleton", "effectors", "pose"}
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise SceneError(f"{path}: unknown key(s) {unknown}; allowed: {sorted(allowed)}.")
+    _check_keys(data, _field_names(SceneCharacter), path)
     name = _expect(data.get("name", ""), str, f"{path}.name", "a string")
     try:
         gender = Gender.parse(_expect(data.get("gender", "neutral"), str, f"{path}.gender", "a string"))
     except ValueError as exc:
         raise SceneError(f"{path}.gender: {exc}") from None
-    betas = _numbers(data.get("betas", [0.0] * NUM_BETAS), (NUM_BETAS,), f"{path}.betas")
+    betas = check_betas(data.get("betas", [0.0] * NUM_BETAS), where=f"{path}.betas", error=SceneError)
     scale = float(_numbers(data.get("scale", 1.0), (), f"{path}.scale"))
-    if scale <= 0:
-        raise SceneError(f"{path}.scale: must be positive, got {scale}.")
+    if not MIN_SCALE <= scale <= MAX_SCALE:
+        raise SceneError(f"{path}.scale: must be in [{MIN_SCALE:g}, {MAX_SCALE:g}], got {scale}.")
     skeleton = None
     if data.get("skeleton") is not None:
         sk = _expect(data["skeleton"], Mapping, f"{path}.skeleton", "null or {\"path\", \"rig\"}")
+        _check_keys(sk, _field_names(SkeletonSource), f"{path}.skeleton")
         sk_path = _expect(sk.get("path"), str, f"{path}.skeleton.path", "a string")
         rig = sk.get("rig")
         if rig is not None:
             _expect(rig, str, f"{path}.skeleton.rig", "a string or null")
         skeleton = SkeletonSource(sk_path, rig)
     effs = _expect(data.get("effectors", []), list, f"{path}.effectors", "a list")
-    effectors = tuple(_effector(e, f"{path}.effectors[{i}]") for i, e in enumerate(effs))
+    if len(effs) > MAX_EFFECTORS:
+        raise SceneError(f"{path}.effectors: has {len(effs)} effectors; at most {MAX_EFFECTORS} are accepted.")
+    err = JSONPathError("", SceneError)
+    effectors = tuple(parse_effector_dict(e, f"{path}.effectors[{i}]", err) for i, e in enumerate(effs))
+    # Effectors are in character space: the solve divides them by the scale, which must stay in range.
+    for i, e in enumerate(effectors):
+        if e.type != EffectorType.ROTATION and np.abs(e.value).max() / scale > MAX_ABS_POSITION_M:
+            raise SceneError(f"{path}.effectors[{i}]: the target divided by scale {scale:g} is beyond "
+                             f"{MAX_ABS_POSITION_M:g} m.")
     pose = None
     if data.get("pose") is not None:
         try:
             pose = Pose.from_dict(dict(_expect(data["pose"], Mapping, f"{path}.pose", "a pose object")),
                                   source=f"{path}.pose")
+        except SceneError:
+            raise
         except ValueError as exc:
             raise SceneError(str(exc)) from None
+        if not np.allclose(pose.betas, betas, atol=1e-6):
+            raise SceneError(f"{path}.pose.betas: {short_repr(pose.betas.round(4).tolist())} do not match the "
+                             f"character's betas {short_repr(betas.round(4).tolist())}; re-solve the character "
+                             "or remove its pose.")
+        if pose.gender != gender:
+            raise SceneError(f"{path}.pose.gender: {pose.gender.value!r} does not match the character's gender "
+                             f"{gender.value!r}.")
     return SceneCharacter(name or path, gender, betas, scale, skeleton, effectors, pose)
 
 
-def scene_from_dict(data: Any, source: str = "scene") -> Scene:
-    """Validate and build a :class:`Scene`; errors read ``<source>: <JSON path>: <problem>``."""
+def _camera(data: Any) -> CameraInfo:
+    cam = _expect(data, Mapping, "camera", "an object")
+    _check_keys(cam, _field_names(CameraInfo), "camera")
+    focal = cam.get("focal_px")
+    if focal is not None:
+        focal = float(_numbers(focal, (), "camera.focal_px"))
+        if not focal > 0:
+            raise SceneError(f"camera.focal_px: must be a positive number of pixels or null, got {focal}.")
+    size = cam.get("image_size")
+    if size is not None:
+        arr = _numbers(size, (2,), "camera.image_size")
+        if not ((arr >= 1) & (arr <= 100_000) & (arr == np.round(arr))).all():
+            raise SceneError(f"camera.image_size: must be two whole numbers of pixels in [1, 100000], "
+                             f"got {short_repr(size)}.")
+    fov = float(_numbers(cam.get("default_fov_deg", 60.0), (), "camera.default_fov_deg"))
+    if not 1.0 <= fov <= 179.0:
+        raise SceneError(f"camera.default_fov_deg: must be in [1, 179] degrees, got {fov}.")
     try:
-        return _scene(data)
+        return CameraInfo.from_dict(dict(cam))
+    except (TypeError, ValueError, IndexError, KeyError) as exc:
+        raise SceneError(f"camera: {exc}") from None
+
+
+def scene_from_dict(data: Any, source: str = "scene", *, max_characters: int | None = None) -> Scene:
+    """Validate and build a :class:`Scene`; errors read ``<source>: <JSON path>: <problem>``.
+
+    Strict: the keys of the scene, each character, skeleton and camera are their dataclass fields;
+    at most ``max_characters`` (default :data:`MAX_CHARACTERS`) characters."""
+    try:
+        return _scene(data, MAX_CHARACTERS if max_characters is None else max_characters)
     except SceneError as exc:
         raise SceneError(f"{source}: {exc}") from None
 
 
-def _scene(data: Any) -> Scene:
+def _scene(data: Any, max_characters: int) -> Scene:
     _expect(data, Mapping, "(root)", "a JSON object")
     fmt, version = data.get("format"), data.get("version")
     if fmt != SCENE_FORMAT:
-        raise SceneError(f"format: expected {SCENE_FORMAT!r}, got {fmt!r}.")
-    if version != SCENE_VERSION:
-        raise SceneError(f"version: this smplik reads version {SCENE_VERSION}, got {version!r}.")
-    allowed = {"format", "version", "source", "image", "camera", "characters"}
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise SceneError(f"(root): unknown key(s) {unknown}; allowed: {sorted(allowed)}.")
+        raise SceneError(f"format: expected {SCENE_FORMAT!r}, got {short_repr(fmt)}.")
+    if version != SCENE_VERSION or isinstance(version, bool):
+        raise SceneError(f"version: this smplik reads version {SCENE_VERSION}, got {short_repr(version)}.")
+    _check_keys(data, {"format", "version"} | _field_names(Scene), "(root)")
     chars = _expect(data.get("characters"), list, "characters", "a list")
+    if len(chars) > max_characters:
+        raise SceneError(f"characters: {len(chars)} characters; at most {max_characters} are accepted "
+                         "(raise the cap with max_characters=, workflows.scene.MAX_CHARACTERS).")
     characters = tuple(_character(c, f"characters[{i}]") for i, c in enumerate(chars))
-    camera = None
-    if data.get("camera") is not None:
-        cam = _expect(data["camera"], Mapping, "camera", "an object")
-        try:
-            camera = CameraInfo.from_dict(dict(cam))
-        except (TypeError, ValueError, IndexError) as exc:
-            raise SceneError(f"camera: {exc}") from None
+    names = [c.name for c in characters]
+    duplicate = next((n for n in names if names.count(n) > 1), None)
+    if duplicate is not None:
+        raise SceneError(f"characters: the name {duplicate!r} is used twice; names select characters.")
+    camera = None if data.get("camera") is None else _camera(data["camera"])
     for key in ("source", "image"):
         if data.get(key) is not None:
             _expect(data[key], str, key, "a string or null")
     return Scene(characters, data.get("source"), data.get("image"), camera)
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SceneError(f"Scene file not found: {path}") from None
-    except json.JSONDecodeError as exc:
-        raise SceneError(f"{path}: invalid JSON ({exc}).") from None
-    return scene_from_dict(data, source=str(path))
+def load_scene(path: str | Path, *, max_characters: int | None = None) -> Scene:
+    """Read and validate a scene file (one-line :class:`SceneError` naming the file and JSON path)."""
+    return scene_from_dict(read_json(path, SceneError, what="scene file"), source=str(path),
+                           max_characters=max_characters)
 
 
 def save_scene(scene: Scene, path: str | Path) -> Path:
-    """Write ``scene`` as JSON, atomically."""
-    return write_json_atomic(path, scene.to_dict())
+    """Write ``scene`` as JSON, atomically; a scene that would not read back (NaN focal length, betas
+    that do not match a pose, ...) is refused with a :class:`SceneError` and nothing is written."""
+    data = scene.to_dict()
+    scene_from_dict(json.loads(json.dumps(data)), source=str(path),
+                    max_characters=max(MAX_CHARACTERS, len(scene.characters)))
+    return write_json_atomic(path, data)
 
 
 # ----------------------------------------------------------------------------- solving

@@ -9,6 +9,7 @@ import typer
 from shape_inversion.cli import invert_shape
 from smplik.cli.benchmark import app as benchmark_app
 from smplik.cli.body import body_app
+from smplik.cli.errors import run_guarded
 from smplik.cli.solve import solve_command
 from smplik.cli.train import export_command, train_command
 from smplik.data.cli import app as data_app
@@ -30,4 +31,4 @@ app.command("demo")(demo_cmd)
 def main() -> None:
     """Console-script entry point."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # headless rendering by default
-    app()
+    run_guarded(app)  # a user's mistake: one stderr line, exit 1; a bug: its traceback

@@ -7,18 +7,12 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from rich.console import Console
 
+from smplik.cli.errors import say, user_errors
 from smplik.cli.options import parse_betas
 from smplik.conventions import EffectorType, Gender
 
 app = typer.Typer(pretty_exceptions_enable=False)
-console = Console(stderr=True)
-
-
-def _fail(message: str) -> typer.Exit:
-    console.print(f"[red]error:[/red] {message}", markup=True, highlight=False)
-    return typer.Exit(1)
 
 
 def effector_markers(effectors: Any, joints: np.ndarray, *, axis_length: float = 0.25,
@@ -55,19 +49,39 @@ def effector_markers(effectors: Any, joints: np.ndarray, *, axis_length: float =
 
 
 def render_solution(pose: Any, effectors: Any, bodies: Any, path: Path, *, width: int = 960, height: int = 720) -> None:
-    """Front and side views of the solved body with the effector markers, as one PNG."""
+    """Front and side views (one common scale) of the solved body with the effector markers drawn over
+    it, as one PNG."""
     import torch
 
-    from smplik.render import MeshItem, View, hstack_images, render, save_png
+    from smplik.render import MeshItem, fit_views, hstack_images, render, save_png
 
     model = bodies[pose.gender]
     as_t = (lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)[None])  # noqa: E731
-    verts, _ = model.vertices(as_t(pose.global_orient), as_t(pose.body_pose), as_t(pose.transl), as_t(pose.betas))
-    mesh = MeshItem(verts[0].detach().numpy(), model.faces, color=(0.62, 0.7, 0.86, 0.55))
+    with torch.no_grad():
+        verts, _ = model.vertices(as_t(pose.global_orient), as_t(pose.body_pose), as_t(pose.transl),
+                                  as_t(pose.betas))
+    mesh = MeshItem(verts[0].numpy(), model.faces, color=(0.62, 0.7, 0.86, 0.55))
     spheres, segments = effector_markers(effectors, pose.joints)
-    images = [render([mesh], spheres, segments, size=(width // 2, height), view=View(direction=d))
-              for d in ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0))]
-    save_png(hstack_images(images), path)
+    size = (width // 2, height)
+    points = np.concatenate([mesh.vertices, *(np.asarray(s.center, float)[None] for s in spheres)])
+    views = fit_views(points, ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0)), size=size)
+    save_png(hstack_images([render([mesh], spheres, segments, size=size, view=v) for v in views]), path)
+
+
+def report_residuals(network: Any, refined: Any, effectors: Any, bodies: Any, steps: int) -> list[str]:
+    """Lines giving each effector's residual (mm / degrees) after the network and after the refinement."""
+    from smplik.solver import effector_residuals
+
+    before = effector_residuals(network, effectors, bodies)
+    after = effector_residuals(refined, effectors, bodies) if steps else before
+    lines = []
+    for b, a in zip(before, after, strict=True):
+        line = f"  {b.effector.joint_name} {b.effector.type.name.lower()} (tolerance {b.effector.tolerance:g}): "
+        line += f"{a.value:.1f} {a.unit}" + (f" (network {b.value:.1f} {b.unit})" if steps else "")
+        lines.append(line)
+    header = (f"effector residuals after the network and {steps} refinement steps:" if steps
+              else "effector residuals of the network alone (no refinement):")
+    return [header, *lines]
 
 
 @app.command("solve")
@@ -84,36 +98,29 @@ def solve_command(
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                    "(default: $SMPLIK_MODEL_DIR, else the built-in model).")] = None,
     render: Annotated[Path | None, typer.Option(help="Also write a PNG preview (body + effector markers).")] = None,
-    refine_steps: Annotated[int | None, typer.Option(min=0, help="Refinement steps after the network (default: "
-                                                                 "RefineConfig's, 3; 0: the network's pose "
-                                                                 "alone).")] = None,
+    refine_steps: Annotated[int | None, typer.Option(min=0, max=1000, help="Refinement steps after the network "
+                                                                           "(default: RefineConfig's, 3; 0: the "
+                                                                           "network's pose alone).")] = None,
 ) -> None:
-    """Solve an SMPL pose for the effectors in a JSON file."""
+    """Solve an SMPL pose for the effectors in a JSON file; print each effector's residual."""
     from dataclasses import replace
 
     from smplik.effector_schema import load_effector_file
-    from smplik.refine import DEFAULT_REFINEMENT
+    from smplik.refine import DEFAULT_REFINEMENT, RefineConfig
     from smplik.solver import IKSolver
 
-    try:
+    with user_errors():
         doc = load_effector_file(effectors)
-    except ValueError as exc:
-        raise _fail(str(exc)) from None
-    beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
-    g = gender or doc.gender or Gender.NEUTRAL
-    try:
-        solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=DEFAULT_REFINEMENT if refine_steps is None else
-                               replace(DEFAULT_REFINEMENT, iterations=refine_steps))
+        beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
+        g = gender or doc.gender or Gender.NEUTRAL
+        refine = DEFAULT_REFINEMENT if refine_steps is None else replace(DEFAULT_REFINEMENT, iterations=refine_steps)
+        solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=refine)
         pose = solver.solve(list(doc.effectors), betas=beta, gender=g)
-    except (FileNotFoundError, ValueError) as exc:
-        raise _fail(str(exc)) from None
-    pose.save(out)
-    console.print(f"wrote {out}")
-    if render is not None:
-        from smplik.render import RenderError
-
-        try:
+        network = replace(solver, refine=RefineConfig(iterations=0)).solve(list(doc.effectors), betas=beta, gender=g)
+        for line in report_residuals(network, pose, doc.effectors, solver.bodies, refine.iterations):
+            say(line)
+        pose.save(out)
+        say(f"wrote {out}")
+        if render is not None:
             render_solution(pose, doc.effectors, solver.bodies, render)
-        except RenderError as exc:
-            raise _fail(str(exc)) from None
-        console.print(f"wrote {render}")
+            say(f"wrote {render}")

@@ -1,0 +1,405 @@
+"""The project's one restricted unpickler, and bounded ``.npz`` reading.
+
+A pickle names Python callables that the loader calls (``os.system`` is one line away), so every
+pickle a user opens -- SMPL ``.pkl`` model files (chumpy pickles), estimator outputs (HybrIK ``.pk``,
+4D-Humans/PHALP, WHAM and PyMAF-X joblib ``.pkl``) and object arrays inside ``.npz`` files (ROMP's
+``results`` dict) -- is read by :class:`RestrictedUnpickler`, which resolves only:
+
+* numpy arrays, dtypes and scalars (``numpy[._core].multiarray._reconstruct``/``scalar``,
+  ``numpy.ndarray``, ``numpy.dtype``, numpy 2's ``numpy.dtypes.*DType`` classes, ``_frombuffer``);
+* builtin containers and values (dict, list, tuple, set, frozenset, bytes, bytearray, complex, slice,
+  int, float, str, bool, ``collections.OrderedDict``/``defaultdict``, ``_codecs.encode`` of latin-1
+  text for protocol-2 bytes, ``copyreg._reconstructor`` of plain objects);
+* chumpy objects (any ``chumpy.*`` global) as :class:`ChumpyStub`, whose ``x`` array is kept, and
+  ``scipy.sparse`` csc/csr/coo matrices (SMPL's ``J_regressor``);
+* joblib's ``NumpyArrayWrapper`` (joblib writes each array's raw bytes after the pickle stream); object
+  arrays in it (a nested pickle) go through this same unpickler. Compressed joblib files (zlib, gzip,
+  bz2, lzma, xz, lz4) are decompressed by joblib's file-object helper.
+
+**No allowed global allocates from a number in the file.** The Python unpickler's call opcodes are
+checked before they run: ``REDUCE``/``INST``/``OBJ`` may call only dtypes, scalars, ``_frombuffer``
+(whose size is its buffer's), ``_reconstruct`` with numpy's own ``(0,)`` shape, containers of objects
+already in the file, ``int``/``float``/``str``/``complex``/``slice``/``bool`` and latin-1 ``encode``;
+``bytes``/``bytearray`` only of an existing buffer, never of a count; ``NEWOBJ`` only without arguments;
+an array's ``BUILD`` state must carry exactly as much data as its declared shape needs; a sparse
+matrix's dense size is checked before it is expanded. So ``builtins.bytearray(2e9)``,
+``numpy.ndarray((10**9,))`` or an object array of declared shape (10**9,) are refused before any memory
+is taken. Any other global raises :class:`UnsafePickleError` naming it.
+
+Opt-in for files you produced yourself: ``trust_pickle=True`` (CLI ``--trust-pickle``) loads estimator
+pickles with plain :func:`joblib.load`, i.e. runs whatever the file says.
+"""
+
+from __future__ import annotations
+
+import collections
+import io
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+TRUST_HINT = ("Only if you trust the file's source, pass --trust-pickle (trust_pickle=True) to load it with "
+              "plain joblib/pickle, which can run arbitrary code.")
+MAX_ARRAY_BYTES = 1 << 30
+"""Largest array (bytes) a pickle or ``.npz`` may declare: 1 GiB."""
+MAX_NPZ_BYTES = 2 << 30
+"""Largest total uncompressed size of an ``.npz`` (bytes, from its zip directory): 2 GiB."""
+
+
+class UnsafePickleError(pickle.UnpicklingError, ValueError):
+    """The pickle asks for a global or a call outside the allowed set (the message names it)."""
+
+
+class ChumpyStub:
+    """Stands in for any chumpy object while unpickling; only its ``x`` array is kept."""
+
+    def __setstate__(self, state: Any) -> None:
+        self.state = state
+
+    def to_array(self) -> np.ndarray | None:
+        """The plain array held by the chumpy object, or None when it holds none."""
+        state = getattr(self, "state", None)
+        if isinstance(state, dict):
+            for key in ("x", "a", "_x"):
+                if key in state:
+                    value = state[key]
+                    return value.to_array() if isinstance(value, ChumpyStub) else np.asarray(value)
+        return None
+
+
+def _encode_latin1(text: Any, encoding: str = "utf-8", errors: str = "strict") -> bytes:
+    """``_codecs.encode`` as protocol-2 pickles of bytes use it (latin-1 text only)."""
+    if not isinstance(text, str) or encoding.replace("_", "-").lower() not in ("latin1", "latin-1", "iso-8859-1"):
+        raise UnsafePickleError(f"Refusing _codecs.encode({type(text).__name__}, {encoding!r}) in a pickle: only "
+                                "latin-1 text (protocol-2 bytes) is allowed.")
+    return text.encode("latin-1", errors)
+
+
+def _reconstructor(cls: Any, base: Any, state: Any) -> Any:
+    """``copyreg._reconstructor`` of plain objects only (``base`` object, no state)."""
+    if base is not object or state is not None or not isinstance(cls, type):
+        raise UnsafePickleError("Refusing copyreg._reconstructor with a base other than object in a pickle.")
+    return object.__new__(cls)
+
+
+def _numpy_multiarray() -> Any:
+    try:
+        import numpy._core.multiarray as ma
+    except ImportError:  # numpy < 2
+        import numpy.core.multiarray as ma  # type: ignore[no-redef]
+    return ma
+
+
+def _frombuffer_function() -> Any:
+    try:
+        from numpy._core.numeric import _frombuffer
+    except ImportError:  # numpy < 2
+        from numpy.core.numeric import _frombuffer  # type: ignore[no-redef]
+    return _frombuffer
+
+
+_BUILTINS = {"dict", "list", "tuple", "set", "frozenset", "bytearray", "bytes", "complex", "slice",
+             "int", "float", "str", "bool", "object"}
+_NUMPY_MODULES = {"numpy", "numpy.core.multiarray", "numpy._core.multiarray", "numpy.core.numeric",
+                  "numpy._core.numeric", "numpy.dtypes"}
+_SPARSE = ("csc_matrix", "csr_matrix", "coo_matrix")
+
+
+def allowed_global(module: str, name: str) -> Any:
+    """The object the restricted unpickler returns for ``module.name``; raises :class:`UnsafePickleError`."""
+    if module in _NUMPY_MODULES:
+        if module == "numpy.dtypes" and name.endswith("DType"):
+            import numpy.dtypes
+
+            found = getattr(numpy.dtypes, name, None)
+            if found is not None:
+                return found
+        elif name in ("ndarray", "dtype") and module == "numpy":
+            return getattr(np, name)
+        elif name == "_frombuffer" and module.endswith("numeric"):
+            return _frombuffer_function()
+        elif name in ("_reconstruct", "scalar") and module.endswith("multiarray"):
+            return getattr(_numpy_multiarray(), name)
+    if module in ("builtins", "__builtin__") and name in _BUILTINS:
+        import builtins
+
+        return getattr(builtins, name)
+    if module == "collections" and name in ("OrderedDict", "defaultdict"):
+        return getattr(collections, name)
+    if (module, name) == ("_codecs", "encode"):
+        return _encode_latin1
+    if module in ("copy_reg", "copyreg") and name == "_reconstructor":
+        return _reconstructor
+    if module == "chumpy" or module.startswith("chumpy."):
+        return ChumpyStub
+    if module.startswith("scipy.sparse") and name in _SPARSE:
+        import scipy.sparse
+
+        return getattr(scipy.sparse, name)
+    raise UnsafePickleError(f"Refusing to load global '{module}.{name}' from a pickle: only numpy arrays, builtin "
+                            f"containers and chumpy/scipy arrays are allowed (a pickle can run arbitrary code). "
+                            f"{TRUST_HINT}")
+
+
+def _declared_bytes(shape: Any, itemsize: int) -> int:
+    if not isinstance(shape, tuple) or not all(isinstance(n, int) and n >= 0 for n in shape):
+        raise UnsafePickleError(f"Refusing an array of shape {shape!r:.60} in a pickle.")
+    count = 1
+    for n in shape:
+        count *= n
+    return count * max(int(itemsize), 1)
+
+
+def _check_call(func: Any, args: Any, kwargs: Any = None) -> None:
+    """Refuse a call from the pickle stream that could allocate from a number (see the module docstring)."""
+    if kwargs:
+        raise UnsafePickleError("Refusing a call with keyword arguments in a pickle.")
+    if not isinstance(args, tuple):
+        raise UnsafePickleError("Refusing a call whose arguments are not a tuple in a pickle.")
+    ma = _numpy_multiarray()
+    name = getattr(func, "__name__", type(func).__name__)
+    if func is ma._reconstruct:
+        if len(args) != 3 or args[1] != (0,):
+            raise UnsafePickleError(f"Refusing numpy _reconstruct{args!r:.60} in a pickle (numpy writes shape (0,)).")
+        if not (isinstance(args[0], type) and issubclass(args[0], np.ndarray)):
+            raise UnsafePickleError("Refusing numpy _reconstruct of a non-array class in a pickle.")
+        return
+    if func in (bytes, bytearray):
+        if args and not isinstance(args[0], (bytes, bytearray, str)):
+            raise UnsafePickleError(f"Refusing builtins.{name}({type(args[0]).__name__}) in a pickle: only bytes "
+                                    "from the file are allowed, never a size.")
+        return
+    if func in (list, tuple, set, frozenset, dict, collections.OrderedDict):
+        if args and not isinstance(args[0], (list, tuple, set, frozenset, dict)):
+            raise UnsafePickleError(f"Refusing builtins.{name}({type(args[0]).__name__}) in a pickle.")
+        return
+    if func is collections.defaultdict:
+        if args and args[0] not in (None, list, dict, set, tuple, int, float, str):
+            raise UnsafePickleError("Refusing collections.defaultdict with a custom factory in a pickle.")
+        return
+    if func in (np.dtype, ma.scalar, _frombuffer_function(), _encode_latin1, _reconstructor,
+                int, float, str, complex, slice, bool):
+        return
+    if isinstance(func, type) and issubclass(func, np.dtype):
+        return
+    raise UnsafePickleError(f"Refusing to call {getattr(func, '__module__', '?')}.{name} in a pickle.")
+
+
+def _check_array_state(inst: np.ndarray, state: Any) -> None:
+    """An array's ``__setstate__`` allocates its declared shape before checking the data: check first."""
+    if not (isinstance(state, tuple) and len(state) in (4, 5)):
+        raise UnsafePickleError("Refusing an array state of unexpected form in a pickle.")
+    shape, dtype, data = state[-4], state[-3], state[-1]
+    if not isinstance(dtype, np.dtype):
+        raise UnsafePickleError("Refusing an array state without a dtype in a pickle.")
+    size = _declared_bytes(shape, dtype.itemsize)
+    if size > MAX_ARRAY_BYTES:
+        raise UnsafePickleError(f"Refusing an array of shape {shape} ({size} bytes) in a pickle; the limit is "
+                                f"{MAX_ARRAY_BYTES} bytes.")
+    count = size // max(dtype.itemsize, 1)
+    if dtype.hasobject:
+        if not isinstance(data, list) or len(data) != count:
+            raise UnsafePickleError(f"Refusing an object array of shape {shape} whose data does not match it.")
+    elif not isinstance(data, (bytes, bytearray)) or len(data) != size:
+        raise UnsafePickleError(f"Refusing an array of shape {shape} whose data does not match it.")
+
+
+def _restricted_dispatch(base: dict) -> dict:
+    """``base`` (a pure-Python unpickler's opcode table) with the call opcodes checked first."""
+    table = base.copy()
+
+    def load_reduce(self: Any) -> None:
+        _check_call(self.stack[-2], self.stack[-1])
+        base[pickle.REDUCE[0]](self)
+
+    def load_newobj(self: Any) -> None:
+        if self.stack[-1] != ():
+            raise UnsafePickleError(f"Refusing {getattr(self.stack[-2], '__name__', '?')}.__new__ with arguments "
+                                    "in a pickle.")
+        base[pickle.NEWOBJ[0]](self)
+
+    def load_newobj_ex(self: Any) -> None:
+        if self.stack[-1] or self.stack[-2] != ():
+            raise UnsafePickleError("Refusing __new__ with arguments in a pickle.")
+        base[pickle.NEWOBJ_EX[0]](self)
+
+    def load_build(self: Any) -> None:
+        inst = self.stack[-2]
+        if isinstance(inst, np.ndarray):
+            _check_array_state(inst, self.stack[-1])
+        base[pickle.BUILD[0]](self)
+
+    table[pickle.REDUCE[0]] = load_reduce
+    table[pickle.NEWOBJ[0]] = load_newobj
+    table[pickle.NEWOBJ_EX[0]] = load_newobj_ex
+    table[pickle.BUILD[0]] = load_build
+    return table
+
+
+class RestrictedUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc]
+    """The pure-Python unpickler with :func:`allowed_global`'s globals and checked call opcodes."""
+
+    dispatch = _restricted_dispatch(pickle._Unpickler.dispatch)  # type: ignore[attr-defined]
+
+    def find_class(self, module: str, name: str) -> Any:
+        return allowed_global(module, name)
+
+    def _instantiate(self, klass: Any, args: Any) -> None:  # INST and OBJ opcodes
+        _check_call(klass, tuple(args))
+        super()._instantiate(klass, args)
+
+
+def loads_restricted(data: bytes, *, encoding: str = "ASCII") -> Any:
+    """Unpickle ``data`` with :class:`RestrictedUnpickler` (``encoding="latin1"`` for Python 2 pickles)."""
+    return RestrictedUnpickler(io.BytesIO(data), encoding=encoding).load()
+
+
+def _joblib_unpickler_class() -> type:
+    """joblib's ``NumpyUnpickler`` with the same restrictions, plus its array wrapper."""
+    from joblib.numpy_pickle import NumpyArrayWrapper, NumpyUnpickler
+
+    base = NumpyUnpickler.dispatch
+
+    class _Restricted(NumpyUnpickler):  # type: ignore[misc, valid-type]
+        dispatch = _restricted_dispatch(base)
+
+        def find_class(self, module: str, name: str) -> Any:
+            if module.startswith("joblib") and module.endswith("numpy_pickle") and name == "NumpyArrayWrapper":
+                return NumpyArrayWrapper
+            return allowed_global(module, name)
+
+        def _instantiate(self, klass: Any, args: Any) -> None:
+            _check_call(klass, tuple(args))
+            super()._instantiate(klass, args)
+
+        def load_build(self) -> None:
+            if isinstance(self.stack[-2], np.ndarray):
+                _check_array_state(self.stack[-2], self.stack[-1])
+            pickle._Unpickler.load_build(self)  # type: ignore[attr-defined]
+            top = self.stack[-1]
+            if not isinstance(top, NumpyArrayWrapper):
+                return
+            wrapper = self.stack.pop()
+            if wrapper.subclass not in (np.ndarray, np.memmap):
+                raise UnsafePickleError(f"Refusing a joblib array of class {wrapper.subclass!r}; only plain numpy "
+                                        f"arrays are allowed. {TRUST_HINT}")
+            if not isinstance(wrapper.dtype, np.dtype):
+                raise UnsafePickleError("Refusing a joblib array without a dtype.")
+            size = _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
+            if size > MAX_ARRAY_BYTES:
+                raise UnsafePickleError(f"Refusing a joblib array of shape {wrapper.shape} ({size} bytes); the limit "
+                                        f"is {MAX_ARRAY_BYTES} bytes.")
+            if wrapper.dtype.hasobject:  # a nested pickle stream: read it with the same restrictions
+                self.stack.append(RestrictedUnpickler(self.file_handle).load())
+            else:
+                self.stack.append(wrapper.read_array(self, self.ensure_native_byte_order))
+
+        dispatch[pickle.BUILD[0]] = load_build
+
+    return _Restricted
+
+
+_READ_ERRORS = (pickle.UnpicklingError, EOFError, OSError, AttributeError, TypeError, IndexError, KeyError,
+                ValueError, OverflowError, MemoryError, RecursionError, UnicodeDecodeError)
+
+
+def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
+    """Load a pickle or joblib file (plain pickle or joblib, compressed or not).
+
+    Args:
+        path: ``.pk``/``.pkl``/``.joblib`` file.
+        trust_pickle: load with plain :func:`joblib.load` (runs any code the file names).
+
+    Raises:
+        UnsafePickleError: a refused global or call (named), with the opt-in in the message.
+        ValueError: missing, unreadable or corrupt file (named).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"File not found: {path}")
+    if trust_pickle:
+        import joblib
+
+        return joblib.load(path)
+    from joblib.numpy_pickle_utils import _validate_fileobject_and_memmap
+
+    try:
+        with open(path, "rb") as raw, _validate_fileobject_and_memmap(raw, str(path), None) as (fobj, _):
+            if isinstance(fobj, str):
+                raise ValueError(f"{path}: a joblib < 0.10 multi-file pickle; re-save it with a recent joblib.")
+            data = fobj.read()
+    except ValueError:
+        raise
+    except (OSError, EOFError, MemoryError) as exc:
+        raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc}).") from exc
+    try:
+        try:
+            return _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
+        except UnicodeDecodeError:  # Python 2 pickles of numpy arrays need latin1
+            return RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+    except UnsafePickleError as exc:
+        raise UnsafePickleError(f"{path}: {exc}") from None
+    except _READ_ERRORS as exc:
+        raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {str(exc)[:200]}).") from None
+
+
+def read_npz(path: str | Path, *, allow_objects: bool = True, max_bytes: int = MAX_NPZ_BYTES) -> dict[str, Any]:
+    """Read every array of an ``.npz`` with bounded memory.
+
+    Before anything is decompressed, the zip directory's uncompressed sizes are checked against
+    ``max_bytes`` (a zip bomb is refused), and each member's ``.npy`` header against its own size and
+    :data:`MAX_ARRAY_BYTES`. Object arrays (e.g. ROMP's ``results`` dict, saved with
+    ``np.savez(results=dict)``) are unpickled by :class:`RestrictedUnpickler`, never by plain pickle,
+    and refused with ``allow_objects=False``; 0-d object arrays are unwrapped to the object they hold.
+
+    Raises:
+        UnsafePickleError: a refused global in an object array.
+        ValueError: missing, corrupt or oversized file (named).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"File not found: {path}")
+    out: dict[str, Any] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = [i for i in zf.infolist() if i.filename.endswith(".npy")]
+            total = sum(i.file_size for i in infos)
+            if total > max_bytes:
+                raise ValueError(f"{path}: its arrays hold {total} bytes uncompressed; the limit is {max_bytes}.")
+            for info in infos:
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                              else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = header(fh, max_header_size=10000)
+                    name = info.filename[:-4]
+                    if dtype.hasobject:
+                        if not allow_objects:
+                            raise ValueError(f"{path}: array '{name}' holds Python objects (a pickle); "
+                                             "only plain numeric arrays are allowed here.")
+                        value = RestrictedUnpickler(io.BytesIO(fh.read()), encoding="latin1").load()
+                        if isinstance(value, np.ndarray) and value.shape == () and value.dtype.hasobject:
+                            value = value.item()
+                        out[name] = value
+                        continue
+                    size = _declared_bytes(tuple(shape), dtype.itemsize)
+                    if size > min(info.file_size, MAX_ARRAY_BYTES):
+                        raise ValueError(f"{path}: array '{name}' declares shape {shape} ({size} bytes) but its "
+                                         f"member holds {info.file_size} bytes.")
+                with zf.open(info) as fh:
+                    out[name] = np.lib.format.read_array(io.BytesIO(fh.read()), allow_pickle=False)
+    except UnsafePickleError as exc:
+        raise UnsafePickleError(f"{path}: {exc}") from None
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, pickle.UnpicklingError, EOFError, KeyError,
+            TypeError, IndexError, AttributeError, OverflowError, MemoryError, RecursionError, SyntaxError,
+            UnicodeDecodeError, NotImplementedError) as exc:
+        raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
+    return out
+
