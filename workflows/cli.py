@@ -8,6 +8,19 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from shape_inversion.options import (
+    BindOption,
+    MapOption,
+    MaxJointsOption,
+    PositionsOption,
+    RestOption,
+    RigOption,
+    UnitsOption,
+    UpOption,
+    character_options_from_cli,
+)
+from smplik.data.bvh import DEFAULT_MAX_JOINTS
+
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
@@ -40,7 +53,14 @@ def from_estimate_cmd(
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help=f"One of: {', '.join(FORMATS)}.")] = "auto",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
-    rig: Annotated[str | None, typer.Option("--rig", help="Rig preset of --character (default: detected).")] = None,
+    rig: RigOption = None,
+    map_file: MapOption = None,
+    units: UnitsOption = "auto",
+    up: UpOption = "auto",
+    rest: RestOption = "frame0",
+    bind: BindOption = "inverse_bind",
+    positions: PositionsOption = "auto",
+    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per person.")] = 8,
     threshold: Annotated[float, typer.Option("--threshold", min=0.0, help="Stop below this error (m).")] = 0.02,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
@@ -57,9 +77,11 @@ def from_estimate_cmd(
 
     if format not in FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
     solver = _solver(checkpoint)
     try:
-        outputs = from_estimate(results, out, solver, format=format, character_path=character, rig=rig,
+        outputs = from_estimate(results, out, solver, format=format, character_path=character,
+                                character_options=options,
                                 config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
                                 trust_pickle=trust_pickle, image_path=image, frame=frame, previews=not no_previews)
     except (ValueError, OSError, RenderError) as exc:
