@@ -69,7 +69,10 @@ class CharacterOptions:
         if not isinstance(self.units, str):
             raise bad("units", self.units, "a string")
         if self.units.lower() != "auto":
-            parse_units(self.units, CharacterOptionsError)
+            try:
+                parse_units(self.units, CharacterOptionsError)
+            except CharacterOptionsError as exc:
+                raise CharacterOptionsError(f"character option units: {exc}") from None
         if not isinstance(self.up, str) or self.up.strip().lower().lstrip("+-") not in ("auto", "x", "y", "z") \
                 or self.up.strip().lower() in ("-auto", "+auto"):
             raise bad("up", self.up, "auto, x, y, z, optionally signed (-z)")

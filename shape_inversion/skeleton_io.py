@@ -322,7 +322,7 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     elif rig is not None:
         rig_map = load_preset(rig)
     else:
-        rig_map = detect_rig(skeleton.names)
+        rig_map = detect_rig(skeleton.names, skeleton.parents)
     found, _ = match_joints(rig_map, skeleton.names)
     from shape_inversion.rigs import missing_required
 

@@ -43,7 +43,9 @@ def _solver(checkpoint: Path | None):
 
 
 def _fail(exc: Exception) -> None:
-    console.print(f"[red]error:[/red] {exc}", soft_wrap=True, markup=True, highlight=False)
+    from rich.markup import escape
+
+    console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True, markup=True, highlight=False)
     raise typer.Exit(1) from None
 
 
@@ -139,6 +141,28 @@ def render_cmd(
     except RenderError as exc:
         _fail(exc)
     console.print(f"wrote {out}")
+
+
+@scene_app.command("export")
+def export_cmd(
+    scene: Annotated[Path, typer.Argument(help="Scene JSON.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    format: Annotated[str, typer.Option("--format", help="Comma-separated: bvh, glb.")] = "bvh,glb",
+) -> None:
+    """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
+    from workflows.export import export_scene
+    from workflows.scene import load_scene
+
+    try:
+        loaded = load_scene(scene)
+        paths = export_scene(loaded, out, formats=[f for f in format.split(",") if f.strip()],
+                             base_dir=scene.resolve().parent)
+    except (ValueError, OSError) as exc:
+        _fail(exc)
+    for path in paths:
+        console.print(f"wrote {path}")
+    if not paths:
+        console.print("no posed character to export")
 
 
 @demo_app.command("demo")
