@@ -11,7 +11,19 @@ from typing import Annotated
 
 import typer
 
+from shape_inversion.options import (
+    BindOption,
+    MapOption,
+    MaxJointsOption,
+    PositionsOption,
+    RestOption,
+    RigOption,
+    UnitsOption,
+    UpOption,
+    character_options_from_cli,
+)
 from smplik.conventions import Gender
+from smplik.data.bvh import DEFAULT_MAX_JOINTS
 
 app = typer.Typer(help="SMPL-SI: custom skeleton -> SMPL shape (beta) and scale.", no_args_is_help=True,
                   pretty_exceptions_enable=False)
@@ -44,14 +56,14 @@ def invert_shape(
     out: Annotated[Path, typer.Option("--out", help="Output SHAPE.json (betas, scale, gender, diagnostics).")],
     gender: Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model gender.")]
     = Gender.NEUTRAL,
-    rig: Annotated[str | None, typer.Option("--rig", help="Joint-name preset (default: detected).")] = None,
-    map_file: Annotated[Path | None, typer.Option("--map", help="JSON map {smpl_joint: rig_joint}.",
-                                                     exists=True, dir_okay=False)] = None,
-    units: Annotated[str, typer.Option("--units", help="auto, m, dm, cm, mm, in, ft, cmu, or metres per unit.")]
-    = "auto",
-    up: Annotated[str, typer.Option("--up", help="auto, or the file's up axis: x, y, z, -z, ...")] = "auto",
-    rest: Annotated[str, typer.Option("--rest", help="BVH rest pose: frame0 or offsets.")] = "frame0",
-    bind: Annotated[str, typer.Option("--bind", help="glTF bind pose: inverse_bind or nodes.")] = "inverse_bind",
+    rig: RigOption = None,
+    map_file: MapOption = None,
+    units: UnitsOption = "auto",
+    up: UpOption = "auto",
+    rest: RestOption = "frame0",
+    bind: BindOption = "inverse_bind",
+    positions: PositionsOption = "auto",
+    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
     render_png: Annotated[Path | None, typer.Option("--render", help="Also write a comparison PNG.")] = None,
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                       "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
@@ -63,21 +75,18 @@ def invert_shape(
 ) -> None:
     """Estimate SMPL beta and scale for CHARACTER and write them to --out."""
     from rich.console import Console
+    from rich.markup import escape
 
     from shape_inversion.bank import BankConfig
     from shape_inversion.estimator import EstimatorConfig, ShapeEstimator
-    from shape_inversion.skeleton_io import prepare_character, read_skeleton
+    from shape_inversion.skeleton_io import read_character
     from smplik.atomic import write_json_atomic
     from smplik.body_model import load_body_model
 
     console = Console(stderr=True)
-    if rest not in ("frame0", "offsets"):
-        raise typer.BadParameter(f"--rest must be frame0 or offsets, got {rest!r}.")
-    if bind not in ("inverse_bind", "nodes"):
-        raise typer.BadParameter(f"--bind must be inverse_bind or nodes, got {bind!r}.")
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
     try:
-        skeleton = read_skeleton(character, rest=rest, bind=bind)  # type: ignore[arg-type]
-        char = prepare_character(skeleton, rig=rig, map_file=map_file, units=units, up=up)
+        char = read_character(character, options)
         model = load_body_model(gender, model_dir)
         estimator = ShapeEstimator.build(model, BankConfig(num_samples=bank_samples),
                                          EstimatorConfig(refine=refine))
@@ -85,9 +94,12 @@ def invert_shape(
         estimate = estimator.estimate(char.features)
         elapsed = time.perf_counter() - start
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
-        console.print(f"[red]error:[/red] {exc}")
+        console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
         raise typer.Exit(code=1) from None
     payload = shape_payload(char, estimate, model, rest=rest, elapsed_s=elapsed)
+    payload["character"]["options"] = options.to_dict()
+    for note in estimate.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     write_json_atomic(out, payload)
     console.print(f"rig {char.rig.name}, units {char.units_m:g} m ({char.units_source}), up {char.up}; "
                   f"scale {estimate.scale:.3f}, max feature residual {estimate.max_feature_residual_m * 1000:.2f} mm, "
@@ -99,7 +111,7 @@ def invert_shape(
         try:
             save_png(render_comparison(char, estimate, model), render_png)
         except RenderError as exc:
-            console.print(f"[red]error:[/red] {exc}")
+            console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
             raise typer.Exit(code=1) from None
         console.print(f"render -> {render_png}")
 

@@ -70,6 +70,9 @@ class EstimatorConfig:
     """Feature residual (metres) that costs as much as moving one posterior standard deviation."""
     refine_max_evaluations: int = 100
     """Cap on the refinement's least-squares iterations."""
+    edge_fraction: float = 0.05
+    """An estimate within this fraction of the bank's range from its edge is at the edge: a scale there is
+    refused (wrong units, or a body the bank does not cover), a beta there is reported in ``warnings``."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,6 +94,7 @@ class ShapeEstimate:
         kernel_betas: (10,) the paper's plain kernel-regression estimate (eq. 3).
         kernel_scale: its scale.
         refined: whether ``betas``/``scale`` were refined from the kernel estimate.
+        warnings: betas at the edge of the bank's range, with the numbers (also sent to :mod:`warnings`).
     """
 
     betas: np.ndarray
@@ -107,6 +111,7 @@ class ShapeEstimate:
     kernel_betas: np.ndarray = field(repr=False)
     kernel_scale: float = field(repr=False)
     refined: bool = False
+    warnings: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (lists and floats)."""
@@ -127,6 +132,7 @@ class ShapeEstimate:
                 "kernel_betas": [float(b) for b in self.kernel_betas],
                 "kernel_scale": float(self.kernel_scale),
                 "refined": bool(self.refined),
+                "warnings": list(self.warnings),
             },
         }
 
@@ -241,13 +247,33 @@ class ShapeEstimator:
         betas, scale = mean[:NUM_BETAS], float(mean[NUM_BETAS])
         residual = self.features_of(betas, scale) - query
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        notes = self._edge_check(betas, scale, query)
         return ShapeEstimate(
             betas=betas, scale=scale, gender=self.gender, betas_std=std[:NUM_BETAS], scale_std=float(std[NUM_BETAS]),
             effective_samples=float(w.sum() ** 2 / (w**2).sum()), neighbours_used=int(w.size),
             nearest_distance_m=float(dist[0]), query_features_m=query, feature_residual_m=residual,
             max_feature_residual_m=float(np.abs(residual).max()), kernel_betas=kernel_mean[:NUM_BETAS],
-            kernel_scale=float(kernel_mean[NUM_BETAS]), refined=cfg.refine,
+            kernel_scale=float(kernel_mean[NUM_BETAS]), refined=cfg.refine, warnings=notes,
         )
+
+    def _edge_check(self, betas: np.ndarray, scale: float, query: np.ndarray) -> tuple[str, ...]:
+        """Refuse a scale at the edge of the bank's range; warn (and return the notes) for betas there."""
+        import warnings
+
+        bank_cfg, frac = self.bank.config, self.config.edge_fraction
+        lo, hi = bank_cfg.scale_range
+        margin = frac * (hi - lo)
+        if not lo + margin <= scale <= hi - margin:
+            stature = query[2] / 0.84
+            raise ShapeInversionError(
+                f"SMPL-SI scale {scale:.3f} is at the edge of the sample bank's range {lo:g}-{hi:g} (head-ankle "
+                f"{query[2]:.3f} m, about {stature:.2f} m tall): check the character's units (--units) or rig.")
+        limit = (1 - frac) * bank_cfg.beta_range
+        notes = tuple(f"beta[{k}] = {b:+.2f} is at the edge of the sample bank's range +-{bank_cfg.beta_range:g}: "
+                      "the skeleton's proportions are extreme for SMPL" for k, b in enumerate(betas) if abs(b) > limit)
+        for note in notes:
+            warnings.warn(note, stacklevel=3)
+        return notes
 
     def _refine(self, query: np.ndarray, x0: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """Refined (beta, scale) (11,) from the kernel mean ``x0`` (11,), posterior ``cov`` (11, 11), query (6,).

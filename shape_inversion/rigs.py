@@ -15,13 +15,14 @@ object. Rig names match exactly first, then case-insensitively with any ``namesp
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from shape_inversion.features import REQUIRED_JOINTS
 from smplik.conventions import JOINT_NAMES
+from smplik.data.rig_names import NameMatchError, match_humanoid
 
 
 class RigError(ValueError):
@@ -138,13 +139,16 @@ def missing_message(rig: RigMap, found: Mapping[str, int], source: str = "the sk
             f"{', '.join(parts)}. Pass --map with a file mapping these SMPL joints to your rig's names.")
 
 
-def detect_rig(names: Iterable[str]) -> RigMap:
-    """The preset that best matches the joint ``names``.
+def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None) -> RigMap:
+    """The preset that best matches the joint ``names``; else, with ``parents``, a map matched by name and topology.
 
-    Score: required joints found, then exact matches, then all mapped joints found.
+    Preset score: required joints found, then exact matches, then all mapped joints found. When no
+    preset provides every required joint, :func:`smplik.data.rig_names.match_humanoid` matches the
+    names across the common naming schemes and checks the match against the hierarchy; the map it
+    chose is the returned :class:`RigMap` named ``"auto"`` (its ``description`` lists it).
 
     Raises:
-        RigError: no preset provides all required joints (names the closest preset and what it lacks).
+        RigError: neither works (names the closest preset and what it lacks, and why name matching failed).
     """
     names = list(names)
     scored = []
@@ -156,8 +160,17 @@ def detect_rig(names: Iterable[str]) -> RigMap:
     scored.sort(key=lambda t: t[0], reverse=True)
     (n_required, _, _), best, found = scored[0]
     if n_required < len(REQUIRED_JOINTS):
+        why = "no hierarchy given"
+        if parents is not None:
+            try:
+                matched = match_humanoid(names, parents, REQUIRED_JOINTS)
+                pairs = tuple((s, names[matched[s]]) for s in JOINT_NAMES if s in matched)
+                return RigMap("auto", pairs, "matched by name and topology: "
+                              + ", ".join(f"{s}={r}" for s, r in pairs))
+            except NameMatchError as exc:
+                why = str(exc)
         sample = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
         raise RigError(f"Could not detect the rig from the joint names ({sample}); presets: "
-                       f"{', '.join(available_presets())}. Closest: " + missing_message(best, found)
-                       + " Or choose a preset with --rig.")
+                       f"{', '.join(available_presets())}; name matching: {why}. Closest preset: "
+                       + missing_message(best, found) + " Or choose a preset with --rig.")
     return best

@@ -27,32 +27,28 @@ sign, along which the head is farthest from the ankles.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from shape_inversion.features import named_joints_to_features
+from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_rig
+from shape_inversion.options import BindSource, CharacterOptions, RestSource
 from shape_inversion.rigs import RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
 from smplik.conventions import JOINT_NAMES, PARENTS
+from smplik.data.bvh import DEFAULT_MAX_JOINTS, BVHError, BVHMotion, PositionMode, parse_bvh
+from smplik.data.bvh import read_bvh as bvh_read
+from smplik.units import UNIT_NAMES, detect_units
+from smplik.units import parse_units as _parse_units
 
 
 class SkeletonError(ValueError):
     """A skeleton file cannot be read, or its units/axes are invalid."""
 
 
-RestSource = Literal["frame0", "offsets"]
-BindSource = Literal["inverse_bind", "nodes"]
 
-UNIT_NAMES: dict[str, float] = {
-    "m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254, "ft": 0.3048,
-    "cmu": 0.0254 / 0.45,
-}
-"""Unit names accepted by :func:`parse_units` (metres per unit)."""
 
 HEAD_ANKLE_PER_STATURE = 0.84
 """(head joint - ankle joint height) / stature of SMPL-like bodies; used to estimate stature."""
@@ -72,6 +68,11 @@ class Skeleton:
         format: ``"bvh"``, ``"gltf"`` or ``"json"``.
         units: metres per unit stated by the file, if any.
         up: up axis stated by the file, if any.
+        bvh: the parsed BVH file (BVH skeletons).
+        rest_rotations: (J, 3, 3) ``R_world_joint`` of the source's own convention in the rest pose
+            (BVH: frame 0's, or identity); None means identity.
+        rest_translations: (J, 3) the BVH local translations of the rest pose (file units).
+        gltf: the glTF node tree and skin (glTF skeletons).
     """
 
     names: tuple[str, ...]
@@ -81,272 +82,146 @@ class Skeleton:
     format: str
     units: float | None = None
     up: str | None = None
+    bvh: BVHMotion | None = field(default=None, repr=False)
+    rest_rotations: np.ndarray | None = field(default=None, repr=False)
+    rest_translations: np.ndarray | None = field(default=None, repr=False)
+    gltf: GltfRig | None = field(default=None, repr=False)
 
 
 # ----------------------------------------------------------------------------- BVH
 
 
-def _euler_matrix(order: str, degrees: np.ndarray) -> np.ndarray:
-    """Rotation (3, 3) of intrinsic rotations in channel order, e.g. ``"ZYX"`` -> Rz Ry Rx."""
-    if not order:
-        return np.eye(3)
-    return Rotation.from_euler(order.upper(), degrees, degrees=True).as_matrix()
-
-
-def read_bvh(source: str | Path, rest: RestSource = "frame0") -> Skeleton:
-    """Read a BVH skeleton's rest pose.
+def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: PositionMode = "auto",
+             max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
+    """Read a BVH skeleton's rest pose with the project's one BVH reader (:func:`smplik.data.bvh.read_bvh`).
 
     Args:
         source: a path, or the BVH text itself (anything containing ``HIERARCHY``).
-        rest: ``"frame0"``: forward kinematics of the first MOTION frame; ``"offsets"``: zero rotations.
+        rest: ``"frame0"``: forward kinematics of the first MOTION frame (position channels per
+            ``position_mode``); ``"offsets"``: the zero-rotation OFFSET pose.
+        position_mode, max_joints: see :func:`smplik.data.bvh.read_bvh`.
 
-    Returns: a :class:`Skeleton` (end sites are not joints).
+    Returns: a :class:`Skeleton` (end sites are not joints) holding the parsed motion in ``bvh``.
 
     Raises: SkeletonError on malformed files, or ``rest="frame0"`` with no frame.
     """
     if rest not in ("frame0", "offsets"):
         raise SkeletonError(f"Unknown rest source {rest!r}; expected 'frame0' or 'offsets'.")
-    if isinstance(source, str) and "HIERARCHY" in source:
-        text, where = source, "<string>"
-    else:
-        try:
-            with open(source, encoding="utf-8", errors="replace") as fh:
-                text = fh.read()
-        except OSError as exc:
-            raise SkeletonError(f"Cannot read BVH file {source}: {exc}") from exc
-        where = str(source)
-    head, sep, motion = text.partition("MOTION")
-    tokens = head.split()
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[list[str]] = []
-    stack: list[int] = []
-    pending_end = False
-    i = 0
     try:
-        while i < len(tokens):
-            tok = tokens[i]
-            if tok in ("ROOT", "JOINT"):
-                names.append(tokens[i + 1])
-                parents.append(stack[-1] if stack else -1)
-                offsets.append([0.0, 0.0, 0.0])
-                channels.append([])
-                i += 2
-            elif tok == "End":
-                pending_end = True
-                i += 2
-            elif tok == "{":
-                stack.append(-2 if pending_end else len(names) - 1)
-                pending_end = False
-                i += 1
-            elif tok == "}":
-                stack.pop()
-                i += 1
-            elif tok == "OFFSET":
-                if stack and stack[-1] >= 0:
-                    offsets[stack[-1]] = [float(t) for t in tokens[i + 1:i + 4]]
-                i += 4
-            elif tok == "CHANNELS":
-                n = int(tokens[i + 1])
-                channels[stack[-1]] = tokens[i + 2:i + 2 + n]
-                i += 2 + n
-            else:
-                i += 1
-    except (IndexError, ValueError) as exc:
-        raise SkeletonError(f"{where}: malformed BVH hierarchy near token {i} ({exc}).") from exc
-    if not names:
-        raise SkeletonError(f"{where}: no ROOT joint in the BVH hierarchy.")
-    if "-2" in map(str, stack) or stack:
-        raise SkeletonError(f"{where}: unbalanced braces in the BVH hierarchy.")
-    n_channels = sum(len(c) for c in channels)
-    frame = np.zeros(n_channels)
-    if rest == "frame0":
-        match = re.search(r"Frame Time:[^\n]*\n\s*([^\n]+)", motion) if sep else None
-        if match is None:
-            raise SkeletonError(f"{where}: no MOTION frame for rest='frame0'; use rest='offsets'.")
-        try:
-            frame = np.array([float(t) for t in match.group(1).split()])
-        except ValueError as exc:
-            raise SkeletonError(f"{where}: malformed first MOTION frame ({exc}).") from exc
-        if frame.size < n_channels:
-            raise SkeletonError(f"{where}: first frame has {frame.size} values, the hierarchy {n_channels} channels.")
-    offsets_arr = np.asarray(offsets, dtype=np.float64)
-    positions = np.zeros_like(offsets_arr)
-    R_world = np.zeros((len(names), 3, 3))
-    cursor = 0
-    for j, chans in enumerate(channels):
-        values = frame[cursor:cursor + len(chans)]
-        cursor += len(chans)
-        pos = np.zeros(3)
-        has_pos = False
-        order = ""
-        angles = []
-        for c, v in zip(chans, values, strict=True):
-            axis = "XYZ".index(c[0].upper())
-            if c[1:].lower() == "position":
-                pos[axis] = v
-                has_pos = True
-            else:
-                order += c[0].upper()
-                angles.append(v)
-        R_local = _euler_matrix(order, np.asarray(angles)) if rest == "frame0" else np.eye(3)
-        p = parents[j]
-        if p < 0:
-            positions[j] = pos if (has_pos and rest == "frame0") else offsets_arr[j]
-            R_world[j] = R_local
+        if isinstance(source, str) and "HIERARCHY" in source:
+            motion = parse_bvh(source, position_mode=position_mode, max_joints=max_joints)
         else:
-            local = offsets_arr[j] + (pos if rest == "frame0" else 0.0)
-            positions[j] = positions[p] + R_world[p] @ local
-            R_world[j] = R_world[p] @ R_local
-    return Skeleton(tuple(names), tuple(parents), positions, where, "bvh")
+            motion = bvh_read(source, position_mode=position_mode, max_joints=max_joints)
+    except BVHError as exc:
+        raise SkeletonError(str(exc)) from None
+    if rest == "frame0":
+        if motion.num_frames == 0:
+            raise SkeletonError(f"{motion.name}: no MOTION frame for rest='frame0'; use rest='offsets'.")
+        R_rest, positions = motion.global_rotations[0].copy(), motion.positions[0].copy()
+        t_rest = motion.local_translations[0].copy()
+    else:  # the zero-rotation OFFSET pose
+        R_rest, positions = motion.rest_pose()
+        t_rest = motion.offsets.copy()
+    return Skeleton(motion.joint_names, motion.parents, positions, motion.name, "bvh", bvh=motion,
+                    rest_rotations=R_rest, rest_translations=t_rest)
 
 
 # ----------------------------------------------------------------------------- glTF
 
 
-def _node_local_matrix(node) -> np.ndarray:
-    if node.matrix is not None and len(node.matrix) == 16:
-        return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T  # glTF stores column-major
-    T = np.eye(4)
-    if node.translation is not None:
-        T[:3, 3] = node.translation
-    if node.rotation is not None:
-        T[:3, :3] = Rotation.from_quat(node.rotation).as_matrix()  # glTF quaternions are (x, y, z, w)
-    if node.scale is not None:
-        T[:3, :3] = T[:3, :3] * np.asarray(node.scale, dtype=np.float64)[None, :]
-    return T
-
-
-def _read_accessor_mat4(gltf, accessor_index: int) -> np.ndarray:
-    """An accessor of MAT4 float32 as (N, 4, 4) row-major matrices."""
-    import pygltflib
-
-    acc = gltf.accessors[accessor_index]
-    if acc.type != "MAT4" or acc.componentType != pygltflib.FLOAT:
-        raise SkeletonError(f"inverseBindMatrices accessor {accessor_index} is not MAT4 float32.")
-    view = gltf.bufferViews[acc.bufferView]
-    data = gltf.binary_blob() if gltf.buffers[view.buffer].uri in (None, "") else None
-    if data is None:
-        gltf.convert_buffers(pygltflib.BufferFormat.BINARYBLOB)
-        data = gltf.binary_blob()
-    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
-    stride = view.byteStride or 64
-    raw = np.lib.stride_tricks.as_strided(np.frombuffer(data, dtype=np.uint8, offset=start),
-                                          shape=(acc.count, 64), strides=(stride, 1))
-    return np.ascontiguousarray(raw).view(np.float32).reshape(acc.count, 4, 4).transpose(0, 2, 1).astype(np.float64)
-
-
 def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0) -> Skeleton:
-    """Read the joints of a glTF/GLB skin in its bind pose.
+    """Read the joints of a glTF/GLB skin in its bind pose, in world space (:mod:`shape_inversion.gltf_io`).
 
     Args:
-        path: ``.glb`` or ``.gltf`` file.
-        bind: ``"inverse_bind"``: joint = inverse of its inverse bind matrix (skin space);
-            ``"nodes"``: world transforms of the joint nodes in the node hierarchy.
+        path: ``.glb`` or ``.gltf`` file (external buffers inside its folder).
+        bind: ``"inverse_bind"``: the inverse bind matrices placed in the world by the root joint's
+            node chain; ``"nodes"``: the joint nodes' world transforms in the default pose.
         skin: which skin.
 
-    Raises: SkeletonError (no skin, bad accessor, unreadable file).
+    Joints are listed parents first. Raises: SkeletonError (no skin, bad accessor, unsafe or unreadable file).
     """
-    import pygltflib
-
     if bind not in ("inverse_bind", "nodes"):
         raise SkeletonError(f"Unknown bind source {bind!r}; expected 'inverse_bind' or 'nodes'.")
     try:
-        gltf = pygltflib.GLTF2().load(str(path))
-    except Exception as exc:  # pygltflib raises many types on bad input
-        raise SkeletonError(f"Cannot read glTF file {path}: {exc}") from exc
-    if gltf is None or not gltf.skins or skin >= len(gltf.skins):
-        raise SkeletonError(f"{path}: no skin #{skin} (glTF has {len(gltf.skins or [])} skins).")
-    joints = list(gltf.skins[skin].joints)
-    node_parent = {c: p for p, n in enumerate(gltf.nodes) for c in (n.children or [])}
-    names = tuple(gltf.nodes[j].name or f"joint{k}" for k, j in enumerate(joints))
-    index = {node: k for k, node in enumerate(joints)}
-    parents = []
-    for j in joints:
-        p = node_parent.get(j)
-        while p is not None and p not in index:
-            p = node_parent.get(p)
-        parents.append(-1 if p is None else index[p])
-    ibm_index = gltf.skins[skin].inverseBindMatrices
-    if bind == "inverse_bind" and ibm_index is not None:
-        world = np.linalg.inv(_read_accessor_mat4(gltf, ibm_index))
-    else:
-        cache: dict[int, np.ndarray] = {}
-
-        def world_of(n: int) -> np.ndarray:
-            if n not in cache:
-                p = node_parent.get(n)
-                local = _node_local_matrix(gltf.nodes[n])
-                cache[n] = local if p is None else world_of(p) @ local
-            return cache[n]
-
-        world = np.stack([world_of(j) for j in joints])
-    return Skeleton(names, tuple(parents), world[:, :3, 3].copy(), str(path), "gltf", units=None, up="y")
+        rig = read_rig(load_gltf(path), skin=skin, bind=bind)
+    except GltfError as exc:
+        raise SkeletonError(str(exc)) from None
+    nodes = rig.doc.gltf.nodes
+    names = tuple(nodes[n].name or f"joint{k}" for k, n in enumerate(rig.joint_nodes))
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise SkeletonError(f"{path}: duplicate joint name {dup!r} in skin #{skin}")
+    positions = rig.T_world_joint_bind[:, :3, 3].copy()
+    return Skeleton(names, joint_parents(rig), positions, str(path), "gltf", units=None, up="y", gltf=rig)
 
 
 # ----------------------------------------------------------------------------- JSON
 
 
-def read_joint_json(source: str | Path | Mapping) -> Skeleton:
+def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
     """Read ``{"units": ..., "up": ..., "joints": {name: [x, y, z]}}`` (a path or a parsed object)."""
     where = "<object>"
     if not isinstance(source, Mapping):
         where = str(source)
         try:
             source = json.loads(Path(source).read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise SkeletonError(f"Cannot read joint JSON {where}: {exc}") from exc
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            raise SkeletonError(f"Cannot read joint JSON {where}: {type(exc).__name__}: {str(exc)[:120]}") from None
     joints = source.get("joints") if isinstance(source, Mapping) else None
     if not isinstance(joints, Mapping) or not joints:
         raise SkeletonError(f"{where}: expected a 'joints' object of name -> [x, y, z].")
-    try:
-        positions = np.array([[float(c) for c in joints[n]] for n in joints], dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise SkeletonError(f"{where}: joint positions must be 3 numbers each ({exc}).") from exc
-    if positions.shape[1:] != (3,):
-        raise SkeletonError(f"{where}: joint positions must be 3 numbers each.")
+    if len(joints) > max_joints:
+        raise SkeletonError(f"{where}: {len(joints)} joints, more than the limit {max_joints} (raise it with "
+                            "max_joints / --max-joints if this file is legitimate).")
+    positions = np.zeros((len(joints), 3))
+    for k, (n, value) in enumerate(joints.items()):
+        try:
+            row = [float(c) for c in value] if isinstance(value, list) else None
+        except (TypeError, ValueError):
+            row = None
+        if row is None or len(row) != 3 or not np.isfinite(row).all():
+            raise SkeletonError(f"{where}: joints.{str(n)[:40]}: expected 3 finite numbers, got {str(value)[:40]!r}.")
+        positions[k] = row
     names = tuple(joints)
-    smpl_parents = {n: JOINT_NAMES[p] for n, p in zip(JOINT_NAMES, PARENTS, strict=True)
-                    if p >= 0}
-    parents = tuple(names.index(smpl_parents[n]) if smpl_parents.get(n) in names else -1 for n in names)
-    units = source.get("units")
+    index = {n: i for i, n in enumerate(names)}
+    smpl_parents = {n: JOINT_NAMES[p] for n, p in zip(JOINT_NAMES, PARENTS, strict=True) if p >= 0}
+    parents = tuple(index.get(smpl_parents.get(n, ""), -1) for n in names)
+    units, up = source.get("units"), source.get("up")
+    if up is not None and up != "auto":
+        if not isinstance(up, str):
+            raise SkeletonError(f"{where}: 'up' must be a string such as 'y' or '-z', got {str(up)[:40]!r}.")
+        parse_up(up)
     return Skeleton(names, parents, positions, where, "json",
                     units=None if units in (None, "auto") else parse_units(units),
-                    up=None if source.get("up") in (None, "auto") else str(source.get("up")))
+                    up=None if up in (None, "auto") else up)
 
 
-def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind") -> Skeleton:
+def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind",
+                  positions: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
     """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``, ``.json``."""
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":
-        return read_bvh(Path(path), rest=rest)
+        return read_bvh(Path(path), rest=rest, position_mode=positions, max_joints=max_joints)
     if suffix in (".glb", ".gltf"):
         return read_gltf(path, bind=bind)
     if suffix == ".json":
-        return read_joint_json(path)
+        return read_joint_json(path, max_joints=max_joints)
     raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf or .json.")
+
+
+def read_character(path: str | Path, options: CharacterOptions | None = None) -> Character:
+    """Read ``path`` and map it to SMPL as ``options`` say (one call for every command taking a character)."""
+    o = CharacterOptions() if options is None else options
+    skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
+    return prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up)
 
 
 # ----------------------------------------------------------------------------- units, axes, mapping
 
 
 def parse_units(units: str | float) -> float:
-    """Metres per unit from a name (:data:`UNIT_NAMES`) or a number."""
-    if isinstance(units, (int, float)) and not isinstance(units, bool):
-        value = float(units)
-    else:
-        key = str(units).strip().lower()
-        if key in UNIT_NAMES:
-            return UNIT_NAMES[key]
-        try:
-            value = float(key)
-        except ValueError:
-            raise SkeletonError(f"Unknown units {units!r}; use one of {', '.join(UNIT_NAMES)}, 'auto', or metres per "
-                                "unit as a number.") from None
-    if not np.isfinite(value) or value <= 0:
-        raise SkeletonError(f"Units must be a positive number of metres per unit, got {units!r}.")
-    return value
+    """Metres per unit from a name (:data:`smplik.units.UNIT_NAMES`) or a number; raises SkeletonError."""
+    return _parse_units(units, SkeletonError)
 
 
 def parse_up(up: str) -> np.ndarray:
@@ -379,6 +254,8 @@ class Character:
         units_source: ``"given"``, ``"file"``, ``"rig"`` or ``"detected"``.
         up: the file's up axis used (``"y"``, ``"-z"``, ...).
         features: (6,) SMPL-SI features, metres.
+        R_canon_file: (3, 3) rotation from file axes to smplik's frame.
+        shift: (3,) ``positions = units_m * P_file @ R_canon_file.T - shift``.
     """
 
     skeleton: Skeleton
@@ -389,6 +266,8 @@ class Character:
     units_source: str
     up: str
     features: np.ndarray
+    R_canon_file: np.ndarray = field(default_factory=lambda: np.eye(3))
+    shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def joint(self, smpl_name: str) -> np.ndarray:
         """Position (3,) of a mapped SMPL joint, metres."""
@@ -417,9 +296,7 @@ def _detect_units(height_units: float, hints: list[float | None]) -> tuple[float
             stature = height_units * hint / HEAD_ANKLE_PER_STATURE
             if PLAUSIBLE_STATURE_M[0] <= stature <= PLAUSIBLE_STATURE_M[1]:
                 return hint, label
-    candidates = [1.0, 0.1, 0.01, 0.001]
-    errors = [abs(np.log(max(height_units * c / HEAD_ANKLE_PER_STATURE, 1e-12) / 1.7)) for c in candidates]
-    return candidates[int(np.argmin(errors))], "detected"
+    return UNIT_NAMES[detect_units(height_units / HEAD_ANKLE_PER_STATURE)], "detected"
 
 
 def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, map_file: str | Path | None = None,
@@ -445,7 +322,7 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     elif rig is not None:
         rig_map = load_preset(rig)
     else:
-        rig_map = detect_rig(skeleton.names)
+        rig_map = detect_rig(skeleton.names, skeleton.parents)
     found, _ = match_joints(rig_map, skeleton.names)
     from shape_inversion.rigs import missing_required
 
@@ -486,6 +363,8 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     positions = (P * units_m) @ R_canon_file.T
     hips = [positions[found[h]] for h in ("left_hip", "right_hip") if h in found]
     centre = np.mean(hips, axis=0)
-    positions = positions - np.array([centre[0], positions[:, 1].min(), centre[2]])
+    shift = np.array([centre[0], positions[:, 1].min(), centre[2]])
+    positions = positions - shift
     features = named_joints_to_features({s: positions[i] for s, i in found.items()})
-    return Character(skeleton, rig_map, positions, found, units_m, units_source, _axis_name(up_vec), features)
+    return Character(skeleton, rig_map, positions, found, units_m, units_source, _axis_name(up_vec), features,
+                     R_canon_file, shift)

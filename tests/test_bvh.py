@@ -85,8 +85,10 @@ def test_rotation_orders_positions_and_fk(tmp_path):
     R_foot = ry(20) @ rx(30) @ rz(-40)  # YXZ
     for j, R in enumerate([R_hips, R_chest, R_leg, R_foot]):
         np.testing.assert_allclose(m.local_rotations[1, j], R, atol=1e-12)
-    # Root: OFFSET + position channels; 6-channel Leg: position channels ADDED to its OFFSET.
-    p_hips = np.array([1 + 10, 2 + 20, 3 + 30])
+    # Root: position channels replace its OFFSET; 6-channel Leg: frame 0's position channels are zero
+    # beside a non-zero OFFSET (MakeHuman's delta layout), so they are ADDED to its OFFSET.
+    assert m.position_mode == "add"
+    p_hips = np.array([10, 20, 30])
     np.testing.assert_allclose(m.root_positions[1], p_hips)
     np.testing.assert_allclose(m.local_translations[1, 2], [2.5, -0.75, 0.0])
     p_chest = p_hips + R_hips @ [0, 10, 0]

@@ -225,7 +225,7 @@ def test_bvh_string_rest_sources_and_units():
     np.testing.assert_allclose(char.features[:2], [0.40, 0.40], atol=1e-9)
     auto = prepare_character(offsets, rig="mixamo")  # decimal units detected from stature
     assert auto.units_m == 0.01 and auto.units_source == "detected"
-    with pytest.raises(SkeletonError, match="no MOTION"):
+    with pytest.raises(SkeletonError, match="missing MOTION"):
         read_bvh(_BVH.split("MOTION")[0], rest="frame0")
 
 

@@ -29,6 +29,7 @@ So SMPL -> custom -> SMPL returns every SMPL joint's rotation exactly when all 2
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,8 +38,21 @@ import numpy as np
 import torch
 
 from shape_inversion.estimator import ShapeEstimate
+from shape_inversion.options import (  # noqa: F401  (re-exported: every command taking a character uses them)
+    BindOption,
+    CharacterOptions,
+    CharacterOptionsError,
+    MapOption,
+    MaxJointsOption,
+    PositionsOption,
+    RestOption,
+    RigOption,
+    UnitsOption,
+    UpOption,
+    character_options_from_cli,
+)
 from shape_inversion.rigs import RigMap
-from shape_inversion.skeleton_io import Character, Skeleton, prepare_character, read_skeleton
+from shape_inversion.skeleton_io import Character, Skeleton, prepare_character, read_character
 from smplik.atomic import write_text_atomic
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, Gender
 from smplik.data.bvh import format_bvh, matrix_to_euler_channels
@@ -67,8 +81,10 @@ class CustomCharacter:
         align: (K, 3, 3) rest alignment ``A_k`` (identity when unmapped or without an aim bone).
         root_offset: (3,) custom root minus scaled SMPL pelvis at rest, canon frame.
         smpl_rest: (24, 3) ``J(betas)`` at unit scale (SMPL space).
-        offsets: (K, 3) bone offsets in file units (for BVH export).
+        offsets: (K, 3) rest bone vectors ``p_rest[k] - p_rest[parent]`` in file units and axes (root:
+            its rest position); the identity-rotation rest pose of :class:`CustomPose`.
         end_sites: custom joint index -> End Site offset (file units), when the source had them.
+        options: how the character file was read.
     """
 
     character: Character
@@ -81,6 +97,7 @@ class CustomCharacter:
     smpl_rest: np.ndarray
     offsets: np.ndarray
     end_sites: dict[int, np.ndarray]
+    options: CharacterOptions = CharacterOptions()
 
     @property
     def skeleton(self) -> Skeleton:
@@ -118,6 +135,10 @@ class CustomCharacter:
         """(..., 3) canon metres -> file units and axes."""
         return ((p + self.shift) @ self.C_canon_file) / self.units_m
 
+    def file_to_canon_points(self, p: np.ndarray) -> np.ndarray:
+        """(..., 3) file units and axes -> canon metres."""
+        return (p * self.units_m) @ self.C_canon_file.T - self.shift
+
     def canon_to_file_rotations(self, R: np.ndarray) -> np.ndarray:
         """(..., 3, 3) canon -> file axes: ``C^T R C``."""
         return self.C_canon_file.T @ R @ self.C_canon_file
@@ -129,6 +150,9 @@ class CustomCharacter:
 @dataclass(frozen=True)
 class CustomPose:
     """A pose of a custom skeleton in its file's units and axes.
+
+    Rotations are relative to the skeleton's rest pose (every joint's rest global rotation is the
+    identity in this convention; the source file's own rest rotations are applied on export).
 
     Attributes:
         local_rotations: (K, 3, 3) ``R_parent_joint`` (root: its global rotation), file axes.
@@ -152,34 +176,31 @@ class CustomPose:
         return R, p
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rotation C minimising ``|C (src - mean) - (dst - mean)|``. (N, 3), (N, 3) -> (3, 3)."""
-    a, b = src - src.mean(0), dst - dst.mean(0)
-    u, _, vt = np.linalg.svd(b.T @ a)
-    d = np.sign(np.linalg.det(u @ vt))
-    return u @ np.diag([1.0, 1.0, d]) @ vt
-
-
 def placed(joints: np.ndarray, left_hip: int, right_hip: int) -> np.ndarray:
     """Place a rest skeleton like ``prepare_character``: hips' midpoint above the origin, lowest joint at y = 0."""
     centre = (joints[left_hip] + joints[right_hip]) / 2
     return joints - np.array([centre[0], joints[:, 1].min(), centre[2]])
 
 
-def build_character(skeleton: Skeleton, estimate: ShapeEstimate, *, rig: str | RigMap | None = None,
-                    units: str | float = "auto", up: str = "auto") -> CustomCharacter:
-    """Retargeting data for ``skeleton`` (rest = its positions with identity rotations) and an SMPL-SI estimate."""
+def build_character(skeleton: Skeleton, estimate: ShapeEstimate, options: CharacterOptions | None = None, *,
+                    rig: str | RigMap | None = None) -> CustomCharacter:
+    """Retargeting data for ``skeleton`` (rest = its positions with identity rotations) and an SMPL-SI estimate.
+
+    ``options`` give the rig/map/units/up (``rig`` overrides the options' rig, e.g. the map already detected).
+    """
     from smplik.body_model import load_body_model
 
+    options = CharacterOptions() if options is None else options
     if sum(p < 0 for p in skeleton.parents) != 1 or skeleton.parents[0] >= 0:
         raise ValueError(f"{skeleton.source}: retargeting needs one root joint, listed first.")
-    char = prepare_character(skeleton, rig=rig, units=units, up=up)
+    if rig is None and options.map is None:
+        rig = options.rig
+    char = prepare_character(skeleton, rig=rig, map_file=options.map if rig is None else None,
+                             units=options.units, up=options.up)
     K = len(skeleton.names)
     P_file = skeleton.positions
     P = char.positions
-    C = _kabsch(P_file * char.units_m, P)
-    shift = (P_file * char.units_m) @ C.T - P
-    shift = shift.mean(0)
+    C, shift = char.R_canon_file, char.shift
     smpl_of = np.full(K, -1, dtype=np.int64)
     for name, k in char.smpl_joints.items():
         smpl_of[k] = JOINT_INDEX[name]
@@ -207,30 +228,42 @@ def build_character(skeleton: Skeleton, estimate: ShapeEstimate, *, rig: str | R
     for k, par in enumerate(skeleton.parents):
         offsets[k] = P_file[k] if par < 0 else P_file[k] - P_file[par]
     end_sites: dict[int, np.ndarray] = {}
-    if skeleton.format == "bvh" and Path(skeleton.source).is_file():
-        from smplik.data.bvh import read_bvh
-
-        motion = read_bvh(skeleton.source)
-        if motion.joint_names == skeleton.names:
-            offsets = motion.offsets.copy()
-            end_sites = {int(j): o.copy() for j, o in zip(motion.end_site_parents, motion.end_site_offsets,
-                                                          strict=True)}
-    return CustomCharacter(char, estimate, C, shift, smpl_of, align, root_offset, smpl_rest, offsets, end_sites)
+    if skeleton.bvh is not None and skeleton.rest_rotations is not None:
+        motion, R0 = skeleton.bvh, skeleton.rest_rotations
+        end_sites = {int(j): R0[j] @ o for j, o in zip(motion.end_site_parents, motion.end_site_offsets, strict=True)}
+    return CustomCharacter(char, estimate, C, shift, smpl_of, align, root_offset, smpl_rest, offsets, end_sites,
+                           options)
 
 
-def load_character(path: str | Path, *, rig: str | None = None, gender: Gender | str = Gender.NEUTRAL,
-                   units: str | float = "auto", up: str = "auto") -> CustomCharacter:
-    """Read a skeleton file, estimate its SMPL body with SMPL-SI and prepare retargeting.
+def load_character(path: str | Path, options: CharacterOptions | None = None, *,
+                   gender: Gender | str = Gender.NEUTRAL, rig: str | None = None) -> CustomCharacter:
+    """Read a skeleton file as ``options`` say, estimate its SMPL body with SMPL-SI and prepare retargeting.
 
-    Raises: SkeletonError / RigError / ShapeInversionError (from SMPL-SI), naming the problem.
+    ``rig`` is a shortcut for ``options.rig``. Raises: SkeletonError / RigError / ShapeInversionError
+    (from SMPL-SI), naming the problem.
     """
     from shape_inversion.estimator import ShapeEstimator
     from smplik.body_model import load_body_model
 
-    skeleton = read_skeleton(path, rest="offsets")
-    char = prepare_character(skeleton, rig=rig, units=units, up=up)
+    options = CharacterOptions() if options is None else options
+    if rig is not None:
+        options = dataclasses.replace(options, rig=rig, map=None)
+    char = read_character(path, options)
     estimate = ShapeEstimator.build(load_body_model(gender)).estimate(char.features)
-    return build_character(skeleton, estimate, rig=char.rig, units=units, up=up)
+    return build_character(char.skeleton, estimate, options, rig=char.rig)
+
+
+def character_from_estimate(path: str | Path, options: CharacterOptions, betas: np.ndarray, scale: float,
+                            gender: Gender) -> CustomCharacter:
+    """Re-read a character file with the ``(betas, scale)`` a scene stores (no SMPL-SI query)."""
+    from shape_inversion.features import NUM_FEATURES
+
+    char = read_character(path, options)
+    zeros = np.zeros(NUM_FEATURES)
+    estimate = ShapeEstimate(np.asarray(betas, dtype=np.float64), float(scale), Gender.parse(gender),
+                             np.zeros(len(betas)), 0.0, 0.0, 0, 0.0, char.features, zeros, 0.0,
+                             np.asarray(betas, dtype=np.float64), float(scale))
+    return build_character(char.skeleton, estimate, options, rig=char.rig)
 
 
 # ----------------------------------------------------------------------------- retargeting
@@ -295,20 +328,63 @@ def custom_to_smpl(custom: CustomPose, char: CustomCharacter) -> Pose:
 def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30) -> str:
     """BVH text of the custom hierarchy (its own offsets, file units/axes) with one frame per pose.
 
-    Channels: root ``Xposition Yposition Zposition Zrotation Yrotation Xrotation``, other joints
-    ``Zrotation Yrotation Xrotation`` (intrinsic, degrees; see :mod:`smplik.data.bvh`).
+    A BVH character keeps its source file's layout: the same joints, OFFSETs, End Sites, channels
+    and rotation order per joint; the source's own rest rotations (``rest="frame0"``) are put back
+    (``R_src_world = R_world @ R_rest_world``), non-root position channels keep their rest values and
+    the root's carry the root position. Joints with fewer than three rotation channels keep only
+    those axes of their rotation. Other characters get ``Xposition Yposition Zposition Zrotation
+    Yrotation Xrotation`` on the root and ``Zrotation Yrotation Xrotation`` elsewhere (intrinsic,
+    degrees; see :mod:`smplik.data.bvh`).
     """
     if len(poses) == 0:
         raise ValueError("At least one pose is needed to write a BVH file.")
+    motion = char.skeleton.bvh
+    if motion is not None and motion.joint_names == char.names:
+        return _source_layout_bvh(char, motion, poses, frame_time)
     K = len(char.parents)
     channels = [ROOT_CHANNELS if par < 0 else JOINT_CHANNELS for par in char.parents]
     rows = []
     for pose in poses:
         euler = matrix_to_euler_channels(pose.local_rotations, "ZYX")  # (K, 3)
-        row = [pose.root_position - char.offsets[0], euler[0]] + [euler[k] for k in range(1, K)]
+        row = [pose.root_position, euler[0]] + [euler[k] for k in range(1, K)]
         rows.append(np.concatenate(row))
-    return format_bvh(char.names, char.parents, char.offsets, channels, np.stack(rows), frame_time,
+    offsets = char.offsets.copy()
+    offsets[0] = 0.0  # the root's position channels replace its OFFSET
+    return format_bvh(char.names, char.parents, offsets, channels, np.stack(rows), frame_time,
                       char.end_sites or None)
+
+
+def _source_layout_bvh(char: CustomCharacter, motion, poses: Sequence[CustomPose], frame_time: float) -> str:
+    R0 = char.skeleton.rest_rotations
+    t_rest = char.skeleton.rest_translations
+    rows = []
+    for pose in poses:
+        R, p = pose.positions(char)
+        G = R @ R0  # the source convention's world rotations
+        row: list[float] = []
+        for k, (par, chans) in enumerate(zip(char.parents, motion.channels, strict=True)):
+            local = G[k] if par < 0 else G[par].T @ G[k]
+            order = "".join(c[0] for c in chans if c.endswith("rotation"))
+            angles = {}
+            if len(order) == 3:
+                angles = dict(zip(order, matrix_to_euler_channels(local, order), strict=True))
+            elif order:
+                full = order + "".join(a for a in "XYZ" if a not in order)
+                angles = dict(zip(full, matrix_to_euler_channels(local, full), strict=True))
+            for c in chans:
+                axis = "XYZ".index(c[0])
+                if c.endswith("position"):
+                    if par < 0:
+                        row.append(p[0, axis])
+                    else:
+                        delta = motion.offsets[k, axis] if motion.position_mode == "add" else 0.0
+                        row.append(t_rest[k, axis] - delta)
+                else:
+                    row.append(angles[c[0]])
+        rows.append(row)
+    end_sites = dict(zip(motion.end_site_parents, motion.end_site_offsets, strict=True))
+    return format_bvh(motion.joint_names, motion.parents, motion.offsets, motion.channels, np.asarray(rows),
+                      frame_time, end_sites or None)
 
 
 def export_bvh(path: str | Path, char: CustomCharacter, poses: Sequence[CustomPose],

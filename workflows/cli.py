@@ -8,7 +8,19 @@ from typing import Annotated
 
 import typer
 
+from shape_inversion.options import (
+    BindOption,
+    MapOption,
+    MaxJointsOption,
+    PositionsOption,
+    RestOption,
+    RigOption,
+    UnitsOption,
+    UpOption,
+    character_options_from_cli,
+)
 from smplik.cli.errors import say, user_errors
+from smplik.data.bvh import DEFAULT_MAX_JOINTS
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)
@@ -53,7 +65,14 @@ def from_estimate_cmd(
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help=f"One of: {', '.join(FORMATS)}.")] = "auto",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
-    rig: Annotated[str | None, typer.Option("--rig", help="Rig preset of --character (default: detected).")] = None,
+    rig: RigOption = None,
+    map_file: MapOption = None,
+    units: UnitsOption = "auto",
+    up: UpOption = "auto",
+    rest: RestOption = "frame0",
+    bind: BindOption = "inverse_bind",
+    positions: PositionsOption = "auto",
+    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per person.")] = 8,
     threshold: Annotated[float, typer.Option("--threshold", min=0.0, help="Stop below this error (m).")] = 0.02,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
@@ -69,9 +88,11 @@ def from_estimate_cmd(
 
     if format not in FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
     solver = _solver(checkpoint)
     with user_errors():
-        outputs = from_estimate(results, out, solver, format=format, character_path=character, rig=rig,
+        outputs = from_estimate(results, out, solver, format=format, character_path=character,
+                                character_options=options,
                                 config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
                                 trust_pickle=trust_pickle, image_path=image, frame=frame, previews=not no_previews)
     for r in outputs.results:
@@ -123,6 +144,26 @@ def render_cmd(
         background = load_image(src) if src is not None and src.is_file() and loaded.camera is not None else None
         save_png(render_scene(loaded, image=background), out)
     say(f"wrote {out}")
+
+
+@scene_app.command("export")
+def export_cmd(
+    scene: Annotated[Path, typer.Argument(help="Scene JSON.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    format: Annotated[str, typer.Option("--format", help="Comma-separated: bvh, glb.")] = "bvh,glb",
+) -> None:
+    """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
+    from workflows.export import export_scene
+    from workflows.scene import load_scene
+
+    with user_errors():
+        loaded = load_scene(scene)
+        paths = export_scene(loaded, out, formats=[f for f in format.split(",") if f.strip()],
+                             base_dir=scene.resolve().parent)
+    for path in paths:
+        say(f"wrote {path}")
+    if not paths:
+        say("no posed character to export")
 
 
 @demo_app.command("demo")

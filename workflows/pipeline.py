@@ -14,6 +14,7 @@ Per estimated person:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from smplik.pose import Pose
-from workflows.character import CustomCharacter, CustomPose, smpl_to_custom
+from workflows.character import CharacterOptions, CustomCharacter, CustomPose, smpl_to_custom
 from workflows.estimators.base import EstimatedPerson
 from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_effectors
 from workflows.scene import Scene, SceneCharacter, SkeletonSource
@@ -104,6 +105,7 @@ def from_estimate(
     format: str = "auto",
     character_path: str | Path | None = None,
     rig: str | None = None,
+    character_options: CharacterOptions | None = None,
     config: RecoveryConfig | None = None,
     trust_pickle: bool = False,
     image_path: str | Path | None = None,
@@ -112,7 +114,9 @@ def from_estimate(
 ) -> EstimateOutputs:
     """Estimator output -> ``out_dir/scene.json`` (+ previews, recovery plots, BVH with a character).
 
-    Previews: ``scene.png`` (over the image with the estimator's camera when ``image_path`` is given,
+    ``character_options`` say how ``character_path`` is read (``rig`` overrides their rig); they are
+    stored in the scene's skeleton source. Previews: ``scene.png`` (over the image with the estimator's
+    camera when ``image_path`` is given,
     plus front and side views), ``<person>_character.png`` with a custom character; plots:
     ``<person>_recovery.png``; BVH: ``<person>.bvh`` (the posed custom character, its own skeleton).
     """
@@ -126,8 +130,17 @@ def from_estimate(
     people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame)  # type: ignore[arg-type]
     character = skeleton = None
     if character_path is not None:
-        character = load_character(character_path, rig=rig)
-        skeleton = SkeletonSource(str(Path(character_path).resolve()), character.rig.name)
+        options = CharacterOptions() if character_options is None else character_options
+        if rig is not None:
+            options = dataclasses.replace(options, rig=rig, map=None)
+        character = load_character(character_path, options)
+        from shape_inversion.rigs import available_presets
+
+        if options.map is None and character.rig.name in available_presets():  # a re-read skips detection
+            options = dataclasses.replace(options, rig=character.rig.name)
+        else:
+            options = dataclasses.replace(options, map=str(Path(options.map).resolve()))
+        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
     image_ref = str(Path(image_path).resolve()) if image_path is not None else None
     scene, person_results = scene_from_people(people, solver, config=config, character=character, skeleton=skeleton,
                                               source=str(Path(results_path).resolve()), image=image_ref)

@@ -14,7 +14,9 @@ Format ``smplik-scene``, version :data:`SCENE_VERSION`::
           "gender": "neutral",
           "betas": [10 numbers],
           "scale": 1.0,
-          "skeleton": null | {"path": "hero.bvh", "rig": "mixamo" | null},
+          "skeleton": null | {"path": "hero.bvh", "rig": "mixamo" | null, "map": null, "units": "auto",
+                               "up": "auto", "rest": "frame0", "bind": "inverse_bind", "positions": "auto",
+                               "max_joints": 10000},     # the character options (all but path optional)
           "effectors": [{"joint": "left_wrist", "type": "position", "value": [x, y, z], "tolerance": 0.0}, ...],
           "pose": {"global_orient": [...], "body_pose": [...], "transl": [...], "betas": [...], "gender": ...}
         }
@@ -47,8 +49,10 @@ from typing import Any
 
 import numpy as np
 
+from shape_inversion.options import CharacterOptions
 from smplik.atomic import write_json_atomic
 from smplik.conventions import NUM_BETAS, EffectorType, Gender
+from smplik.data.bvh import DEFAULT_MAX_JOINTS
 from smplik.effector_schema import MAX_EFFECTORS
 from smplik.effectors import Effector, parse_effector_dict
 from smplik.pose import Pose
@@ -76,13 +80,36 @@ class SceneError(ValueError):
 
 @dataclass(frozen=True)
 class SkeletonSource:
-    """Where a custom character's skeleton comes from: a file and its rig preset (None: detected)."""
+    """Where a custom character's skeleton comes from: a file and how to read it.
+
+    The fields after ``path`` are those of :class:`shape_inversion.options.CharacterOptions` (same
+    names, defaults and meaning), so ``scene solve`` / ``scene export`` re-read the character exactly
+    as ``scene from-estimate --character`` did.
+    """
 
     path: str
     rig: str | None = None
+    map: str | None = None
+    units: str = "auto"
+    up: str = "auto"
+    rest: str = "frame0"
+    bind: str = "inverse_bind"
+    positions: str = "auto"
+    max_joints: int = DEFAULT_MAX_JOINTS
+
+    @classmethod
+    def from_options(cls, path: str, options: CharacterOptions) -> SkeletonSource:
+        return cls(path, **options.to_dict())
+
+    @property
+    def options(self) -> CharacterOptions:
+        """The character options (validated)."""
+        data = dataclasses.asdict(self)
+        data.pop("path")
+        return CharacterOptions.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"path": self.path, "rig": self.rig}
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)
@@ -167,13 +194,14 @@ def _character(data: Any, path: str) -> SceneCharacter:
         raise SceneError(f"{path}.scale: must be in [{MIN_SCALE:g}, {MAX_SCALE:g}], got {scale}.")
     skeleton = None
     if data.get("skeleton") is not None:
-        sk = _expect(data["skeleton"], Mapping, f"{path}.skeleton", "null or {\"path\", \"rig\"}")
+        sk = _expect(data["skeleton"], Mapping, f"{path}.skeleton", "null or {\"path\", \"rig\", ...}")
         _check_keys(sk, _field_names(SkeletonSource), f"{path}.skeleton")
         sk_path = _expect(sk.get("path"), str, f"{path}.skeleton.path", "a string")
-        rig = sk.get("rig")
-        if rig is not None:
-            _expect(rig, str, f"{path}.skeleton.rig", "a string or null")
-        skeleton = SkeletonSource(sk_path, rig)
+        try:
+            options = CharacterOptions.from_dict({k: v for k, v in sk.items() if k != "path"})
+        except (ValueError, TypeError) as exc:
+            raise SceneError(f"{path}.skeleton: {exc}") from None
+        skeleton = SkeletonSource.from_options(sk_path, options)
     effs = _expect(data.get("effectors", []), list, f"{path}.effectors", "a list")
     if len(effs) > MAX_EFFECTORS:
         raise SceneError(f"{path}.effectors: has {len(effs)} effectors; at most {MAX_EFFECTORS} are accepted.")

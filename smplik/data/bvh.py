@@ -2,10 +2,12 @@
 
 Conventions (fixed here once):
 
-* Every joint's local translation is ``OFFSET + (Xposition, Yposition, Zposition)`` channel
-  values (zero where a channel is absent). For the root this is the usual root position; for
-  non-root joints with 6 channels (MakeHuman, some Mixamo exports) the position channels are
-  *added* to the OFFSET.
+* A joint's local translation is its OFFSET, except for the axes it has position channels for:
+  per the BVH convention those take the channel value in place of the OFFSET (the root's
+  position; Mixamo and Rokoko exports carry ``Xposition Yposition Zposition`` on every joint,
+  equal to the OFFSETs at rest). MakeHuman's exporter writes zero position channels beside full
+  OFFSETs (deltas); :func:`position_channel_mode` detects that layout from the first frame and
+  *adds* non-root channels to the OFFSET then (``position_mode="add"``; force either way).
 * Rotation channels are Euler angles in degrees, applied in the listed order as **intrinsic**
   rotations: ``Zrotation Yrotation Xrotation`` means ``R = Rz @ Ry @ Rx``
   (``scipy.spatial.transform.Rotation.from_euler("ZYX", ...)``). Any order of 1-3 distinct
@@ -26,6 +28,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -60,6 +63,7 @@ class BVHMotion:
         local_rotations: (T, J, 3, 3) ``R_parent_joint`` from the rotation channels.
         global_rotations: (T, J, 3, 3) ``R_world_joint``.
         positions: (T, J, 3) ``p_world_joint`` by forward kinematics, file units.
+        position_mode: how non-root position channels were read (:func:`position_channel_mode`).
     """
 
     name: str
@@ -75,6 +79,7 @@ class BVHMotion:
     local_rotations: np.ndarray
     global_rotations: np.ndarray
     positions: np.ndarray
+    position_mode: Literal["replace", "add"] = "replace"
 
     @property
     def num_frames(self) -> int:
@@ -191,90 +196,148 @@ class _Tokens:
         return out
 
 
-def _parse_hierarchy(tk: _Tokens):
+def _parse_hierarchy(tk: _Tokens, max_joints: int):
+    """Joints depth-first, iteratively (no recursion limit), in time linear in the token count."""
     names: list[str] = []
+    seen: set[str] = set()
     parents: list[int] = []
     offsets: list[list[float]] = []
     channels: list[tuple[str, ...]] = []
     end_parents: list[int] = []
     end_offsets: list[list[float]] = []
+    has_offset: list[bool] = []
 
     tok, line = tk.next("the ROOT joint")
     if tok.upper() != "ROOT":
         raise tk.error(f"expected 'ROOT' after HIERARCHY, found {tok!r}", line)
 
-    def parse_joint(parent: int) -> None:
+    def open_joint(parent: int) -> int:
         name, line = tk.next("a joint name")
         if name in ("{", "}"):
             raise tk.error(f"missing joint name before {name!r}", line)
-        if name in names:
+        if name in seen:
             raise tk.error(f"duplicate joint name {name!r}", line)
-        j = len(names)
+        if len(names) >= max_joints:
+            raise tk.error(f"more than {max_joints} joints (raise the limit with max_joints / --max-joints "
+                           "if this file is legitimate)", line)
+        seen.add(name)
         names.append(name)
         parents.append(parent)
         offsets.append([0.0, 0.0, 0.0])
         channels.append(())
+        has_offset.append(False)
         tk.expect("{", f"after joint {name!r}")
-        seen_offset = False
-        while True:
-            tok, line = tk.next(f"the body of joint {name!r}")
-            key = tok.upper()
-            if key == "}":
-                break
-            if key == "OFFSET":
-                offsets[j] = tk.floats(3, f"the OFFSET of joint {name!r}")
-                seen_offset = True
-            elif key == "CHANNELS":
-                count_tok, cline = tk.next(f"the channel count of joint {name!r}")
-                try:
-                    count = int(count_tok)
-                except ValueError:
-                    raise tk.error(f"joint {name!r}: channel count {count_tok!r} is not an integer", cline) from None
-                chans: list[str] = []
-                while len(chans) < count and tk.peek() is not None and tk.peek().lower() in _CHANNEL_CANON:
-                    chans.append(_CHANNEL_CANON[tk.next("a channel name")[0].lower()])
-                if len(chans) != count:
-                    found = tk.peek()
-                    if found is not None and found.upper() not in ("JOINT", "END", "OFFSET", "CHANNELS", "{", "}"):
-                        raise tk.error(f"joint {name!r}: unknown channel name {found!r} (expected one of "
-                                       f"{', '.join(POSITION_CHANNELS + ROTATION_CHANNELS)})")
-                    raise tk.error(f"joint {name!r}: CHANNELS declares {count} channels but lists {len(chans)}", cline)
-                if len(set(chans)) != len(chans):
-                    raise tk.error(f"joint {name!r}: unsupported rotation order / repeated channel in "
-                                   f"{' '.join(chans)} (each axis may appear once)", cline)
-                channels[j] = tuple(chans)
-            elif key == "JOINT":
-                parse_joint(j)
-            elif key == "END":
-                tk.expect("Site", "after 'End'")
-                tk.expect("{", "after 'End Site'")
-                tk.expect("OFFSET", "in End Site")
-                end_offsets.append(tk.floats(3, f"the End Site OFFSET of joint {name!r}"))
-                end_parents.append(j)
-                tk.expect("}", "closing End Site")
-            elif key == "ROOT":
-                raise tk.error("several ROOT joints are not supported", line)
-            else:
-                raise tk.error(f"unexpected {tok!r} in joint {name!r}", line)
-        if not seen_offset:
-            raise tk.error(f"joint {name!r} has no OFFSET", line)
+        return len(names) - 1
 
-    parse_joint(-1)
-    return names, parents, offsets, channels, end_parents, end_offsets
+    stack = [open_joint(-1)]
+    while stack:
+        j = stack[-1]
+        name = names[j]
+        tok, line = tk.next(f"the body of joint {name!r}")
+        key = tok.upper()
+        if key == "}":
+            if not has_offset[j]:
+                raise tk.error(f"joint {name!r} has no OFFSET", line)
+            stack.pop()
+        elif key == "OFFSET":
+            offsets[j] = tk.floats(3, f"the OFFSET of joint {name!r}")
+            has_offset[j] = True
+        elif key == "CHANNELS":
+            count_tok, cline = tk.next(f"the channel count of joint {name!r}")
+            try:
+                count = int(count_tok)
+            except ValueError:
+                raise tk.error(f"joint {name!r}: channel count {count_tok!r} is not an integer", cline) from None
+            if not 0 <= count <= 6:
+                raise tk.error(f"joint {name!r}: CHANNELS {count}: a joint has 0 to 6 channels", cline)
+            chans: list[str] = []
+            while len(chans) < count and tk.peek() is not None and tk.peek().lower() in _CHANNEL_CANON:
+                chans.append(_CHANNEL_CANON[tk.next("a channel name")[0].lower()])
+            if len(chans) != count:
+                found = tk.peek()
+                if found is not None and found.upper() not in ("JOINT", "END", "OFFSET", "CHANNELS", "{", "}"):
+                    raise tk.error(f"joint {name!r}: unknown channel name {found!r} (expected one of "
+                                   f"{', '.join(POSITION_CHANNELS + ROTATION_CHANNELS)})")
+                raise tk.error(f"joint {name!r}: CHANNELS declares {count} channels but lists {len(chans)}", cline)
+            if tk.peek() is not None and tk.peek().lower() in _CHANNEL_CANON:
+                raise tk.error(f"joint {name!r}: CHANNELS declares {count} channels but lists more", cline)
+            if len(set(chans)) != len(chans):
+                raise tk.error(f"joint {name!r}: unsupported rotation order / repeated channel in "
+                               f"{' '.join(chans)} (each axis may appear once)", cline)
+            channels[j] = tuple(chans)
+        elif key == "JOINT":
+            stack.append(open_joint(j))
+        elif key == "END":
+            tk.expect("Site", "after 'End'")
+            tk.expect("{", "after 'End Site'")
+            tk.expect("OFFSET", "in End Site")
+            end_offsets.append(tk.floats(3, f"the End Site OFFSET of joint {name!r}"))
+            end_parents.append(j)
+            tk.expect("}", "closing End Site")
+        elif key == "ROOT":
+            raise tk.error("several ROOT joints are not supported", line)
+        else:
+            raise tk.error(f"unexpected {tok!r} in joint {name!r}", line)
+    offsets_np = np.asarray(offsets, dtype=np.float64).reshape(len(names), 3)
+    if not np.isfinite(offsets_np).all():
+        bad = names[int(np.nonzero(~np.isfinite(offsets_np).all(axis=1))[0][0])]
+        raise BVHError(f"{tk.name}: the OFFSET of joint {bad!r} holds a non-finite value")
+    end_np = np.asarray(end_offsets, dtype=np.float64).reshape(-1, 3)
+    if not np.isfinite(end_np).all():
+        raise BVHError(f"{tk.name}: an End Site OFFSET holds a non-finite value")
+    return names, parents, offsets_np, channels, end_parents, end_np
 
 
-def read_bvh(path: str | Path) -> BVHMotion:
-    """Read a BVH file. Raises :class:`BVHError` (a ``ValueError``) naming the file and the problem."""
+DEFAULT_MAX_JOINTS = 10_000
+"""Joint cap of :func:`read_bvh` (real rigs have < 500; raise it with ``max_joints``)."""
+
+MIN_FRAME_TIME_S = 1e-6
+"""Smallest accepted ``Frame Time`` (1 MHz); smaller or denormal values are refused."""
+
+PositionMode = Literal["auto", "replace", "add"]
+
+
+def position_channel_mode(offsets: np.ndarray, channels: Sequence[Sequence[str]], first_frame: np.ndarray,
+                          parents: Sequence[int]) -> Literal["replace", "add"]:
+    """How a file's non-root position channels combine with OFFSETs, judged from its first frame.
+
+    ``"replace"`` (the BVH convention; Mixamo and Rokoko exports): the channels are the joint's
+    translation. ``"add"`` (MakeHuman's exporter writes zero channels beside full OFFSETs): the
+    channels are added to the OFFSET. ``auto`` picks ``"add"`` only when the first frame's channels
+    are closer to zero than to the OFFSETs.
+    """
+    to_offset = to_zero = 0.0
+    start = 0
+    for j, chans in enumerate(channels):
+        if parents[j] >= 0:
+            for axis, c in enumerate(POSITION_CHANNELS):
+                if c in chans:
+                    v = first_frame[start + chans.index(c)]
+                    to_offset += abs(v - offsets[j, axis])
+                    to_zero += abs(v)
+        start += len(chans)
+    return "add" if to_zero < to_offset else "replace"
+
+
+def read_bvh(path: str | Path, *, position_mode: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS
+             ) -> BVHMotion:
+    """Read a BVH file. Raises :class:`BVHError` (a ``ValueError``) naming the file and the problem.
+
+    ``position_mode``: see :func:`position_channel_mode`; ``max_joints`` caps the joint count.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8", errors="replace")
     except OSError as exc:
         raise BVHError(f"{path}: cannot read BVH file: {exc.strerror or exc}") from exc
-    return parse_bvh(text, name=str(path))
+    return parse_bvh(text, name=str(path), position_mode=position_mode, max_joints=max_joints)
 
 
-def parse_bvh(text: str, name: str = "<string>") -> BVHMotion:
+def parse_bvh(text: str, name: str = "<string>", *, position_mode: PositionMode = "auto",
+              max_joints: int = DEFAULT_MAX_JOINTS) -> BVHMotion:
     """Parse BVH text; ``name`` is used in error messages. See :func:`read_bvh`."""
+    if position_mode not in ("auto", "replace", "add"):
+        raise BVHError(f"{name}: unknown position_mode {position_mode!r}; expected auto, replace or add")
     lines = text.splitlines()
     # Hierarchy: tokenise line by line up to the MOTION keyword.
     tokens: list[tuple[str, int]] = []
@@ -287,26 +350,31 @@ def parse_bvh(text: str, name: str = "<string>") -> BVHMotion:
         tokens.extend((t, i + 1) for t in toks)
     if not tokens or tokens[0][0].upper() != "HIERARCHY":
         first = tokens[0][0] if tokens else "nothing"
-        raise BVHError(f"{name}: missing HIERARCHY section (the file starts with {first!r})")
+        raise BVHError(f"{name}: missing HIERARCHY section (the file starts with {first[:40]!r})")
     tk = _Tokens(tokens[1:], name)
-    names, parents, offsets, channels, end_parents, end_offsets = _parse_hierarchy(tk)
+    names, parents, offsets_np, channels, end_parents, end_offsets = _parse_hierarchy(tk, max_joints)
     if tk.pos < len(tk.tokens):
-        raise tk.error(f"unexpected {tk.tokens[tk.pos][0]!r} after the hierarchy (expected MOTION)")
+        raise tk.error(f"unexpected {tk.tokens[tk.pos][0][:40]!r} after the hierarchy (expected MOTION)")
     if motion_line < 0:
         raise BVHError(f"{name}: missing MOTION section after the hierarchy")
 
     values, frame_time = _parse_motion(lines, motion_line, sum(len(c) for c in channels), name)
     J, T = len(names), values.shape[0]
-    offsets_np = np.asarray(offsets, dtype=np.float64).reshape(J, 3)
+    if position_mode == "auto":
+        position_mode = position_channel_mode(offsets_np, channels, values[0], parents) if T else "replace"
     local_t = np.broadcast_to(offsets_np, (T, J, 3)).copy()
     local_R = np.empty((T, J, 3, 3))
     start = 0
     by_order: dict[str, list[tuple[int, list[int]]]] = {}
     for j, chans in enumerate(channels):
         cols = {c: start + k for k, c in enumerate(chans)}
+        replace = parents[j] < 0 or position_mode == "replace"
         for axis, c in enumerate(POSITION_CHANNELS):
             if c in cols:
-                local_t[:, j, axis] += values[:, cols[c]]
+                if replace:
+                    local_t[:, j, axis] = values[:, cols[c]]
+                else:
+                    local_t[:, j, axis] += values[:, cols[c]]
         rot = [c for c in chans if c in ROTATION_CHANNELS]
         by_order.setdefault("".join(c[0] for c in rot), []).append((j, [cols[c] for c in rot]))
         start += len(chans)
@@ -323,13 +391,14 @@ def parse_bvh(text: str, name: str = "<string>") -> BVHMotion:
         offsets=offsets_np,
         channels=tuple(channels),
         end_site_parents=tuple(end_parents),
-        end_site_offsets=np.asarray(end_offsets, dtype=np.float64).reshape(-1, 3),
+        end_site_offsets=end_offsets,
         frame_time=frame_time,
         values=values,
         local_translations=local_t,
         local_rotations=local_R,
         global_rotations=global_R,
         positions=positions,
+        position_mode=position_mode,
     )
 
 
@@ -361,8 +430,9 @@ def _parse_motion(lines: list[str], motion_line: int, num_channels: int, name: s
         frame_time = float(raw)
     except ValueError:
         raise BVHError(f"{name}: line {i}: 'Frame Time:' must be a number, found {raw!r}") from None
-    if not frame_time > 0:
-        raise BVHError(f"{name}: line {i}: 'Frame Time:' must be positive, found {frame_time}")
+    if not (np.isfinite(frame_time) and frame_time >= MIN_FRAME_TIME_S):
+        raise BVHError(f"{name}: line {i}: 'Frame Time:' must be a finite number of seconds >= {MIN_FRAME_TIME_S:g}, "
+                       f"found {raw!r}")
     data_start = i
     rows = [(k, ln.split()) for k, ln in enumerate(lines[data_start:], start=data_start + 1) if ln.strip()]
     if len(rows) < num_frames:
@@ -426,32 +496,28 @@ def format_bvh(
     def num(x: float) -> str:
         return f"{x:.{precision}f}"
 
-    def emit(j: int, depth: int) -> None:
+    order: list[int] = []  # depth-first, iteratively (deep chains need no recursion)
+    stack: list[tuple[int, int, bool]] = [(0, 0, False)]
+    while stack:
+        j, depth, closing = stack.pop()
         pad = "\t" * depth
+        if closing:
+            if j in end_sites:
+                out.extend([f"{pad}\tEnd Site", f"{pad}\t{{",
+                            f"{pad}\t\tOFFSET {' '.join(num(x) for x in end_sites[j])}", f"{pad}\t}}"])
+            out.append(f"{pad}}}")
+            continue
+        order.append(j)
         out.append(f"{pad}{'ROOT' if parents[j] < 0 else 'JOINT'} {joint_names[j]}")
         out.append(f"{pad}{{")
         out.append(f"{pad}\tOFFSET {' '.join(num(x) for x in offsets[j])}")
         out.append(f"{pad}\tCHANNELS {len(channels[j])} {' '.join(channels[j])}".rstrip())
-        for c in children[j]:
-            emit(c, depth + 1)
-        if j in end_sites:
-            out.extend([f"{pad}\tEnd Site", f"{pad}\t{{",
-                        f"{pad}\t\tOFFSET {' '.join(num(x) for x in end_sites[j])}", f"{pad}\t}}"])
-        out.append(f"{pad}}}")
-
-    order: list[int] = []
-
-    def visit(j: int) -> None:
-        order.append(j)
-        for c in children[j]:
-            visit(c)
-
-    visit(0)
+        stack.append((j, depth, True))
+        stack.extend((c, depth + 1, False) for c in reversed(children[j]))
     if sorted(order) != list(range(J)):
         raise ValueError("The skeleton must have exactly one root, joint 0, and parents listed before children.")
     starts = np.cumsum([0] + [len(c) for c in channels])
     columns = np.concatenate([np.arange(starts[j], starts[j + 1]) for j in order]).astype(np.int64)
-    emit(0, 0)
     out += ["MOTION", f"Frames: {values.shape[0]}", f"Frame Time: {frame_time:.7f}"]
     out += [" ".join(num(x) for x in row) for row in values[:, columns]]
     return "\n".join(out) + "\n"

@@ -28,7 +28,7 @@ Preset files (JSON; ``smplik/data/presets/<name>.json`` or any path)::
 
     {
       "name": "my_rig",                  optional, for messages
-      "units": 0.01 | "m" | "cm" | "mm" | "inch",   metres per source unit (default 1)
+      "units": 0.01 | "m" | "cm" | "cmu" | ...,  metres per source unit or a name of smplik.units (default 1)
       "up": "y" | "z",                   source up axis (z-up: (x, y, z) -> (x, z, -y); default "y")
       "floor": 0.0,                      source floor height along "up", source units (default 0)
       "rest": "auto" | "frame0" | "offsets",           source rest pose (default "auto")
@@ -57,9 +57,9 @@ from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, NUM_JOINTS, 
 from smplik.data.bvh import BVHMotion, read_bvh
 from smplik.kinematics import global_to_local
 from smplik.rotations import matrix_to_axis_angle
+from smplik.units import UNIT_NAMES
 
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
-UNIT_NAMES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "in": 0.0254}
 RestMode = Literal["auto", "frame0", "offsets"]
 
 

@@ -1,0 +1,323 @@
+"""Safe glTF 2.0 / GLB access: buffers, bounds-checked accessors, node world transforms, skins.
+
+Parsing of the JSON and GLB chunks is pygltflib's (``GLTF2.load_json`` / ``GLTF2.load_binary``);
+this module adds what a hostile-but-fair file needs:
+
+* **Buffers.** The GLB binary chunk, ``data:`` base64 URIs, or external files resolved **inside
+  the .gltf file's folder only** (no absolute path, no ``..``, no ``http:``/``file:`` scheme). A
+  buffer shorter than its declared ``byteLength`` is refused (a GLB cut short).
+* **Accessors.** Every accessor read is checked against its buffer view and buffer length
+  (offset, stride, count, component size) before any byte is read; sparse accessors are refused.
+* **Nodes.** World matrices compose every node's transform from the scene root
+  (``T_world_node = T_world_parent @ T_parent_node``; ``matrix`` or TRS, quaternions ``(x, y, z, w)``);
+  a node with two parents or a cycle is refused.
+
+Matrices are 4x4 row-major numpy arrays acting on column vectors (glTF stores them column-major).
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from urllib.parse import unquote
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+MAX_GLTF_BYTES = 512 * 1024 * 1024
+"""Largest glTF/GLB file or external buffer read (bytes)."""
+
+_COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_TYPE_SIZE = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+class GltfError(ValueError):
+    """A glTF/GLB file is malformed, unsafe or unsupported; the message names the file and the item."""
+
+
+@dataclass(frozen=True, eq=False)
+class GltfFile:
+    """A loaded glTF document with its buffers.
+
+    Attributes:
+        path: the file.
+        gltf: the pygltflib document.
+        buffers: bytes of every buffer, each at least its declared ``byteLength``.
+        world: (N, 4, 4) ``T_world_node`` of every node in the default pose.
+        parent: (N,) parent node index, -1 for roots.
+    """
+
+    path: Path
+    gltf: object = field(repr=False)
+    buffers: tuple[bytes, ...] = field(repr=False)
+    world: np.ndarray = field(repr=False)
+    parent: tuple[int, ...] = ()
+
+    def accessor(self, index: int) -> np.ndarray:
+        """Accessor ``index`` as an array (count, n) or (count, 4, 4) for MAT4 (row-major), bounds-checked."""
+        return read_accessor(self, index)
+
+
+def node_local_matrix(node) -> np.ndarray:
+    """``T_parent_node`` (4, 4) of a pygltflib node (``matrix`` if given, else T @ R @ S)."""
+    if node.matrix is not None:
+        m = np.asarray(node.matrix, dtype=np.float64)
+        if m.shape != (16,):
+            raise GltfError(f"node {node.name!r}: 'matrix' must have 16 numbers")
+        return m.reshape(4, 4).T  # glTF stores column-major
+    T = np.eye(4)
+    if node.translation is not None:
+        T[:3, 3] = np.asarray(node.translation, dtype=np.float64).reshape(3)
+    if node.rotation is not None:
+        q = np.asarray(node.rotation, dtype=np.float64).reshape(4)
+        if not np.linalg.norm(q) > 1e-12:
+            raise GltfError(f"node {node.name!r}: zero rotation quaternion")
+        T[:3, :3] = Rotation.from_quat(q).as_matrix()  # glTF quaternions are (x, y, z, w)
+    if node.scale is not None:
+        T[:3, :3] = T[:3, :3] * np.asarray(node.scale, dtype=np.float64).reshape(3)[None, :]
+    return T
+
+
+def _buffer_bytes(path: Path, gltf, index: int) -> bytes:
+    buf = gltf.buffers[index]
+    uri = buf.uri
+    where = f"{path}: buffers[{index}]"
+    if uri in (None, ""):
+        if index != 0:
+            raise GltfError(f"{where}: has no uri (only buffer 0 may be the GLB binary chunk)")
+        data = gltf.binary_blob()
+        if data is None:
+            raise GltfError(f"{where}: no GLB binary chunk and no uri")
+    elif uri.startswith("data:"):
+        head, _, payload = uri.partition(",")
+        if ";base64" not in head:
+            raise GltfError(f"{where}: only base64 data URIs are supported")
+        try:
+            data = base64.b64decode(payload, validate=True)
+        except (binascii.Error, ValueError):
+            raise GltfError(f"{where}: invalid base64 data URI") from None
+    else:
+        rel = unquote(uri)
+        pure = PurePosixPath(rel.replace("\\", "/"))
+        if ":" in rel or pure.is_absolute() or ".." in pure.parts or rel.startswith("/"):
+            raise GltfError(f"{where}: buffer uri {uri[:80]!r} is refused: external buffers must be relative "
+                            "paths inside the glTF file's folder (no absolute path, '..' or scheme)")
+        folder = path.resolve().parent
+        target = (folder / Path(*pure.parts)).resolve()
+        if folder not in target.parents:
+            raise GltfError(f"{where}: buffer uri {uri[:80]!r} leaves the glTF file's folder")
+        try:
+            size = target.stat().st_size
+            if size > MAX_GLTF_BYTES:
+                raise GltfError(f"{where}: external buffer {target.name} is {size} bytes (limit {MAX_GLTF_BYTES})")
+            data = target.read_bytes()
+        except OSError as exc:
+            raise GltfError(f"{where}: cannot read external buffer {uri[:80]!r}: {exc.strerror or exc}") from None
+    length = buf.byteLength
+    if not isinstance(length, int) or length < 0:
+        raise GltfError(f"{where}: invalid byteLength {length!r}")
+    if len(data) < length:
+        raise GltfError(f"{where}: holds {len(data)} bytes but declares byteLength {length} (file truncated?)")
+    return bytes(data)
+
+
+def _world_matrices(path: Path, gltf) -> tuple[np.ndarray, tuple[int, ...]]:
+    nodes = gltf.nodes or []
+    n = len(nodes)
+    parent = [-1] * n
+    for p, node in enumerate(nodes):
+        for c in node.children or []:
+            if not isinstance(c, int) or not 0 <= c < n:
+                raise GltfError(f"{path}: nodes[{p}].children holds an invalid node index {c!r}")
+            if parent[c] != -1 or c == p:
+                raise GltfError(f"{path}: node {c} has several parents (the node graph must be a tree)")
+            parent[c] = p
+    local = np.stack([node_local_matrix(node) for node in nodes]) if n else np.zeros((0, 4, 4))
+    if not np.isfinite(local).all():
+        raise GltfError(f"{path}: a node transform holds a non-finite value")
+    world = np.full((n, 4, 4), np.nan)
+    roots = [i for i in range(n) if parent[i] < 0]
+    stack = list(roots)
+    done = 0
+    while stack:  # iterative: deep node chains need no recursion
+        i = stack.pop()
+        world[i] = local[i] if parent[i] < 0 else world[parent[i]] @ local[i]
+        done += 1
+        stack.extend(nodes[i].children or [])
+    if done != n:
+        raise GltfError(f"{path}: the node graph has a cycle")
+    return world, tuple(parent)
+
+
+def load_gltf(path: str | Path) -> GltfFile:
+    """Load a ``.gltf`` (JSON, external or data-URI buffers) or ``.glb`` file; raises :class:`GltfError`."""
+    import pygltflib
+
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise GltfError(f"Cannot read glTF file {path}: {exc.strerror or exc}") from None
+    if size > MAX_GLTF_BYTES:
+        raise GltfError(f"{path}: {size} bytes exceeds the glTF size limit {MAX_GLTF_BYTES}")
+    try:
+        gltf = pygltflib.GLTF2.load_binary(path) if magic == b"glTF" else pygltflib.GLTF2.load_json(path)
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError, struct.error, UnicodeDecodeError,
+            json.JSONDecodeError, RecursionError, OSError) as exc:  # pygltflib's many failure types
+        raise GltfError(f"Cannot read glTF file {path}: {type(exc).__name__}: {str(exc)[:120]}") from None
+    if gltf is None:
+        raise GltfError(f"Cannot read glTF file {path}: not a glTF document")
+    buffers = tuple(_buffer_bytes(path, gltf, i) for i in range(len(gltf.buffers or [])))
+    try:
+        world, parent = _world_matrices(path, gltf)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, GltfError):
+            raise
+        raise GltfError(f"{path}: invalid node transform ({exc})") from None
+    return GltfFile(path, gltf, buffers, world, parent)
+
+
+def read_accessor(doc: GltfFile, index: int) -> np.ndarray:
+    """Accessor ``index`` of ``doc`` as float64/int array (count, n), MAT4 as (count, 4, 4) row-major."""
+    gltf, where = doc.gltf, f"{doc.path}: accessors[{index}]"
+    if not isinstance(index, int) or not 0 <= index < len(gltf.accessors or []):
+        raise GltfError(f"{doc.path}: accessor index {index!r} out of range")
+    acc = gltf.accessors[index]
+    if acc.sparse is not None:
+        raise GltfError(f"{where}: sparse accessors are not supported")
+    dtype = _COMPONENTS.get(acc.componentType)
+    ncomp = _TYPE_SIZE.get(acc.type)
+    if dtype is None or ncomp is None:
+        raise GltfError(f"{where}: unsupported componentType {acc.componentType!r} / type {acc.type!r}")
+    count = acc.count
+    if not isinstance(count, int) or count < 0:
+        raise GltfError(f"{where}: invalid count {count!r}")
+    if acc.bufferView is None:
+        out = np.zeros((count, ncomp))
+    else:
+        if not 0 <= acc.bufferView < len(gltf.bufferViews or []):
+            raise GltfError(f"{where}: bufferView {acc.bufferView!r} out of range")
+        view = gltf.bufferViews[acc.bufferView]
+        if not 0 <= view.buffer < len(doc.buffers):
+            raise GltfError(f"{where}: buffer {view.buffer!r} out of range")
+        data = doc.buffers[view.buffer]
+        item = np.dtype(dtype).itemsize * ncomp
+        stride = view.byteStride or item
+        v_off, a_off = view.byteOffset or 0, acc.byteOffset or 0
+        if stride < item or v_off < 0 or a_off < 0 or view.byteLength is None or view.byteLength < 0:
+            raise GltfError(f"{where}: invalid byteStride/byteOffset/byteLength in bufferView {acc.bufferView}")
+        need = a_off + (stride * (count - 1) + item if count else 0)
+        if need > view.byteLength or v_off + view.byteLength > len(data):
+            raise GltfError(f"{where}: needs {need} bytes of bufferView {acc.bufferView} (byteLength "
+                            f"{view.byteLength}, buffer {len(data)} bytes): reads past the end of its buffer")
+        raw = np.frombuffer(data, dtype=np.uint8, count=view.byteLength, offset=v_off)[a_off:]
+        rows = np.lib.stride_tricks.as_strided(raw, shape=(count, item), strides=(stride, 1)) if count else \
+            np.zeros((0, item), dtype=np.uint8)
+        out = np.ascontiguousarray(rows).view(dtype).reshape(count, ncomp)
+        if acc.normalized and dtype != np.float32:
+            out = np.maximum(out / np.iinfo(dtype).max, -1.0)
+    out = out.astype(np.float64) if np.dtype(out.dtype).kind == "f" or acc.normalized else out.astype(np.int64)
+    if out.dtype.kind == "f" and not np.isfinite(out).all():
+        raise GltfError(f"{where}: holds non-finite values")
+    if acc.type == "MAT4":
+        return out.reshape(count, 4, 4).transpose(0, 2, 1)  # column-major -> row-major
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class GltfRig:
+    """One skin of a glTF file: its joints and bind pose in world space.
+
+    Attributes:
+        doc: the loaded file.
+        skin: skin index.
+        joint_nodes: (J,) node index of every joint, parents before children.
+        skin_order: (J,) index of each joint in the skin's ``joints`` list (what ``JOINTS_0`` refers to).
+        inverse_bind: (J, 4, 4) inverse bind matrices (identity when absent).
+        bind_to_world: (4, 4) ``T_world_bind``: bind space (where the mesh vertices and
+            ``inv(inverse_bind)`` live) to world (see :func:`read_rig`).
+        T_world_joint_bind: (J, 4, 4) the bind pose in world space.
+    """
+
+    doc: GltfFile
+    skin: int
+    joint_nodes: tuple[int, ...]
+    skin_order: tuple[int, ...]
+    inverse_bind: np.ndarray = field(repr=False)
+    bind_to_world: np.ndarray = field(repr=False)
+    T_world_joint_bind: np.ndarray = field(repr=False)
+
+
+def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRig:
+    """The skin's joints and bind pose.
+
+    ``bind="inverse_bind"``: ``T_world_joint = T_world_bind @ inv(IBM_joint)``, where ``T_world_bind`` is
+    the identity when the IBMs are in world space (Blender's exporter folds the armature's scale and the
+    root nodes into them) or the world transform of the root joint's parent node when they are relative to
+    it (an armature scaled 0.01 or a z-up root node left out): whichever puts the joints nearer their
+    nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
+    """
+    gltf = doc.gltf
+    skins = gltf.skins or []
+    if not 0 <= skin < len(skins):
+        raise GltfError(f"{doc.path}: no skin #{skin} (the file has {len(skins)} skins)")
+    joints = tuple(skins[skin].joints or [])
+    if not joints:
+        raise GltfError(f"{doc.path}: skin #{skin} has no joints")
+    if any(not isinstance(j, int) or not 0 <= j < len(doc.world) for j in joints) or len(set(joints)) != len(joints):
+        raise GltfError(f"{doc.path}: skin #{skin} names invalid or repeated joint nodes")
+    J = len(joints)
+    if skins[skin].inverseBindMatrices is not None:
+        ibm = read_accessor(doc, skins[skin].inverseBindMatrices)
+        if ibm.shape != (J, 4, 4):
+            raise GltfError(f"{doc.path}: skin #{skin}: {ibm.shape[0]} inverse bind matrices for {J} joints")
+    else:
+        ibm = np.broadcast_to(np.eye(4), (J, 4, 4)).copy()
+    index = {n: k for k, n in enumerate(joints)}
+    depth = []
+    for n in joints:  # parents first: sort by the number of joint ancestors (stable)
+        d, k = 0, _joint_parent(doc, n, index)
+        while k >= 0:
+            d, k = d + 1, _joint_parent(doc, joints[k], index)
+        depth.append(d)
+    order = tuple(sorted(range(J), key=lambda k: depth[k]))
+    joints, ibm = tuple(joints[k] for k in order), ibm[list(order)]
+    root = 0
+    if bind == "nodes":
+        T_bind = doc.world[list(joints)].copy()
+        to_world = np.eye(4)
+    else:
+        try:
+            inv = np.linalg.inv(ibm)
+        except np.linalg.LinAlgError:
+            raise GltfError(f"{doc.path}: skin #{skin} has a singular inverse bind matrix") from None
+        parent_world = doc.world[doc.parent[joints[root]]] if doc.parent[joints[root]] >= 0 else np.eye(4)
+        node_p = doc.world[list(joints), :3, 3]
+
+        def mismatch(B: np.ndarray) -> float:
+            return float(np.median(np.linalg.norm((B @ inv)[:, :3, 3] - node_p, axis=-1)))
+
+        # IBMs in world space (Blender) or relative to the skeleton root's parent (armature/root nodes left out)
+        to_world = min((np.eye(4), parent_world), key=mismatch)
+        T_bind = to_world @ inv
+    return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
+
+
+def _joint_parent(doc: GltfFile, node: int, index: dict[int, int]) -> int:
+    """Index (into the skin's joints) of the nearest ancestor that is a joint, -1 if none."""
+    p = doc.parent[node]
+    while p >= 0 and p not in index:
+        p = doc.parent[p]
+    return -1 if p < 0 else index[p]
+
+
+def joint_parents(rig: GltfRig) -> tuple[int, ...]:
+    """(J,) parent joint index of every joint of ``rig`` (nearest joint ancestor), -1 for roots."""
+    index = {n: k for k, n in enumerate(rig.joint_nodes)}
+    return tuple(_joint_parent(rig.doc, n, index) for n in rig.joint_nodes)

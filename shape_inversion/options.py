@@ -1,0 +1,121 @@
+"""How a character file is read: one options dataclass and one set of CLI options for every command.
+
+:class:`CharacterOptions` is used by ``smplik invert-shape``, ``smplik scene from-estimate
+--character`` (stored in ``scene.json`` so ``scene solve`` / ``scene export`` re-read the
+character identically) and any other command taking a character. Commands declare the options
+with the ``Annotated`` aliases below (``RigOption``, ``MapOption``, ...) and build the dataclass
+with :func:`character_options_from_cli`::
+
+    def cmd(character: Path, rig: RigOption = None, map_file: MapOption = None, units: UnitsOption = "auto",
+            up: UpOption = "auto", rest: RestOption = "frame0", bind: BindOption = "inverse_bind",
+            positions: PositionsOption = "auto", max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS):
+        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import typer
+
+from smplik.data.bvh import DEFAULT_MAX_JOINTS
+from smplik.units import UNIT_NAMES, parse_units
+
+RestSource = Literal["frame0", "offsets"]
+BindSource = Literal["inverse_bind", "nodes"]
+PositionMode = Literal["auto", "replace", "add"]
+
+
+class CharacterOptionsError(ValueError):
+    """A character option has an invalid value; the message names the option."""
+
+
+@dataclass(frozen=True)
+class CharacterOptions:
+    """How to read and map a character file (every field has the CLI option of the same name)."""
+
+    rig: str | None = None
+    """Joint-name preset (``mixamo``, ``cmu``, ...); None: detected from the names (and topology)."""
+    map: str | None = None
+    """A JSON map file ``{smpl_joint: rig_joint}`` instead of a preset."""
+    units: str = "auto"
+    """``auto`` (from the stature), a unit name (m, dm, cm, mm, in, ft, cmu) or metres per unit."""
+    up: str = "auto"
+    """``auto`` or the file's up axis (``y``, ``z``, ``-z``, ...)."""
+    rest: RestSource = "frame0"
+    """BVH rest pose: frame 0 through forward kinematics, or the zero-rotation OFFSETs."""
+    bind: BindSource = "inverse_bind"
+    """glTF bind pose: the inverse bind matrices, or the joint nodes' default transforms."""
+    positions: PositionMode = "auto"
+    """BVH non-root position channels: replace the OFFSET (BVH convention), add to it (MakeHuman), or auto."""
+    max_joints: int = DEFAULT_MAX_JOINTS
+    """Refuse files with more joints than this."""
+
+    def __post_init__(self) -> None:
+        def bad(option: str, value: Any, expected: str) -> CharacterOptionsError:
+            return CharacterOptionsError(f"character option {option}: {str(value)[:60]!r} is invalid; "
+                                         f"expected {expected}")
+
+        for name in ("rig", "map"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, str):
+                raise bad(name, value, "a string or null")
+        if self.rig is not None and self.map is not None:
+            raise CharacterOptionsError("character options rig and map: give either a rig preset or a map file, "
+                                        "not both")
+        if not isinstance(self.units, str):
+            raise bad("units", self.units, "a string")
+        if self.units.lower() != "auto":
+            try:
+                parse_units(self.units, CharacterOptionsError)
+            except CharacterOptionsError as exc:
+                raise CharacterOptionsError(f"character option units: {exc}") from None
+        if not isinstance(self.up, str) or self.up.strip().lower().lstrip("+-") not in ("auto", "x", "y", "z") \
+                or self.up.strip().lower() in ("-auto", "+auto"):
+            raise bad("up", self.up, "auto, x, y, z, optionally signed (-z)")
+        for name, allowed in (("rest", ("frame0", "offsets")), ("bind", ("inverse_bind", "nodes")),
+                              ("positions", ("auto", "replace", "add"))):
+            if getattr(self, name) not in allowed:
+                raise bad(name, getattr(self, name), " or ".join(allowed))
+        if isinstance(self.max_joints, bool) or not isinstance(self.max_joints, int) or self.max_joints < 1:
+            raise bad("max_joints", self.max_joints, "a positive integer")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> CharacterOptions:
+        """Options from a dict of field values (unknown keys refused, naming them)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise CharacterOptionsError(f"unknown character option(s) {unknown}; allowed: {sorted(names)}")
+        return cls(**data)
+
+
+RigOption = Annotated[str | None, typer.Option("--rig", help="Joint-name preset of the character (default: detected "
+                                               "from its joint names and topology).")]
+MapOption = Annotated[Path | None, typer.Option("--map", help="JSON map {smpl_joint: rig_joint} for the character.",
+                                                dir_okay=False)]
+UnitsOption = Annotated[str, typer.Option("--units", help=f"Character units: auto, {', '.join(UNIT_NAMES)}, or "
+                                          "metres per unit.")]
+UpOption = Annotated[str, typer.Option("--up", help="Character up axis: auto, or x, y, z, -z, ...")]
+RestOption = Annotated[str, typer.Option("--rest", help="BVH rest pose: frame0 or offsets.")]
+BindOption = Annotated[str, typer.Option("--bind", help="glTF bind pose: inverse_bind or nodes.")]
+PositionsOption = Annotated[str, typer.Option("--positions", help="BVH non-root position channels: auto, replace "
+                                              "(BVH convention, Mixamo/Rokoko) or add (MakeHuman).")]
+MaxJointsOption = Annotated[int, typer.Option("--max-joints", help="Refuse character files with more joints.")]
+
+
+def character_options_from_cli(rig: str | None = None, map_file: Path | None = None, units: str = "auto",
+                               up: str = "auto", rest: str = "frame0", bind: str = "inverse_bind",
+                               positions: str = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> CharacterOptions:
+    """:class:`CharacterOptions` from the CLI options above; raises :class:`typer.BadParameter` naming the option."""
+    try:
+        return CharacterOptions(rig=rig, map=None if map_file is None else str(map_file), units=units, up=up,
+                                rest=rest, bind=bind, positions=positions, max_joints=max_joints)  # type: ignore[arg-type]
+    except CharacterOptionsError as exc:
+        raise typer.BadParameter(str(exc)) from None

@@ -1,0 +1,199 @@
+"""Map an ordinary humanoid rig's joints to SMPL's by their names, checked against the skeleton's topology.
+
+For rigs without a preset. Names are split into words (``LeftUpLeg`` -> left, up, leg; ``L_Knee``
+-> l, knee; ``knee_l``; ``lowerleg01.L``; ``Bip01 L Thigh``; any ``namespace:`` or ``path|`` prefix
+dropped); a side word (left/l, right/r) and a body-part word give the SMPL joint:
+
+==============  ====================================================
+SMPL joint      part words (first match wins, per side)
+==============  ====================================================
+hip             upleg, thigh, upperleg, femur, hip (sided)
+knee            knee, shin, calf, lowerleg, leg, tibia
+ankle           ankle, foot
+foot (toes)     toe, toebase, toes, ball
+collar          clavicle, collar, shoulder (when an arm joint exists)
+shoulder        upperarm, uparm, arm, humerus, shoulder (no arm joint)
+elbow           forearm, lowerarm, lowarm, elbow
+wrist           wrist, hand (hand = SMPL hand when a wrist exists)
+pelvis          hips, pelvis, hip (unsided), else the root
+spine1..3       spine, chest, abdomen, torso, back, waist (ancestors of the neck, by depth)
+neck, head      neck, head
+==============  ====================================================
+
+Among several candidates the one nearest the root wins (``upperleg01`` before ``upperleg02``).
+The match is accepted only if the topology agrees: on each side hip -> knee -> ankle -> toes and
+collar -> shoulder -> elbow -> wrist are ancestor chains, neck -> head too, the left and right
+chains are disjoint, and all SMPL-SI's required joints are found; otherwise :class:`NameMatchError`
+says which check failed.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+
+from smplik.conventions import JOINT_NAMES
+
+_WORD = re.compile(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+")
+_SIDED_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("toe", ("toebase", "toes", "toe", "ball")),
+    ("hip", ("upleg", "thigh", "upperleg", "femur", "hip")),
+    ("knee", ("knee", "shin", "calf", "lowerleg", "leg", "tibia")),
+    ("ankle", ("ankle", "foot")),
+    ("clavicle", ("clavicle", "collar")),
+    ("shoulder_word", ("shoulder",)),
+    ("upperarm", ("upperarm", "uparm", "arm", "humerus")),
+    ("elbow", ("forearm", "lowerarm", "lowarm", "elbow")),
+    ("wrist", ("wrist",)),
+    ("hand", ("hand",)),
+)
+_FINGERS = ("thumb", "index", "middle", "ring", "pinky", "little", "finger", "metacarpal")
+_IGNORED = ("bip", "biped", "def", "org", "jnt", "joint", "bone", "mch", "b")
+_SPINE = ("spine", "chest", "upperchest", "abdomen", "torso", "back", "lowerback", "waist")
+
+
+class NameMatchError(ValueError):
+    """The joint names do not match an ordinary humanoid, or the match contradicts the topology."""
+
+
+def name_words(name: str) -> list[str]:
+    """Lower-case words of a joint name, prefix dropped: ``"mixamorig:LeftUpLeg"`` -> ``["left", "up", "leg"]``."""
+    base = name.rsplit("|", 1)[-1].rsplit(":", 1)[-1]
+    return [w.lower() for w in _WORD.findall(base)]
+
+
+def _side_and_part(name: str) -> tuple[str | None, str]:
+    words = name_words(name)
+    side = None
+    rest = []
+    for w in words:
+        if w in ("left", "l") and side is None:
+            side = "left"
+        elif w in ("right", "r") and side is None:
+            side = "right"
+        elif not w.isdigit() and w not in _IGNORED:
+            rest.append(w)
+    return side, "".join(rest)
+
+
+def _classify(part: str, side: str | None) -> str | None:
+    if any(f in part for f in _FINGERS):
+        return "finger"
+    if side is None:
+        if part in ("hips", "pelvis", "hip"):
+            return "pelvis"
+        if part == "neck" or (part.startswith("neck") and part[4:].isdigit()):
+            return "neck"
+        if part == "head":
+            return "head"
+        if any(part == s or part.startswith(s) for s in _SPINE):
+            return "spine"
+        return None
+    for label, words in _SIDED_PARTS:
+        if part in words:
+            return label
+    return None
+
+
+def _depths(parents: Sequence[int]) -> list[int]:
+    depth = [0] * len(parents)
+    for j, p in enumerate(parents):  # parents precede children
+        depth[j] = 0 if p < 0 else depth[p] + 1
+    return depth
+
+
+def _is_ancestor(a: int, b: int, parents: Sequence[int]) -> bool:
+    p = parents[b]
+    while p >= 0:
+        if p == a:
+            return True
+        p = parents[p]
+    return False
+
+
+def match_humanoid(names: Sequence[str], parents: Sequence[int],
+                   required: Sequence[str] = ()) -> dict[str, int]:
+    """SMPL joint name -> index into ``names`` (see the module docstring). Raises :class:`NameMatchError`."""
+    if len(names) != len(parents) or any(p >= j for j, p in enumerate(parents)):
+        raise NameMatchError("name matching needs parents listed before children")
+    depth = _depths(parents)
+    cands: dict[tuple[str | None, str], list[int]] = {}
+    for j, n in enumerate(names):
+        side, part = _side_and_part(n)
+        label = _classify(part, side)
+        if label is not None:
+            cands.setdefault((side, label), []).append(j)
+    for v in cands.values():
+        v.sort(key=lambda j: depth[j])
+    found: dict[str, int] = {}
+
+    def first(side: str | None, label: str) -> int | None:
+        v = cands.get((side, label))
+        return v[0] if v else None
+
+    pelvis = first(None, "pelvis")
+    found["pelvis"] = pelvis if pelvis is not None else next(j for j, p in enumerate(parents) if p < 0)
+    for side in ("left", "right"):
+        has_arm = (side, "upperarm") in cands
+        roles = {
+            "hip": first(side, "hip"), "knee": first(side, "knee"), "ankle": first(side, "ankle"),
+            "foot": first(side, "toe"), "elbow": first(side, "elbow"),
+            "collar": first(side, "clavicle") if not has_arm or (side, "clavicle") in cands
+            else first(side, "shoulder_word"),
+            "shoulder": first(side, "upperarm") if has_arm else first(side, "shoulder_word"),
+        }
+        # "LeftLeg" is the knee beside "LeftUpLeg"; a rig whose only leg joints are "...Leg" has no such pair
+        wrist, hand = first(side, "wrist"), first(side, "hand")
+        roles["wrist"] = wrist if wrist is not None else hand
+        if wrist is not None and hand is not None:
+            roles["hand"] = hand
+        elif roles["wrist"] is not None:
+            fingers = [j for j in cands.get((side, "finger"), []) if _is_ancestor(roles["wrist"], j, parents)]
+            if fingers:
+                roles["hand"] = fingers[0]
+        for role, j in roles.items():
+            if j is not None:
+                found[f"{side}_{role}"] = j
+    neck, head = first(None, "neck"), first(None, "head")
+    if head is not None:
+        found["head"] = head
+        necks = [j for j in cands.get((None, "neck"), []) if _is_ancestor(j, head, parents)]
+        if necks:
+            found["neck"] = necks[-1]  # the one just below the head (CMU: Neck1)
+    elif neck is not None:
+        found["neck"] = neck
+    top = found.get("neck", found.get("head"))
+    spine = [j for j in cands.get((None, "spine"), []) if top is None or _is_ancestor(j, top, parents)]
+    spine = [j for j in spine if _is_ancestor(found["pelvis"], j, parents)]
+    if spine:
+        found["spine1"] = spine[0]
+        found["spine3"] = spine[-1]
+        if len(spine) >= 3:
+            found["spine2"] = spine[len(spine) // 2]
+    _check_topology(found, names, parents)
+    missing = [r for r in required if r not in found]
+    if missing:
+        raise NameMatchError(f"no joint name matches SMPL joint(s) {', '.join(missing)}")
+    return found
+
+
+def _check_topology(found: dict[str, int], names: Sequence[str], parents: Sequence[int]) -> None:
+    chains = (("hip", "knee", "ankle", "foot"), ("collar", "shoulder", "elbow", "wrist", "hand"))
+    for side in ("left", "right"):
+        for chain in chains:
+            present = [f"{side}_{r}" for r in chain if f"{side}_{r}" in found]
+            for a, b in zip(present, present[1:], strict=False):
+                if not _is_ancestor(found[a], found[b], parents):
+                    raise NameMatchError(f"name match contradicts the hierarchy: {a} = {names[found[a]]!r} is not "
+                                         f"an ancestor of {b} = {names[found[b]]!r}")
+    for a, b in (("neck", "head"), ("pelvis", "left_hip"), ("pelvis", "right_hip")):
+        if a in found and b in found and found[a] != found[b] and not _is_ancestor(found[a], found[b], parents):
+            raise NameMatchError(f"name match contradicts the hierarchy: {a} = {names[found[a]]!r} is not an "
+                                 f"ancestor of {b} = {names[found[b]]!r}")
+    for role in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist"):
+        left, right = found.get(f"left_{role}"), found.get(f"right_{role}")
+        if left is not None and right is not None and (
+                left == right or _is_ancestor(left, right, parents) or _is_ancestor(right, left, parents)):
+            raise NameMatchError(f"name match contradicts the hierarchy: left_{role} = {names[left]!r} and "
+                                 f"right_{role} = {names[right]!r} are on one chain")
+    assert set(found) <= set(JOINT_NAMES)

@@ -1,0 +1,129 @@
+"""``scene export``: posed BVH/GLB per character read back to the solved joint positions (demo scene, after an
+edit + ``scene solve``, a GLB character with its own mesh)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from character_fixtures import smpl_rest, write_mixamo_gltf
+from test_workflows_support import best_solver
+
+from shape_inversion.gltf_io import load_gltf
+from smplik.data.bvh import read_bvh
+from workflows.character import CharacterOptions, character_from_estimate, smpl_to_custom
+from workflows.examples_gen import example_poses
+from workflows.export import export_scene
+from workflows.scene import Scene, SceneCharacter, SkeletonSource, character_joints, load_scene
+
+MM = 1e-3
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from workflows.demo import run_demo
+
+    return run_demo(tmp_path_factory.mktemp("demo"), best_solver(), previews=False)
+
+
+def _glb_joint_positions(path, names):
+    doc = load_gltf(path)
+    index = {n.name: i for i, n in enumerate(doc.gltf.nodes)}
+    return np.stack([doc.world[index[n], :3, 3] for n in names])
+
+
+def test_smpl_scene_exports_bvh_and_skinned_glb(demo, tmp_path):
+    import trimesh
+
+    scene = load_scene(demo.smpl.scene)
+    files = export_scene(scene, tmp_path, formats=("bvh", "glb"))
+    assert sorted(p.suffix for p in files) == [".bvh", ".bvh", ".glb", ".glb"]
+    from smplik.conventions import JOINT_NAMES
+
+    for c in scene.characters:
+        joints = character_joints(c)
+        bvh = read_bvh(tmp_path / f"{c.name}.bvh")
+        assert sorted(bvh.joint_names) == sorted(JOINT_NAMES)  # written depth-first
+        order = [bvh.index(n) for n in JOINT_NAMES]
+        assert np.abs(bvh.positions[0, order] - joints).max() < MM
+        glb = tmp_path / f"{c.name}.glb"
+        assert np.abs(_glb_joint_positions(glb, JOINT_NAMES) - joints).max() < MM
+        loaded = trimesh.load(glb, force="scene")
+        assert sum(len(g.faces) for g in loaded.geometry.values()) == len(smpl_rest()[2])
+        import pygltflib
+
+        g = pygltflib.GLTF2.load_binary(str(glb))
+        assert len(g.animations) == 1 and len(g.skins[0].joints) == 24
+
+
+def test_character_scene_after_edit_and_solve_exports_the_solved_pose(demo, tmp_path):
+    from typer.testing import CliRunner
+
+    from workflows.cli import scene_app
+
+    edited = demo.edited_scene  # the demo's edit, re-solved with scene solve's solve_scene
+    res = CliRunner().invoke(scene_app, ["export", str(edited), "--out", str(tmp_path), "--format", "bvh,glb"])
+    assert res.exit_code == 0, res.output
+    scene = load_scene(edited)
+    first = scene.characters[0]
+    assert first.skeleton is not None and first.skeleton.rig == "mixamo"
+    char = character_from_estimate(first.skeleton.path, first.skeleton.options, first.betas, first.scale,
+                                   first.gender)
+    custom = smpl_to_custom(dataclasses.replace(first.pose, betas=first.betas), char)
+    _, p_file = custom.positions(char)
+    bvh = read_bvh(tmp_path / f"{first.name}.bvh")
+    source = read_bvh(first.skeleton.path)
+    assert bvh.joint_names == source.joint_names and bvh.channels == source.channels  # layout kept
+    assert np.abs(bvh.positions[0] - p_file).max() < MM / char.units_m
+    # the edit moved the right wrist: the exported character's wrist follows the solved SMPL wrist
+    wrist = char.names.index(char.rig.smpl_to_rig["right_wrist"])
+    solved = character_joints(first)[21]
+    assert np.linalg.norm(char.file_to_canon_points(bvh.positions[0, wrist]) - solved) < 0.05
+    assert not (tmp_path / f"{first.name}.glb").exists()  # a BVH character has no mesh to export
+
+
+@pytest.fixture(scope="module")
+def glb_scene(tmp_path_factory):
+    J, V, F, W = smpl_rest()
+    folder = tmp_path_factory.mktemp("glbchar")
+    path = write_mixamo_gltf(folder / "hero.glb", J, (V, F, W))
+    pose = example_poses()[0].pose
+    from shape_inversion.estimator import ShapeEstimator
+    from shape_inversion.skeleton_io import read_character
+    from smplik.body_model import load_body_model
+
+    est = ShapeEstimator.build(load_body_model("neutral")).estimate(read_character(path).features)
+    c = SceneCharacter("hero", est.gender, est.betas, est.scale, SkeletonSource.from_options(str(path),
+                       CharacterOptions()), (), dataclasses.replace(pose, betas=est.betas))
+    return Scene((c,)), path
+
+
+def test_glb_character_exports_its_own_posed_mesh(glb_scene, tmp_path):
+    import trimesh
+
+    scene, src = glb_scene
+    files = export_scene(scene, tmp_path)
+    assert {p.name for p in files} == {"hero.bvh", "hero.glb"}
+    c = scene.characters[0]
+    char = character_from_estimate(src, CharacterOptions(), c.betas, c.scale, c.gender)
+    custom = smpl_to_custom(c.pose, char)
+    _, p_file = custom.positions(char)
+    got = _glb_joint_positions(tmp_path / "hero.glb", char.names)
+    assert np.abs(got - p_file).max() < MM
+    mesh = trimesh.load(tmp_path / "hero.glb", force="scene")
+    assert sum(len(g.faces) for g in mesh.geometry.values()) == len(smpl_rest()[2])
+    bvh = read_bvh(tmp_path / "hero.bvh")
+    assert np.abs(bvh.positions[0, [bvh.index(n) for n in char.names]] - p_file).max() < MM
+
+
+def test_export_refuses_unknown_formats_and_missing_files(glb_scene, tmp_path):
+    from workflows.export import ExportError
+
+    scene, _ = glb_scene
+    with pytest.raises(ExportError, match="Unknown export format"):
+        export_scene(scene, tmp_path, formats=("fbx",))
+    c = scene.characters[0]
+    gone = dataclasses.replace(c, skeleton=dataclasses.replace(c.skeleton, path=str(tmp_path / "nope.glb")))
+    with pytest.raises(ExportError, match="not found"):
+        export_scene(Scene((gone,)), tmp_path)

@@ -1,0 +1,104 @@
+"""A glTF/GLB character's own skinned mesh, posed by linear blend skinning with its skin weights.
+
+Per joint ``k`` the bind pose is ``T_world_joint_bind[k] = [A_k | P_k]`` (linear part ``A_k`` with any
+armature scale, position ``P_k``; :func:`shape_inversion.gltf_io.read_rig`); a :class:`CustomPose`
+gives the posed world rotation ``G_k`` (relative to the bind pose) and position ``p_k``, so the
+posed joint is ``[G_k A_k | p_k]`` and the skinning matrix is ``M_k = [G_k | p_k - G_k P_k]``.
+A vertex ``v`` in bind space is posed as ``sum_k w_k M_k (T_world_bind v)`` (glTF's ``JOINTS_0`` /
+``WEIGHTS_0``, four influences; the glTF 2.0 specification, "Skins"). Everything is in the file's
+world units and axes; :meth:`CustomCharacter.file_to_canon_points` takes it to character space.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from shape_inversion.gltf_io import GltfError, GltfRig, read_accessor
+from workflows.character import CustomCharacter, CustomPose
+
+MAX_MESH_VERTICES = 2_000_000
+"""Largest skinned mesh drawn (vertices, all primitives together)."""
+
+
+@dataclass(frozen=True, eq=False)
+class SkinnedMesh:
+    """The skinned triangles of one skin (V vertices, F faces, J joints of :class:`GltfRig` order).
+
+    Attributes:
+        vertices_world: (V, 3) bind-pose vertices in world space (file units).
+        faces: (F, 3) vertex indices.
+        joints: (V, 4) joint indices (into the rig's parents-first joint order).
+        weights: (V, 4) weights, rows summing to 1.
+    """
+
+    vertices_world: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray
+    weights: np.ndarray
+
+
+def skinned_mesh(rig: GltfRig) -> SkinnedMesh | None:
+    """The triangles of every mesh node that uses ``rig``'s skin, or None when there is none."""
+    gltf, doc = rig.doc.gltf, rig.doc
+    remap = np.empty(len(rig.skin_order), dtype=np.int64)
+    remap[list(rig.skin_order)] = np.arange(len(rig.skin_order))  # skin joint index -> rig index
+    verts, faces, joints, weights = [], [], [], []
+    count = 0
+    for node in gltf.nodes or []:
+        if node.mesh is None or node.skin != rig.skin or not 0 <= node.mesh < len(gltf.meshes or []):
+            continue
+        for prim in gltf.meshes[node.mesh].primitives or []:
+            attrs = prim.attributes
+            if prim.mode not in (None, 4) or attrs.POSITION is None or attrs.JOINTS_0 is None \
+                    or attrs.WEIGHTS_0 is None:
+                continue  # only skinned triangle lists
+            v = read_accessor(doc, attrs.POSITION)
+            j = read_accessor(doc, attrs.JOINTS_0)
+            w = read_accessor(doc, attrs.WEIGHTS_0)
+            if v.shape[1:] != (3,) or j.shape != (len(v), 4) or w.shape != (len(v), 4):
+                raise GltfError(f"{doc.path}: mesh {node.mesh}: POSITION/JOINTS_0/WEIGHTS_0 shapes do not match")
+            if j.min(initial=0) < 0 or j.max(initial=0) >= len(remap):
+                raise GltfError(f"{doc.path}: mesh {node.mesh}: JOINTS_0 names a joint outside skin #{rig.skin}")
+            f = read_accessor(doc, prim.indices).reshape(-1) if prim.indices is not None else np.arange(len(v))
+            if f.size % 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
+                raise GltfError(f"{doc.path}: mesh {node.mesh}: invalid triangle indices")
+            count += len(v)
+            if count > MAX_MESH_VERTICES:
+                raise GltfError(f"{doc.path}: skinned mesh has more than {MAX_MESH_VERTICES} vertices")
+            faces.append(f.reshape(-1, 3) + sum(len(x) for x in verts))
+            verts.append(v)
+            joints.append(remap[j.astype(np.int64)])
+            weights.append(w)
+    if not verts:
+        return None
+    V = np.concatenate(verts)
+    V_world = V @ rig.bind_to_world[:3, :3].T + rig.bind_to_world[:3, 3]
+    W = np.concatenate(weights)
+    W = W / np.maximum(W.sum(1, keepdims=True), 1e-12)
+    return SkinnedMesh(V_world, np.concatenate(faces), np.concatenate(joints), W)
+
+
+def pose_mesh(mesh: SkinnedMesh, rig: GltfRig, R_world: np.ndarray, p_world: np.ndarray) -> np.ndarray:
+    """Posed vertices (V, 3), file units, by LBS.
+
+    ``R_world`` (J, 3, 3): posed joint rotations relative to the bind pose; ``p_world`` (J, 3): joint positions.
+    """
+    P_bind = rig.T_world_joint_bind[:, :3, 3]
+    t = p_world - np.einsum("jab,jb->ja", R_world, P_bind)  # (J, 3)
+    R_v = np.einsum("vk,vkab->vab", mesh.weights, R_world[mesh.joints])  # blended linear part (V, 3, 3)
+    t_v = np.einsum("vk,vka->va", mesh.weights, t[mesh.joints])
+    return np.einsum("vab,vb->va", R_v, mesh.vertices_world) + t_v
+
+
+def character_mesh_canon(char: CustomCharacter, pose: CustomPose) -> tuple[np.ndarray, np.ndarray] | None:
+    """The character's own posed mesh in character space: (vertices (V, 3) metres, faces (F, 3)), or None."""
+    rig = char.skeleton.gltf
+    if rig is None:
+        return None
+    mesh = skinned_mesh(rig)
+    if mesh is None:
+        return None
+    R, p = pose.positions(char)
+    return char.file_to_canon_points(pose_mesh(mesh, rig, R, p)), mesh.faces

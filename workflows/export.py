@@ -1,0 +1,342 @@
+"""``smplik scene export``: the (edited, re-solved) scene back onto each character, as files a DCC tool opens.
+
+Per character with a solved pose (:func:`export_scene`):
+
+* **BVH** ``<name>.bvh``: a custom character's own skeleton posed by retargeting
+  (:func:`workflows.character.smpl_to_custom`; a BVH source keeps its joints, OFFSETs, channel
+  layout and rotation order, :func:`workflows.character.custom_bvh_text`); an SMPL character's
+  24-joint SMPL skeleton (its ``scale * J(betas)`` OFFSETs, metres, y-up; root ``Xposition
+  Yposition Zposition Zrotation Yrotation Xrotation``, other joints ``Zrotation Yrotation Xrotation``).
+* **GLB** ``<name>.glb``: a glTF/GLB character's own file (mesh, materials, skin) with its joint
+  nodes posed and the pose as a one-frame animation; an SMPL character as a skinned SMPL mesh
+  (its rest mesh, 24 joints, SMPL's skin weights reduced to the four largest) posed the same way.
+  Characters read from BVH/JSON have no mesh: BVH only.
+
+Several poses per character (``poses``: a frame sequence) export as one animation. Joint node
+transforms are written as translation/rotation/scale (glTF quaternions ``(x, y, z, w)``).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from shape_inversion.gltf_io import node_local_matrix
+from smplik.atomic import write_bytes_atomic, write_text_atomic
+from smplik.conventions import JOINT_NAMES, PARENTS
+from smplik.data.bvh import format_bvh, matrix_to_euler_channels
+from smplik.pose import Pose
+from workflows.character import (
+    JOINT_CHANNELS,
+    ROOT_CHANNELS,
+    CustomCharacter,
+    CustomPose,
+    character_from_estimate,
+    custom_bvh_text,
+    smpl_to_custom,
+)
+from workflows.scene import Scene, SceneCharacter
+
+FORMATS = ("bvh", "glb")
+
+
+class ExportError(ValueError):
+    """A scene cannot be exported (unknown format, missing character file, ...)."""
+
+
+def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = ("bvh", "glb"),
+                 base_dir: str | Path | None = None, frame_time: float = 1 / 30,
+                 poses: Mapping[str, Sequence[Pose]] | None = None) -> list[Path]:
+    """Write every posed character of ``scene`` to ``out_dir`` as ``formats``; returns the files written.
+
+    Args:
+        scene: the scene (poses in SMPL space, see :mod:`workflows.scene`).
+        out_dir: output folder (created).
+        formats: any of ``"bvh"``, ``"glb"``.
+        base_dir: folder that relative skeleton paths in the scene are relative to (the scene file's).
+        frame_time: seconds per frame of the written animations.
+        poses: optional frame sequences per character name (SMPL space) instead of its single pose.
+
+    Raises: ExportError / SkeletonError / RigError naming the character and the problem.
+    """
+    formats = tuple(dict.fromkeys(str(f).strip().lower() for f in formats))
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise ExportError(f"Unknown export format(s) {bad or formats}; choose from {', '.join(FORMATS)}.")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    written: list[Path] = []
+    for i, c in enumerate(scene.characters):
+        frames = list(poses.get(c.name, ())) if poses else []
+        if not frames and c.pose is not None:
+            frames = [c.pose]
+        if not frames:
+            continue
+        stem = _safe_stem(c.name, i)
+        if c.skeleton is None:
+            if "bvh" in formats:
+                written.append(write_text_atomic(out_dir / f"{stem}.bvh", smpl_bvh_text(c, frames, frame_time)))
+            if "glb" in formats:
+                written.append(write_bytes_atomic(out_dir / f"{stem}.glb", smpl_glb_bytes(c, frames, frame_time)))
+            continue
+        path = Path(c.skeleton.path)
+        if not path.is_absolute():
+            path = base / path
+        if not path.is_file():
+            raise ExportError(f"character {c.name!r}: skeleton file {path} not found")
+        char = character_from_estimate(path, c.skeleton.options, c.betas, c.scale, c.gender)
+        custom = [smpl_to_custom(_with_betas(p, c), char) for p in frames]
+        if "bvh" in formats:
+            written.append(write_text_atomic(out_dir / f"{stem}.bvh", custom_bvh_text(char, custom, frame_time)))
+        if "glb" in formats and char.skeleton.gltf is not None:
+            written.append(write_bytes_atomic(out_dir / f"{stem}.glb", posed_character_glb(char, custom, frame_time)))
+    return written
+
+
+def _safe_stem(name: str, index: int) -> str:
+    stem = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name).strip("._")[:80]
+    return stem or f"character_{index}"
+
+
+def _with_betas(pose: Pose, c: SceneCharacter) -> Pose:
+    import dataclasses
+
+    return dataclasses.replace(pose, betas=np.asarray(c.betas, dtype=np.float64), gender=c.gender)
+
+
+# ----------------------------------------------------------------------------- GLB writing
+
+
+@dataclass
+class _GlbData:
+    """The binary chunk being written, with its buffer views and accessors (all on buffer 0)."""
+
+    blob: bytearray
+    accessors: list
+    views: list
+
+    def add(self, array: np.ndarray, component: int, kind: str, target: int | None = None,
+            minmax: bool = False) -> int:
+        """Append ``array`` (N, ...) as a new buffer view + accessor; returns the accessor index."""
+        import pygltflib
+
+        data = np.ascontiguousarray(array).tobytes()
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        self.views.append(pygltflib.BufferView(buffer=0, byteOffset=len(self.blob), byteLength=len(data),
+                                               target=target))
+        self.blob.extend(data)
+        flat = np.asarray(array).reshape(len(array), -1)
+        self.accessors.append(pygltflib.Accessor(
+            bufferView=len(self.views) - 1, componentType=component, count=len(array), type=kind,
+            min=[float(x) for x in flat.min(0)] if minmax else None,
+            max=[float(x) for x in flat.max(0)] if minmax else None))
+        return len(self.accessors) - 1
+
+    def glb(self, gltf) -> bytes:
+        """The GLB bytes of ``gltf`` with this binary chunk as its one buffer."""
+        import pygltflib
+
+        gltf.accessors, gltf.bufferViews = self.accessors, self.views
+        gltf.buffers = [pygltflib.Buffer(byteLength=len(self.blob))]
+        gltf.set_binary_blob(bytes(self.blob))
+        return b"".join(gltf.save_to_bytes())
+
+
+# ----------------------------------------------------------------------------- SMPL characters
+
+
+def _smpl_rest_and_locals(c: SceneCharacter, frames: Sequence[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Scaled rest joints (24, 3), local rotations (T, 24, 3, 3) and pelvis positions (T, 3), character space."""
+    import torch
+
+    from smplik.body_model import load_body_model
+    from smplik.rotations import axis_angle_to_matrix
+
+    model = load_body_model(c.gender)
+    J = model.rest_joints(torch.as_tensor(np.asarray(c.betas), dtype=torch.float32)).double().numpy()
+    aa = np.stack([np.concatenate([p.global_orient[None], p.body_pose]) for p in frames])
+    R = axis_angle_to_matrix(torch.as_tensor(aa, dtype=torch.float64)).numpy()
+    pelvis = np.stack([(J[0] + np.asarray(p.transl)) for p in frames]) * c.scale
+    return J * c.scale, R, pelvis
+
+
+def smpl_bvh_text(c: SceneCharacter, frames: Sequence[Pose], frame_time: float = 1 / 30) -> str:
+    """BVH of an SMPL character's skeleton (metres, y-up, character space) with one frame per pose."""
+    J, R, pelvis = _smpl_rest_and_locals(c, frames)
+    offsets = np.array([np.zeros(3) if p < 0 else J[k] - J[p] for k, p in enumerate(PARENTS)])
+    channels = [ROOT_CHANNELS if p < 0 else JOINT_CHANNELS for p in PARENTS]
+    euler = matrix_to_euler_channels(R, "ZYX")  # (T, 24, 3)
+    values = np.concatenate([pelvis, euler.reshape(len(frames), -1)], axis=1)
+    return format_bvh(JOINT_NAMES, PARENTS, offsets, channels, values, frame_time)
+
+
+def smpl_glb_bytes(c: SceneCharacter, frames: Sequence[Pose], frame_time: float = 1 / 30) -> bytes:
+    """A skinned SMPL mesh GLB of the character (rest mesh, 24 joints), posed by the frames (animation)."""
+    import torch
+
+    from smplik.body_model import load_body_model
+
+    model = load_body_model(c.gender)
+    zero = torch.zeros(1, 3)
+    with torch.no_grad():
+        verts, _ = model.vertices(zero, torch.zeros(1, 23, 3), zero,
+                                  torch.as_tensor(np.asarray(c.betas), dtype=torch.float32)[None])
+    J, R, pelvis = _smpl_rest_and_locals(c, frames)
+    weights = np.asarray(model.arrays["weights"], dtype=np.float64)
+    top = np.argsort(-weights, axis=1)[:, :4]
+    w = np.take_along_axis(weights, top, axis=1)
+    w = w / np.maximum(w.sum(1, keepdims=True), 1e-12)
+    translations = np.empty((len(frames), 24, 3))
+    translations[:] = [np.zeros(3) if p < 0 else J[k] - J[p] for k, p in enumerate(PARENTS)]
+    translations[:, 0] = pelvis
+    return skinned_glb_bytes(verts[0].double().numpy() * c.scale, model.faces, top, w, list(JOINT_NAMES),
+                             list(PARENTS), J, translations, R, frame_time)
+
+
+def skinned_glb_bytes(vertices: np.ndarray, faces: np.ndarray, joints: np.ndarray, weights: np.ndarray,
+                      names: Sequence[str], parents: Sequence[int], rest_positions: np.ndarray,
+                      translations: np.ndarray, rotations: np.ndarray, frame_time: float) -> bytes:
+    """A GLB with one skinned mesh and its joint nodes, posed by frame 0 and animated over all frames.
+
+    vertices (V, 3) bind pose; faces (F, 3); joints/weights (V, 4); rest_positions (J, 3) world bind
+    positions (bind rotations identity); translations (T, J, 3) node translations (parent frame);
+    rotations (T, J, 3, 3) node local rotations.
+    """
+    import pygltflib
+
+    J = len(names)
+    out = _GlbData(bytearray(), [], [])
+    add = out.add
+
+    pos = add(vertices.astype(np.float32), pygltflib.FLOAT, "VEC3", pygltflib.ARRAY_BUFFER, minmax=True)
+    jnt = add(joints.astype(np.uint16), pygltflib.UNSIGNED_SHORT, "VEC4", pygltflib.ARRAY_BUFFER)
+    wgt = add(weights.astype(np.float32), pygltflib.FLOAT, "VEC4", pygltflib.ARRAY_BUFFER)
+    idx = add(faces.reshape(-1).astype(np.uint32), pygltflib.UNSIGNED_INT, "SCALAR", pygltflib.ELEMENT_ARRAY_BUFFER)
+    ibm = np.broadcast_to(np.eye(4), (J, 4, 4)).copy()
+    ibm[:, :3, 3] = -rest_positions
+    ibm_acc = add(ibm.transpose(0, 2, 1).astype(np.float32), pygltflib.FLOAT, "MAT4")  # column-major
+    nodes = []
+    for k in range(J):
+        children = [c for c in range(J) if parents[c] == k]
+        nodes.append(pygltflib.Node(name=names[k], children=children or None))
+    mesh_node = len(nodes)
+    nodes.append(pygltflib.Node(name="body", mesh=0, skin=0))
+    gltf = pygltflib.GLTF2(
+        asset=pygltflib.Asset(generator="smplik scene export", version="2.0"),
+        scenes=[pygltflib.Scene(nodes=[k for k in range(J) if parents[k] < 0] + [mesh_node])], scene=0,
+        nodes=nodes,
+        meshes=[pygltflib.Mesh(name="body", primitives=[pygltflib.Primitive(
+            attributes=pygltflib.Attributes(POSITION=pos, JOINTS_0=jnt, WEIGHTS_0=wgt), indices=idx)])],
+        skins=[pygltflib.Skin(joints=list(range(J)), inverseBindMatrices=ibm_acc, skeleton=0)],
+    )
+    quats = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat().reshape(len(rotations), J, 4)
+    scales = np.ones_like(translations)
+    _animate(gltf, add, list(range(J)), translations, quats, scales, frame_time)
+    return out.glb(gltf)
+
+
+def _animate(gltf, add, node_ids: Sequence[int], translations: np.ndarray, quats: np.ndarray, scales: np.ndarray,
+             frame_time: float) -> None:
+    """Set the nodes' TRS to frame 0 and add one animation over all T frames (LINEAR samplers)."""
+    import pygltflib
+
+    for k, n in enumerate(node_ids):
+        node = gltf.nodes[n]
+        node.matrix = None
+        node.translation = [float(x) for x in translations[0, k]]
+        node.rotation = [float(x) for x in quats[0, k]]
+        node.scale = [float(x) for x in scales[0, k]]
+    T = len(translations)
+    times = add((np.arange(T) * frame_time).astype(np.float32)[:, None], pygltflib.FLOAT, "SCALAR", minmax=True)
+    samplers, channels = [], []
+    for k, n in enumerate(node_ids):
+        for path, values, kind in (("translation", translations[:, k], "VEC3"), ("rotation", quats[:, k], "VEC4"),
+                                   ("scale", scales[:, k], "VEC3")):
+            out = add(values.astype(np.float32), pygltflib.FLOAT, kind)
+            samplers.append(pygltflib.AnimationSampler(input=times, output=out, interpolation="LINEAR"))
+            channels.append(pygltflib.AnimationChannel(
+                sampler=len(samplers) - 1, target=pygltflib.AnimationChannelTarget(node=n, path=path)))
+    gltf.animations = [pygltflib.Animation(name="pose", samplers=samplers, channels=channels)]
+
+
+# ----------------------------------------------------------------------------- glTF characters
+
+
+def _decompose(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(4, 4) affine without shear -> translation (3,), quaternion (x, y, z, w), scale (3,)."""
+    L = M[:3, :3]
+    scale = np.linalg.norm(L, axis=0)
+    R = L / np.maximum(scale, 1e-300)[None, :]
+    if np.linalg.det(R) < 0:
+        scale[0], R[:, 0] = -scale[0], -R[:, 0]
+    u, _, vt = np.linalg.svd(R)  # nearest rotation
+    return M[:3, 3].copy(), Rotation.from_matrix(u @ vt).as_quat(), scale
+
+
+def posed_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30) -> bytes:
+    """The character's own glTF/GLB (mesh, materials, skin) with its joint nodes posed and animated over ``poses``.
+
+    Posed joint ``k``: ``T_world_joint = [G_k A_k | p_k]`` (bind linear part ``A_k``, see
+    :mod:`workflows.character_mesh`); its node's new local transform is ``T_world_parent^-1 T_world_joint``
+    with the parent's posed world transform; other nodes keep theirs. All buffers are merged into
+    the GLB binary chunk; images referenced by external URIs keep their URIs.
+    """
+
+    rig = char.skeleton.gltf
+    if rig is None:
+        raise ExportError(f"{char.skeleton.source}: not a glTF character")
+    doc = rig.doc
+    gltf = copy.deepcopy(doc.gltf)
+    blob = bytearray()
+    bases = []
+    for data in doc.buffers:
+        while len(blob) % 4:
+            blob.append(0)
+        bases.append(len(blob))
+        blob.extend(data)
+    for view in gltf.bufferViews or []:
+        view.byteOffset = (view.byteOffset or 0) + bases[view.buffer]
+        view.buffer = 0
+    out = _GlbData(blob, list(gltf.accessors or []), list(gltf.bufferViews or []))
+    add = out.add
+    n_nodes = len(doc.world)
+    local = np.stack([node_local_matrix(node) for node in doc.gltf.nodes])
+    order = _parents_first(doc.parent)
+    joint_of = {n: k for k, n in enumerate(rig.joint_nodes)}
+    A = rig.T_world_joint_bind[:, :3, :3]
+    T, J = len(poses), len(rig.joint_nodes)
+    trans, quats, scales = np.empty((T, J, 3)), np.empty((T, J, 4)), np.empty((T, J, 3))
+    for t, pose in enumerate(poses):
+        R, p = pose.positions(char)
+        world = np.empty((n_nodes, 4, 4))
+        for n in order:
+            par = doc.parent[n]
+            W_par = world[par] if par >= 0 else np.eye(4)
+            if n in joint_of:
+                k = joint_of[n]
+                world[n] = np.eye(4)
+                world[n][:3, :3], world[n][:3, 3] = R[k] @ A[k], p[k]
+                trans[t, k], quats[t, k], scales[t, k] = _decompose(np.linalg.inv(W_par) @ world[n])
+            else:
+                world[n] = W_par @ local[n]
+    _animate(gltf, add, list(rig.joint_nodes), trans, quats, scales, frame_time)
+    return out.glb(gltf)
+
+
+def _parents_first(parent: Sequence[int]) -> list[int]:
+    children: dict[int, list[int]] = {}
+    for n, p in enumerate(parent):
+        children.setdefault(p, []).append(n)
+    order, stack = [], list(children.get(-1, []))
+    while stack:
+        n = stack.pop()
+        order.append(n)
+        stack.extend(children.get(n, []))
+    return order
