@@ -14,8 +14,11 @@ naming the file and the key) or :class:`workflows.safe_pickle.UnsafePickleError`
 from __future__ import annotations
 
 import json
+import lzma
 import pickle
+import struct
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Literal
 
@@ -49,7 +52,7 @@ def _check_zip(path: Path, max_bytes: int) -> None:
     try:
         with zipfile.ZipFile(path) as zf:
             infos = zf.infolist()
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError) as exc:
         raise EstimateFormatError(f"{path}: not a readable zip archive ({type(exc).__name__}: {exc}).") from None
     if len(infos) > 10_000:
         raise EstimateFormatError(f"{path}: {len(infos)} archive members; refusing more than 10000.")
@@ -111,9 +114,14 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
                 raise EstimateFormatError(f"{path}: cannot read JSON ({type(exc).__name__}: "
                                           f"{str(exc)[:200]}).") from None
         return load_pickle(path, trust_pickle=trust_pickle)
-    except (UnsafePickleError, EstimateFormatError):
+    except UnsafePickleError as exc:  # keep the class; one line even when the file's global names hold newlines
+        raise UnsafePickleError(" ".join(str(exc).split())) from None
+    except EstimateFormatError:
         raise
-    except (ValueError, OSError, RecursionError, MemoryError) as exc:
+    except (ValueError, OSError, RecursionError, MemoryError, EOFError, KeyError, IndexError, TypeError,
+            AttributeError, OverflowError, NotImplementedError, UnicodeDecodeError, zlib.error, lzma.LZMAError,
+            struct.error, zipfile.BadZipFile, pickle.UnpicklingError, SystemError) as exc:
+        # a corrupt file: the loaders (zip, numpy, joblib, pickle) fail in many ways, all of them the file's fault
         message = " ".join(str(exc).split())[:300]
         raise EstimateFormatError(message if str(path) in message else f"{path}: {message}") from None
 
@@ -166,14 +174,23 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
     if max_people < 1:
         raise EstimateFormatError(f"--max-people must be >= 1, got {max_people}.")
     data = _load_raw(path, trust_pickle, max_bytes)
+    return people_from_data(data, source=str(path), format=format, frame=frame, max_people=max_people, space=space,
+                            path=path)
+
+
+def people_from_data(data: Any, *, source: str, format: FormatName = "auto", frame: int = 0,
+                     max_people: int = MAX_PEOPLE, space: Literal["camera", "world"] | None = None,
+                     path: Path | None = None) -> list[EstimatedPerson]:
+    """:func:`read_estimate` on already loaded data (``path`` is needed for the AMASS reader only)."""
     name = detect_format(data) if format == "auto" else format
     module = _MODULES[name]
-    source = str(path)
     kwargs: dict[str, Any] = {"frame": int(frame), "max_people": max_people}
     if space is not None and module in (wham, gvhmr):
         kwargs["space"] = space
     try:
         if module is amass_params:
+            if path is None:
+                raise EstimateFormatError(f"{source}: the amass reader reads files only.")
             people = amass_params.read(path, data, **kwargs)
         else:
             people = module.from_data(data, source=source, **kwargs)
@@ -182,8 +199,8 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
     except (TypeError, ValueError, IndexError, KeyError, AttributeError, OverflowError, RecursionError) as exc:
         # A layout the reader's own checks did not anticipate: still one clear line, never a traceback.
         message = " ".join(str(exc).split())[:200]
-        raise EstimateFormatError(f"{path}: does not have the {name} layout ({type(exc).__name__}: "
+        raise EstimateFormatError(f"{source}: does not have the {name} layout ({type(exc).__name__}: "
                                   f"{message}).") from None
     if not people:
-        raise EstimateFormatError(f"{path}: no people found.")
+        raise EstimateFormatError(f"{source}: no people found.")
     return people

@@ -255,7 +255,8 @@ def finite(value: Any, name: str, source: str) -> np.ndarray:
     if isinstance(value, (str, bytes, dict)) or value is None:
         raise EstimateFormatError(f"{source}: '{name}' must be numbers, got {type(value).__name__}.")
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        with np.errstate(all="ignore"):
+            arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
         raise EstimateFormatError(f"{source}: '{name}' must be numbers.") from None
     if not np.isfinite(arr).all():
@@ -299,21 +300,12 @@ def rotations_to_axis_angle(R: np.ndarray) -> np.ndarray:
     return matrix_to_axis_angle(torch.as_tensor(u @ vt)).numpy()
 
 
-def select_frame(frame_of_row: np.ndarray, frame: int, source: str) -> np.ndarray:
-    """Indices of the rows that belong to video frame ``frame`` (the one rule every reader follows).
-
-    Args: frame_of_row (N,) integer frame of each row. Raises a clear error naming the frames present.
-    """
-    if not isinstance(frame, (int, np.integer)) or isinstance(frame, bool):
-        raise EstimateFormatError(f"{source}: --frame must be an integer, got {frame!r}.")
-    frame_of_row = np.asarray(frame_of_row).reshape(-1)
-    keep = np.nonzero(frame_of_row == frame)[0]
-    if keep.size == 0:
-        if frame_of_row.size == 0:
-            raise EstimateFormatError(f"{source}: the file holds no frames.")
-        raise EstimateFormatError(f"{source}: no person in frame {frame} (frames {int(frame_of_row.min())}.."
-                                  f"{int(frame_of_row.max())}).")
-    return keep
+def frame_numbers(value: Any, name: str, source: str) -> np.ndarray:
+    """Video frame numbers (N,) int64: finite, whole and within +-1e9, or an error naming ``name``."""
+    arr = finite(value, name, source).reshape(-1)
+    if arr.size and (np.abs(arr).max() > 1e9 or not np.array_equal(arr, np.round(arr))):
+        raise EstimateFormatError(f"{source}: '{name}' must hold whole frame numbers.")
+    return arr.astype(np.int64)
 
 
 def check_people_count(n: int, max_people: int, source: str) -> None:
@@ -351,6 +343,9 @@ def make_people(
     if pose_aa.ndim == 2 and pose_aa.shape[1] == 3 * NUM_JOINTS:
         pose_aa = pose_aa.reshape(-1, NUM_JOINTS, 3)
     pose_aa = _as_float("pose", pose_aa, (NUM_JOINTS, 3), source)
+    if pose_aa.size and np.abs(pose_aa).max() > 1e3:
+        raise EstimateFormatError(f"{source}: pose angles up to {np.abs(pose_aa).max():.3g} rad are not rotations "
+                                  "(expected axis-angle within a few pi).")
     N = pose_aa.shape[0]
     if N == 0:
         raise EstimateFormatError(f"{source}: no people found.")
@@ -381,6 +376,8 @@ def make_people(
         go, transl = camera_to_world(pose_aa[:, 0], pelvis, J0_ours)
     else:
         go, transl = pose_aa[:, 0], pelvis - J0_ours
+    if not (np.isfinite(go).all() and np.isfinite(transl).all()):
+        raise EstimateFormatError(f"{source}: the root rotation or translation is not finite after conversion.")
     ids = person_ids or [str(i) for i in range(N)]
     frames = frames or ["0"] * N
     return [EstimatedPerson(go[i], pose_aa[i, 1:].copy(), transl[i], betas[i].copy(), genders[i],

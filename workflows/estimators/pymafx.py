@@ -25,6 +25,7 @@ from workflows.estimators.base import (
     EstimateFormatError,
     check_people_count,
     finite,
+    frame_numbers,
     make_people,
     require,
     rows,
@@ -58,7 +59,7 @@ def from_data(data: dict[Any, Any], *, source: str = "<pymafx>", frame: int = 0,
         t = rows(require(d, "orig_cam_t", where), "orig_cam_t", 3, where, N)
         b = finite(require(d, "betas", where), "betas", where)
         b = np.broadcast_to(b.reshape(1, -1), (N, b.size)) if b.ndim == 1 else rows(b, "betas", b.shape[-1], where, N)
-        f = finite(d.get("frame_ids", np.zeros(N)), "frame_ids", where).reshape(-1).astype(np.int64)
+        f = frame_numbers(d.get("frame_ids", np.zeros(N)), "frame_ids", where)
         if f.shape[0] != N:
             raise EstimateFormatError(f"{where}: 'frame_ids' has {f.shape[0]} entries for {N} poses.")
         if "person_ids" in d:

@@ -30,6 +30,7 @@ from workflows.estimators.base import (
     EstimateFormatError,
     check_people_count,
     finite,
+    frame_numbers,
     make_people,
     require,
     rows,
@@ -63,7 +64,7 @@ def from_data(data: dict[Any, Any], *, source: str = "<wham>", frame: int = 0,
         trans = rows(require(t, "trans_world" if world else "trans", where), "trans", 3, where, T)
         betas = finite(require(t, "betas", where), "betas", where)
         betas = betas.reshape(1, -1) if betas.ndim == 1 else betas.reshape(betas.shape[0], -1)
-        ids = finite(t.get("frame_ids", np.arange(T)), "frame_ids", where).reshape(-1).astype(np.int64)
+        ids = frame_numbers(t.get("frame_ids", np.arange(T)), "frame_ids", where)
         if ids.shape[0] != T:
             raise EstimateFormatError(f"{where}: 'frame_ids' has {ids.shape[0]} entries for {T} poses.")
         covered += [int(ids.min()), int(ids.max())] if T else []
