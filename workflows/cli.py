@@ -27,7 +27,7 @@ scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve 
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
-FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "plain")
+FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain")
 
 
 def _solver(checkpoint: Path | None):
@@ -61,7 +61,7 @@ def character_residuals(before, after, solver) -> list[str]:  # noqa: ANN001 - S
 
 @scene_app.command("from-estimate")
 def from_estimate_cmd(
-    results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json).")],
+    results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json, .pt).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help=f"One of: {', '.join(FORMATS)}.")] = "auto",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
@@ -78,23 +78,44 @@ def from_estimate_cmd(
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     image: Annotated[Path | None, typer.Option("--image", help="Source image for the overlay preview.")] = None,
-    frame: Annotated[int | None, typer.Option("--frame", help="Frame of a video output (default: first).")] = None,
+    frame: Annotated[int, typer.Option("--frame", min=0, help="Video frame whose people make the scene (one "
+                                       "character per track id); single-image files have only frame 0.")] = 0,
+    ground: Annotated[bool, typer.Option("--ground", help="Put the people on a floor (lowest point at y = 0; "
+                                         "the camera is raised with them, recorded in scene.json).")] = False,
+    max_people: Annotated[int, typer.Option("--max-people", min=1, help="Refuse files with more people in "
+                                            "the frame than this.")] = 100,
+    max_bytes: Annotated[int, typer.Option("--max-bytes", min=1, help="Refuse estimator files whose data is "
+                                           "larger than this uncompressed (bytes).")] = 1 << 30,
+    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'camera' or 'world' output "
+                                              "(default: WHAM world, GVHMR camera).")] = None,
     checkpoint: Checkpoint = None,
     no_previews: Annotated[bool, typer.Option("--no-previews", help="Skip the PNG previews.")] = False,
 ) -> None:
     """Estimator output -> SMPL-SI (with --character) -> effector recovery -> OUT/scene.json (+ previews, BVH)."""
+    from rich.progress import Progress
+
+    from smplik.cli.errors import console
     from workflows.pipeline import from_estimate
     from workflows.recovery import RecoveryConfig
 
     if format not in FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
+    if space not in (None, "camera", "world"):
+        raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
     solver = _solver(checkpoint)
-    with user_errors():
+    with user_errors(), Progress(console=console, transient=True) as bar:
+        task = bar.add_task("effector recovery", total=None)
+
+        def progress(done: int, total: int, name: str) -> None:
+            bar.update(task, completed=done, total=total, description=f"effector recovery ({name})")
+
         outputs = from_estimate(results, out, solver, format=format, character_path=character,
                                 character_options=options,
                                 config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
-                                trust_pickle=trust_pickle, image_path=image, frame=frame, previews=not no_previews)
+                                trust_pickle=trust_pickle, image_path=image, frame=frame,
+                                previews=not no_previews, max_people=max_people, max_bytes=max_bytes, ground=ground,
+                                space=space, progress=progress)
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "

@@ -1,7 +1,8 @@
 """The end-to-end demo on built-in material only (smpl-ik.txt App. E): no downloads, no ../shared.
 
 1. Generate the examples (:mod:`workflows.examples_gen`): a ROMP-style ``.npz`` of two people,
-   the matching synthetic photo, and a Mixamo-named custom character (BVH).
+   the matching synthetic photo with those people rendered into it (their generating poses, so the
+   overlay of the solved bodies is visibly right or wrong), and a Mixamo-named custom character (BVH).
 2. ``smpl/``: estimator output -> SMPL scene: effector recovery per person, ``scene.json``, a
    preview over the photo plus 3D views, recovery plots.
 3. ``character/``: the same people retargeted onto the custom character through SMPL-SI: scene,
@@ -43,12 +44,16 @@ class DemoOutputs:
         return self.examples + self.smpl.all_files + self.character.all_files + edited
 
 
-def write_examples(folder: str | Path) -> tuple[Path, Path, Path]:
-    """Write the generated example files; returns (ROMP npz, photo PNG, character BVH)."""
-    from workflows.examples_gen import write_background, write_mixamo_character, write_romp_example
+def write_examples(folder: str | Path, *, people_in_photo: bool = True) -> tuple[Path, Path, Path]:
+    """Write the generated example files; returns (ROMP npz, photo PNG, character BVH).
+
+    ``people_in_photo``: render the generated people into the photo (needs OpenGL), else an empty scene.
+    """
+    from workflows.examples_gen import write_background, write_mixamo_character, write_photo, write_romp_example
 
     folder = Path(folder)
-    return (write_romp_example(folder / "romp_two_people.npz"), write_background(folder / "photo.png"),
+    photo = write_photo(folder / "photo.png") if people_in_photo else write_background(folder / "photo.png")
+    return (write_romp_example(folder / "romp_two_people.npz"), photo,
             write_mixamo_character(folder / "mixamo_character.bvh"))
 
 
@@ -78,7 +83,7 @@ def run_demo(out_dir: str | Path, solver: Any = None, *, config: RecoveryConfig 
         solver = IKSolver.load()
     config = RecoveryConfig(max_effectors=6, threshold=0.02) if config is None else config
     out_dir = Path(out_dir)
-    npz, photo, bvh = write_examples(out_dir / "examples")
+    npz, photo, bvh = write_examples(out_dir / "examples", people_in_photo=previews)
     smpl = from_estimate(npz, out_dir / "smpl", solver, format="romp", config=config, image_path=photo,
                          previews=previews)
     character = from_estimate(npz, out_dir / "character", solver, format="romp", character_path=bvh,

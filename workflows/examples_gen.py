@@ -3,7 +3,8 @@
 * :func:`example_poses`: two procedural, CMU-like poses (a walking stride; a crouch with a reach).
 * :func:`write_romp_example`: those people as a ROMP-style ``results`` ``.npz`` in the OpenCV camera
   frame, standing ~4 m in front of a camera 1.4 m above the floor (ROMP's 60-degree field of view).
-* :func:`write_background`: a simple synthetic photo (sky, horizon, floor) matching that camera.
+* :func:`write_background`: a simple synthetic photo (sky, horizon, floor) matching that camera;
+  :func:`write_photo`: the same photo with the example people rendered into it.
 * :func:`write_mixamo_character`: a Mixamo-named BVH skeleton (``mixamorig:Hips``, ...; centimetres,
   extra unmapped end joints) built from the built-in body with altered proportions (longer legs,
   shorter arms, longer torso), so SMPL-SI has something non-trivial to fit.
@@ -91,7 +92,7 @@ def write_romp_example(path: str | Path, people: list[ExamplePerson] | None = No
     """Write ``people`` (default :func:`example_poses`) as a ROMP ``results`` npz in the camera frame."""
     from smplik.atomic import atomic_path
     from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-    from workflows.estimators.base import M_WORLD_CAMERA, rest_pelvis
+    from workflows.estimators.base import M_WORLD_CAMERA, estimator_rest_pelvis, rest_pelvis
 
     people = example_poses() if people is None else people
     thetas, betas, cam_trans = [], [], []
@@ -100,9 +101,11 @@ def write_romp_example(path: str | Path, people: list[ExamplePerson] | None = No
         R_cam = M_WORLD_CAMERA @ axis_angle_to_matrix(torch.as_tensor(pose.global_orient)).numpy()
         aa = np.concatenate([matrix_to_axis_angle(torch.as_tensor(R_cam)).numpy(), pose.body_pose.reshape(-1)])
         J0 = rest_pelvis(pose.betas[None], pose.gender)[0]
+        J0_smpl = estimator_rest_pelvis(pose.betas[None], pose.gender)[0]
         thetas.append(aa)
         betas.append(pose.betas)
-        cam_trans.append(M_WORLD_CAMERA @ (J0 + pose.transl) - J0)  # smplx transl in the camera frame
+        # ROMP's cam_trans is smplx transl of SMPL: the camera-frame pelvis minus SMPL's rest pelvis
+        cam_trans.append(M_WORLD_CAMERA @ (J0 + pose.transl) - J0_smpl)
     results = {"smpl_thetas": np.asarray(thetas, np.float32), "smpl_betas": np.asarray(betas, np.float32),
                "cam_trans": np.asarray(cam_trans, np.float32)}
     with atomic_path(path, suffix=".npz") as tmp:
@@ -130,6 +133,41 @@ def write_background(path: str | Path, size: tuple[int, int] = IMAGE_SIZE) -> Pa
     floor = np.array([0.62, 0.58, 0.52]) * (0.85 + 0.15 * checker)
     img = np.where(sky[..., None], img, floor)
     save_png((np.clip(img, 0, 1) * 255).astype(np.uint8), path)
+    return Path(path)
+
+
+def write_photo(path: str | Path, people: list[ExamplePerson] | None = None, size: tuple[int, int] = IMAGE_SIZE
+                ) -> Path:
+    """The synthetic photo with the example people rendered into it through the ROMP example camera.
+
+    The people are drawn in their generating poses (what the estimator "saw"), in flat clothing
+    colours, so that an overlay of the solved bodies is visibly right (or wrong). Needs an OpenGL
+    backend (:mod:`smplik.render`); :func:`write_background` is the same photo without people.
+    """
+    from smplik.body_model import load_body_model
+    from smplik.render import ImageCamera, MeshItem, render, save_png
+
+    people = example_poses() if people is None else people
+    tmp = write_background(Path(path), size)
+    from workflows.previews import load_image
+
+    background = load_image(tmp)
+    w, h = size
+    f = max(w, h) / 2 / np.tan(np.radians(ROMP_FOV_DEG) / 2)
+    colors = ((0.35, 0.25, 0.55, 1.0), (0.75, 0.45, 0.2, 1.0))
+    meshes = []
+    for k, person in enumerate(people):
+        pose = person.pose
+        model = load_body_model(pose.gender)
+
+        def t(x: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x, dtype=np.float32))[None]
+
+        with torch.no_grad():
+            verts, _ = model.vertices(t(pose.global_orient), t(pose.body_pose), t(pose.transl), t(pose.betas))
+        meshes.append(MeshItem(verts[0].double().numpy(), model.faces, colors[k % len(colors)]))
+    img = render(meshes, size=size, view=ImageCamera(f, f, w / 2, h / 2, np.eye(4)), background=background)
+    save_png(img, path)
     return Path(path)
 
 

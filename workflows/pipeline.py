@@ -1,6 +1,7 @@
 """Estimator output -> (SMPL-SI character) -> effector recovery -> editable scene (smpl-ik.txt section 5, App. E).
 
-Per estimated person:
+The people of one frame (``frame``, default 0) are read by :func:`workflows.estimators.read_estimate`,
+optionally put on a floor (``ground``), then per estimated person:
 
 1. Body: the estimator's ``(betas, gender)`` at scale 1, or, with a custom character, the SMPL
    body SMPL-SI fitted to it (``character.betas``, ``scale``, ``gender``).
@@ -15,17 +16,21 @@ Per estimated person:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from smplik.pose import Pose
 from workflows.character import CharacterOptions, CustomCharacter, CustomPose, smpl_to_custom
 from workflows.estimators.base import EstimatedPerson
 from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_effectors
-from workflows.scene import Scene, SceneCharacter, SkeletonSource
+from workflows.scene import GroundRecord, Scene, SceneCharacter, SkeletonSource
+
+Progress = Callable[[int, int, str], None]
+"""``progress(done, total, name)``: called after each person's recovery (e.g. to drive a progress bar)."""
 
 
 @dataclass(frozen=True)
@@ -51,6 +56,34 @@ def retarget_to_body(person: EstimatedPerson, betas: np.ndarray, gender, scale: 
                 np.asarray(betas, dtype=np.float64).copy(), gender)
 
 
+def lowest_point(people: Sequence[EstimatedPerson]) -> float:
+    """The lowest y (world, metres) of the people's posed meshes (the feet, for standing people)."""
+    from smplik.body_model import load_body_model
+
+    lowest = np.inf
+    for p in people:
+        model = load_body_model(p.gender)
+
+        def t(x: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x, dtype=np.float32))[None]
+
+        with torch.no_grad():
+            verts, _ = model.vertices(t(p.global_orient), t(p.body_pose), t(p.transl), t(p.betas))
+        lowest = min(lowest, float(verts[0, :, 1].min()))
+    return lowest
+
+
+def put_on_ground(people: Sequence[EstimatedPerson]) -> tuple[list[EstimatedPerson], GroundRecord]:
+    """``--ground``: move every person up by the same amount so the lowest point of all is at y = 0.
+
+    One shift for the whole scene keeps the people's relative placement and the camera (now at
+    ``(0, shift, 0)``, recorded in the returned :class:`GroundRecord`), so overlays still fit.
+    """
+    shift = -lowest_point(people)
+    moved = [dataclasses.replace(p, transl=p.transl + np.array([0.0, shift, 0.0])) for p in people]
+    return moved, GroundRecord(shift)
+
+
 def scene_from_people(
     people: Sequence[EstimatedPerson],
     solver: TensorSolver,
@@ -60,9 +93,18 @@ def scene_from_people(
     skeleton: SkeletonSource | None = None,
     source: str | None = None,
     image: str | None = None,
+    ground: bool = False,
+    progress: Progress | None = None,
 ) -> tuple[Scene, list[PersonResult]]:
-    """Build an editable scene from estimated people (see the module docstring)."""
+    """Build an editable scene from estimated people (see the module docstring).
+
+    ``ground``: first move the people onto a floor (:func:`put_on_ground`). ``progress`` is called
+    after each person.
+    """
     config = RecoveryConfig() if config is None else config
+    ground_record = None
+    if ground:
+        people, ground_record = put_on_ground(people)
     characters = []
     results = []
     unique_ids = len({p.person_id for p in people}) == len(people)
@@ -78,8 +120,10 @@ def scene_from_people(
         characters.append(SceneCharacter(name, gender, np.asarray(betas, dtype=np.float64), float(scale),
                                          skeleton, rec.effectors, rec.pose))
         results.append(PersonResult(name, target, rec, custom))
+        if progress is not None:
+            progress(i + 1, len(people), name)
     camera = next((p.camera for p in people if p.camera is not None), None)
-    return Scene(tuple(characters), source, image, camera), results
+    return Scene(tuple(characters), source, image, camera, ground_record), results
 
 
 @dataclass(frozen=True)
@@ -109,8 +153,13 @@ def from_estimate(
     config: RecoveryConfig | None = None,
     trust_pickle: bool = False,
     image_path: str | Path | None = None,
-    frame: int | None = None,
+    frame: int = 0,
     previews: bool = True,
+    max_people: int | None = None,
+    max_bytes: int | None = None,
+    ground: bool = False,
+    space: str | None = None,
+    progress: Progress | None = None,
 ) -> EstimateOutputs:
     """Estimator output -> ``out_dir/scene.json`` (+ previews, recovery plots, BVH with a character).
 
@@ -127,7 +176,11 @@ def from_estimate(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     config = RecoveryConfig() if config is None else config
-    people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame)  # type: ignore[arg-type]
+    from workflows.estimators import MAX_BYTES, MAX_PEOPLE
+
+    people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame,  # type: ignore[arg-type]
+                           max_people=MAX_PEOPLE if max_people is None else max_people,
+                           max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space)  # type: ignore[arg-type]
     character = skeleton = None
     if character_path is not None:
         options = CharacterOptions() if character_options is None else character_options
@@ -143,7 +196,8 @@ def from_estimate(
         skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
     image_ref = str(Path(image_path).resolve()) if image_path is not None else None
     scene, person_results = scene_from_people(people, solver, config=config, character=character, skeleton=skeleton,
-                                              source=str(Path(results_path).resolve()), image=image_ref)
+                                              source=str(Path(results_path).resolve()), image=image_ref,
+                                              ground=ground, progress=progress)
     scene_path = save_scene(scene, out_dir / "scene.json")
     preview_paths: list[Path] = []
     plot_paths: list[Path] = []
@@ -156,7 +210,10 @@ def from_estimate(
         from workflows.previews import load_image, plot_recovery_errors, render_custom_character, render_scene
 
         image = load_image(image_path) if image_path is not None and scene.camera is not None else None
-        preview_paths.append(save_png(render_scene(scene, image=image), out_dir / "scene.png"))
+        ghosts = [r.target for r in person_results]
+        errors = [r.recovery.final_error for r in person_results]
+        preview_paths.append(save_png(render_scene(scene, image=image, ghosts=ghosts, errors_m=errors),
+                                      out_dir / "scene.png"))
         for r, c in zip(person_results, scene.characters, strict=True):
             plot_paths.append(plot_recovery_errors(r.recovery.errors, out_dir / f"{r.name}_recovery.png",
                                                    title=f"{r.name}: effector recovery",

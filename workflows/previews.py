@@ -3,6 +3,9 @@
 Markers, in character space: position effectors are purple spheres; rotation effectors are RGB
 axes (x red, y green, z blue) of the target global rotation at the character's posed joint;
 look-at effectors are a line from the joint to the target with a small sphere at the target.
+``render_scene`` can also draw **ghosts**: the estimator's original pose of each person as a dark
+wireframe skeleton over the solved body, so what recovery lost is visible; every panel is labelled
+and each person's final error is printed in a legend.
 Headless machines need ``PYOPENGL_PLATFORM=egl`` (or ``osmesa``) set before the first render.
 """
 
@@ -14,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from smplik.conventions import EffectorType
+from smplik.conventions import PARENTS, EffectorType
+from smplik.pose import Pose
 from smplik.render import ImageCamera, MeshItem, Segment, Sphere, View, hstack_images, render
 from workflows.character import CustomCharacter, CustomPose
 from workflows.scene import Scene, SceneCharacter, character_joints
@@ -89,31 +93,93 @@ def scene_items(scene: Scene, *, markers: bool = True) -> tuple[list[MeshItem], 
     return meshes, spheres, segments
 
 
+GHOST_COLOR = (0.12, 0.12, 0.12, 1.0)
+"""Colour of the ghost skeletons (the estimator's original poses)."""
+
+
 def image_camera(scene: Scene, width: int, height: int) -> ImageCamera:
-    """The estimator's camera for an image of this size (world = camera at the origin, OpenGL axes)."""
+    """The estimator's camera for an image of this size (OpenGL axes; at the origin, or raised by ``--ground``)."""
     if scene.camera is None:
         raise ValueError("The scene has no camera; it cannot be drawn over an image.")
     f = scene.camera.focal_for(width, height)
-    return ImageCamera(f, f, width / 2.0, height / 2.0, np.eye(4))
+    cx, cy = scene.camera.principal_for(width, height)
+    T_world_camera = np.eye(4)
+    if scene.ground is not None:
+        T_world_camera[1, 3] = scene.ground.camera_height_m
+    # pyrender's principal point is measured from the top-left like OpenCV's
+    return ImageCamera(f, f, cx, cy, T_world_camera)
+
+
+def ghost_segments(pose: Pose, scale: float = 1.0, color=GHOST_COLOR, radius: float = 0.012) -> list[Segment]:
+    """A pose's skeleton (SMPL space, drawn in character space ``x scale``) as wireframe bones."""
+    from workflows.recovery import TargetPose
+
+    joints = (pose.joints if pose.joints is not None else TargetPose.from_pose(pose).p_world.double().numpy())
+    p = np.asarray(joints, dtype=np.float64) * scale
+    return [Segment(p[par], p[k], radius * scale, color) for k, par in enumerate(PARENTS) if par >= 0]
+
+
+def label_image(img: np.ndarray, lines: Sequence[str], *, colors: Sequence[tuple[float, ...]] | None = None
+                ) -> np.ndarray:
+    """``img`` with text lines in its top-left corner on a light box (PIL's default font)."""
+    from PIL import Image, ImageDraw
+
+    pil = Image.fromarray(np.ascontiguousarray(img))
+    draw = ImageDraw.Draw(pil)
+    line_h = 13
+    width = max((int(draw.textlength(t)) for t in lines), default=0) + 20
+    draw.rectangle([2, 2, 6 + width, 6 + line_h * len(lines)], fill=(255, 255, 255))
+    for k, text in enumerate(lines):
+        y = 4 + k * line_h
+        x = 6
+        if colors is not None and k < len(colors) and colors[k] is not None:
+            c = tuple(int(255 * v) for v in colors[k][:3])
+            draw.rectangle([x, y + 2, x + 8, y + 10], fill=c, outline=(0, 0, 0))
+            x += 12
+        draw.text((x, y), text, fill=(0, 0, 0))
+    return np.asarray(pil)
 
 
 def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[int, int] = (480, 640),
                  directions: Sequence[Sequence[float]] = ((0.0, 0.2, 1.0), (1.0, 0.2, 0.0)),
-                 extra_segments: Sequence[Segment] = ()) -> np.ndarray:
+                 extra_segments: Sequence[Segment] = (), ghosts: Sequence[Pose | None] = (),
+                 errors_m: Sequence[float | None] = (), labels: bool = True) -> np.ndarray:
     """All characters with markers: over ``image`` (RGB uint8, estimator camera) and/or from ``directions``.
+
+    Args:
+        ghosts: per character (scene order), the estimator's original pose (SMPL space of that
+            character's body) drawn as a dark wireframe skeleton; None skips one.
+        errors_m: per character, its final error (metres) printed in the legend.
+        labels: name every panel and list the people (colour, name, final error).
 
     Returns the panels side by side (RGB uint8). ``size`` = (width, height) of each 3D view.
     """
     meshes, spheres, segments = scene_items(scene)
     segments = segments + list(extra_segments)
+    for c, g in zip(scene.characters, ghosts, strict=False):
+        if g is not None:
+            segments += ghost_segments(g, c.scale)
+    legend = []
+    for i, c in enumerate(scene.characters):
+        err = errors_m[i] if i < len(errors_m) else None
+        legend.append(f"{c.name}: {len(c.effectors)} effectors" + ("" if err is None else
+                                                                  f", final error {err * 1000:.0f} mm"))
+    colors = [PALETTE[i % len(PALETTE)] for i in range(len(scene.characters))]
+    ghost_note = ["dark wireframe: estimator's pose"] if any(g is not None for g in ghosts) else []
     panels = []
     if image is not None:
         h, w = image.shape[:2]
-        panels.append(render(meshes, spheres, segments, size=(w, h), view=image_camera(scene, w, h),
-                             background=np.ascontiguousarray(image[..., :3])))
-    for d in directions:
+        img = render(meshes, spheres, segments, size=(w, h), view=image_camera(scene, w, h),
+                     background=np.ascontiguousarray(image[..., :3]))
+        panels.append(label_image(img, ["over the photo (estimator camera)", *legend, *ghost_note],
+                                  colors=[None, *colors]) if labels else img)
+    for k, d in enumerate(directions):
         img = render(meshes, spheres, segments, size=size, view=View(direction=tuple(d)),
                      background=(1.0, 1.0, 1.0, 1.0))
+        if labels:
+            name = {0: "front view", 1: "side view"}.get(k, f"view {k + 1}")
+            extra = [*legend, *ghost_note] if image is None and k == 0 else []
+            img = label_image(img, [name, *extra], colors=[None, *colors] if extra else None)
         if panels and img.shape[0] != panels[0].shape[0]:
             img = _fit_height(img, panels[0].shape[0])
         panels.append(img)

@@ -19,7 +19,10 @@ returned in character space (positions and look-at targets times s).
 
 Candidates are scored with a cheap solve (the network plus ``search_refine_steps`` refinement
 steps); the chosen set is then solved once more with the solver's full refinement for the final
-pose. Speed: candidate effector data are precomputed once as tensors; each step builds the packed
+pose, which is kept only when it is at least as close as the best searched pose (otherwise the
+searched pose is the result): the final pose is never worse than the search's best.
+
+Speed: candidate effector data are precomputed once as tensors; each step builds the packed
 ``(B, k + 1)`` batch by concatenation, with no per-candidate Python objects.
 """
 
@@ -175,6 +178,7 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
     gender = torch.tensor([target.gender.index])
     search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
     best_eff: EffectorBatch | None = None
+    best_pose: Pose | None = None
     for k in range(min(cfg.max_effectors, C)):
         rows = torch.nonzero(remaining)[:, 0]
         B = rows.shape[0]
@@ -194,12 +198,15 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
         errors.append(float(err[best]))
         best_eff = EffectorBatch(joint[best:best + 1], kind[best:best + 1], data[best:best + 1],
                                  eff.tolerance[best:best + 1], eff.mask[best:best + 1])
+        best_pose = output_to_pose(out, best, target.betas, target.gender)
         if errors[-1] < cfg.threshold:
             break
     effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(), scale,
                                    cfg.tolerance) for c in chosen)
-    assert best_eff is not None
+    assert best_eff is not None and best_pose is not None
     final = solver.solve_tensors(best_eff, betas, gender)
     final_error = float((final.p_world[0].float() - p_target).norm(dim=-1).mean()) * scale
-    return RecoveryResult(effectors, tuple(errors), output_to_pose(final, 0, target.betas, target.gender),
-                          float(scale), final_error)
+    pose = output_to_pose(final, 0, target.betas, target.gender)
+    if not final_error <= errors[-1]:  # the full refinement made it worse (or NaN): keep the searched pose
+        pose, final_error = best_pose, errors[-1]
+    return RecoveryResult(effectors, tuple(errors), pose, float(scale), final_error)

@@ -7,7 +7,9 @@ Format ``smplik-scene``, version :data:`SCENE_VERSION`::
       "version": 1,
       "source": "results.npz",                       # optional: what the scene came from
       "image": "photo.jpg",                          # optional: source image (relative to the scene file)
-      "camera": {"focal_px": null, "image_size": [640, 480], "default_fov_deg": 60.0},   # optional
+      "camera": {"focal_px": null, "image_size": [640, 480], "default_fov_deg": 60.0,
+                 "principal_px": null, "focal_rule": "fov"},   # optional: the estimator's intrinsics
+      "ground": {"camera_height_m": 1.42},           # optional: --ground moved the people onto y = 0
       "characters": [
         {
           "name": "person_0",
@@ -137,13 +139,29 @@ class SceneCharacter:
 
 
 @dataclass(frozen=True)
+class GroundRecord:
+    """``--ground``: the people were moved up onto a floor (their lowest point at y = 0).
+
+    Attributes:
+        camera_height_m: the shift; the world is the camera frame moved up by it, so the estimator's
+            camera centre sits at ``(0, camera_height_m, 0)`` (same orientation) and overlays still fit.
+    """
+
+    camera_height_m: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"camera_height_m": float(self.camera_height_m)}
+
+
+@dataclass(frozen=True)
 class Scene:
-    """A scene: characters plus, for estimator scenes, the source, image and camera."""
+    """A scene: characters plus, for estimator scenes, the source, image, camera and ground record."""
 
     characters: tuple[SceneCharacter, ...]
     source: str | None = None
     image: str | None = None
     camera: CameraInfo | None = None
+    ground: GroundRecord | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -152,6 +170,7 @@ class Scene:
             "source": self.source,
             "image": self.image,
             "camera": None if self.camera is None else self.camera.to_dict(),
+            "ground": None if self.ground is None else self.ground.to_dict(),
             "characters": [c.to_dict() for c in self.characters],
         }
 
@@ -286,7 +305,12 @@ def _scene(data: Any, max_characters: int) -> Scene:
     for key in ("source", "image"):
         if data.get(key) is not None:
             _expect(data[key], str, key, "a string or null")
-    return Scene(characters, data.get("source"), data.get("image"), camera)
+    ground = None
+    if data.get("ground") is not None:
+        g = _expect(data["ground"], Mapping, "ground", "an object")
+        _check_keys(g, _field_names(GroundRecord), "ground")
+        ground = GroundRecord(float(_numbers(g.get("camera_height_m", 0.0), (), "ground.camera_height_m")))
+    return Scene(characters, data.get("source"), data.get("image"), camera, ground)
 
 
 def load_scene(path: str | Path, *, max_characters: int | None = None) -> Scene:

@@ -1,49 +1,139 @@
 """Readers for image-to-SMPL estimator outputs, one module per format (see each module's docstring).
 
-:func:`read_estimate` picks the reader by ``format`` or detects it from the file's content; every
-reader returns people in smplik's y-up world (:mod:`workflows.estimators.base`).
+:func:`read_estimate` loads the file (never running code from it), picks the reader by ``format``
+or detects it from the content, and returns the people of one frame (``frame``, default 0: the one
+frame-selection rule of every reader) in smplik's y-up world, placed on our body model
+(:mod:`workflows.estimators.base`).
+
+Safety limits: ``.npz`` and ``.pt`` members are checked against ``max_bytes`` (their uncompressed
+sizes, read from the zip directory) before anything is decompressed; other files by their size; at
+most ``max_people`` people per frame. Every problem raises :class:`EstimateFormatError` (one line,
+naming the file and the key) or :class:`workflows.safe_pickle.UnsafePickleError`.
 """
 
 from __future__ import annotations
 
+import json
+import lzma
+import pickle
+import struct
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Literal
 
-from workflows.estimators import hybrik, phalp, plain, pymafx, romp, wham
+import numpy as np
+
+from workflows.estimators import aist, amass_params, gvhmr, hybrik, phalp, plain, pymafx, romp, wham
 from workflows.estimators.base import (
     M_WORLD_CAMERA,
+    MAX_PEOPLE,
     CameraInfo,
     EstimatedPerson,
     EstimateFormatError,
     camera_to_world,
 )
 
-FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "plain"]
-FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "plain")
+FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain"]
+FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain")
 _MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx,
-            "plain": plain}
-_DETECT_ORDER = (romp, hybrik, phalp, wham, pymafx, plain)
+            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "plain": plain}
+_DETECT_ORDER = (romp, hybrik, gvhmr, aist, phalp, wham, pymafx, amass_params, plain)
+SUFFIXES = (".npz", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
+MAX_BYTES = 1 << 30
+"""Default cap (1 GiB) on the uncompressed size of an estimator file's data."""
 
-__all__ = ["M_WORLD_CAMERA", "CameraInfo", "EstimatedPerson", "EstimateFormatError", "FORMATS", "camera_to_world",
-           "detect_format", "read_estimate"]
+__all__ = ["M_WORLD_CAMERA", "MAX_BYTES", "MAX_PEOPLE", "CameraInfo", "EstimatedPerson", "EstimateFormatError",
+           "FORMATS", "camera_to_world", "detect_format", "read_estimate"]
 
 
-def _load_raw(path: Path, trust_pickle: bool) -> Any:
-    import json
+def _check_zip(path: Path, max_bytes: int) -> None:
+    """Refuse a zip (npz / torch) whose members declare more than ``max_bytes`` uncompressed."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = zf.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError) as exc:
+        raise EstimateFormatError(f"{path}: not a readable zip archive ({type(exc).__name__}: {exc}).") from None
+    if len(infos) > 10_000:
+        raise EstimateFormatError(f"{path}: {len(infos)} archive members; refusing more than 10000.")
+    total = sum(i.file_size for i in infos)
+    if total > max_bytes:
+        big = max(infos, key=lambda i: i.file_size)
+        raise EstimateFormatError(f"{path}: its arrays would take {total / 2**20:.0f} MiB uncompressed "
+                                  f"('{big.filename}' {big.file_size / 2**20:.0f} MiB), over the "
+                                  f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
 
-    from workflows.safe_pickle import load_npz, load_pickle
+
+def _to_numpy(value: Any, depth: int = 0) -> Any:
+    import torch
+
+    if depth > 20:
+        raise EstimateFormatError("nesting deeper than 20 levels.")
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().double().numpy() if value.is_floating_point() else value.cpu().numpy()
+    if isinstance(value, dict):
+        return {k: _to_numpy(v, depth + 1) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_to_numpy(v, depth + 1) for v in value]
+    return value
+
+
+def _load_torch(path: Path) -> Any:
+    import torch
+
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError, TypeError, AttributeError,
+            zipfile.BadZipFile) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise EstimateFormatError(f"{path}: not a readable tensor file (torch.load with weights_only=True: "
+                                  f"{first[:200]}).") from None
+    return _to_numpy(data)
+
+
+def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
+    from workflows.safe_pickle import UnsafePickleError, load_npz, load_pickle
 
     suffix = path.suffix.lower()
-    if suffix == ".npz":
-        return load_npz(path)
-    if suffix == ".json":
-        try:
-            return json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise EstimateFormatError(f"{path}: cannot read JSON ({exc}).") from exc
-    if suffix in (".pk", ".pkl", ".pickle", ".joblib"):
+    if suffix not in SUFFIXES:
+        raise EstimateFormatError(f"{path}: unsupported file type {suffix!r} (expected {', '.join(SUFFIXES)}).")
+    if suffix in (".npz", ".pt", ".pth"):
+        _check_zip(path, max_bytes)
+    elif path.stat().st_size > max_bytes:
+        raise EstimateFormatError(f"{path}: {path.stat().st_size / 2**20:.0f} MiB is over the "
+                                  f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
+    try:
+        if suffix == ".npz":
+            return load_npz(path)
+        if suffix in (".pt", ".pth"):
+            return _load_torch(path)
+        if suffix == ".json":
+            try:
+                return json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+                raise EstimateFormatError(f"{path}: cannot read JSON ({type(exc).__name__}: "
+                                          f"{str(exc)[:200]}).") from None
         return load_pickle(path, trust_pickle=trust_pickle)
-    raise EstimateFormatError(f"{path}: unsupported file type {suffix!r} (expected .npz, .json, .pk or .pkl).")
+    except UnsafePickleError as exc:  # keep the class; one line even when the file's global names hold newlines
+        raise UnsafePickleError(" ".join(str(exc).split())) from None
+    except EstimateFormatError:
+        raise
+    except (ValueError, OSError, RecursionError, MemoryError, EOFError, KeyError, IndexError, TypeError,
+            AttributeError, OverflowError, NotImplementedError, UnicodeDecodeError, zlib.error, lzma.LZMAError,
+            struct.error, zipfile.BadZipFile, pickle.UnpicklingError, SystemError) as exc:
+        # a corrupt file: the loaders (zip, numpy, joblib, pickle) fail in many ways, all of them the file's fault
+        message = " ".join(str(exc).split())[:300]
+        raise EstimateFormatError(message if str(path) in message else f"{path}: {message}") from None
+
+
+def _describe(data: Any) -> str:
+    if isinstance(data, dict):
+        keys = [str(k) for k in list(data)[:20]]
+        more = f", ... ({len(data)} keys)" if len(data) > 20 else ""
+        return f"top-level keys: {', '.join(keys) or 'none'}{more}"
+    if isinstance(data, list):
+        return f"a list of {len(data)} items"
+    return f"a {type(data).__name__}"
 
 
 def detect_format(data: Any) -> str:
@@ -51,23 +141,27 @@ def detect_format(data: Any) -> str:
     for module in _DETECT_ORDER:
         if module.matches(data):
             return module.FORMAT
-    keys = ", ".join(map(str, list(data)[:8])) if isinstance(data, dict) else type(data).__name__
-    raise EstimateFormatError(f"Cannot detect the estimator format (top-level keys: {keys}); pass --format "
-                              f"({', '.join(FORMATS)}).")
+    raise EstimateFormatError(f"Cannot detect the estimator format ({_describe(data)}); known formats: "
+                              f"{', '.join(FORMATS)} (pass --format to choose one).")
 
 
 def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle: bool = False,
-                  frame: int | None = None) -> list[EstimatedPerson]:
-    """Read an estimator output file into people in the y-up world.
+                  frame: int = 0, max_people: int = MAX_PEOPLE, max_bytes: int = MAX_BYTES,
+                  space: Literal["camera", "world"] | None = None) -> list[EstimatedPerson]:
+    """Read the people of one frame of an estimator output file, placed on our body in the y-up world.
 
     Args:
-        path: the results file.
+        path: the results file (.npz, .json, .pk/.pkl/.joblib, .pt/.pth).
         format: one of :data:`FORMATS` or ``"auto"`` (detect from the content).
         trust_pickle: load pickles with plain joblib/pickle (runs code from the file).
-        frame: for video outputs (HybrIK, PHALP, WHAM, PyMAF-X), which frame; default the first.
+        frame: which video frame (default 0); single-image formats accept only 0. People are keyed
+            by the estimator's track id (``person_id``).
+        max_people: refuse more people than this in the frame.
+        max_bytes: refuse files whose (uncompressed) data is larger.
+        space: for WHAM and GVHMR, ``"camera"`` or ``"world"`` output (default: WHAM world, GVHMR camera).
 
     Raises:
-        EstimateFormatError: unknown format or a layout mismatch (naming the key).
+        EstimateFormatError: unknown format, a layout mismatch (naming the key), a limit exceeded.
         workflows.safe_pickle.UnsafePickleError: a pickle names a refused global.
     """
     path = Path(path)
@@ -75,16 +169,38 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
         raise EstimateFormatError(f"Estimator output not found: {path}")
     if format != "auto" and format not in _MODULES:
         raise EstimateFormatError(f"Unknown format {format!r}; expected auto or one of {', '.join(FORMATS)}.")
-    data = _load_raw(path, trust_pickle)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0:
+        raise EstimateFormatError(f"--frame must be a non-negative integer, got {frame!r}.")
+    if max_people < 1:
+        raise EstimateFormatError(f"--max-people must be >= 1, got {max_people}.")
+    data = _load_raw(path, trust_pickle, max_bytes)
+    return people_from_data(data, source=str(path), format=format, frame=frame, max_people=max_people, space=space,
+                            path=path)
+
+
+def people_from_data(data: Any, *, source: str, format: FormatName = "auto", frame: int = 0,
+                     max_people: int = MAX_PEOPLE, space: Literal["camera", "world"] | None = None,
+                     path: Path | None = None) -> list[EstimatedPerson]:
+    """:func:`read_estimate` on already loaded data (``path`` is needed for the AMASS reader only)."""
     name = detect_format(data) if format == "auto" else format
     module = _MODULES[name]
-    source = str(path)
-    if module is romp:
-        people = romp.from_data(data, source=source)
-    elif module is plain:
-        people = plain.from_data(data, source=source)
-    else:
-        people = module.from_data(data, source=source, frame=frame)
+    kwargs: dict[str, Any] = {"frame": int(frame), "max_people": max_people}
+    if space is not None and module in (wham, gvhmr):
+        kwargs["space"] = space
+    try:
+        if module is amass_params:
+            if path is None:
+                raise EstimateFormatError(f"{source}: the amass reader reads files only.")
+            people = amass_params.read(path, data, **kwargs)
+        else:
+            people = module.from_data(data, source=source, **kwargs)
+    except EstimateFormatError:
+        raise
+    except (TypeError, ValueError, IndexError, KeyError, AttributeError, OverflowError, RecursionError) as exc:
+        # A layout the reader's own checks did not anticipate: still one clear line, never a traceback.
+        message = " ".join(str(exc).split())[:200]
+        raise EstimateFormatError(f"{source}: does not have the {name} layout ({type(exc).__name__}: "
+                                  f"{message}).") from None
     if not people:
-        raise EstimateFormatError(f"{path}: no people found.")
+        raise EstimateFormatError(f"{source}: no people found.")
     return people

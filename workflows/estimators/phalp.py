@@ -1,13 +1,16 @@
 """4D-Humans / PHALP joblib ``.pkl`` tracking results.
 
-Layout (PHALP's ``results`` dict, checked against public readers of these files): one entry per
-frame, keyed by the frame's name, each a dict of per-detection lists:
+Written by PHALP (github.com/brjathu/PHALP, ``phalp/trackers/PHALP.py``, ``PHALP.track``:
+``joblib.dump(final_visuals_dic, pkl_path, compress=3)``), which 4D-Humans' ``track.py`` runs. One
+entry per frame, keyed by the frame's name, each a dict of per-detection lists; ``--frame N`` is the
+N-th frame name in sorted order and people are keyed by ``tid``:
 
 * ``smpl``: list of dicts with ``global_orient`` (1, 3, 3), ``body_pose`` (23, 3, 3) rotation
   matrices (OpenCV camera frame) and ``betas`` (10,).
 * ``camera``: list of (3,) camera translations of the full image, added to the SMPL output without
   ``transl`` (smplx ``transl``).
-* ``tid``: track ids; ``size``: list of ``[width, height]``; ``time``: frame number.
+* ``tid``: track ids; ``size``: list of the image size (two numbers; only their maximum is used);
+  ``time``: frame number.
 
 4D-Humans renders with a focal length of 5000 px for a 256 px crop, scaled to the image's larger
 side: ``focal = 5000 / 256 * max(width, height)``.
@@ -22,12 +25,17 @@ import numpy as np
 
 from smplik.conventions import NUM_JOINTS
 from workflows.estimators.base import (
+    MAX_PEOPLE,
     CameraInfo,
     EstimatedPerson,
     EstimateFormatError,
+    check_people_count,
+    finite,
+    image_size_from,
     make_people,
     require,
     rotations_to_axis_angle,
+    rows,
 )
 from workflows.safe_pickle import load_pickle
 
@@ -42,42 +50,63 @@ def matches(data: Any) -> bool:
     return isinstance(first, dict) and "smpl" in first and "camera" in first
 
 
-def from_data(data: dict[str, Any], *, source: str = "<phalp>",
-              frame: int | str | None = None) -> list[EstimatedPerson]:
+def from_data(data: dict[str, Any], *, source: str = "<phalp>", frame: int | str = 0,
+              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
     if not isinstance(data, dict) or not data:
         raise EstimateFormatError(f"{source}: expected a dict of frames.")
     names = sorted(data, key=str)
-    if frame is None:
-        key = next((n for n in names if isinstance(data[n], dict) and len(data[n].get("smpl", []))), names[0])
-    elif isinstance(frame, int) and frame not in data:
-        if not 0 <= frame < len(names):
-            raise EstimateFormatError(f"{source}: frame {frame} out of range (0..{len(names) - 1}).")
-        key = names[frame]
-    else:
+    if isinstance(frame, str):
         if frame not in data:
             raise EstimateFormatError(f"{source}: no frame {frame!r} (first frames: {', '.join(map(str, names[:5]))}).")
         key = frame
+    else:
+        if not 0 <= frame < len(names):
+            raise EstimateFormatError(f"{source}: frame {frame} out of range (0..{len(names) - 1}).")
+        key = names[frame]
     entry = data[key]
     where = f"{source}[{key!r}]"
-    smpl = list(require(entry, "smpl", where))
-    cams = list(require(entry, "camera", where))
+    smpl, cams = require(entry, "smpl", where), require(entry, "camera", where)
+    if not isinstance(smpl, (list, tuple)) or not isinstance(cams, (list, tuple, np.ndarray)):
+        raise EstimateFormatError(f"{where}: 'smpl' and 'camera' must be lists (one entry per person).")
     if len(smpl) != len(cams):
         raise EstimateFormatError(f"{where}: {len(smpl)} 'smpl' entries but {len(cams)} 'camera' entries.")
+    if not smpl:
+        raise EstimateFormatError(f"{where}: no people in this frame (choose another --frame).")
+    check_people_count(len(smpl), max_people, where)
     R = np.zeros((len(smpl), NUM_JOINTS, 3, 3))
     betas = np.zeros((len(smpl), 10))
     for i, s in enumerate(smpl):
-        R[i, 0] = np.asarray(require(s, "global_orient", f"{where}.smpl[{i}]"), dtype=np.float64).reshape(3, 3)
-        R[i, 1:] = np.asarray(require(s, "body_pose", f"{where}.smpl[{i}]"), dtype=np.float64).reshape(23, 3, 3)
-        betas[i] = np.asarray(require(s, "betas", f"{where}.smpl[{i}]"), dtype=np.float64).reshape(-1)[:10]
-    camera = np.asarray(cams, dtype=np.float64).reshape(-1, 3)
+        at = f"{where}.smpl[{i}]"
+        R[i, 0] = _matrices(require(s, "global_orient", at), 1, "global_orient", at)[0]
+        R[i, 1:] = _matrices(require(s, "body_pose", at), 23, "body_pose", at)
+        b = finite(require(s, "betas", at), "betas", at).reshape(-1)
+        if b.size < 10:
+            raise EstimateFormatError(f"{at}: 'betas' has {b.size} values; expected 10.")
+        betas[i] = b[:10]
+    camera = rows(cams, "camera", 3, where, len(smpl))
     sizes = entry.get("size")
-    size = (int(sizes[0][0]), int(sizes[0][1])) if sizes is not None and len(sizes) else None
+    size = None
+    if sizes is not None and len(sizes):
+        first = finite(sizes[0], "size", where).reshape(-1)
+        if first.size != 2:
+            raise EstimateFormatError(f"{where}: 'size' entries must be two numbers.")
+        size = image_size_from(first[0], first[1], where)
     focal = FOCAL_PER_PIXEL * max(size) if size else None
-    tids = [str(t) for t in entry.get("tid", range(len(smpl)))]
+    tid = entry.get("tid", list(range(len(smpl))))
+    tids = [str(t) for t in (tid.tolist() if isinstance(tid, np.ndarray) else list(tid))]
+    if len(tids) != len(smpl):
+        raise EstimateFormatError(f"{where}: {len(tids)} 'tid' entries for {len(smpl)} people.")
     return make_people(rotations_to_axis_angle(R), camera, betas, frame_of_reference="camera",
                        translation_kind="transl", camera=CameraInfo(focal, size), person_ids=tids,
-                       frames=[str(key)] * len(smpl), source=f"{source} (phalp)")
+                       frames=[str(key)] * len(smpl), source=f"{source} (phalp)", max_people=max_people)
 
 
-def read(path: str | Path, *, frame: int | str | None = None, trust_pickle: bool = False) -> list[EstimatedPerson]:
+def _matrices(value: Any, count: int, name: str, source: str) -> np.ndarray:
+    arr = finite(value, name, source)
+    if arr.size != count * 9:
+        raise EstimateFormatError(f"{source}: '{name}' has shape {arr.shape}; expected ({count}, 3, 3).")
+    return arr.reshape(count, 3, 3)
+
+
+def read(path: str | Path, *, frame: int | str = 0, trust_pickle: bool = False) -> list[EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame)

@@ -1,10 +1,14 @@
 """PyMAF-X joblib ``.pkl`` results (demo output), flat or per person.
 
+Written by PyMAF-X's demo (github.com/HongwenZhang/PyMAF-X, ``apps/demo_smplx.py``: the per-frame
+``pred_results`` collected into ``joblib.dump(..., 'output.pkl')``, VIBE's layout);
+``orig_cam_t`` is the full-image translation of the SMPL output without ``transl`` (smplx's
+``transl``). ``--frame N`` keeps the rows whose ``frame_ids`` equal N.
+
 * Flat: ``pose`` (N, 72) axis-angle (OpenCV camera frame), ``betas`` (N, 10), ``orig_cam_t`` (N, 3)
   camera translation of the full image (smplx ``transl``); optional ``frame_ids`` and ``person_ids`` (N,).
 * Per person (VIBE-style): ``{person_id: {the same keys over that person's frames}}``.
 
-``frame`` picks the rows of one video frame (default: the first frame present).
 """
 
 from __future__ import annotations
@@ -14,7 +18,18 @@ from typing import Any
 
 import numpy as np
 
-from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError, make_people, require
+from workflows.estimators.base import (
+    MAX_PEOPLE,
+    CameraInfo,
+    EstimatedPerson,
+    EstimateFormatError,
+    check_people_count,
+    finite,
+    frame_numbers,
+    make_people,
+    require,
+    rows,
+)
 from workflows.safe_pickle import load_pickle
 
 FORMAT = "pymafx"
@@ -30,35 +45,45 @@ def matches(data: Any) -> bool:
     return isinstance(data, dict) and bool(data) and all(_is_flat(v) for v in data.values())
 
 
-def from_data(data: dict[Any, Any], *, source: str = "<pymafx>", frame: int | None = None) -> list[EstimatedPerson]:
+def from_data(data: dict[Any, Any], *, source: str = "<pymafx>", frame: int = 0,
+              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
     parts = [(None, data)] if _is_flat(data) else list(data.items()) if matches(data) else None
     if parts is None:
         raise EstimateFormatError(f"{source}: expected keys 'pose', 'betas', 'orig_cam_t' (flat or per person).")
-    rows_pose, rows_t, rows_b, ids, frames = [], [], [], [], []
+    check_people_count(len(parts), max_people, source)
+    pose_rows, t_rows, b_rows, ids = [], [], [], []
     for pid, d in parts:
-        pose = np.asarray(require(d, "pose", source), dtype=np.float64).reshape(-1, 72)
+        where = source if pid is None else f"{source}[{pid!r}]"
+        pose = rows(require(d, "pose", where), "pose", 72, where)
         N = pose.shape[0]
-        t = np.asarray(require(d, "orig_cam_t", source), dtype=np.float64).reshape(N, 3)
-        b = np.asarray(require(d, "betas", source), dtype=np.float64).reshape(N, -1)
-        f = np.asarray(d.get("frame_ids", np.zeros(N)), dtype=np.int64).reshape(N)
-        p = np.asarray(d["person_ids"]).reshape(N) if "person_ids" in d else np.full(N, pid if pid is not None else -1)
-        for i in range(N):
-            rows_pose.append(pose[i])
-            rows_t.append(t[i])
-            rows_b.append(b[i])
-            ids.append(str(p[i]) if pid is not None or "person_ids" in d else str(i))
-            frames.append(int(f[i]))
-    if not rows_pose:
-        raise EstimateFormatError(f"{source}: no people.")
-    frame = min(frames) if frame is None else frame
-    keep = [i for i, f in enumerate(frames) if f == frame]
-    if not keep:
-        raise EstimateFormatError(f"{source}: no person in frame {frame} (frames {min(frames)}..{max(frames)}).")
-    return make_people(np.stack([rows_pose[i] for i in keep]), np.stack([rows_t[i] for i in keep]),
-                       np.stack([rows_b[i] for i in keep]), frame_of_reference="camera", translation_kind="transl",
-                       camera=CameraInfo(), person_ids=[ids[i] for i in keep], frames=[str(frame)] * len(keep),
-                       source=f"{source} (pymafx)")
+        t = rows(require(d, "orig_cam_t", where), "orig_cam_t", 3, where, N)
+        b = finite(require(d, "betas", where), "betas", where)
+        b = np.broadcast_to(b.reshape(1, -1), (N, b.size)) if b.ndim == 1 else rows(b, "betas", b.shape[-1], where, N)
+        f = frame_numbers(d.get("frame_ids", np.zeros(N)), "frame_ids", where)
+        if f.shape[0] != N:
+            raise EstimateFormatError(f"{where}: 'frame_ids' has {f.shape[0]} entries for {N} poses.")
+        if "person_ids" in d:
+            p = np.asarray(d["person_ids"]).reshape(-1)
+            if p.shape[0] != N:
+                raise EstimateFormatError(f"{where}: 'person_ids' has {p.shape[0]} entries for {N} poses.")
+            pid_of = [str(x) for x in p.tolist()]
+        else:
+            pid_of = [str(pid) if pid is not None else str(i) for i in range(N)]
+        keep = np.nonzero(f == frame)[0]
+        pose_rows += [pose[keep]]
+        t_rows += [t[keep]]
+        b_rows += [np.asarray(b)[keep]]
+        ids += [pid_of[i] for i in keep]
+    if not ids:
+        raise EstimateFormatError(f"{source}: no person in frame {frame}.")
+    widths = {b.shape[1] for b in b_rows if b.size}
+    if len(widths) > 1:
+        raise EstimateFormatError(f"{source}: 'betas' widths differ between people ({sorted(widths)}).")
+    return make_people(np.concatenate(pose_rows), np.concatenate(t_rows), np.concatenate([b for b in b_rows if b.size]),
+                       frame_of_reference="camera", translation_kind="transl", camera=CameraInfo(),
+                       person_ids=ids, frames=[str(frame)] * len(ids), source=f"{source} (pymafx)",
+                       max_people=max_people)
 
 
-def read(path: str | Path, *, frame: int | None = None, trust_pickle: bool = False) -> list[EstimatedPerson]:
+def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False) -> list[EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame)

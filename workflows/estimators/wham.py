@@ -1,12 +1,19 @@
 """WHAM joblib ``.pkl`` results: one entry per tracked person (``{track_id: {...}}``), each over T frames.
 
-* ``pose`` (T, 72), ``trans`` (T, 3): camera-frame SMPL (OpenCV axes; ``trans`` is smplx's ``transl``).
-* ``pose_world`` (T, 72), ``trans_world`` (T, 3): WHAM's gravity-aligned y-up world; used as is
-  (no camera conversion) when ``space="world"`` and present.
-* ``betas`` (T, 10) or (10,); optional ``frame_ids`` (T,) video frame of each row.
+Written by WHAM (github.com/yohanshin/WHAM, ``demo.py``, ``run``: ``results[_id]['pose'] = ...``,
+``joblib.dump(results, osp.join(output_pth, "wham_output.pkl"))``):
 
-A person is taken at video frame ``frame`` (default: the first frame any track covers); tracks that
-do not cover that frame are skipped.
+* ``pose`` (T, 72) camera-frame SMPL (root from ``poses_root_cam``, OpenCV axes), ``trans`` (T, 3)
+  ``= trans_cam - network.output.offset``: the pelvis minus the rest-pelvis offset, i.e. smplx's
+  ``transl``.
+* ``pose_world`` (T, 72), ``trans_world`` (T, 3): WHAM's gravity-aligned y-up world (replayed as
+  smplx ``transl`` by ``lib/vis/run_vis.py``); used (no camera) with ``space="world"``.
+* ``betas`` (T, 10); ``verts``; ``frame_ids`` (T,) video frame of each row.
+
+``--frame N`` is video frame ``N``: every track that covers it gives one person keyed by its track
+id; tracks that do not cover it are skipped. Camera: WHAM's default intrinsics without a
+calibration file, focal = the image diagonal in pixels, principal point the image centre
+(``lib/utils/imutils.py``).
 """
 
 from __future__ import annotations
@@ -16,7 +23,18 @@ from typing import Any, Literal
 
 import numpy as np
 
-from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError, make_people, require
+from workflows.estimators.base import (
+    MAX_PEOPLE,
+    CameraInfo,
+    EstimatedPerson,
+    EstimateFormatError,
+    check_people_count,
+    finite,
+    frame_numbers,
+    make_people,
+    require,
+    rows,
+)
 from workflows.safe_pickle import load_pickle
 
 FORMAT = "wham"
@@ -29,37 +47,41 @@ def matches(data: Any) -> bool:
     return isinstance(first, dict) and "pose" in first and ("trans" in first or "trans_world" in first)
 
 
-def from_data(data: dict[Any, Any], *, source: str = "<wham>", frame: int | None = None,
-              space: Literal["world", "camera"] = "world") -> list[EstimatedPerson]:
+def from_data(data: dict[Any, Any], *, source: str = "<wham>", frame: int = 0,
+              space: Literal["world", "camera"] = "world", max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
     if not matches(data):
         raise EstimateFormatError(f"{source}: expected {{track_id: {{'pose', 'trans', 'betas', ...}}}}.")
-    tracks = []
+    check_people_count(len(data), max_people, source)
+    people: list[EstimatedPerson] = []
+    covered: list[int] = []
     for tid, t in data.items():
-        T = np.asarray(require(t, "pose", f"{source}[{tid!r}]")).reshape(-1, 72).shape[0]
-        ids = np.asarray(t.get("frame_ids", np.arange(T))).reshape(-1).astype(np.int64)
-        tracks.append((tid, t, ids))
-    if frame is None:
-        frame = int(min(ids.min() for _, _, ids in tracks if ids.size))
-    people = []
-    for tid, t, ids in tracks:
-        rows = np.nonzero(ids == frame)[0]
-        if rows.size == 0:
-            continue
-        r = int(rows[0])
         where = f"{source}[{tid!r}]"
+        if not isinstance(t, dict):
+            raise EstimateFormatError(f"{where}: expected a dict of arrays.")
         world = space == "world" and "pose_world" in t and "trans_world" in t
-        pose = np.asarray(require(t, "pose_world" if world else "pose", where), dtype=np.float64).reshape(-1, 72)[r]
-        trans = np.asarray(require(t, "trans_world" if world else "trans", where), dtype=np.float64).reshape(-1, 3)[r]
-        betas = np.asarray(require(t, "betas", where), dtype=np.float64)
-        betas = betas.reshape(-1, betas.shape[-1])[min(r, betas.reshape(-1, betas.shape[-1]).shape[0] - 1)]
-        people += make_people(pose[None], trans[None], betas[None], frame_of_reference="world" if world else "camera",
-                              translation_kind="transl", camera=CameraInfo(), person_ids=[str(tid)],
+        pose = rows(require(t, "pose_world" if world else "pose", where), "pose", 72, where)
+        T = pose.shape[0]
+        trans = rows(require(t, "trans_world" if world else "trans", where), "trans", 3, where, T)
+        betas = finite(require(t, "betas", where), "betas", where)
+        betas = betas.reshape(1, -1) if betas.ndim == 1 else betas.reshape(betas.shape[0], -1)
+        ids = frame_numbers(t.get("frame_ids", np.arange(T)), "frame_ids", where)
+        if ids.shape[0] != T:
+            raise EstimateFormatError(f"{where}: 'frame_ids' has {ids.shape[0]} entries for {T} poses.")
+        covered += [int(ids.min()), int(ids.max())] if T else []
+        hit = np.nonzero(ids == frame)[0]
+        if hit.size == 0:
+            continue
+        r = int(hit[0])
+        people += make_people(pose[r:r + 1], trans[r:r + 1], betas[min(r, betas.shape[0] - 1)][None],
+                              frame_of_reference="world" if world else "camera", translation_kind="transl",
+                              camera=CameraInfo(focal_rule="diagonal"), person_ids=[str(tid)],
                               frames=[str(frame)], source=f"{source} (wham)")
     if not people:
-        raise EstimateFormatError(f"{source}: no track covers frame {frame}.")
+        span = f" (tracks cover frames {min(covered)}..{max(covered)})" if covered else ""
+        raise EstimateFormatError(f"{source}: no track covers frame {frame}{span}.")
     return people
 
 
-def read(path: str | Path, *, frame: int | None = None, trust_pickle: bool = False,
+def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False,
          space: Literal["world", "camera"] = "world") -> list[EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame, space=space)

@@ -1,0 +1,250 @@
+"""Estimator output files in each producer's exact layout, and the producers' own projection formulas.
+
+No tests here: ``test_workflows_estimators.py``, ``test_workflows_estimator_fuzz.py`` and
+``benchmarks/estimator_placement.py`` use it. Every writer takes people in the producer's camera
+convention (OpenCV axes; SMPL axis-angle ``aa (N, 24, 3)``; smplx ``transl (N, 3)`` relative to the
+producer's SMPL rest pelvis; ``betas (N, 10)``) and writes the file the way the producer does (the
+producer's code is named in each reader's docstring). :func:`producer_pixels` computes where the
+producer itself draws the pelvis and head, from the published SMPL rest joints and the producer's
+camera, without smplik's conversion code.
+"""
+
+from __future__ import annotations
+
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+
+import joblib
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from workflows.estimators.base import SMPL_NEUTRAL_REST_JOINTS, SMPLX_NEUTRAL_REST_PELVIS
+
+PARENTS_22 = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19)
+PELVIS, HEAD = 0, 15
+IMAGE_W, IMAGE_H = 640, 480
+
+
+@dataclass(frozen=True)
+class Written:
+    """A written fixture: the file, the producer's camera (OpenCV pinhole) and the family of its body."""
+
+    path: Path
+    f: float
+    cx: float
+    cy: float
+    family: str = "smpl"
+    fmt: str = ""
+
+
+FOCAL = {"romp": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)), "bev": max(IMAGE_W, IMAGE_H) / 2 / np.tan(
+    np.radians(30.0)), "hybrik": 1000.0 / 256.0 * 250.0, "phalp": 5000.0 / 256.0 * max(IMAGE_W, IMAGE_H),
+    "wham": float(np.hypot(IMAGE_W, IMAGE_H)), "pymafx": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)),
+    "gvhmr": 700.0, "plain": 800.0}
+"""Each fixture's focal length (pixels), to frame the people the same way in every format."""
+
+
+def depth_for(fmt: str, height_px: float = 240.0) -> float:
+    """The depth at which a 1.7 m person is ``height_px`` pixels tall in ``fmt``'s fixture camera."""
+    return FOCAL[fmt] * 1.7 / height_px
+
+
+def people(seed: int = 0, n: int = 2, depth: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n people in a producer's camera frame: aa (n, 24, 3) (upright, facing the camera), transl, betas 0.
+
+    ``depth`` (metres) sets the framing; lateral offsets scale with it so the people stay in view.
+    """
+    rng = np.random.default_rng(seed)
+    aa = rng.normal(0, 0.2, (n, 24, 3))
+    upright = Rotation.from_euler("x", np.pi)  # SMPL's y-up body in OpenCV's y-down camera frame
+    for i in range(n):
+        aa[i, 0] = (upright * Rotation.from_rotvec(rng.normal(0, 0.25, 3))).as_rotvec()
+    x = (np.linspace(-0.2, 0.2, n) if n > 1 else np.zeros(1)) * depth
+    transl = np.stack([x, rng.uniform(-0.02, 0.05, n) * depth, depth * (1 + rng.uniform(0, 0.2, n))], 1)
+    return aa, transl, np.zeros((n, 10))
+
+
+def producer_joints(aa: np.ndarray, transl: np.ndarray, family: str = "smpl") -> np.ndarray:
+    """The producer's posed joints (N, 22, 3) camera frame: FK on SMPL's published rest joints + transl.
+
+    For SMPL-X producers only the pelvis is known (``SMPLX_NEUTRAL_REST_PELVIS``); the other rows are
+    SMPL's skeleton hung from that pelvis (use the pelvis row only).
+    """
+    J = SMPL_NEUTRAL_REST_JOINTS.copy()
+    if family == "smplx":
+        J = J - J[0] + SMPLX_NEUTRAL_REST_PELVIS
+    out = np.zeros((aa.shape[0], 22, 3))
+    for n in range(aa.shape[0]):
+        R = [None] * 22
+        for j in range(22):
+            local = Rotation.from_rotvec(aa[n, j]).as_matrix()
+            p = PARENTS_22[j]
+            if p < 0:
+                R[j], out[n, j] = local, J[j]
+            else:
+                R[j] = R[p] @ local
+                out[n, j] = out[n, p] + R[p] @ (J[j] - J[p])
+        out[n] += transl[n]
+    return out
+
+
+def project(points: np.ndarray, f: float, cx: float, cy: float) -> np.ndarray:
+    """OpenCV pinhole: (..., 3) camera points -> (..., 2) pixels."""
+    return np.stack([f * points[..., 0] / points[..., 2] + cx, f * points[..., 1] / points[..., 2] + cy], -1)
+
+
+def producer_pixels(w: Written, aa: np.ndarray, transl: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) pixels of the pelvis and head as the producer draws them."""
+    J = producer_joints(aa, transl, w.family)
+    return project(J[:, [PELVIS, HEAD]], w.f, w.cx, w.cy)
+
+
+def _R(aa: np.ndarray) -> np.ndarray:
+    return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(aa.shape[:-1] + (3, 3))
+
+
+def _pelvis(aa: np.ndarray, transl: np.ndarray) -> np.ndarray:
+    return producer_joints(aa, transl)[:, 0]
+
+
+def write_romp(folder: Path, aa, transl, betas, *, bev: bool = False, video: bool = False) -> Written:
+    """simple_romp ``save_results``: ``np.savez(path, results=outputs)``, float32 arrays (N, ...)."""
+    n = aa.shape[0]
+    b = np.concatenate([betas, np.full((n, 1), 0.3)], 1) if bev else betas
+    res = {"smpl_thetas": aa.reshape(n, 72).astype(np.float32), "smpl_betas": b.astype(np.float32),
+           "cam_trans": transl.astype(np.float32), "cam": np.zeros((n, 3), np.float32),
+           "center_confs": np.ones(n, np.float32)}
+    if video:  # save_video_results: {frame_name: outputs}, one track id per person
+        res = {"00000000.jpg": {**res, "track_ids": np.arange(n) + 5},
+               "00000001.jpg": {**res, "track_ids": np.arange(n) + 5}}
+    path = folder / ("video_results.npz" if video else "romp.npz")
+    np.savez(path, results=res)
+    f = max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0))
+    return Written(path, f, IMAGE_W / 2, IMAGE_H / 2, fmt="bev" if bev else "romp")
+
+
+def write_hybrik(folder: Path, aa, transl, betas, *, quaternions: bool = False) -> Written:
+    """HybrIK ``demo_video.py``: ``res_db`` lists ``np.stack``-ed and ``pk.dump``-ed; one person per frame."""
+    T = aa.shape[0]
+    R = _R(aa)
+    if quaternions:
+        q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]]  # scalar first
+        thetas = q.reshape(T, 96)
+    else:
+        thetas = R.reshape(T, 216)
+    bbox_w = 250.0
+    bbox = np.tile(np.array([100.0, 50.0, 100.0 + bbox_w, 50.0 + 1.2 * bbox_w]), (T, 1))
+    res_db = {"pred_thetas": thetas.astype(np.float32), "pred_betas": betas.astype(np.float32),
+              "transl": _pelvis(aa, transl).astype(np.float32),  # the camera-frame pelvis
+              "transl_camsys": _pelvis(aa, transl).astype(np.float32) * 256 / bbox_w,
+              "pred_phi": np.zeros((T, 23, 2), np.float32), "bbox": bbox.astype(np.float32),
+              "height": np.full(T, IMAGE_H), "width": np.full(T, IMAGE_W),
+              "img_path": np.array([f"raw_images/v-{i:06d}.png" for i in range(T)])}
+    path = folder / "res.pk"
+    with open(path, "wb") as fid:
+        pickle.dump(res_db, fid)
+    return Written(path, 1000.0 / 256.0 * bbox_w, IMAGE_W / 2, IMAGE_H / 2, fmt="hybrik")
+
+
+def write_phalp(folder: Path, aa, transl, betas) -> Written:
+    """PHALP ``joblib.dump(final_visuals_dic, path, compress=3)``: per-frame lists of detections."""
+    n = aa.shape[0]
+    R = _R(aa).astype(np.float32)
+    frame = {"time": 0, "shot": 0, "frame_path": "img/000001.jpg", "tid": list(range(3, 3 + n)),
+             "tracked_ids": list(range(3, 3 + n)), "bbox": [np.zeros(4)] * n,
+             "smpl": [{"global_orient": R[i, :1], "body_pose": R[i, 1:], "betas": betas[i].astype(np.float32)}
+                      for i in range(n)],
+             "camera": [transl[i].astype(np.float32) for i in range(n)], "size": [[IMAGE_H, IMAGE_W]] * n,
+             "conf": [1.0] * n}
+    empty = {**frame, "time": 1, "tid": [], "tracked_ids": [], "bbox": [], "smpl": [], "camera": [], "size": [],
+             "conf": []}
+    path = folder / "demo_video.pkl"
+    joblib.dump({"img/000001.jpg": frame, "img/000002.jpg": empty}, path, compress=3)
+    return Written(path, 5000.0 / 256.0 * max(IMAGE_W, IMAGE_H), IMAGE_W / 2, IMAGE_H / 2, fmt="phalp")
+
+
+def write_wham(folder: Path, aa, transl, betas, *, frames: int = 3) -> Written:
+    """WHAM ``demo.py``: ``joblib.dump(results, 'wham_output.pkl')``, ``results[track_id] = {...}`` (T, ...)."""
+    out = {}
+    for i in range(aa.shape[0]):
+        T = frames
+        out[i] = {"pose": np.repeat(aa[i].reshape(1, 72), T, 0).astype(np.float32),
+                  "trans": np.repeat(transl[i][None], T, 0).astype(np.float32),
+                  "pose_world": np.repeat(aa[i].reshape(1, 72), T, 0).astype(np.float32),
+                  "trans_world": np.repeat(transl[i][None], T, 0).astype(np.float32),
+                  "betas": np.repeat(betas[i][None], T, 0).astype(np.float32),
+                  "verts": np.zeros((T, 4, 3), np.float32), "frame_ids": np.arange(T)}
+    path = folder / "wham_output.pkl"
+    joblib.dump(out, path)
+    return Written(path, float(np.hypot(IMAGE_W, IMAGE_H)), IMAGE_W / 2, IMAGE_H / 2, fmt="wham")
+
+
+def write_pymafx(folder: Path, aa, transl, betas) -> Written:
+    """PyMAF-X demo: flat ``pose (N, 72)``, ``betas``, ``orig_cam_t`` with ``frame_ids``/``person_ids``."""
+    n = aa.shape[0]
+    data = {"pose": aa.reshape(n, 72).astype(np.float32), "betas": betas.astype(np.float32),
+            "orig_cam_t": transl.astype(np.float32), "frame_ids": np.zeros(n, np.int64),
+            "person_ids": np.arange(n) + 1, "orig_cam": np.zeros((n, 4), np.float32)}
+    path = folder / "output.pkl"
+    joblib.dump(data, path)
+    f = max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0))  # not stored: smplik's 60-degree assumption
+    return Written(path, f, IMAGE_W / 2, IMAGE_H / 2, fmt="pymafx")
+
+
+def write_gvhmr(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
+    """GVHMR ``tools/demo/demo.py``: ``torch.save(pred, 'hmr4d_results.pt')`` of tensors (one person, L frames)."""
+    f, cx, cy = FOCAL["gvhmr"], IMAGE_W / 2 + 7.0, IMAGE_H / 2 - 5.0
+    K = torch.tensor([[f, 0, cx], [0, f, cy], [0, 0, 1.0]]).expand(frames, 3, 3).clone()
+
+    def params(a: np.ndarray, t: np.ndarray) -> dict:
+        return {"body_pose": torch.tensor(a[1:22].reshape(1, 63), dtype=torch.float32).expand(frames, 63).clone(),
+                "global_orient": torch.tensor(a[0][None], dtype=torch.float32).expand(frames, 3).clone(),
+                "transl": torch.tensor(t[None], dtype=torch.float32).expand(frames, 3).clone(),
+                "betas": torch.tensor(betas[0][None], dtype=torch.float32).expand(frames, 10).clone()}
+
+    pred = {"smpl_params_global": params(aa[0], transl[0]), "smpl_params_incam": params(aa[0], transl[0]),
+            "K_fullimg": K, "net_outputs": {"pred_cam": torch.zeros(frames, 3)}}
+    path = folder / "hmr4d_results.pt"
+    torch.save(pred, path)
+    return Written(path, f, cx, cy, family="smplx", fmt="gvhmr")
+
+
+def write_plain(folder: Path, aa, transl, betas) -> Written:
+    """A plain ``.npz`` of smplx keys in the camera frame with intrinsics ``K``."""
+    f, cx, cy = FOCAL["plain"], IMAGE_W / 2 - 10.0, IMAGE_H / 2 + 4.0
+    path = folder / "smpl.npz"
+    np.savez(path, global_orient=aa[:, 0], body_pose=aa[:, 1:], transl=transl, betas=betas, frame="camera",
+             K=np.array([[f, 0, cx], [0, f, cy], [0, 0, 1]]), image_size=np.array([IMAGE_W, IMAGE_H]))
+    return Written(path, f, cx, cy, fmt="plain")
+
+
+CAMERA_WRITERS = {"romp": write_romp, "bev": lambda *a: write_romp(*a, bev=True), "hybrik": write_hybrik,
+                  "phalp": write_phalp, "wham": write_wham, "pymafx": write_pymafx, "gvhmr": write_gvhmr,
+                  "plain": write_plain}
+"""Every camera-frame format's writer (HybrIK and GVHMR hold one person: pass n=1 people)."""
+SINGLE_PERSON = {"hybrik", "gvhmr"}
+
+
+def write_aist(folder: Path, aa, transl) -> Path:
+    """AIST++ ``motions/<seq>.pkl``: plain pickle of ``smpl_poses (T, 72)``, ``smpl_trans``, ``smpl_scaling``."""
+    scaling = 93.0
+    data = {"smpl_loss": 0.01, "smpl_poses": aa.reshape(-1, 72), "smpl_scaling": np.array([scaling]),
+            "smpl_trans": transl * scaling}
+    path = folder / "gBR_sBM_cAll_d04_mBR0_ch01.pkl"
+    with open(path, "wb") as fh:
+        pickle.dump(data, fh)
+    return path
+
+
+def write_amass(folder: Path, aa, transl, *, smplx: bool = False) -> Path:
+    """AMASS release ``.npz`` (SMPL-H: poses (T, 156), SMPL-X: (T, 165)), z-up world."""
+    T = aa.shape[0]
+    width = 165 if smplx else 156
+    poses = np.zeros((T, width))
+    poses[:, :66] = aa[:, :22].reshape(T, 66)
+    path = folder / ("smplx_neutral_stageii.npz" if smplx else "poses.npz")
+    extra = {"surface_model_type": "smplx", "mocap_frame_rate": 120.0} if smplx else {"mocap_framerate": 120.0}
+    np.savez(path, poses=poses, trans=transl, betas=np.zeros(16), gender="neutral", **extra)
+    return path
