@@ -39,6 +39,7 @@ from smplik.conventions import EffectorType, Gender
 from smplik.effectors import Effector, EffectorBatch, EffectorError, pack_effectors, parse_effector_dict
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput, ProtoResIK
+from smplik.onnx_runtime import OnnxNetwork, Runtime, select_network
 from smplik.pose import Pose
 from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, refine_output
 from smplik.rotations import axis_angle_to_matrix
@@ -165,20 +166,28 @@ class IKSolver:
     meta: dict[str, Any]
     source: str
     refine: RefineConfig = DEFAULT_REFINEMENT
+    network: OnnxNetwork | None = None
+    """The network backend of :meth:`solve_tensors`: an onnxruntime session (:mod:`smplik.onnx_runtime`), or
+    None for ``model`` (torch, the reference)."""
 
     @classmethod
     def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None,
-             refine: RefineConfig = DEFAULT_REFINEMENT) -> IKSolver:
+             refine: RefineConfig = DEFAULT_REFINEMENT, runtime: Runtime = "torch",
+             onnx_file: str | Path | None = None, onnx_threads: int = 1) -> IKSolver:
         """Load a model file (default: the packaged ``smplik/checkpoints/smplik_cmu.pt``).
 
         Args:
             path: an exported model (``smplik export-model``) or a training checkpoint.
             model_dir: folder with real SMPL files (default ``$SMPLIK_MODEL_DIR``, else built-in).
             refine: refinement after the network (default: 3 Levenberg-Marquardt steps; ``iterations=0``: none).
+            runtime: network backend, ``"torch"`` (default), ``"onnx"`` (onnxruntime) or ``"auto"`` (onnxruntime
+                when installed and a matching ``onnx_file``/``PATH.onnx`` exists); see
+                :func:`smplik.onnx_runtime.select_network`. ``onnx_threads``: onnxruntime threads.
 
         Raises:
             FileNotFoundError: no such file (or no packaged model in this installation).
-            ValueError: the file is not an smplik model.
+            ValueError: the file is not an smplik model (or, with ``runtime``, an unusable ONNX file).
+            OnnxUnavailableError: ``runtime="onnx"`` without onnxruntime installed.
         """
         from smplik.train import load_model
 
@@ -203,7 +212,9 @@ class IKSolver:
         model.J_template.copy_(bodies.J_template)
         model.J_dirs.copy_(bodies.J_dirs)
         model.requires_grad_(False)
-        return cls(model, bodies, meta, str(path), refine)
+        network = select_network(runtime, model, path, onnx_file, threads=onnx_threads,
+                                 meta={"source": str(path), "body_fingerprint": bodies.fingerprint})
+        return cls(model, bodies, meta, str(path), refine, network)
 
     # ------------------------------------------------------------------------- fast path
 
@@ -216,7 +227,7 @@ class IKSolver:
         """
         cfg = self.refine if refine is None else refine
         with torch.inference_mode():
-            out = self.model(eff, betas, gender)
+            out = (self.model if self.network is None else self.network)(eff, betas, gender)
             if cfg.iterations > 0:
                 out = refine_output(out, self.model.rest_joints(betas, gender), eff, cfg)
             return out

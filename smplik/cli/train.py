@@ -59,12 +59,33 @@ def train_command(
 
 @app.command("export-model")
 def export_command(
-    checkpoint: Annotated[Path, typer.Argument(help="Training checkpoint (RUN_DIR/checkpoint.pt).")],
-    out: Annotated[Path, typer.Option("--out", help="Compact model file for `smplik solve --checkpoint`.")],
+    checkpoint: Annotated[Path, typer.Argument(help="Training checkpoint (RUN_DIR/checkpoint.pt); with only "
+                                               "--onnx also an exported model file.")],
+    out: Annotated[Path | None, typer.Option(
+        "--out", help="Compact model file for `smplik solve --checkpoint`.")] = None,
     full_precision: bool = False,
+    onnx: Annotated[Path | None, typer.Option("--onnx", help="Also (or only) write the network + FK as ONNX "
+                                              "(opset 15, dynamic batch and effector count; needs smplik[fast]). "
+                                              "With --out it is exported from that file's weights.")] = None,
 ) -> None:
-    """Write a compact inference model (fp16 weights by default) from a training checkpoint."""
+    """Write a compact inference model (fp16 weights by default) from a training checkpoint, and/or its ONNX graph."""
     from smplik.train import export_model
 
-    export_model(checkpoint, out, half=not full_precision)
-    typer.echo(f"wrote {out}")
+    if out is None and onnx is None:
+        typer.echo("error: nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.", err=True)
+        raise typer.Exit(2)
+    if out is not None:
+        export_model(checkpoint, out, half=not full_precision)
+        typer.echo(f"wrote {out}")
+    if onnx is not None:
+        from smplik.onnx_runtime import OnnxUnavailableError, export_onnx
+        from smplik.solver import IKSolver
+
+        try:
+            solver = IKSolver.load(out or checkpoint)
+            export_onnx(solver.model, onnx, meta={"source": solver.source, "step": solver.meta.get("step"),
+                                                  "body_fingerprint": solver.bodies.fingerprint})
+        except (FileNotFoundError, ValueError, OnnxUnavailableError) as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(1) from None
+        typer.echo(f"wrote {onnx}")

@@ -1,0 +1,255 @@
+"""The network (encoder, both decoders and the FK with J(beta, gender)) as ONNX, run by onnxruntime.
+
+>>> export_onnx(solver.model, "smplik_cmu.onnx", meta={"source": solver.source})   # or `smplik export-model --onnx`
+>>> net = OnnxNetwork("smplik_cmu.onnx", threads=1)
+>>> out = net(eff, betas, gender)            # same call and IKOutput as ProtoResIK.forward
+>>> solver = IKSolver.load(runtime="onnx")   # the solver's refinement then runs unchanged
+
+Exporter: torch's TorchScript-based exporter (``torch.onnx.export(..., dynamo=False)``), pinned. With
+torch 2.13 both exporters produce a graph that agrees with torch within 2e-6 and runs equally fast;
+the TorchScript one needs no ``onnxscript``, exports in ~4 s instead of ~18 s, and works on every
+torch the project supports (2.1+). Opset :data:`ONNX_OPSET` = 15, the highest that Unity Sentis
+documents support for (onnxruntime, onnxruntime-web and Unreal NNE read it too).
+
+Graph inputs, exactly the tensors :func:`smplik.solver.pack_rows` packs (:class:`~smplik.effectors.EffectorBatch`)
+plus the body; ``B`` (``batch``) and ``N`` (``effectors``) are dynamic axes:
+
+==========  =========  =======  ==============================================================
+name        shape      dtype    meaning
+==========  =========  =======  ==============================================================
+joint       (B, N)     int64    SMPL joint index 0..23 (:data:`smplik.conventions.JOINT_NAMES`)
+type        (B, N)     int64    0 position, 1 rotation, 2 look-at (:class:`~smplik.conventions.EffectorType`)
+data        (B, N, 6)  float32  position: ``(x, y, z, 0, 0, 0)`` in metres, world frame;
+                                rotation: the first two columns of R_world_joint, ``(R[:,0], R[:,1])``;
+                                look-at: ``(target xyz, unit direction in the joint's frame)``;
+                                padding: zeros
+tolerance   (B, N)     float32  the effector's ``tolerance`` in [0, 1] (0 = exact); 0 for padding
+mask        (B, N)     bool     True for a real effector, False for padding (>= 1 True per row)
+betas       (B, 10)    float32  SMPL shape
+gender      (B,)       int64    0 neutral, 1 male, 2 female (:class:`~smplik.conventions.Gender` order)
+==========  =========  =======  ==============================================================
+
+Outputs (world frame, SMPL's 24 joints, smplx conventions): ``R_local`` (B, 24, 3, 3) local rotations
+(joint 0: global orientation), ``R_world`` (B, 24, 3, 3), ``p_world`` (B, 24, 3) joint positions,
+``draft`` (B, 24, 3) the position decoder's draft, ``transl`` (B, 3) smplx ``transl``
+(pelvis = J0(beta) + transl). The rest skeletons J(beta, gender) of the body models used at export
+are constants of the graph; the file's metadata (``metadata_props``) names them (``body_fingerprint``)
+and the weights (``model_fingerprint``), so a solver uses a file only with the model it came from.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import tempfile
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from smplik.atomic import write_bytes_atomic
+from smplik.effectors import EffectorBatch
+from smplik.network import IKOutput, ProtoResIK
+
+ONNX_OPSET = 15
+"""Opset of the exported graph."""
+ONNX_FORMAT = "smplik-onnx"
+"""``metadata_props["format"]`` of an exported file."""
+INPUT_NAMES = ("joint", "type", "data", "tolerance", "mask", "betas", "gender")
+OUTPUT_NAMES = ("R_local", "R_world", "p_world", "draft", "transl")
+Runtime = Literal["torch", "onnx", "auto"]
+RUNTIMES = ("torch", "onnx", "auto")
+INSTALL_HINT = "pip install 'smplik[fast]' (onnxruntime and onnx)"
+
+
+class OnnxUnavailableError(ImportError):
+    """onnxruntime (or onnx, for exporting) is not installed."""
+
+
+class OnnxModelError(ValueError):
+    """An ONNX file that is not a usable smplik network (unreadable, other format, other model)."""
+
+
+def onnxruntime_available() -> bool:
+    """True when onnxruntime can be imported."""
+    return importlib.util.find_spec("onnxruntime") is not None
+
+
+def _require(module: str, purpose: str) -> Any:
+    try:
+        return __import__(module)
+    except ImportError:
+        raise OnnxUnavailableError(f"{purpose} needs the '{module}' package, which is not installed: "
+                                   f"{INSTALL_HINT}.") from None
+
+
+def model_fingerprint(model: ProtoResIK) -> str:
+    """SHA-256 (first 16 hex digits) of the network config and every float32 weight and buffer,
+    rest skeletons included: equal only for the same weights on the same body models."""
+    h = hashlib.sha256(json.dumps(model.cfg.to_dict(), sort_keys=True).encode())
+    for name, value in sorted(model.state_dict().items()):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(value.detach().cpu().numpy()).tobytes())
+    return h.hexdigest()[:16]
+
+
+class _ExportGraph(nn.Module):
+    """``ProtoResIK.forward`` over the named input tensors, returning the outputs as a tuple."""
+
+    def __init__(self, model: ProtoResIK):
+        super().__init__()
+        self.model = model
+
+    def forward(self, joint: Tensor, type: Tensor, data: Tensor, tolerance: Tensor, mask: Tensor,
+                betas: Tensor, gender: Tensor) -> tuple[Tensor, ...]:
+        out = self.model(EffectorBatch(joint, type, data, tolerance, mask), betas, gender)
+        return tuple(getattr(out, name) for name in OUTPUT_NAMES)
+
+
+def _example_inputs() -> tuple[Tensor, ...]:
+    """B = 2 rows of N = 3 effectors (one of each type, one padded slot) to trace the graph with."""
+    joint = torch.tensor([[20, 0, 15], [21, 12, 0]])
+    kind = torch.tensor([[0, 1, 2], [0, 2, 0]])
+    data = torch.tensor([[[0.5, 1.2, 0.1, 0, 0, 0], [1, 0, 0, 0, 1, 0], [0, 1.5, 2, 0, 0, 1]],
+                         [[-0.4, 1.0, 0.2, 0, 0, 0], [0, 1.6, 2, 0, 0, 1], [0, 0, 0, 0, 0, 0]]])
+    tolerance = torch.tensor([[0.0, 0.1, 0.0], [0.2, 0.0, 0.0]])
+    mask = torch.tensor([[True, True, True], [True, True, False]])
+    return joint, kind, data, tolerance, mask, torch.zeros(2, 10), torch.tensor([0, 2])
+
+
+def export_onnx_bytes(model: ProtoResIK, meta: Mapping[str, Any] | None = None) -> bytes:
+    """The serialized ONNX graph of ``model`` (network + FK), with metadata.
+
+    Args:
+        model: the network, with the rest skeletons of the body models it will pose (as the solver holds it).
+        meta: extra ``metadata_props`` (values turned into strings; dicts as JSON), e.g. ``source``, ``step``.
+
+    Raises:
+        OnnxUnavailableError: the ``onnx`` package is missing.
+    """
+    onnx = _require("onnx", "Exporting to ONNX")
+    dynamic = {name: {0: "batch", 1: "effectors"} for name in INPUT_NAMES[:5]}
+    dynamic.update({"betas": {0: "batch"}, "gender": {0: "batch"}}, **{n: {0: "batch"} for n in OUTPUT_NAMES})
+    graph = _ExportGraph(model).eval()
+    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+        # The legacy-exporter notice and the tracer's notes on the static (24, 3) shape checks.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        path = Path(tmp) / "model.onnx"
+        torch.onnx.export(graph, _example_inputs(), str(path), dynamo=False, opset_version=ONNX_OPSET,
+                          input_names=list(INPUT_NAMES), output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic,
+                          do_constant_folding=True)
+        proto = onnx.load(str(path))
+    props = {"format": ONNX_FORMAT, "version": "1", "opset": str(ONNX_OPSET),
+             "model_fingerprint": model_fingerprint(model), "network": model.cfg.to_dict(),
+             "inputs": ", ".join(INPUT_NAMES), "outputs": ", ".join(OUTPUT_NAMES), **(meta or {})}
+    for key, value in props.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, json.dumps(value) if isinstance(value, (dict, list)) else str(value)
+    proto.producer_name = "smplik"
+    onnx.checker.check_model(proto)
+    return proto.SerializeToString()
+
+
+def export_onnx(model: ProtoResIK, out: str | Path, meta: Mapping[str, Any] | None = None) -> Path:
+    """Write :func:`export_onnx_bytes` to ``out`` atomically."""
+    return write_bytes_atomic(out, export_onnx_bytes(model, meta))
+
+
+class OnnxNetwork:
+    """An onnxruntime session of an exported network, called like ``ProtoResIK.forward``.
+
+    Args:
+        model: an ``.onnx`` file from :func:`export_onnx` or its bytes.
+        threads: onnxruntime intra-op threads (1: lowest latency for one pose, no thread pool).
+
+    Raises:
+        OnnxUnavailableError: onnxruntime is missing.
+        OnnxModelError: not a readable smplik ONNX network.
+    """
+
+    def __init__(self, model: str | Path | bytes, *, threads: int = 1):
+        ort = _require("onnxruntime", "The onnx runtime")
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}.")
+        self.source = "<in memory>" if isinstance(model, bytes) else str(model)
+        self._model = model if isinstance(model, bytes) else Path(model).read_bytes()
+        self.threads = threads
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(self._model, options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf/... types
+            raise OnnxModelError(f"{self.source}: not a readable ONNX model ({type(exc).__name__}).") from None
+        self.meta: dict[str, str] = dict(self.session.get_modelmeta().custom_metadata_map)
+        names = tuple(i.name for i in self.session.get_inputs())
+        if self.meta.get("format") != ONNX_FORMAT or names != INPUT_NAMES:
+            raise OnnxModelError(f"{self.source}: not an smplik network (format {self.meta.get('format')!r}, "
+                                 f"inputs {', '.join(names)}); export one with `smplik export-model --onnx`.")
+
+    @property
+    def fingerprint(self) -> str | None:
+        """The ``model_fingerprint`` of the weights it was exported from."""
+        return self.meta.get("model_fingerprint")
+
+    def with_threads(self, threads: int) -> OnnxNetwork:
+        """A new session of the same graph with another thread count."""
+        return OnnxNetwork(self._model, threads=threads) if self.source == "<in memory>" else \
+            OnnxNetwork(self.source, threads=threads)
+
+    def __call__(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput:
+        """eff: B rows of N effectors; betas (B, 10); gender (B,) long -> :class:`IKOutput` (float32, CPU)."""
+        feed = {"joint": eff.joint, "type": eff.type, "data": eff.data, "tolerance": eff.tolerance, "mask": eff.mask,
+                "betas": betas, "gender": gender}
+        dtypes = (np.int64, np.int64, np.float32, np.float32, np.bool_, np.float32, np.int64)
+        arrays = {k: np.ascontiguousarray(v.detach().cpu().numpy(), dtype=dt)
+                  for (k, v), dt in zip(feed.items(), dtypes, strict=True)}
+        return IKOutput(*(torch.from_numpy(a) for a in self.session.run(None, arrays)))
+
+
+def select_network(runtime: str, model: ProtoResIK, model_path: str | Path, onnx_file: str | Path | None = None, *,
+                   threads: int = 1, meta: Mapping[str, Any] | None = None) -> OnnxNetwork | None:
+    """The network backend a solver runs: None for the torch model, else an :class:`OnnxNetwork`.
+
+    ``"torch"``: None. ``"onnx"``: ``onnx_file``, else ``model_path`` with the suffix ``.onnx`` if it exists,
+    else the model exported in memory (a few seconds); the file must come from ``model`` (same
+    :func:`model_fingerprint`). ``"auto"``: onnxruntime when it is installed and such a matching file is given
+    or found next to the model, else None (a warning says why a file found was not used).
+
+    Raises:
+        ValueError: unknown runtime. OnnxUnavailableError: ``"onnx"`` without onnxruntime.
+        FileNotFoundError: ``onnx_file`` missing. OnnxModelError: (``"onnx"``) a file of another model.
+    """
+    if runtime not in RUNTIMES:
+        raise ValueError(f"Unknown runtime {runtime!r}; expected one of: {', '.join(RUNTIMES)}.")
+    if runtime == "torch" or (runtime == "auto" and not onnxruntime_available()):
+        return None
+    if onnx_file is not None and not Path(onnx_file).is_file():
+        raise FileNotFoundError(f"ONNX file not found: {onnx_file}")
+    candidate = Path(onnx_file) if onnx_file is not None else Path(model_path).with_suffix(".onnx")
+    if candidate.is_file():
+        try:
+            net = OnnxNetwork(candidate, threads=threads)
+            if net.fingerprint != model_fingerprint(model):
+                raise OnnxModelError(
+                    f"{candidate} was exported from other weights or body models than {model_path} (model "
+                    f"fingerprint {net.fingerprint} vs {model_fingerprint(model)}); re-export it with "
+                    f"`smplik export-model {model_path} --onnx {candidate}`.")
+            return net
+        except OnnxModelError as exc:
+            if runtime == "onnx":
+                raise
+            warnings.warn(f"{exc} Using the torch network.", stacklevel=3)
+            return None
+    if runtime == "auto":
+        return None
+    return OnnxNetwork(export_onnx_bytes(model, meta), threads=threads)

@@ -1,0 +1,219 @@
+"""ONNX export of the network + FK (smplik.onnx_runtime) and the solver's onnxruntime backend.
+
+The round trip runs the shipped model (smplik/checkpoints/smplik_cmu.pt) exported by the CLI
+(``smplik export-model --onnx``) and compares every output with the torch network at several batch
+sizes and effector counts, which only works if both axes of the graph are really dynamic.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from importlib import resources
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner
+
+from smplik.effectors import Effector, EffectorBatch
+from smplik.network import NetworkConfig, ProtoResIK
+from smplik.onnx_runtime import (
+    INPUT_NAMES,
+    ONNX_OPSET,
+    OUTPUT_NAMES,
+    OnnxModelError,
+    OnnxUnavailableError,
+    export_onnx,
+    model_fingerprint,
+)
+from smplik.rotations import axis_angle_to_matrix
+from smplik.solver import IKSolver
+
+SHIPPED = resources.files("smplik") / "checkpoints" / "smplik_cmu.pt"
+needs_shipped = pytest.mark.skipif(not SHIPPED.is_file(),
+                                   reason="shipped model smplik/checkpoints/smplik_cmu.pt absent")
+
+
+def _ort_installed() -> bool:
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+needs_ort = pytest.mark.skipif(not _ort_installed(),
+                               reason="onnxruntime/onnx not installed (pip install 'smplik[fast]')")
+
+
+def random_effectors(bodies, B: int, N: int, seed: int) -> tuple[EffectorBatch, torch.Tensor, torch.Tensor]:
+    """B rows of up to N effectors of all three types from random posed bodies; rows padded at random."""
+    g = torch.Generator().manual_seed(seed)
+    betas = torch.randn(B, 10, generator=g)
+    gender = torch.randint(0, 3, (B,), generator=g)
+    from smplik.kinematics import forward_kinematics
+
+    R_world, p_world = forward_kinematics(axis_angle_to_matrix(torch.randn(B, 24, 3, generator=g) * 0.3),
+                                          bodies.rest_joints(betas, gender), torch.randn(B, 3, generator=g) * 0.3)
+    joint = torch.randint(0, 24, (B, N), generator=g)
+    kind = torch.randint(0, 3, (B, N), generator=g)
+    rows = torch.arange(B)[:, None]
+    p, R = p_world[rows, joint], R_world[rows, joint]
+    direction = torch.nn.functional.normalize(torch.randn(B, N, 3, generator=g), dim=-1)
+    look_target = p + 1.5 * (R @ direction[..., None])[..., 0]
+    data = torch.where((kind == 0)[..., None], torch.cat([p, torch.zeros_like(p)], -1),
+                       torch.where((kind == 1)[..., None], torch.cat([R[..., 0], R[..., 1]], -1),
+                                   torch.cat([look_target, direction], -1)))
+    count = torch.randint(1, N + 1, (B,), generator=g)
+    mask = torch.arange(N)[None] < count[:, None]
+    tolerance = torch.rand(B, N, generator=g) * 0.5 * (torch.rand(B, N, generator=g) < 0.3)
+    eff = EffectorBatch(joint, kind, data * mask[..., None], tolerance * mask, mask)
+    return eff, betas, gender
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """The shipped model exported by ``smplik export-model --onnx`` (the CLI in process)."""
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    if not SHIPPED.is_file():
+        pytest.skip("shipped model smplik/checkpoints/smplik_cmu.pt absent")
+    from smplik.cli.main import app
+
+    folder = tmp_path_factory.mktemp("onnx")
+    model_pt = folder / "model.pt"
+    shutil.copyfile(str(SHIPPED), model_pt)
+    result = CliRunner().invoke(app, ["export-model", str(model_pt), "--onnx", str(folder / "model.onnx")])
+    assert result.exit_code == 0, result.output
+    return model_pt, folder / "model.onnx"
+
+
+@pytest.fixture(scope="module")
+def torch_solver(exported):
+    return IKSolver.load(exported[0])
+
+
+@pytest.fixture(scope="module")
+def onnx_net(exported):
+    from smplik.onnx_runtime import OnnxNetwork
+
+    return OnnxNetwork(exported[1])
+
+
+@needs_ort
+@pytest.mark.parametrize(("B", "N"), [(1, 1), (1, 8), (5, 3), (64, 12), (200, 6)])
+def test_round_trip_matches_torch(onnx_net, torch_solver, B, N):
+    eff, betas, gender = random_effectors(torch_solver.bodies, B, N, seed=B * 100 + N)
+    with torch.inference_mode():
+        ref = torch_solver.model(eff, betas, gender)
+        out = onnx_net(eff, betas, gender)
+    for name in OUTPUT_NAMES:
+        a, b = getattr(ref, name), getattr(out, name)
+        assert a.shape == b.shape, name
+        assert torch.allclose(a, b, atol=1e-4, rtol=0), f"{name}: max diff {float((a - b).abs().max()):.2e}"
+
+
+@needs_ort
+def test_graph_io_is_documented_and_dynamic(exported, onnx_net, torch_solver):
+    import onnx
+
+    proto = onnx.load(str(exported[1]))
+    assert [o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")] == [ONNX_OPSET]
+    sess = onnx_net.session
+    inputs = {i.name: (i.shape, i.type) for i in sess.get_inputs()}
+    assert tuple(inputs) == INPUT_NAMES
+    assert inputs["data"] == (["batch", "effectors", 6], "tensor(float)")
+    assert inputs["mask"] == (["batch", "effectors"], "tensor(bool)")
+    assert inputs["joint"][1] == inputs["type"][1] == inputs["gender"][1] == "tensor(int64)"
+    assert inputs["betas"] == (["batch", 10], "tensor(float)")
+    outputs = {o.name: o.shape for o in sess.get_outputs()}
+    assert tuple(outputs) == OUTPUT_NAMES
+    assert outputs["R_world"] == ["batch", 24, 3, 3] and outputs["transl"] == ["batch", 3]
+    meta = onnx_net.meta
+    assert meta["format"] == "smplik-onnx" and meta["body_fingerprint"] == torch_solver.bodies.fingerprint
+    assert meta["model_fingerprint"] == model_fingerprint(torch_solver.model)
+
+
+@needs_ort
+def test_solver_onnx_runtime_gives_the_torch_poses(exported, torch_solver):
+    solver = IKSolver.load(exported[0], runtime="onnx", onnx_file=exported[1])
+    assert solver.network is not None and torch_solver.network is None
+    eff, betas, gender = random_effectors(torch_solver.bodies, 6, 8, seed=3)
+    lists = [[Effector.position(int(j), d[:3].numpy()) if t == 0 else
+              Effector.rotation(int(j), np.stack([d[:3], d[3:], np.cross(d[:3], d[3:])], 1)) if t == 1 else
+              Effector.look_at(int(j), d[:3].numpy(), d[3:].numpy())
+              for j, t, d, m in zip(eff.joint[b], eff.type[b], eff.data[b].double(), eff.mask[b], strict=True) if m]
+             for b in range(6)]
+    names = ["neutral", "male", "female"]
+    kwargs = {"betas": betas.double().numpy(), "gender": [names[int(g)] for g in gender]}
+    ref, got = torch_solver.solve_batch(lists, **kwargs), solver.solve_batch(lists, **kwargs)
+    single = solver.solve(lists[0], betas=kwargs["betas"][0], gender=kwargs["gender"][0])
+    for a, b in [*zip(ref, got, strict=True), (ref[0], single)]:
+        aa_a = np.concatenate([a.global_orient[None], a.body_pose])
+        aa_b = np.concatenate([b.global_orient[None], b.body_pose])
+        angle = (Rotation.from_rotvec(aa_a).inv() * Rotation.from_rotvec(aa_b)).magnitude()
+        assert angle.max() < 1e-4
+        assert np.abs(a.joints - b.joints).max() < 1e-4 and np.abs(a.transl - b.transl).max() < 1e-4
+
+
+@needs_ort
+def test_auto_uses_a_matching_sibling_file_only(exported, tmp_path, torch_solver):
+    model_pt, model_onnx = exported
+    assert IKSolver.load(model_pt, runtime="auto").network is not None  # model.onnx next to model.pt
+    alone = tmp_path / "alone.pt"
+    shutil.copyfile(model_pt, alone)
+    assert IKSolver.load(alone, runtime="auto").network is None  # nothing derivable: torch
+    # A file of other weights: auto warns and keeps torch, onnx refuses.
+    other = ProtoResIK(torch_solver.model.cfg, torch_solver.bodies.J_template, torch_solver.bodies.J_dirs)
+    export_onnx(other, tmp_path / "alone.onnx")
+    with pytest.warns(UserWarning, match="other weights"):
+        assert IKSolver.load(alone, runtime="auto").network is None
+    with pytest.raises(OnnxModelError, match="exported from other weights"):
+        IKSolver.load(alone, runtime="onnx")
+    with pytest.raises(FileNotFoundError, match="ONNX file not found"):
+        IKSolver.load(model_pt, runtime="onnx", onnx_file=tmp_path / "missing.onnx")
+    (tmp_path / "junk.onnx").write_bytes(b"not a model")
+    with pytest.raises(OnnxModelError, match="junk.onnx: not a readable ONNX model"):
+        IKSolver.load(model_pt, runtime="onnx", onnx_file=tmp_path / "junk.onnx")
+    with pytest.raises(ValueError, match="Unknown runtime 'gpu'"):
+        IKSolver.load(model_pt, runtime="gpu")
+
+
+@needs_ort
+def test_onnx_without_file_exports_in_memory_and_threads_are_configurable(bodies):
+    from smplik.onnx_runtime import OnnxNetwork, export_onnx_bytes
+
+    torch.manual_seed(0)
+    model = ProtoResIK(NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=2, effector_slots=True),
+                       bodies.J_template, bodies.J_dirs).eval()  # the slots extension exports too
+    net = OnnxNetwork(export_onnx_bytes(model), threads=2)
+    assert net.session.get_session_options().intra_op_num_threads == 2
+    assert net.with_threads(1).session.get_session_options().intra_op_num_threads == 1
+    for B, N in ((1, 2), (9, 7)):
+        eff, betas, gender = random_effectors(bodies, B, N, seed=N)
+        with torch.inference_mode():
+            ref, out = model(eff, betas, gender), net(eff, betas, gender)
+        for name in OUTPUT_NAMES:
+            assert torch.allclose(getattr(ref, name), getattr(out, name), atol=1e-4, rtol=0), name
+
+
+@needs_shipped
+def test_missing_onnxruntime_is_a_clear_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "onnxruntime", None)  # import fails as if it were not installed
+    with pytest.raises(OnnxUnavailableError, match=r"pip install 'smplik\[fast\]'"):
+        IKSolver.load(runtime="onnx")
+    assert IKSolver.load(runtime="auto").network is None  # auto falls back to torch
+
+
+@needs_shipped
+def test_cli_export_errors_are_one_line(tmp_path):
+    from smplik.cli.main import app
+
+    result = CliRunner().invoke(app, ["export-model", str(tmp_path / "missing.pt"), "--onnx", str(tmp_path / "m.onnx")])
+    assert result.exit_code == 1 and "Model file not found" in result.output and "Traceback" not in result.output
+    result = CliRunner().invoke(app, ["export-model", str(SHIPPED)])
+    assert result.exit_code == 2 and "give --out FILE.pt and/or --onnx FILE.onnx" in result.output
+    assert not (tmp_path / "m.onnx").exists()
