@@ -70,3 +70,21 @@ def test_no_default_path_is_an_absolute_path_of_one_machine():
     offenders = [f"{f.relative_to(repo)}: {line.strip()}" for f in files for line in f.read_text().splitlines()
                  if any(root in line for root in ('"/work/', "'/work/", '"/home/', '"/tmp/'))]
     assert not offenders, offenders
+
+
+def test_data_commands_find_clips_through_the_cmu_dir(clean_env, tmp_path):
+    import typer
+
+    from smplik.data.cli import resolve_clip
+
+    (tmp_path / "mocap").mkdir()
+    (tmp_path / "mocap" / "07_01.bvh").write_text("HIERARCHY\n")
+    clean_env.setenv("SMPLIK_CMU_DIR", str(tmp_path / "mocap"))
+    assert resolve_clip("07_01") == tmp_path / "mocap" / "07_01.bvh"
+    assert resolve_clip("07_01.bvh") == tmp_path / "mocap" / "07_01.bvh"
+    with pytest.raises(typer.BadParameter, match=f"neither a file nor a clip in {tmp_path / 'mocap'}"):
+        resolve_clip("99_99")
+    clean_env.setattr(paths, "repo_root", lambda: tmp_path / "bare" / "checkout")
+    clean_env.delenv("SMPLIK_CMU_DIR")
+    with pytest.raises(typer.BadParameter, match="no CMU BVH folder: set \\$SMPLIK_CMU_DIR"):
+        resolve_clip("07_01")
