@@ -264,6 +264,7 @@ def test_cli_make_and_run(tmp_path, cli, tiny_cache, tiny_model):
         assert set(method["sets"]) == set(set_names())
         assert method["random_mean"]["time_ms_per_pose"] > 0
     assert "| smplik |" in res.output
+    assert set(data["subjects"]) == {"clip5"} and "subject_mean" in data["methods"]["optim"]  # the test clip's subject
     res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--methods", "magic",
                                    "--out", str(results)])
     assert res.exit_code != 0

@@ -26,8 +26,6 @@ from smplik.data.dataset import (
     subsample_indices,
 )
 
-CMU_DIR = Path("/work/shared/data/cmu")
-
 
 def toy_body_models() -> BodyModelSet:
     """A BodyModelSet without meshes: rest pelvis at y = 0.9 (+ 0.01 per beta_0)."""
@@ -127,13 +125,12 @@ def test_split_by_clip_wins_over_subject() -> None:
     assert spec.assign(ClipSource(Path("a.bvh"), "bvh", "04_01.bvh", "04")) is None
 
 
-def test_cmu_split_file_parses() -> None:
-    if not (CMU_DIR / "split.json").is_file():
-        pytest.skip("CMU data not available")
-    spec = load_split(CMU_DIR / "split.json")
-    assert spec.assign(ClipSource(CMU_DIR / "01_01.bvh", "bvh", "01_01.bvh", "01")) == 0
-    assert spec.assign(ClipSource(CMU_DIR / "35_01.bvh", "bvh", "35_01.bvh", "35")) == 1
-    assert spec.assign(ClipSource(CMU_DIR / "02_01.bvh", "bvh", "02_01.bvh", "02")) == 2
+def test_cmu_split_file_parses(shared_data) -> None:
+    cmu_dir = shared_data.cmu()
+    spec = load_split(shared_data.cmu("split.json"))
+    assert spec.assign(ClipSource(cmu_dir / "01_01.bvh", "bvh", "01_01.bvh", "01")) == 0
+    assert spec.assign(ClipSource(cmu_dir / "35_01.bvh", "bvh", "35_01.bvh", "35")) == 1
+    assert spec.assign(ClipSource(cmu_dir / "02_01.bvh", "bvh", "02_01.bvh", "02")) == 2
 
 
 def test_build_and_load(amass_dir: Path, split_file: Path, tmp_path: Path) -> None:
@@ -265,11 +262,10 @@ def test_load_cache_validation(amass_dir: Path, split_file: Path, tmp_path: Path
         load_cache(tmp_path / "missing.npz")
 
 
-def test_build_from_cmu_bvh(tmp_path: Path) -> None:
+def test_build_from_cmu_bvh(tmp_path: Path, shared_data) -> None:
     """Two real CMU clips: the rest frame 0 is dropped, 120 -> 30 fps, no betas or gender."""
     pytest.importorskip("smplik.data.retarget")
-    if not (CMU_DIR / "09_06.bvh").is_file():
-        pytest.skip("CMU data not available")
+    cmu_dir = shared_data.cmu("09_06.bvh").parent
     import shutil
 
     from smplik.data.retarget import retarget_bvh
@@ -277,14 +273,14 @@ def test_build_from_cmu_bvh(tmp_path: Path) -> None:
     src_dir = tmp_path / "bvh"
     src_dir.mkdir()
     for name in ("09_06.bvh", "02_03.bvh"):  # 142 and 174 frames, both test subjects
-        shutil.copy(CMU_DIR / name, src_dir / name)
+        shutil.copy(cmu_dir / name, src_dir / name)
     out = tmp_path / "cmu.npz"
-    summary = build_cache(find_sources(src_dir, "bvh"), fps=30, split=CMU_DIR / "split.json", out=out)
+    summary = build_cache(find_sources(src_dir, "bvh"), fps=30, split=cmu_dir / "split.json", out=out)
     assert summary.frames == {"train": 0, "validation": 0, "test": 44 + 36}
     ds = load_cache(out)
     assert ds.clip_names == ("02_03.bvh", "09_06.bvh") and ds.subject_names == ("02", "09")
     assert not bool(ds.has_betas.any()) and bool((ds.gender == -1).all()) and bool((ds.split == 2).all())
-    clip = retarget_bvh(CMU_DIR / "09_06.bvh", preset="cmu")
+    clip = retarget_bvh(cmu_dir / "09_06.bvh", preset="cmu")
     first = ds.pose[ds.clip_id == 1][0].numpy()
     np.testing.assert_allclose(first[0], clip.global_orient[1], atol=1e-5)  # motion frame 1, not rest frame 0
     np.testing.assert_allclose(first[1:], clip.body_pose[1], atol=1e-5)

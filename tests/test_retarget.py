@@ -1,7 +1,5 @@
 """Retargeting BVH -> SMPL: synthetic round trips from known SMPL poses, presets, real CMU clips."""
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,8 +18,6 @@ from smplik.data.retarget import (
 from smplik.kinematics import forward_kinematics
 from smplik.rotations import axis_angle_to_matrix, geodesic_distance
 
-CMU_DIR = Path(os.environ.get("SMPLIK_CMU_DIR", "")) if os.environ.get("SMPLIK_CMU_DIR") else (
-    Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu")
 ORDERS = ("ZYX", "XYZ", "YZX", "ZXY")
 Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z-up -> y-up
 
@@ -119,16 +115,9 @@ def test_preset_validation_and_errors(tmp_path):
         retarget_bvh(motion, "cmu")
 
 
-def cmu_clip(name):
-    path = CMU_DIR / f"{name}.bvh"
-    if not path.is_file():
-        pytest.skip(f"../shared/data/cmu not found: {path} is missing (set SMPLIK_CMU_DIR)")
-    return path
-
-
 @pytest.mark.parametrize("name", ["07_01", "49_06", "09_11"])
-def test_real_cmu_clips(name):
-    clip = retarget_bvh(cmu_clip(name), "cmu")
+def test_real_cmu_clips(name, shared_data):
+    clip = retarget_bvh(shared_data.cmu(f"{name}.bvh"), "cmu")
     assert clip.fps == pytest.approx(120, rel=1e-3) and clip.motion_start == 1
     err = bone_direction_errors(clip)  # frames 1.. (the rest frame 0 is skipped)
     assert err.mean() < 10.0, err.group_means()
@@ -142,8 +131,8 @@ def test_real_cmu_clips(name):
         assert 0.75 < float(joints[1:, 0, 1].mean()) < 1.05
 
 
-def test_fps_resampling_and_unmapped_spine2():
-    path = cmu_clip("07_01")
+def test_fps_resampling_and_unmapped_spine2(shared_data):
+    path = shared_data.cmu("07_01.bvh")
     clip = retarget_bvh(path, "cmu", fps=30)
     assert clip.fps == 30 and clip.num_frames == 1 + len(np.arange(0, 316 - 1 + 1e-9, 4))
     preset = load_preset("cmu")

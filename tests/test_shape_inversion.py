@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import struct
 from pathlib import Path
 
@@ -19,7 +18,6 @@ from shape_inversion.skeleton_io import SkeletonError, prepare_character, read_b
 from smplik.body_model import BodyModel
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, Gender
 
-SHARED = Path(os.environ.get("SMPLIK_SHARED_DIR", Path(__file__).resolve().parents[2] / "shared"))
 SMALL = BankConfig(num_samples=4000, seed=3)
 
 
@@ -342,12 +340,11 @@ def test_cli_writes_shape_json(tmp_path, monkeypatch):
     assert bad.exit_code == 1 and "available presets" in bad.output
 
 
-@pytest.mark.skipif(not (SHARED / "data").is_dir(), reason=f"shared data folder {SHARED} not present")
-def test_shared_characters_map_and_invert(fake_estimator):
-    mh = SHARED / "data" / "custom-characters" / "mh_default_tpose.bvh"
+def test_shared_characters_map_and_invert(fake_estimator, shared_data):
+    mh = shared_data.file("data/custom-characters/mh_default_tpose.bvh")
     char = prepare_character(read_bvh(mh))
     assert char.rig.name == "makehuman" and char.units_m == 0.1 and char.up == "z"
     assert 1.3 < char.head_ankle_height_m < 1.6
-    cmu = SHARED / "data" / "cmu" / "01_01.bvh"
+    cmu = shared_data.cmu("01_01.bvh")
     c2 = prepare_character(read_bvh(cmu))
     assert c2.rig.name == "cmu" and c2.units_source == "rig" and 1.2 < c2.head_ankle_height_m < 1.6

@@ -61,7 +61,7 @@ def test_torchrun_two_processes_on_cpu(tiny_cache, tmp_path):
     cfg = config(tiny_cache, run, steps=3, ckpt_every=3, val_every=3)
     (tmp_path / "cfg.json").write_text(json.dumps(cfg.to_dict()))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29517",
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--standalone",
            "-m", "smplik.cli", "train", "--data", str(tiny_cache), "--out", str(run), "--config",
            str(tmp_path / "cfg.json"), "--steps", "3", "--batch-size", "16", "--width", "32",
            "--encoder-blocks", "2", "--decoder-blocks", "1", "--layers-per-block", "1", "--val-every", "3",

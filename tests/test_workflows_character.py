@@ -6,7 +6,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_workflows_support import synthetic_pose
 
 from smplik.conventions import JOINT_NAMES
 from smplik.data.bvh import read_bvh
@@ -29,7 +28,7 @@ def test_smpl_si_fits_the_generated_character(character):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_smpl_to_custom_to_smpl_returns_the_local_rotations(character, seed):
+def test_smpl_to_custom_to_smpl_returns_the_local_rotations(character, seed, synthetic_pose):
     pose = dataclasses.replace(synthetic_pose(seed), betas=character.betas, gender=character.gender)
     back = custom_to_smpl(smpl_to_custom(pose, character), character)
     np.testing.assert_allclose(back.body_pose, pose.body_pose, atol=1e-6)

@@ -6,7 +6,6 @@ import os
 
 import numpy as np
 import pytest
-from test_workflows_support import best_solver
 
 from smplik.data.bvh import read_bvh
 from workflows.demo import run_demo
@@ -14,7 +13,6 @@ from workflows.scene import load_scene
 
 
 def _can_render() -> bool:
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     try:
         from smplik.render import Sphere, render
 
@@ -24,9 +22,10 @@ def _can_render() -> bool:
         return False
 
 
-def test_demo_runs_end_to_end(tmp_path):
+def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
+    monkeypatch.setenv("PYOPENGL_PLATFORM", os.environ.get("PYOPENGL_PLATFORM") or "egl")
     previews = _can_render()
-    out = run_demo(tmp_path, best_solver(), previews=previews)
+    out = run_demo(tmp_path, best_solver, previews=previews)
     for path in out.all_files:
         assert path.is_file() and path.stat().st_size > 0, path
     smpl = load_scene(out.smpl.scene)

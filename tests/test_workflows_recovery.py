@@ -2,30 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-import torch
-from test_workflows_support import SHIPPED, OracleSolver, best_solver, synthetic_pose
 
 from smplik.conventions import EffectorType
 from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors
 
-CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
 
-
-class CountingOracle(OracleSolver):
-    calls = 0
-
-    def solve_tensors(self, eff, betas, gender, *, refine=None):
-        self.calls += 1
-        return super().solve_tensors(eff, betas, gender)
-
-
-def test_greedy_lowers_the_error_with_each_effector_and_stops_at_the_threshold():
+def test_greedy_lowers_the_error_with_each_effector_and_stops_at_the_threshold(synthetic_pose, oracle_solver):
     target = TargetPose.from_pose(synthetic_pose(0))
-    solver = CountingOracle(target.p_world)
+    solver = oracle_solver(target.p_world)
     res = recover_effectors(solver, target, RecoveryConfig(max_effectors=6, threshold=0.0))
     assert len(res.effectors) == 6 and solver.calls == 7  # one batched solve per step, then the final pose
     assert res.final_error == pytest.approx(res.errors[-1], rel=1e-6)
@@ -33,15 +19,15 @@ def test_greedy_lowers_the_error_with_each_effector_and_stops_at_the_threshold()
     # the oracle rewards rotations of joints with many children: spine3 (4 joints) first
     assert res.effectors[0].type == EffectorType.ROTATION and res.effectors[0].joint_name == "spine3"
     threshold = (res.errors[2] + res.errors[3]) / 2
-    stopped = recover_effectors(OracleSolver(target.p_world), target, RecoveryConfig(max_effectors=10,
+    stopped = recover_effectors(oracle_solver(target.p_world), target, RecoveryConfig(max_effectors=10,
                                                                                       threshold=threshold))
     assert len(stopped.effectors) == 4 and stopped.errors[-1] < threshold <= stopped.errors[-2]
 
 
-def test_character_scale_scales_errors_and_effectors():
+def test_character_scale_scales_errors_and_effectors(synthetic_pose, oracle_solver):
     target = TargetPose.from_pose(synthetic_pose(1))
-    a = recover_effectors(OracleSolver(target.p_world), target, RecoveryConfig(max_effectors=3, threshold=0))
-    b = recover_effectors(OracleSolver(target.p_world), target, RecoveryConfig(max_effectors=3, threshold=0),
+    a = recover_effectors(oracle_solver(target.p_world), target, RecoveryConfig(max_effectors=3, threshold=0))
+    b = recover_effectors(oracle_solver(target.p_world), target, RecoveryConfig(max_effectors=3, threshold=0),
                           scale=1.5)
     np.testing.assert_allclose(np.array(b.errors), 1.5 * np.array(a.errors), rtol=1e-5)
     for ea, eb in zip(a.effectors, b.effectors, strict=True):
@@ -57,45 +43,40 @@ def _check_quality(res):
     assert res.final_error < errs[-1] + 0.002, (res.final_error, errs[-1])
 
 
-@pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped model")
-def test_real_model_on_a_synthetic_pose_is_fast_and_improves():
-    torch.set_num_threads(1)
+def test_real_model_on_a_synthetic_pose_is_fast_and_improves(shipped_solver, torch_threads):
+    torch_threads(1)
     from workflows.examples_gen import example_poses
 
-    solver = best_solver()
     target = TargetPose.from_pose(example_poses()[1].pose)
-    res = recover_effectors(solver, target, RecoveryConfig(max_effectors=8, threshold=0.0))
+    res = recover_effectors(shipped_solver, target, RecoveryConfig(max_effectors=8, threshold=0.0))
     _check_quality(res)
 
 
-@pytest.mark.skipif(not (CMU.is_dir() and SHIPPED.is_file()), reason="needs ../shared/data/cmu and a shipped model")
-def test_real_model_on_a_cmu_test_pose():
+def test_real_model_on_a_cmu_test_pose(shipped_solver, shared_data):
     from smplik.data.retarget import retarget_bvh
     from smplik.pose import Pose
 
-    clip = retarget_bvh(CMU / "02_01.bvh", "cmu")
+    clip = retarget_bvh(shared_data.cmu("02_01.bvh"), "cmu")
     f = clip.num_frames // 2
     pose = Pose(clip.global_orient[f].astype(float), clip.body_pose[f].astype(float), clip.transl[f].astype(float),
                 clip.betas.astype(float), clip.gender)
-    res = recover_effectors(best_solver(), TargetPose.from_pose(pose), RecoveryConfig(max_effectors=8, threshold=0))
+    res = recover_effectors(shipped_solver, TargetPose.from_pose(pose), RecoveryConfig(max_effectors=8, threshold=0))
     _check_quality(res)
     threshold = (res.errors[1] + res.errors[2]) / 2
-    stopped = recover_effectors(best_solver(), TargetPose.from_pose(pose),
+    stopped = recover_effectors(shipped_solver, TargetPose.from_pose(pose),
                                 RecoveryConfig(max_effectors=8, threshold=threshold))
     assert len(stopped.errors) == 3 and stopped.errors[-1] < threshold <= stopped.errors[-2]
 
 
-def test_stand_in_runs_and_returns_a_solved_pose():
-    from test_workflows_support import stand_in_solver
-
+def test_stand_in_runs_and_returns_a_solved_pose(stand_in_solver, synthetic_pose):
     target = TargetPose.from_pose(synthetic_pose(3))
-    res = recover_effectors(stand_in_solver(), target, RecoveryConfig(max_effectors=3, threshold=0.0))
+    res = recover_effectors(stand_in_solver, target, RecoveryConfig(max_effectors=3, threshold=0.0))
     assert 1 <= len(res.effectors) <= 3 and res.pose.joints.shape == (24, 3)
     assert len({(e.joint, e.type) for e in res.effectors}) == len(res.effectors)  # no candidate twice
     assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))  # only improving steps kept
 
 
-def test_negative_search_steps_are_refused():
+def test_negative_search_steps_are_refused(synthetic_pose, oracle_solver):
     target = TargetPose.from_pose(synthetic_pose(2))
     with pytest.raises(ValueError, match="search_refine_steps"):
-        recover_effectors(OracleSolver(target.p_world), target, RecoveryConfig(search_refine_steps=-1))
+        recover_effectors(oracle_solver(target.p_world), target, RecoveryConfig(search_refine_steps=-1))

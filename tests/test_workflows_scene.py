@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-from test_workflows_support import best_solver
 
 from workflows.examples_gen import example_poses
 from workflows.pipeline import scene_from_people
@@ -16,8 +15,8 @@ from workflows.scene import SceneError, load_scene, save_scene, scene_from_dict,
 
 
 @pytest.fixture(scope="module")
-def solver():
-    return best_solver()
+def solver(best_solver):
+    return best_solver
 
 
 @pytest.fixture(scope="module")
@@ -90,14 +89,14 @@ def test_validation_errors_name_the_json_path(scene):
         scene_from_dict(data, "s.json")
 
 
-def test_scene_solve_cli(scene, tmp_path, monkeypatch):
+def test_scene_solve_cli(scene, solver, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
     import workflows.cli as cli
     from workflows.cli import scene_app
 
     path = save_scene(scene, tmp_path / "scene.json")
-    monkeypatch.setattr(cli, "_solver", lambda checkpoint: best_solver())
+    monkeypatch.setattr(cli, "_solver", lambda checkpoint: solver)
     result = CliRunner().invoke(scene_app, ["solve", str(path), "--out", str(tmp_path / "out.json")])
     assert result.exit_code == 0, result.output
     assert load_scene(tmp_path / "out.json").characters[0].pose is not None

@@ -55,14 +55,11 @@ def run_command(
 
     from smplik.atomic import write_text_atomic
     from smplik.benchmark import (
-        LearnedMethod,
-        NearestNeighborMethod,
-        OptimizationIK,
-        PosePrior,
-        RestPoseMethod,
+        build_methods,
         load_benchmark,
         results_markdown,
         run_benchmark,
+        sample_subjects,
         save_results,
     )
     from smplik.body_model import BodyModelSet
@@ -79,47 +76,38 @@ def run_command(
         console.print(f"[red]error:[/red] {exc}", highlight=False)
         raise typer.Exit(1) from None
     bodies = BodyModelSet.load(model_dir)
-    settings: dict = {"methods": chosen}
-    runners: dict = {}
-    train_pose = None
-    if {"optim", "nn"} & set(chosen):
+    cache = data or Path(bench.manifest["source"]["data"])
+    dataset = None
+    if {"optim", "nn"} & set(chosen) or cache.is_file():  # train poses; the samples' subjects
         from smplik.data.dataset import load_cache
 
-        cache = data or Path(bench.manifest["source"]["data"])
-        train_pose = load_cache(cache).subset("train").pose
-        settings["train_data"] = str(cache)
+        dataset = load_cache(cache)
     solver = None
-    for name in chosen:
-        if name in ("smplik", "smplik_net"):
-            from smplik.refine import NO_REFINEMENT
-            from smplik.solver import IKSolver
+    if {"smplik", "smplik_net"} & set(chosen):
+        from smplik.solver import IKSolver
 
-            if solver is None:
-                try:
-                    solver = IKSolver.load(checkpoint, model_dir=model_dir)
-                except (FileNotFoundError, ValueError) as exc:
-                    console.print(f"[red]error:[/red] {exc}", highlight=False)
-                    raise typer.Exit(1) from None
-            runners[name] = LearnedMethod(solver, refine=NO_REFINEMENT if name == "smplik_net" else None)
-            settings["checkpoint"] = solver.source
-            settings["checkpoint_step"] = solver.meta.get("step")
-            if name == "smplik":
-                settings["refine"] = solver.refine.to_dict()
-        elif name == "optim":
-            runners[name] = OptimizationIK(bodies, PosePrior.fit(train_pose), iterations=optim_iterations)
-            settings["optim"] = {k: v for k, v in vars(runners[name]).items() if isinstance(v, (int, float))}
-        elif name == "nn":
-            runners[name] = NearestNeighborMethod.from_dataset(train_pose, bodies, max_samples=nn_samples)
-            settings["nn_samples"] = int(runners[name].R_local.shape[0])
-        else:
-            runners[name] = RestPoseMethod(bodies)
+        try:
+            solver = IKSolver.load(checkpoint, model_dir=model_dir)
+        except (FileNotFoundError, ValueError) as exc:
+            console.print(f"[red]error:[/red] {exc}", highlight=False)
+            raise typer.Exit(1) from None
+    try:
+        subjects = None if dataset is None else sample_subjects(bench, dataset)
+        runners, settings = build_methods(chosen, bodies, solver=solver, optim_iterations=optim_iterations,
+                                          nn_samples=nn_samples,
+                                          train_pose=None if dataset is None else dataset.subset("train").pose)
+    except ValueError as exc:
+        console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    if dataset is not None:
+        settings["train_data"] = str(cache)
 
     def report(method: str, set_name: str, m) -> None:
         console.print(f"{method:10s} {set_name:10s} MPJPE {m.mpjpe_mm:7.1f} mm  PA {m.pa_mpjpe_mm:7.1f} mm  "
                       f"geo {m.geodesic_rad:.4f} rad  {m.time_ms_per_pose:.3f} ms/pose", highlight=False)
 
     try:
-        results = run_benchmark(bench, runners, bodies, settings=settings, progress=report)
+        results = run_benchmark(bench, runners, bodies, settings=settings, subjects=subjects, progress=report)
     except ValueError as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False)
         raise typer.Exit(1) from None
