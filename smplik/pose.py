@@ -7,7 +7,6 @@ JSON keys are exactly smplx's argument names plus the body: ``global_orient`` (3
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,15 +15,29 @@ import numpy as np
 
 from smplik.atomic import write_json_atomic
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, Gender
-from smplik.validation import finite_array
+from smplik.validation import MAX_ABS_POSITION_M, check_betas, finite_array, read_json, short_repr
 
+MAX_ABS_AXIS_ANGLE = 1000.0
+"""Largest accepted |axis-angle component| (radians); angles wrap, so this only bounds the numbers."""
 POSE_KEYS = ("global_orient", "body_pose", "transl", "betas", "gender", "joints")
 _SHAPES = {"global_orient": (3,), "body_pose": (NUM_JOINTS - 1, 3), "transl": (3,), "betas": (NUM_BETAS,),
            "joints": (NUM_JOINTS, 3)}
 
 
 def _array(name: str, value: Any, source: str = "pose") -> np.ndarray:
-    return finite_array(value, _SHAPES[name], f"{source}: '{name}'")
+    if name == "betas":
+        return check_betas(value, where=f"{source}: '{name}'")
+    limit = MAX_ABS_POSITION_M if name in ("transl", "joints") else MAX_ABS_AXIS_ANGLE
+    return finite_array(value, _SHAPES[name], f"{source}: '{name}'", max_abs=limit)
+
+
+def _gender(value: Any, source: str) -> Gender:
+    if not isinstance(value, (str, Gender)):
+        raise ValueError(f"{source}: 'gender' must be one of neutral, male, female; got {short_repr(value)}.")
+    try:
+        return Gender.parse(value)
+    except ValueError as exc:
+        raise ValueError(f"{source}: 'gender': {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -54,7 +67,7 @@ class Pose:
             body_pose=_array("body_pose", data["body_pose"], source),
             transl=_array("transl", data.get("transl", [0.0] * 3), source),
             betas=_array("betas", data.get("betas", [0.0] * NUM_BETAS), source),
-            gender=Gender.parse(data.get("gender", "neutral")),
+            gender=_gender(data.get("gender", "neutral"), source),
             joints=None if data.get("joints") is None else _array("joints", data["joints"], source),
         )
 
@@ -87,11 +100,5 @@ class Pose:
 
     @classmethod
     def load(cls, path: str | Path) -> Pose:
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"Pose file not found: {path}") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: invalid JSON ({exc}).") from None
-        return cls.from_dict(data, source=str(path))
+        """Read a pose JSON file; errors are one-line ``ValueError`` naming the file and key."""
+        return cls.from_dict(read_json(path, ValueError, what="pose file"), source=str(path))

@@ -19,7 +19,7 @@ from shape_inversion.options import (
     UpOption,
     character_options_from_cli,
 )
-from smplik.cli.errors import say, user_errors
+from smplik.cli.errors import fail, say, user_errors
 from smplik.data.bvh import DEFAULT_MAX_JOINTS
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
@@ -137,10 +137,10 @@ def solve_cmd(
         loaded = load_scene(scene)
         solver = _solver(checkpoint)
         solved = solve_scene(loaded, solver)
+        path = save_scene(solved, out or scene)
         for before, after in zip(loaded.characters, solved.characters, strict=True):
             for line in character_residuals(before, after, solver):
                 say(line)
-        path = save_scene(solved, out or scene)
     say(f"wrote {path}")
 
 
@@ -162,7 +162,12 @@ def render_cmd(
             src = scene.parent / src
         if image is not None and not image.is_file():
             raise FileNotFoundError(errno.ENOENT, "--image: no such file", str(image))
-        background = load_image(src) if src is not None and src.is_file() and loaded.camera is not None else None
+        background = None
+        if src is not None and src.is_file() and loaded.camera is not None:
+            try:
+                background = load_image(src)
+            except (OSError, ValueError, SyntaxError, MemoryError) as exc:  # PIL/matplotlib on a bad file
+                fail(f"{src}: not a readable image ({type(exc).__name__}: {exc})")
         save_png(render_scene(loaded, image=background), out)
     say(f"wrote {out}")
 

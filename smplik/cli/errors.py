@@ -97,10 +97,11 @@ def user_errors() -> Iterator[None]:
         raise
 
 
-def run_guarded(app: typer.Typer) -> None:
-    """Run the command tree; a user error becomes one line and exit 1, anything else keeps its traceback."""
+def run_guarded(app: typer.Typer, args: list[str] | None = None) -> None:
+    """Run the command tree (on ``args``, default ``sys.argv[1:]``); a user error becomes one line and
+    exit 1, anything else keeps its traceback."""
     try:
-        app()
+        app(args=args)
     except BaseException as exc:
         if isinstance(exc, Exception) and is_user_error(exc):
             print_error(error_message(exc))

@@ -117,10 +117,11 @@ def solve_command(
         solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=refine)
         pose = solver.solve(list(doc.effectors), betas=beta, gender=g)
         network = replace(solver, refine=RefineConfig(iterations=0)).solve(list(doc.effectors), betas=beta, gender=g)
-        for line in report_residuals(network, pose, doc.effectors, solver.bodies, refine.iterations):
-            say(line)
         pose.save(out)
-        say(f"wrote {out}")
         if render is not None:
             render_solution(pose, doc.effectors, solver.bodies, render)
+        for line in report_residuals(network, pose, doc.effectors, solver.bodies, refine.iterations):
+            say(line)
+        say(f"wrote {out}")
+        if render is not None:
             say(f"wrote {render}")
