@@ -8,7 +8,12 @@
 2. Real skeletons from ../shared/data (or $SMPLIK_SHARED_DIR/data): the MakeHuman default skeleton
    and one file per CMU subject (frame 0): head-ankle "stature" and per-bone length errors of the
    SMPL approximation (mm).
-3. Timings: bank build, estimator build from the cached bank, query per character.
+3. Real-layout character files written by :mod:`workflows.layout_examples` from one skeleton (the
+   built-in body at beta = 0 with 6 % longer legs): Mixamo BVH (per-joint position channels), Rokoko
+   BVH, CMU-unit BVH, Blender-style GLB (armature scale 0.01, rotated root node), .gltf + .bin, and
+   the same skeleton as plain-metres JSON: units detected, stature in (skeleton as read) and out (the
+   SMPL estimate), max feature residual.
+4. Timings: bank build, estimator build from the cached bank, query per character.
 
 Run: ``python benchmarks/shape_inversion.py [--gender neutral] [--samples 1000]``.
 """
@@ -127,6 +132,36 @@ def real_characters(model, estimators: dict[str, ShapeEstimator], shared: Path) 
     return out
 
 
+def real_layouts(model, estimator: ShapeEstimator, folder: Path) -> dict:
+    """One row per real-layout file: units, stature in / out (m), max feature residual (mm), beta/scale."""
+    from shape_inversion.skeleton_io import HEAD_ANKLE_PER_STATURE, read_character
+    from workflows import layout_examples as lx
+
+    J = lx.smpl_rest()[0].copy()
+    for side in ("left", "right"):
+        for joint, parent in ((f"{side}_knee", f"{side}_hip"), (f"{side}_ankle", f"{side}_knee")):
+            J[JOINT_INDEX[joint]] = J[JOINT_INDEX[parent]] + 1.06 * (J[JOINT_INDEX[joint]] - J[JOINT_INDEX[parent]])
+    (folder / "gltf").mkdir(parents=True, exist_ok=True)
+    files = {"plain_metres_json": lx.write_plain_json(folder / "plain.json", J),
+             "mixamo_bvh": lx.write_mixamo_bvh(folder / "mixamo.bvh", J),
+             "rokoko_bvh": lx.write_rokoko_bvh(folder / "rokoko.bvh", J),
+             "cmu_units_bvh": lx.write_cmu_bvh(folder / "cmu.bvh", J),
+             "blender_glb_scale_0.01": lx.write_mixamo_gltf(folder / "mixamo.glb", J),
+             "gltf_external_bin": lx.write_mixamo_gltf(folder / "gltf" / "mixamo.gltf", J, external_bin=True)}
+    rows = {}
+    for label, path in files.items():
+        char = read_character(path)
+        e = estimator.estimate(char.features)
+        Js = model.rest_joints(torch.tensor(e.betas)).double().numpy() * e.scale
+        out_h = Js[JOINT_INDEX["head"], 1] - Js[[JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]], 1].mean()
+        rows[label] = {"rig": char.rig.name, "units_m": char.units_m, "units_source": char.units_source,
+                       "stature_in_m": char.head_ankle_height_m / HEAD_ANKLE_PER_STATURE,
+                       "stature_out_m": float(out_h) / HEAD_ANKLE_PER_STATURE,
+                       "max_feature_residual_mm": e.max_feature_residual_m * 1000, "scale": e.scale,
+                       "betas": [round(float(b), 4) for b in e.betas]}
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gender", default="neutral")
@@ -155,6 +190,10 @@ def main() -> None:
         "characters": real_characters(model, estimators, shared) if (shared / "data").is_dir()
         else f"skipped: {shared / 'data'} not found",
     }
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        result["real_layouts"] = real_layouts(model, kernel, Path(tmp))
     write_json_atomic(args.out, result)
     ho = result["held_out"]
     for name in ("kernel", "kernel_refined", "least_squares"):
@@ -171,6 +210,10 @@ def main() -> None:
                 continue
             print(f"{label:28s} stature err {k['stature_head_ankle_error_mm']:7.1f} mm | bone MAE "
                   f"{k['bone_mean_abs_error_mm']:5.1f} mm | scale {k['scale']:.3f} | {k['query_ms']:.2f} ms")
+    for label, r in result["real_layouts"].items():
+        print(f"{label:24s} units {r['units_m']:.4f} ({r['units_source']}) stature in {r['stature_in_m']:.3f} m "
+              f"out {r['stature_out_m']:.3f} m | residual {r['max_feature_residual_mm']:.1f} mm | "
+              f"scale {r['scale']:.3f}")
     print(f"-> {args.out}")
 
 

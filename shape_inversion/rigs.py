@@ -1,4 +1,8 @@
-"""Joint-name maps from common rigs to SMPL's joints (one data file per rig in ``presets/``).
+"""Joint-name maps from common rigs to SMPL's joints (one data file per rig in ``smplik/data/presets/``).
+
+The presets are the one registry shared with ``smplik data build`` (:mod:`smplik.data.retarget`):
+``cmu``, ``makehuman``, ``mixamo``, ``smpl``, ``unity``, ``unreal``. The retargeting keys of a
+preset (``floor``, ``rest``, ``motion_start``, ``aim``) are ignored here.
 
 A map file is JSON::
 
@@ -17,11 +21,11 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 from shape_inversion.features import REQUIRED_JOINTS
 from smplik.conventions import JOINT_NAMES
+from smplik.data.retarget import PRESET_DIR, preset_names
 from smplik.data.rig_names import NameMatchError, match_humanoid
 
 
@@ -77,9 +81,8 @@ def rig_from_dict(data: Mapping, name: str) -> RigMap:
 
 
 def available_presets() -> tuple[str, ...]:
-    """Names of the built-in presets (the ``presets/*.json`` stems), sorted."""
-    folder = resources.files("shape_inversion") / "presets"
-    return tuple(sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".json")))
+    """Names of the built-in presets (the one registry :data:`smplik.data.retarget.PRESET_DIR`), sorted."""
+    return preset_names()
 
 
 def load_preset(name: str) -> RigMap:
@@ -89,7 +92,7 @@ def load_preset(name: str) -> RigMap:
     if key not in presets:
         raise RigError(f"Unknown rig preset {name!r}; available presets: {', '.join(presets)} "
                        "(or pass a map file with --map).")
-    text = (resources.files("shape_inversion") / "presets" / f"{key}.json").read_text(encoding="utf-8")
+    text = (PRESET_DIR / f"{key}.json").read_text(encoding="utf-8")
     return rig_from_dict(json.loads(text), key)
 
 

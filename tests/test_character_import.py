@@ -8,7 +8,12 @@ import struct
 
 import numpy as np
 import pytest
-from character_fixtures import (
+
+from shape_inversion.options import CharacterOptions, CharacterOptionsError
+from shape_inversion.skeleton_io import SkeletonError, read_character, read_gltf
+from smplik.conventions import JOINT_NAMES
+from smplik.units import UNIT_NAMES, detect_units
+from workflows.layout_examples import (
     CMU_UNIT_M,
     smpl_rest,
     write_cmu_bvh,
@@ -17,11 +22,6 @@ from character_fixtures import (
     write_plain_json,
     write_rokoko_bvh,
 )
-
-from shape_inversion.options import CharacterOptions, CharacterOptionsError
-from shape_inversion.skeleton_io import SkeletonError, read_character, read_gltf
-from smplik.conventions import JOINT_NAMES
-from smplik.units import UNIT_NAMES, detect_units
 
 PROPORTIONS = {"leg": 1.06, "arm": 0.95}
 
@@ -184,3 +184,47 @@ def test_invert_shape_and_from_estimate_read_the_rest_pose_alike(files, tmp_path
         assert shape["character"]["options"]["rest"] == rest
         char = load_character(files["cmu_bvh"], CharacterOptions(rest=rest, units="cmu"))
         np.testing.assert_allclose(shape["diagnostics"]["query_features_m"], char.character.features, atol=1e-9)
+
+
+def test_one_preset_registry_for_data_build_and_invert_shape(files):
+    """``data build`` retargets a Mixamo BVH (prefixed names, per-joint position channels) with the same preset."""
+    from shape_inversion.rigs import available_presets
+    from smplik.data.retarget import preset_names, retarget_bvh
+
+    assert available_presets() == preset_names()
+    assert {"cmu", "mixamo", "unity", "unreal", "makehuman"} <= set(preset_names())
+    clip = retarget_bvh(files["mixamo_bvh"], preset="mixamo", rest="offsets")
+    assert clip.num_frames == 2
+    knee = JOINT_NAMES.index("right_knee") - 1
+    assert np.linalg.norm(clip.body_pose[0, knee]) < 0.02  # the file's rest is SMPL's rest (within 1 deg)
+    assert np.degrees(np.linalg.norm(clip.body_pose[1, knee])) == pytest.approx(40.0, abs=0.5)
+
+
+def test_rig_without_preset_maps_by_name_and_topology(files, tmp_path):
+    from shape_inversion.rigs import RigError, detect_rig
+    from smplik.conventions import PARENTS
+
+    char = read_character(files["rokoko_bvh"])
+    assert char.rig.name == "auto" and char.smpl_joints["right_knee"] == char.skeleton.names.index("RightShin")
+    assert "right_hip=RightThigh" in char.rig.description
+    parts = {"hip": "Hip", "knee": "Knee", "ankle": "Ankle", "foot": "Toe", "collar": "Clavicle",
+             "shoulder": "UpperArm", "elbow": "Elbow", "wrist": "Wrist", "hand": "HandTip"}
+    middle = {"pelvis": "Pelvis", "spine1": "Spine", "spine2": "Spine1", "spine3": "Chest", "neck": "Neck",
+              "head": "Head"}
+    styles = {"L_Knee": lambda s, p: f"{s.upper()}_{p}", "Knee_l": lambda s, p: f"{p}_{s}",
+              "Knee.L": lambda s, p: f"{p}.{s.upper()}",
+              "LeftKnee": lambda s, p: f"{'Left' if s == 'l' else 'Right'}{p}"}
+    for style, fmt in styles.items():
+        names = []
+        for n in JOINT_NAMES:
+            side, _, part = n.partition("_")
+            names.append(fmt(side[0], parts[part]) if side in ("left", "right") else middle[n])
+        rig = detect_rig(names, PARENTS)
+        mapped = dict(rig.joints)
+        for n in ("left_knee", "right_elbow", "left_collar", "right_shoulder", "spine3", "right_foot"):
+            assert mapped[n] == names[JOINT_NAMES.index(n)], (style, n, mapped)
+    swapped = list(names)
+    swapped[JOINT_NAMES.index("right_knee")], swapped[JOINT_NAMES.index("right_ankle")] = \
+        swapped[JOINT_NAMES.index("right_ankle")], swapped[JOINT_NAMES.index("right_knee")]
+    with pytest.raises(RigError, match="not an ancestor"):
+        detect_rig(swapped, PARENTS)

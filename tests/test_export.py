@@ -7,7 +7,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from character_fixtures import smpl_rest, write_mixamo_gltf
 from test_workflows_support import best_solver
 
 from shape_inversion.gltf_io import load_gltf
@@ -15,6 +14,7 @@ from smplik.data.bvh import read_bvh
 from workflows.character import CharacterOptions, character_from_estimate, smpl_to_custom
 from workflows.examples_gen import example_poses
 from workflows.export import export_scene
+from workflows.layout_examples import smpl_rest, write_mixamo_gltf
 from workflows.scene import Scene, SceneCharacter, SkeletonSource, character_joints, load_scene
 
 MM = 1e-3
@@ -127,3 +127,18 @@ def test_export_refuses_unknown_formats_and_missing_files(glb_scene, tmp_path):
     gone = dataclasses.replace(c, skeleton=dataclasses.replace(c.skeleton, path=str(tmp_path / "nope.glb")))
     with pytest.raises(ExportError, match="not found"):
         export_scene(Scene((gone,)), tmp_path)
+
+
+def test_glb_character_is_drawn_with_its_own_posed_mesh(glb_scene):
+    """The fixture's mesh is SMPL's rest mesh: posed by its skin weights it lies on the posed SMPL body."""
+    from workflows.character_mesh import scene_character_own_mesh
+    from workflows.previews import character_mesh, scene_items
+
+    scene, _ = glb_scene
+    c = scene.characters[0]
+    own = scene_character_own_mesh(c)
+    smpl = character_mesh(c)
+    assert own is not None and own.vertices.shape == smpl.vertices.shape
+    assert np.linalg.norm(own.vertices - smpl.vertices, axis=1).mean() < 0.03  # LBS without pose correctives
+    meshes, _, _ = scene_items(scene)
+    assert np.allclose(meshes[0].vertices, own.vertices)

@@ -102,3 +102,31 @@ def character_mesh_canon(char: CustomCharacter, pose: CustomPose) -> tuple[np.nd
         return None
     R, p = pose.positions(char)
     return char.file_to_canon_points(pose_mesh(mesh, rig, R, p)), mesh.faces
+
+
+def own_mesh_item(char: CustomCharacter, pose: CustomPose, color=(0.85, 0.72, 0.60, 1.0)):
+    """The character's own posed mesh as a :class:`smplik.render.MeshItem` (character space), or None."""
+    from smplik.render import MeshItem
+
+    posed = character_mesh_canon(char, pose)
+    return None if posed is None else MeshItem(posed[0], posed[1], color)
+
+
+def scene_character_own_mesh(character, color=(0.85, 0.72, 0.60, 1.0)):
+    """A scene character's own posed mesh (glTF/GLB characters with a pose), else None.
+
+    ``character`` is a :class:`workflows.scene.SceneCharacter`; its skeleton file is re-read with its
+    stored options and its ``(betas, scale)``.
+    """
+    import dataclasses
+    from pathlib import Path
+
+    from workflows.character import character_from_estimate, smpl_to_custom
+
+    sk = character.skeleton
+    if sk is None or character.pose is None or Path(sk.path).suffix.lower() not in (".glb", ".gltf") \
+            or not Path(sk.path).is_file():
+        return None
+    char = character_from_estimate(sk.path, sk.options, character.betas, character.scale, character.gender)
+    pose = smpl_to_custom(dataclasses.replace(character.pose, betas=character.betas), char)
+    return own_mesh_item(char, pose, color)

@@ -82,8 +82,10 @@ def custom_skeleton_segments(char: CustomCharacter, pose: CustomPose, color=(0.9
 def scene_items(scene: Scene, *, markers: bool = True) -> tuple[list[MeshItem], list[Sphere], list[Segment]]:
     """Meshes (one colour per character) and effector markers of every character."""
     meshes, spheres, segments = [], [], []
-    for i, c in enumerate(scene.characters):
-        mesh = character_mesh(c, PALETTE[i % len(PALETTE)])
+    from workflows.character_mesh import scene_character_own_mesh
+
+    for i, c in enumerate(scene.characters):  # a glTF character's own skinned mesh, else its SMPL body
+        mesh = scene_character_own_mesh(c, PALETTE[i % len(PALETTE)]) or character_mesh(c, PALETTE[i % len(PALETTE)])
         if mesh is not None:
             meshes.append(mesh)
         if markers:
@@ -188,12 +190,16 @@ def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[i
 
 def render_custom_character(char: CustomCharacter, pose: CustomPose, character: SceneCharacter,
                             size: tuple[int, int] = (480, 640)) -> np.ndarray:
-    """Custom skeleton (orange bones) beside its SMPL approximation with effector markers."""
+    """Custom skeleton (orange bones, over its own posed mesh for glTF characters) beside its SMPL approximation."""
+    from workflows.character_mesh import own_mesh_item
+
     bones = custom_skeleton_segments(char, pose)
     spheres, segments = effector_markers(character, radius=0.03 * character.scale)
     mesh = character_mesh(character)
+    own = own_mesh_item(char, pose)
     left = render([mesh] if mesh is not None else [], spheres, segments, size=size, view=View((0.3, 0.2, 1.0)))
-    right = render([], spheres, segments + bones, size=size, view=View((0.3, 0.2, 1.0)))
+    right = render([own] if own is not None else [], spheres, segments + bones, size=size,
+                   view=View((0.3, 0.2, 1.0)))
     return hstack_images([left, right])
 
 

@@ -132,6 +132,33 @@ class RetargetPreset:
                    aim=aim)
 
 
+def preset_names() -> tuple[str, ...]:
+    """Built-in rig presets (``presets/*.json`` stems, sorted; ``*_example`` templates left out).
+
+    The one registry of both packages: ``smplik data build --preset`` and ``smplik invert-shape --rig``.
+    """
+    return tuple(sorted(p.stem for p in PRESET_DIR.glob("*.json") if not p.stem.endswith("_example")))
+
+
+def resolve_joint_names(wanted: dict[str, str], names: tuple[str, ...]) -> dict[str, int]:
+    """SMPL joint -> index into ``names`` for each ``wanted`` source name: exact, else case-insensitive with
+    any ``namespace:`` / ``path|`` prefix dropped (``mixamorig1:Hips`` matches ``mixamorig:Hips``)."""
+    def norm(n: str) -> str:
+        return n.rsplit("|", 1)[-1].rsplit(":", 1)[-1].strip().lower()
+
+    exact = {n: i for i, n in enumerate(names)}
+    loose: dict[str, int] = {}
+    for i, n in enumerate(names):
+        loose.setdefault(norm(n), i)
+    out = {}
+    for smpl, src in wanted.items():
+        if src in exact:
+            out[smpl] = exact[src]
+        elif norm(src) in loose:
+            out[smpl] = loose[norm(src)]
+    return out
+
+
 def load_preset(preset: str | Path | dict[str, Any] | RetargetPreset) -> RetargetPreset:
     """A preset by built-in name (``"cmu"``), JSON file path, dict, or as is."""
     if isinstance(preset, RetargetPreset):
@@ -142,7 +169,7 @@ def load_preset(preset: str | Path | dict[str, Any] | RetargetPreset) -> Retarge
     if not path.suffix and path.parent == Path("."):
         path = PRESET_DIR / f"{preset}.json"
         if not path.is_file():
-            names = ", ".join(sorted(p.stem for p in PRESET_DIR.glob("*.json")))
+            names = ", ".join(preset_names())
             raise RetargetError(f"Unknown retarget preset {str(preset)!r}; built-in presets: {names}, or a JSON path.")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -360,13 +387,15 @@ def retarget_bvh(
     shapedirs = model.arrays["shapedirs"][:, :, :NUM_BETAS].astype(np.float64)
     floor_smpl = float((model.arrays["v_template"] + shapedirs @ betas_np)[:, 1].min())
 
-    missing = [f"{k} -> {v}" for k, v in preset.joints.items() if v not in motion.joint_names]
+    resolved = resolve_joint_names(preset.joints, motion.joint_names)
+    missing = [f"{k} -> {v}" for k, v in preset.joints.items() if k not in resolved]
     if missing:
+        joints = ", ".join(motion.joint_names[:40]) + (", ..." if motion.num_joints > 40 else "")
         raise RetargetError(f"{motion.name}: preset {preset.name!r} names source joints the file does not have: "
-                            f"{', '.join(missing)} (file joints: {', '.join(motion.joint_names)})")
+                            f"{', '.join(missing)} (file joints: {joints})")
     src = np.full(NUM_JOINTS, -1, dtype=np.int64)
-    for k, v in preset.joints.items():
-        src[JOINT_INDEX[k]] = motion.joint_names.index(v)
+    for k, i in resolved.items():
+        src[JOINT_INDEX[k]] = i
     mapped = {int(j) for j in np.nonzero(src >= 0)[0]}
     aims = _aims(preset, mapped)
 

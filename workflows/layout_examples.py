@@ -1,4 +1,4 @@
-"""Character files in real producers' layouts, written by the tests (no third-party file is committed).
+"""Example character files in real producers' layouts, written by tests and benchmarks (none is committed).
 
 Every writer takes the same skeleton: SMPL's 24 rest joints in metres, y-up, facing +z
 (``joints_m`` (24, 3)), so each file's SMPL-SI estimate can be compared with the plain-metres one.
