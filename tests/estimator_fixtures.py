@@ -21,6 +21,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from workflows.estimators.base import SMPL_NEUTRAL_REST_JOINTS, SMPLX_NEUTRAL_REST_PELVIS
+from workflows.scene import Scene, SceneCharacter
 
 PARENTS_22 = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19)
 PELVIS, HEAD = 0, 15
@@ -46,23 +47,32 @@ FOCAL = {"romp": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)), "bev": ma
 """Each fixture's focal length (pixels), to frame the people the same way in every format."""
 
 
+def framing(fmt: str, height_px: float = 240.0) -> dict[str, float]:
+    """``people`` keyword arguments that frame 1.7 m people ``height_px`` tall in ``fmt``'s fixture camera."""
+    return {"depth": depth_for(fmt, height_px), "focal": FOCAL[fmt]}
+
+
 def depth_for(fmt: str, height_px: float = 240.0) -> float:
     """The depth at which a 1.7 m person is ``height_px`` pixels tall in ``fmt``'s fixture camera."""
     return FOCAL[fmt] * 1.7 / height_px
 
 
-def people(seed: int = 0, n: int = 2, depth: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def people(seed: int = 0, n: int = 2, depth: float = 4.0, focal: float | None = None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """n people in a producer's camera frame: aa (n, 24, 3) (upright, facing the camera), transl, betas 0.
 
-    ``depth`` (metres) sets the framing; lateral offsets scale with it so the people stay in view.
+    ``depth`` (metres) sets the framing; with the camera's ``focal`` (pixels) the people stand up to
+    150 px left and right of the image centre and within 10% of that depth.
     """
+    focal = FOCAL["romp"] if focal is None else focal
     rng = np.random.default_rng(seed)
     aa = rng.normal(0, 0.2, (n, 24, 3))
     upright = Rotation.from_euler("x", np.pi)  # SMPL's y-up body in OpenCV's y-down camera frame
     for i in range(n):
         aa[i, 0] = (upright * Rotation.from_rotvec(rng.normal(0, 0.25, 3))).as_rotvec()
-    x = (np.linspace(-0.2, 0.2, n) if n > 1 else np.zeros(1)) * depth
-    transl = np.stack([x, rng.uniform(-0.02, 0.05, n) * depth, depth * (1 + rng.uniform(0, 0.2, n))], 1)
+    x = (np.linspace(-150.0, 150.0, n) if n > 1 else np.zeros(1)) * depth / focal
+    y = rng.uniform(-20.0, 40.0, n) * depth / focal
+    transl = np.stack([x, y, depth * (1 + rng.uniform(0, 0.1, n))], 1)
     return aa, transl, np.zeros((n, 10))
 
 
@@ -248,3 +258,30 @@ def write_amass(folder: Path, aa, transl, *, smplx: bool = False) -> Path:
     extra = {"surface_model_type": "smplx", "mocap_frame_rate": 120.0} if smplx else {"mocap_framerate": 120.0}
     np.savez(path, poses=poses, trans=transl, betas=np.zeros(16), gender="neutral", **extra)
     return path
+
+
+# ----------------------------------------------------------------------------- smplik's side
+
+
+def our_joints(person) -> np.ndarray:
+    """Our body's posed joints (24, 3) in the world for an EstimatedPerson."""
+    from smplik.body_model import load_body_model
+
+    m = load_body_model(person.gender)
+    t = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32)  # noqa: E731
+    return m.joints(t(person.global_orient), t(person.body_pose), t(person.transl), t(person.betas)).double().numpy()
+
+
+def overlay_pixels(people_list, width: int = IMAGE_W, height: int = IMAGE_H, ground=None) -> np.ndarray:
+    """(N, 2, 2) pixels of pelvis and head through the scene's overlay camera (OpenGL, as pyrender draws)."""
+    from workflows.previews import image_camera
+
+    chars = tuple(SceneCharacter(f"p{i}", p.gender, p.betas, pose=p.to_pose()) for i, p in enumerate(people_list))
+    scene = Scene(chars, camera=people_list[0].camera, ground=ground)
+    cam = image_camera(scene, width, height)
+    out = []
+    for p in people_list:
+        J = our_joints(p)[[0, 15]]
+        x = (np.linalg.inv(cam.T_world_camera) @ np.c_[J, np.ones(2)].T).T[:, :3]
+        out.append(np.stack([cam.cx + cam.fx * x[:, 0] / -x[:, 2], cam.cy - cam.fy * x[:, 1] / -x[:, 2]], -1))
+    return np.stack(out)

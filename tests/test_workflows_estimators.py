@@ -21,7 +21,9 @@ from estimator_fixtures import (
     IMAGE_H,
     IMAGE_W,
     SINGLE_PERSON,
-    depth_for,
+    framing,
+    our_joints,
+    overlay_pixels,
     people,
     producer_pixels,
     write_aist,
@@ -41,37 +43,13 @@ from workflows.estimators.base import (
     rest_pelvis,
 )
 from workflows.safe_pickle import UnsafePickleError, load_pickle
-from workflows.scene import GroundRecord, Scene, SceneCharacter
-
-
-def our_joints(person) -> np.ndarray:
-    """Our body's posed joints (24, 3) in the world for an EstimatedPerson."""
-    from smplik.body_model import load_body_model
-
-    m = load_body_model(person.gender)
-    t = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32)  # noqa: E731
-    return m.joints(t(person.global_orient), t(person.body_pose), t(person.transl), t(person.betas)).double().numpy()
-
-
-def overlay_pixels(people_list, width=IMAGE_W, height=IMAGE_H, ground=None) -> np.ndarray:
-    """(N, 2, 2) pixels of pelvis and head through the scene's overlay camera (OpenGL, as pyrender draws)."""
-    from workflows.previews import image_camera
-
-    chars = tuple(SceneCharacter(f"p{i}", p.gender, p.betas, pose=p.to_pose()) for i, p in enumerate(people_list))
-    scene = Scene(chars, camera=people_list[0].camera, ground=ground)
-    cam = image_camera(scene, width, height)
-    out = []
-    for p in people_list:
-        J = our_joints(p)[[0, 15]]
-        x = (np.linalg.inv(cam.T_world_camera) @ np.c_[J, np.ones(2)].T).T[:, :3]
-        out.append(np.stack([cam.cx + cam.fx * x[:, 0] / -x[:, 2], cam.cy - cam.fy * x[:, 1] / -x[:, 2]], -1))
-    return np.stack(out)
+from workflows.scene import GroundRecord
 
 
 @pytest.mark.parametrize("fmt", sorted(CAMERA_WRITERS))
 def test_placement_matches_the_producers_pixels(tmp_path, fmt):
     n = 1 if fmt in SINGLE_PERSON else 2
-    aa, transl, betas = people(seed=3, n=n, depth=depth_for(fmt))  # people half the image tall
+    aa, transl, betas = people(seed=3, n=n, **framing(fmt))  # people half the image tall
     written = CAMERA_WRITERS[fmt](tmp_path, aa, transl, betas)
     found = read_estimate(written.path, format="auto", space="camera")
     assert detect_format(_raw(written.path)) == ("romp" if fmt == "bev" else fmt)

@@ -178,12 +178,12 @@ def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[i
     for k, d in enumerate(directions):
         img = render(meshes, spheres, segments, size=size, view=View(direction=tuple(d)),
                      background=(1.0, 1.0, 1.0, 1.0))
+        if panels and img.shape[0] != panels[0].shape[0]:
+            img = _fit_height(img, panels[0].shape[0])
         if labels:
             name = {0: "front view", 1: "side view"}.get(k, f"view {k + 1}")
             extra = [*legend, *ghost_note] if image is None and k == 0 else []
             img = label_image(img, [name, *extra], colors=[None, *colors] if extra else None)
-        if panels and img.shape[0] != panels[0].shape[0]:
-            img = _fit_height(img, panels[0].shape[0])
         panels.append(img)
     return hstack_images(panels)
 

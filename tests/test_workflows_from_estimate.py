@@ -1,0 +1,91 @@
+"""``smplik scene from-estimate`` on producer-layout fixtures: frame rule, --ground, previews, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from estimator_fixtures import CAMERA_WRITERS, framing, people, write_romp
+from test_workflows_support import best_solver
+
+from workflows.scene import load_scene
+
+
+def _can_render() -> bool:
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    try:
+        from smplik.render import Sphere, render
+
+        render([], [Sphere((0, 0, 0))], size=(32, 32))
+        return True
+    except Exception:  # noqa: BLE001 - no OpenGL backend on this machine
+        return False
+
+
+@pytest.fixture()
+def cli(monkeypatch):
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.cli import scene_app
+
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver())
+    return lambda *args: CliRunner().invoke(scene_app, ["from-estimate", *map(str, args)])
+
+
+def test_video_frame_gives_one_character_per_track_on_the_ground(tmp_path, cli):
+    aa, transl, betas = people(seed=1, **framing("romp"))
+    w = write_romp(tmp_path, aa, transl, betas, video=True)
+    result = cli(w.path, "--out", tmp_path / "out", "--frame", 1, "--ground", "--no-previews", "--max-effectors", 3)
+    assert result.exit_code == 0, result.output
+    scene = load_scene(tmp_path / "out" / "scene.json")
+    assert [c.name for c in scene.characters] == ["person_5", "person_6"]
+    assert scene.ground is not None and scene.ground.camera_height_m > 0.5
+    raw = json.loads((tmp_path / "out" / "scene.json").read_text())
+    assert raw["ground"]["camera_height_m"] == pytest.approx(scene.ground.camera_height_m)
+    from workflows.scene import character_joints
+
+    lowest = min(character_joints(c)[:, 1].min() for c in scene.characters)
+    assert -0.05 < lowest < 0.2  # feet joints just above the floor (the mesh sole is at y = 0)
+
+
+def test_errors_are_one_line_with_a_non_zero_exit(tmp_path, cli):
+    other = tmp_path / "other.npz"
+    np.savez(other, foo=np.zeros(3))
+    result = cli(other, "--out", tmp_path / "o1", "--no-previews")
+    assert result.exit_code == 1
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "known formats" in lines[0] and "Traceback" not in result.output
+    aa, transl, betas = people(seed=2, n=3)
+    many = write_romp(tmp_path, aa, transl, betas).path
+    result = cli(many, "--out", tmp_path / "o2", "--no-previews", "--max-people", 2)
+    assert result.exit_code == 1 and "--max-people 3" in result.output.replace("\n", "")
+    bracket = tmp_path / "[bold]x.npz"
+    bracket.write_bytes(b"not a zip")
+    result = cli(bracket, "--out", tmp_path / "o3", "--no-previews")
+    assert result.exit_code == 1 and "[bold]x.npz" in result.output.replace("\n", "")
+
+
+@pytest.mark.parametrize("fmt", ["phalp", "gvhmr"])
+def test_preview_shows_ghost_labels_and_overlay(tmp_path, cli, fmt):
+    if not _can_render():
+        pytest.skip("no OpenGL backend: previews not rendered")
+    from workflows.examples_gen import write_background
+    from workflows.previews import load_image
+
+    n = 1 if fmt == "gvhmr" else 2
+    aa, transl, betas = people(seed=3, n=n, **framing(fmt, 300))
+    w = CAMERA_WRITERS[fmt](tmp_path, aa, transl, betas)
+    photo = write_background(tmp_path / "photo.png")
+    result = cli(w.path, "--out", tmp_path / "out", "--image", photo, "--max-effectors", 4)
+    assert result.exit_code == 0, result.output
+    img = load_image(tmp_path / "out" / "scene.png")
+    bg = load_image(photo)
+    overlay = img[:, :640].astype(int)
+    assert np.abs(overlay - bg.astype(int)).max() > 50  # bodies drawn over the photo
+    dark = (overlay.max(-1) < 60) & (bg.astype(int).max(-1) > 100)
+    assert dark.sum() > 30  # the ghost wireframe (dark bones) is there
+    legend = img[:40, :200]
+    assert (legend.min(-1) < 80).sum() > 50  # legend text printed on the image
