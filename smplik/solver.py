@@ -188,7 +188,7 @@ class IKSolver:
             FileNotFoundError: no such file (or no packaged model in this installation).
             ValueError: the file is not an smplik model.
         """
-        from smplik.train import load_model
+        from smplik.model_io import load_model
 
         if path is None:
             path = packaged_model_path()

@@ -11,7 +11,7 @@ import torch
 
 from smplik.conventions import JOINT_INDEX
 from smplik.effectors import EffectorBatch
-from smplik.train import load_model
+from smplik.model_io import load_model
 
 SHIPPED = resources.files("smplik") / "checkpoints" / "smplik_cmu.pt"
 pytestmark = pytest.mark.skipif(not SHIPPED.is_file(), reason="shipped model smplik/checkpoints/smplik_cmu.pt absent")

@@ -29,8 +29,8 @@ TINY = NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=2, layers_per_bl
 
 
 def write_tiny_model(path, bodies, seed=0):
-    """A train-free model in the exported format (through smplik.train.export_model)."""
-    from smplik.train import export_model
+    """A train-free model in the exported format (through smplik.model_io.export_model)."""
+    from smplik.model_io import export_model
 
     torch.manual_seed(seed)
     model = ProtoResIK(TINY, bodies.J_template, bodies.J_dirs)
@@ -87,7 +87,7 @@ def test_default_model_is_the_packaged_file():
 
 
 def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):
-    state = torch.load(model_path, weights_only=False)
+    state = torch.load(model_path, weights_only=True)
     state["body_fingerprint"] = "0123456789abcdef"
     other = tmp_path / "other.pt"
     torch.save(state, other)
