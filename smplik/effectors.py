@@ -1,4 +1,5 @@
-"""Effectors: the user's constraints, their tensor packing, and training-time sampling.
+"""Effectors: the user's constraints and their tensor packing (training-time sampling:
+:mod:`smplik.data.effector_sampling`).
 
 An effector targets one SMPL joint and is one of (ProtoRes section 2):
 
@@ -25,7 +26,6 @@ import torch
 from torch import Tensor
 
 from smplik.conventions import JOINT_NAMES, NUM_JOINTS, EffectorType, joint_index
-from smplik.rotations import euler_to_matrix, matrix_to_rot6d
 from smplik.validation import MAX_ABS_POSITION_M, JSONPathError, finite_array, short_repr
 
 _TYPE_NAMES = tuple(t.name.lower() for t in EffectorType)
@@ -243,78 +243,3 @@ def pack_effectors(effectors: Sequence[Effector] | Sequence[Sequence[Effector]],
                 data[b, i, :3], data[b, i, 3:] = e.value, e.direction
     return EffectorBatch(torch.from_numpy(joint), torch.from_numpy(kind), torch.from_numpy(data).to(dtype),
                          torch.from_numpy(tol).to(dtype), torch.from_numpy(mask))
-
-
-# ----------------------------------------------------------------------------- training-time sampling
-
-
-@dataclass(frozen=True)
-class EffectorSamplingConfig:
-    """Randomised effector sampling of ProtoRes Algorithm 1 / App. B (defaults = the paper's)."""
-
-    min_effectors: int = 3
-    """Smallest effector count per batch (N ~ U{min..max}, one N per batch)."""
-    max_effectors: int = 16
-    """Largest effector count per batch."""
-    sigma_max: float = 0.1
-    """sigma_M: noise std at tolerance 1 (metres for positions, radians for rotations)."""
-    eta: float = 13.0
-    """Tolerance-to-noise exponent: sigma = sigma_M * tolerance**eta."""
-    weight_max: float = 1000.0
-    """W_M: cap of the per-effector loss weight W = min(W_M, 1 / sigma)."""
-    lookat_distance_std: float = 2.0
-    """Std (metres) of the folded normal giving the look-at target distance (plus 0.1 m minimum)."""
-
-
-def tolerance_loss_weight(tolerance: Tensor, cfg: EffectorSamplingConfig) -> Tensor:
-    """ProtoRes' per-effector loss weight ``W = min(W_M, 1 / sigma)`` with ``sigma = sigma_M tolerance^eta``.
-
-    tolerance (...) -> (...)."""
-    sigma = cfg.sigma_max * tolerance.pow(cfg.eta)
-    return torch.clamp(1.0 / sigma.clamp_min(1e-12), max=cfg.weight_max)
-
-
-@dataclass(frozen=True)
-class SampledEffectors:
-    effectors: EffectorBatch
-    weight: Tensor  # (B, N) randomized loss weight W(tolerance)
-
-
-def sample_effectors(p_world: Tensor, R_world: Tensor, cfg: EffectorSamplingConfig,
-                     generator: torch.Generator, num_effectors: int | None = None) -> SampledEffectors:
-    """Sample noisy effectors from ground-truth joints (ProtoRes Algorithm 1, App. B).
-
-    Types are drawn with replacement, joints per type without replacement, the first effector is
-    always a position (so every sample has one). Args: p_world (B, J, 3), R_world (B, J, 3, 3).
-    """
-    B, J = p_world.shape[:2]
-    dev, dt = p_world.device, p_world.dtype
-    g = generator
-    N = num_effectors or int(torch.randint(cfg.min_effectors, cfg.max_effectors + 1, (1,), generator=g))
-    kind = torch.randint(0, 3, (B, N), generator=g)
-    kind[:, 0] = int(EffectorType.POSITION)
-    # Without replacement per type: a random permutation of joints per (sample, type); the i-th
-    # effector of type t takes the next unused joint of that permutation.
-    perms = torch.rand(B, 3, J, generator=g).argsort(dim=-1)
-    one_hot = torch.nn.functional.one_hot(kind, 3)
-    rank = ((one_hot.cumsum(1) - 1) * one_hot).sum(-1)  # (B, N) index within its type
-    joint = perms[torch.arange(B)[:, None], kind, rank]
-    tol = torch.rand(B, N, generator=g, dtype=dt)
-    sigma = cfg.sigma_max * tol.pow(cfg.eta)
-    weight = tolerance_loss_weight(tol, cfg)
-
-    bi = torch.arange(B)[:, None]
-    g_pos = p_world[bi, joint]  # (B, N, 3)
-    G_rot = R_world[bi, joint]  # (B, N, 3, 3)
-    eps = torch.randn(B, N, 3, generator=g, dtype=dt)
-    pos_data = torch.cat([g_pos + sigma[..., None] * eps, torch.zeros_like(g_pos)], -1)
-    psi = euler_to_matrix(torch.randn(B, N, 3, generator=g, dtype=dt) * sigma[..., None])
-    rot_data = matrix_to_rot6d(psi @ G_rot)
-    d_local = torch.nn.functional.normalize(torch.randn(B, N, 3, generator=g, dtype=dt), dim=-1)
-    dist = torch.randn(B, N, 1, generator=g, dtype=dt).abs() * cfg.lookat_distance_std + 0.1
-    target = g_pos + dist * (G_rot @ d_local[..., None])[..., 0] + sigma[..., None] * eps
-    look_data = torch.cat([target, d_local], -1)
-    data = torch.where((kind == 0)[..., None], pos_data, torch.where((kind == 1)[..., None], rot_data, look_data))
-    mask = torch.ones(B, N, dtype=torch.bool)
-    batch = EffectorBatch(joint.to(dev), kind.to(dev), data.to(dev), tol.to(dev), mask.to(dev))
-    return SampledEffectors(batch, weight.to(dev))

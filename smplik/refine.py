@@ -38,7 +38,8 @@ import torch
 from torch import Tensor
 
 from smplik.conventions import PARENTS, EffectorType
-from smplik.effectors import EffectorBatch, EffectorSamplingConfig, tolerance_loss_weight
+from smplik.data.effector_sampling import EffectorSamplingConfig, tolerance_loss_weight
+from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
 from smplik.rotations import axis_angle_to_matrix, rot6d_to_matrix, skew_matrix

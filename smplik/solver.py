@@ -189,7 +189,7 @@ class IKSolver:
             ValueError: the file is not an smplik model (or, with ``runtime``, an unusable ONNX file).
             OnnxUnavailableError: ``runtime="onnx"`` without onnxruntime installed.
         """
-        from smplik.train import load_model
+        from smplik.model_io import load_model
 
         if path is None:
             path = packaged_model_path()

@@ -2,33 +2,50 @@
 
 ``smplik train --data CACHE.npz --out RUN_DIR``; for data-parallel training on CPU run the same
 command under ``torchrun --nproc_per_node K`` (gloo backend; no code change). Each checkpoint
-(``RUN_DIR/checkpoint.pt``, written atomically) holds the model, optimizer, step and every RNG
-state, so an interrupted run resumes exactly; ``RUN_DIR/config.json`` sits next to it.
+(``RUN_DIR/checkpoint.pt``, written atomically in the safe format of :mod:`smplik.model_io`) holds
+the model, optimizer, step, loss average and every RNG state (torch, numpy, python, the samplers'),
+so an interrupted run resumes exactly; ``RUN_DIR/config.json`` sits next to it.
+
+Interrupts: Ctrl-C (SIGINT) never cuts a step in half. The first one lets the current step
+finish, writes the checkpoint and raises :class:`TrainingInterrupted` ("checkpoint saved at step
+N"); a second one stops at once and drops the unfinished step (the last checkpoint on disk is the
+resume point). Either way rerunning the command gives bit for bit the run that was never stopped.
+On resume ``metrics.csv`` is cut back to the checkpoint's step, so it never holds a step twice.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import json
 import os
+import random
+import signal
+import threading
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields, replace
+import typing
+import warnings
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 import torch.distributed as dist
 
-from smplik.atomic import atomic_path, write_json_atomic
+from smplik.atomic import atomic_path, write_json_atomic, write_text_atomic
 from smplik.body_model import BodyModelSet
-from smplik.effectors import EffectorSamplingConfig, sample_effectors
+from smplik.data.effector_sampling import EffectorSamplingConfig, sample_effectors
 from smplik.losses import LossConfig, protores_loss
 from smplik.metrics import local_geodesic, mpjpe, pa_mpjpe
+from smplik.model_io import CHECKPOINT_FORMAT, FORMAT_VERSION, load_checkpoint, load_model, write_model_file
 from smplik.network import NetworkConfig, ProtoResIK
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
 METRICS = "metrics.csv"
+METRIC_COLUMNS = ("step", "loss", "mpjpe_mm", "pa_mpjpe_mm", "geodesic_rad", "samples_per_s")
 
 
 @dataclass(frozen=True)
@@ -53,6 +70,9 @@ class TrainConfig:
     """Write the checkpoint every this many steps (and at the end or on Ctrl-C)."""
     val_size: int = 2048
     """Validation poses (fixed set, fixed effectors)."""
+    val_fraction: float = 0.0
+    """For a cache without validation frames: hold out this fraction of the train clips (seeded by
+    ``seed``) for validation. 0: train on all clips and skip validation (with a notice)."""
     seed: int = 0
     augment: bool = True
     """Random rotation about the vertical axis and left/right mirroring."""
@@ -70,13 +90,71 @@ class TrainConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        nested = {"network": NetworkConfig, "loss": LossConfig, "effectors": EffectorSamplingConfig}
-        kwargs = {f.name: d[f.name] for f in fields(cls) if f.name in d}
-        for key, typ in nested.items():
-            if key in kwargs and isinstance(kwargs[key], dict):
-                kwargs[key] = typ(**kwargs[key])
-        return cls(**kwargs)
+    def from_dict(cls, d: Mapping[str, Any], source: str = "config") -> TrainConfig:
+        """Build from a (possibly partial) dict such as ``config.json``; unknown keys and values of
+        the wrong type raise ``ValueError`` naming ``source`` and the key (``network.width``)."""
+        return _dataclass_from_dict(cls, d, source, "")
+
+    @classmethod
+    def from_file(cls, path: str | Path, **required: str) -> TrainConfig:
+        """Read a JSON config file (partial: missing fields keep their defaults).
+
+        ``required`` fills ``data``/``out`` when the file lacks them (e.g. ``data="", out=""``).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"Config file not found: {path}")
+        try:
+            obj = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+            raise ValueError(f"{path}: not valid JSON ({type(exc).__name__}: {exc}).") from None
+        if not isinstance(obj, dict):
+            raise ValueError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
+        return cls.from_dict({**required, **obj}, str(path))
+
+
+def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
+    """A (nested, frozen) config dataclass from a dict, strictly: every key known, every value typed."""
+    where = prefix.rstrip(".") or "the top level"
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{source}: '{where}' must be an object, got {type(d).__name__}.")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in fields(cls)]
+    unknown = [k for k in d if k not in names]
+    if unknown:
+        raise ValueError(f"{source}: unknown key '{prefix}{unknown[0]}'; expected one of: {', '.join(names)}.")
+    kwargs = {}
+    for key, value in d.items():
+        typ = hints[key]
+        if is_dataclass(typ):
+            kwargs[key] = _dataclass_from_dict(typ, value, source, f"{prefix}{key}.")
+            continue
+        allowed = typing.get_args(typ) or (typ,)
+        ok = any((t is type(None) and value is None) or (t is bool and type(value) is bool)
+                 or (t is int and type(value) is int) or (t is float and type(value) in (int, float))
+                 or (t is str and type(value) is str) for t in allowed)
+        if not ok:
+            expected = " or ".join("null" if t is type(None) else t.__name__ for t in allowed)
+            raise ValueError(f"{source}: key '{prefix}{key}' must be {expected}, got {value!r:.60}.")
+        kwargs[key] = float(value) if float in allowed and type(value) is int else value
+    required = [f.name for f in fields(cls) if f.name not in kwargs and f.default is f.default_factory is MISSING]
+    if required:
+        raise ValueError(f"{source}: missing key '{prefix}{required[0]}'.")
+    return cls(**kwargs)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped by Ctrl-C. ``step``: the step of the checkpoint on disk (None: none yet);
+    ``dropped``: a second Ctrl-C stopped a step half-way and it was dropped."""
+
+    def __init__(self, step: int | None, *, dropped: bool = False) -> None:
+        self.step, self.dropped = step, dropped
+        if dropped:
+            message = (f"stopped mid-step; the step was dropped and the checkpoint at step {step} is the resume point"
+                       if step is not None else "stopped mid-step before the first checkpoint; nothing saved")
+        else:
+            message = f"checkpoint saved at step {step}" if step is not None else "interrupted; nothing saved"
+        super().__init__(message)
 
 
 def build_model(cfg: NetworkConfig, bodies: BodyModelSet) -> ProtoResIK:
@@ -104,22 +182,73 @@ def _distributed() -> tuple[int, int]:
     return (dist.get_rank(), world) if world > 1 else (0, 1)
 
 
+# ----------------------------------------------------------------------------- RNG states as plain data
+
+
+def _rng_state(gens: dict[str, torch.Generator]) -> dict[str, Any]:
+    """Every RNG state as tensors and numbers (readable by ``torch.load(weights_only=True)``)."""
+    np_kind, np_key, np_pos, np_has_gauss, np_gauss = np.random.get_state()
+    py_version, py_state, py_gauss = random.getstate()
+    return {**{name: g.get_state() for name, g in gens.items()}, "torch": torch.get_rng_state(),
+            "numpy": {"kind": str(np_kind), "key": torch.from_numpy(np_key.astype(np.int64)), "pos": int(np_pos),
+                      "has_gauss": int(np_has_gauss), "cached_gaussian": float(np_gauss)},
+            "python": {"version": int(py_version), "state": torch.tensor(py_state, dtype=torch.int64),
+                       "gauss_next": py_gauss}}
+
+
+def _set_rng_state(rng: dict[str, Any], gens: dict[str, torch.Generator]) -> None:
+    for name, g in gens.items():
+        g.set_state(rng[name])
+    torch.set_rng_state(rng["torch"])
+    if "numpy" in rng:  # format version 1 checkpoints have torch states only
+        n = rng["numpy"]
+        np.random.set_state((n["kind"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                             n["cached_gaussian"]))
+    if "python" in rng:
+        p = rng["python"]
+        random.setstate((p["version"], tuple(int(x) for x in p["state"].tolist()), p["gauss_next"]))
+
+
 def _save_checkpoint(path: Path, model: ProtoResIK, opt: torch.optim.Optimizer, step: int, cfg: TrainConfig,
-                     gens: dict[str, torch.Generator], bodies: BodyModelSet, metrics: dict[str, float]) -> None:
-    state = {
-        "format": "smplik-checkpoint",
-        "version": 1,
+                     gens: dict[str, torch.Generator], bodies: BodyModelSet, metrics: dict[str, float],
+                     loss_ema: float) -> None:
+    write_model_file(path, {
+        "format": CHECKPOINT_FORMAT,
+        "version": FORMAT_VERSION,
         "step": step,
         "config": cfg.to_dict(),
         "network": cfg.network.to_dict(),
         "model": model.state_dict(),
         "optimizer": opt.state_dict(),
-        "rng": {name: g.get_state() for name, g in gens.items()} | {"torch": torch.get_rng_state()},
+        "rng": _rng_state(gens),
         "body_fingerprint": bodies.fingerprint,
         "metrics": metrics,
-    }
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+        "loss_ema": loss_ema,
+    })
+
+
+# ----------------------------------------------------------------------------- metrics.csv
+
+
+def _read_metric_rows(path: Path, up_to: int) -> list[str]:
+    """The rows of ``metrics.csv`` up to step ``up_to``, each step once (later duplicates and partial
+    lines from a kill are dropped)."""
+    if not path.is_file():
+        return []
+    rows, last = [], 0
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines()[1:]:
+        cells = line.split(",")
+        if len(cells) != len(METRIC_COLUMNS) or not cells[0].isdigit():
+            continue
+        step = int(cells[0])
+        if last < step <= up_to:
+            rows.append(line)
+            last = step
+    return rows
+
+
+def _write_metric_rows(path: Path, rows: list[str]) -> None:
+    write_text_atomic(path, ",".join(METRIC_COLUMNS) + "\n" + "".join(r + "\n" for r in rows))
 
 
 def _plot_curve(run: Path) -> None:
@@ -128,7 +257,8 @@ def _plot_curve(run: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = list(csv.DictReader(open(run / METRICS)))
+    with open(run / METRICS, newline="") as fh:
+        rows = list(csv.DictReader(fh))
     if not rows:
         return
     steps = [int(r["step"]) for r in rows]
@@ -147,13 +277,89 @@ def _plot_curve(run: Path) -> None:
     plt.close(fig)
 
 
+# ----------------------------------------------------------------------------- interrupts
+
+
+class _InterruptFlag:
+    requested = False
+
+
+@contextlib.contextmanager
+def _deferred_sigint() -> Iterator[_InterruptFlag]:
+    """While active, the first SIGINT only sets ``flag.requested`` (checked between steps); the
+    handler then steps aside, so a second SIGINT raises ``KeyboardInterrupt`` at once."""
+    flag = _InterruptFlag()
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous in (signal.SIG_IGN, None):
+        yield flag  # signals are delivered to the main thread only; an ignored SIGINT stays ignored
+        return
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        flag.requested = True
+        signal.signal(signal.SIGINT, previous)
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _any_rank(flag: bool, world: int) -> bool:
+    if world == 1:
+        return flag
+    t = torch.tensor([int(flag)])
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return bool(t.item())
+
+
+# ----------------------------------------------------------------------------- the loop
+
+
+def _train_val_sets(cfg: TrainConfig) -> tuple[Any, Any]:
+    """The cache's train and validation frames (validation held out from train clips by ``val_fraction``)."""
+    from smplik.data.dataset import load_cache
+
+    dataset = load_cache(cfg.data)
+    train_set, val_set = dataset.subset("train"), dataset.subset("validation")
+    if not 0.0 <= cfg.val_fraction < 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1), got {cfg.val_fraction}.")
+    if cfg.val_fraction > 0:
+        if len(val_set):
+            raise ValueError(f"{cfg.data} has {len(val_set)} validation frames; val_fraction (--val-fraction) is "
+                             "for caches without a validation split: leave it at 0.")
+        train_set, val_set = train_set.hold_out_clips(cfg.val_fraction, cfg.seed)
+    if not len(train_set):
+        raise ValueError(f"{cfg.data} has no train frames; rebuild it with train clips (`smplik data build` "
+                         "puts every clip in train when no --split is given).")
+    if not len(val_set):
+        warnings.warn(f"{cfg.data} has no validation frames: validation is skipped (metrics.csv logs the loss "
+                      "only); --val-fraction F holds out a fraction F of the train clips instead.", stacklevel=3)
+    return train_set, val_set
+
+
 def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
           callback: Callable[[int, float], None] | None = None) -> dict[str, float]:
-    """Train (or resume) a run; returns the last validation metrics.
+    """Train (or resume) a run; returns the last validation metrics (empty without validation).
 
-    ``callback(step, loss)`` runs after every step (tests use it to interrupt a run).
+    ``callback(step, loss)`` runs after every finished step (tests use it to interrupt a run).
+
+    Raises:
+        TrainingInterrupted: on Ctrl-C (see the module docstring), after saving the checkpoint.
+        CheckpointError: ``--init-from`` or the run's checkpoint is not a safe smplik model file.
+        ValueError: a bad config or cache; ``init_from`` with other network sizes.
     """
-    from smplik.data.dataset import load_cache
+    with _deferred_sigint() as interrupt:
+        try:
+            return _train(cfg, interrupt, resume=resume, progress=progress, callback=callback)
+        except TrainingInterrupted:
+            raise
+        except KeyboardInterrupt:  # a second Ctrl-C while setting up: nothing was written
+            raise TrainingInterrupted(None) from None
+
+
+def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progress: bool,
+           callback: Callable[[int, float], None] | None) -> dict[str, float]:
     from smplik.data.sampler import PoseSampler
 
     rank, world = _distributed()
@@ -161,30 +367,30 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
     if rank == 0:
         run.mkdir(parents=True, exist_ok=True)
     bodies = BodyModelSet.load(cfg.model_dir)
-    dataset = load_cache(cfg.data)
-    train_set, val_set = dataset.subset("train"), dataset.subset("validation")
+    train_set, val_set = _train_val_sets(cfg)
 
     torch.manual_seed(cfg.seed + rank)
     model = build_model(cfg.network, bodies)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     gens = {"poses": torch.Generator().manual_seed(cfg.seed * 1000 + 2 * rank),
             "effectors": torch.Generator().manual_seed(cfg.seed * 1000 + 2 * rank + 1)}
-    step, metrics = 0, {}
+    step, metrics, loss_avg = 0, {}, float("nan")
     ckpt_path = run / CHECKPOINT
-    if cfg.init_from and not (resume and ckpt_path.exists()):
+    resuming = resume and ckpt_path.exists()
+    if cfg.init_from and not resuming:
         init_model, init_meta = load_model(cfg.init_from)
         if NetworkConfig(**init_meta["network"]) != cfg.network:
             raise ValueError(f"--init-from {cfg.init_from}: network sizes {init_meta['network']} differ from this "
                              f"run's {cfg.network.to_dict()}.")
         model.load_state_dict(init_model.state_dict())
-    if resume and ckpt_path.exists():
-        state = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    if resuming:
+        state = load_checkpoint(ckpt_path)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
-        for name, g in gens.items():
-            g.set_state(state["rng"][name])
-        torch.set_rng_state(state["rng"]["torch"])
+        _set_rng_state(state["rng"], gens)
         step, metrics = state["step"], state.get("metrics", {})
+        loss_avg = float(state.get("loss_ema", float("nan")))
+    saved_step = step if resuming else None
     net: torch.nn.Module = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
@@ -192,16 +398,18 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
     per_rank = max(1, cfg.batch_size // world)
     sampler = PoseSampler(train_set, bodies, batch_size=per_rank, generator=gens["poses"], augment=cfg.augment,
                           beta_noise=cfg.beta_noise)
-    val_gen = torch.Generator().manual_seed(12345)
-    val_batch = PoseSampler(val_set, bodies, batch_size=cfg.val_size, generator=val_gen, augment=False,
-                            beta_noise=cfg.beta_noise).sample()
-    val_eff = sample_effectors(val_batch.p_world, val_batch.R_world,
-                               replace(cfg.effectors, sigma_max=0.0), val_gen).effectors
+    val_batch = val_eff = None
+    if len(val_set):
+        val_gen = torch.Generator().manual_seed(12345)
+        val_batch = PoseSampler(val_set, bodies, batch_size=cfg.val_size, generator=val_gen, augment=False,
+                                beta_noise=cfg.beta_noise).sample()
+        val_eff = sample_effectors(val_batch.p_world, val_batch.R_world,
+                                   replace(cfg.effectors, sigma_max=0.0), val_gen).effectors
+    rows: list[str] = []
     if rank == 0:
         write_json_atomic(run / CONFIG, cfg.to_dict())
-        if not (run / METRICS).exists():
-            with atomic_path(run / METRICS) as tmp:
-                tmp.write_text("step,loss,mpjpe_mm,pa_mpjpe_mm,geodesic_rad,samples_per_s\n")
+        rows = _read_metric_rows(run / METRICS, up_to=step)  # a resume never repeats a step
+        _write_metric_rows(run / METRICS, rows)
 
     def lr_at(s: int) -> float:
         t = min(s / max(cfg.steps, 1), 1.0)
@@ -213,10 +421,14 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
         from tqdm import tqdm
 
         bar = tqdm(total=cfg.steps, initial=step, desc="train", dynamic_ncols=True)
-    t_last, n_last, loss_avg = time.perf_counter(), 0, float("nan")
+    t_last, n_last = time.perf_counter(), 0
     model.train()
+    whole = True  # the state is a finished step's (False while a step runs)
     try:
         while step < cfg.steps:
+            if _any_rank(interrupt.requested, world):  # Ctrl-C during the last step or the setup
+                raise KeyboardInterrupt
+            whole = False
             batch = sampler.sample()
             sampled = sample_effectors(batch.p_world, batch.R_world, cfg.effectors, gens["effectors"])
             out = net(sampled.effectors, batch.betas, batch.gender)
@@ -235,58 +447,31 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
             if rank == 0 and (step % cfg.val_every == 0 or step == cfg.steps):
                 rate = n_last / (time.perf_counter() - t_last)
                 t_last, n_last = time.perf_counter(), 0
-                metrics = evaluate(model, val_batch, val_eff)
-                with open(run / METRICS, "a") as fh:
-                    fh.write(f"{step},{loss_avg:.6f},{metrics['mpjpe_mm']:.3f},{metrics['pa_mpjpe_mm']:.3f},"
-                             f"{metrics['geodesic_rad']:.5f},{rate:.1f}\n")
+                if val_batch is not None:
+                    metrics = evaluate(model, val_batch, val_eff)
+                shown = [metrics.get(k, float("nan")) for k in ("mpjpe_mm", "pa_mpjpe_mm", "geodesic_rad")]
+                rows.append(f"{step},{loss_avg:.6f},{shown[0]:.3f},{shown[1]:.3f},{shown[2]:.5f},{rate:.1f}")
+                _write_metric_rows(run / METRICS, rows)
                 if bar is not None:
-                    bar.set_postfix(loss=f"{loss_avg:.4f}", mpjpe=f"{metrics['mpjpe_mm']:.1f}mm",
-                                    samples_s=f"{rate:.0f}")
+                    bar.set_postfix(loss=f"{loss_avg:.4f}", mpjpe=f"{shown[0]:.1f}mm", samples_s=f"{rate:.0f}")
                 _plot_curve(run)
             if rank == 0 and (step % cfg.ckpt_every == 0 or step == cfg.steps):
-                _save_checkpoint(ckpt_path, model, opt, step, cfg, gens, bodies, metrics)
+                _save_checkpoint(ckpt_path, model, opt, step, cfg, gens, bodies, metrics, loss_avg)
+                saved_step = step
+            whole = True
             if callback is not None:
                 callback(step, loss.item())
     except KeyboardInterrupt:
-        if rank == 0:
-            _save_checkpoint(ckpt_path, model, opt, step, cfg, gens, bodies, metrics)
-        raise
+        # Between steps the state is whole: save it. Mid-step (a second Ctrl-C) it is not: drop the
+        # step; the checkpoint on disk is the resume point.
+        if not whole:
+            raise TrainingInterrupted(saved_step, dropped=True) from None
+        if rank == 0 and saved_step != step:
+            _save_checkpoint(ckpt_path, model, opt, step, cfg, gens, bodies, metrics, loss_avg)
+        raise TrainingInterrupted(step) from None
     finally:
         if bar is not None:
             bar.close()
     if world > 1:
         dist.barrier()
     return metrics
-
-
-def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True) -> Path:
-    """Write a compact inference file (config + weights, fp16 by default) from a training checkpoint."""
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    weights = {k: (v.half() if half and v.is_floating_point() and not k.startswith(("J_", "identity"))
-                   else v) for k, v in state["model"].items()}
-    slim = {"format": "smplik-model", "version": 1, "network": state["network"], "model": weights,
-            "body_fingerprint": state["body_fingerprint"], "metrics": state.get("metrics", {}),
-            "step": state["step"], "train_config": state["config"]}
-    with atomic_path(out) as tmp:
-        torch.save(slim, tmp)
-    return Path(out)
-
-
-def load_model(path: str | Path) -> tuple[ProtoResIK, dict[str, Any]]:
-    """Load a model from a training checkpoint or an exported model file (float32, eval mode)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"Model file not found: {path}")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # torch raises several types for corrupt files
-        raise ValueError(f"{path}: not a readable smplik model ({exc}).") from exc
-    if not isinstance(state, dict) or state.get("format") not in {"smplik-model", "smplik-checkpoint"}:
-        raise ValueError(f"{path}: not an smplik model or checkpoint (missing 'format').")
-    cfg = NetworkConfig(**state["network"])
-    weights = {k: v.float() if v.is_floating_point() else v for k, v in state["model"].items()}
-    model = ProtoResIK(cfg, weights["J_template"], weights["J_dirs"])
-    model.load_state_dict(weights)
-    model.eval()
-    return model, {k: v for k, v in state.items() if k not in {"model", "optimizer", "rng"}}
-

@@ -160,10 +160,7 @@ def tiny_model(tmp_path_factory, bodies) -> Path:
     """A train-free model file (seed 0) in the exported format, written through ``export_model``."""
     from smplik.network import NetworkConfig, ProtoResIK
 
-    try:  # export_model is moving from smplik.train to smplik.model_io (issue 16.4, a parallel branch)
-        from smplik.model_io import export_model
-    except ImportError:
-        from smplik.train import export_model
+    from smplik.model_io import export_model
 
     config = NetworkConfig(**TINY_NETWORK)
     torch.manual_seed(0)

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from smplik.conventions import JOINT_INDEX, EffectorType
-from smplik.effectors import Effector, EffectorBatch, EffectorSamplingConfig, pack_effectors, sample_effectors
+from smplik.data.effector_sampling import EffectorSamplingConfig, sample_effectors
+from smplik.effectors import Effector, EffectorBatch, pack_effectors
 from smplik.kinematics import forward_kinematics
 from smplik.losses import LossConfig, lookat_angle, protores_loss
 from smplik.network import NetworkConfig, ProtoResIK

@@ -9,7 +9,7 @@ from importlib import resources
 import pytest
 
 from smplik.benchmark.tolerance import make_fixed_set, pulled, residual_mm, tracked_joints, tracking_mm
-from smplik.train import load_model
+from smplik.model_io import load_model
 
 SHIPPED = resources.files("smplik") / "checkpoints" / "smplik_cmu.pt"
 pytestmark = pytest.mark.skipif(not SHIPPED.is_file(), reason="shipped model smplik/checkpoints/smplik_cmu.pt absent")

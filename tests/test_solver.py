@@ -79,7 +79,7 @@ def test_default_model_is_the_packaged_file(monkeypatch, tmp_path, model_path, s
 
 
 def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):
-    state = torch.load(model_path, weights_only=False)
+    state = torch.load(model_path, weights_only=True)
     state["body_fingerprint"] = "0123456789abcdef"
     other = tmp_path / "other.pt"
     torch.save(state, other)

@@ -1,16 +1,24 @@
-"""Training loop: exact resume after interruption, artefacts, and 2-process torchrun on CPU."""
+"""Training loop: exact resume after interruption (also a real SIGINT), metrics.csv, config precedence,
+caches without validation frames, artefacts, and 2-process torchrun on CPU."""
 
 import json
 import os
+import random
+import signal
+import socket
 import subprocess
 import sys
+import time
 from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
+from typer.testing import CliRunner
 
+from smplik.model_io import export_model, load_model
 from smplik.network import NetworkConfig
-from smplik.train import TrainConfig, export_model, load_model, train
+from smplik.train import TrainConfig, TrainingInterrupted, train
 
 TINY = NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=1, layers_per_block=1)
 
@@ -21,24 +29,145 @@ def config(cache, out, **kw):
     return replace(base, **kw)
 
 
+def load(path):
+    return torch.load(path, weights_only=True)
+
+
+def metric_rows(run):
+    """metrics.csv without the timing column (samples/s differs between runs by nature)."""
+    lines = (run / "metrics.csv").read_text().strip().splitlines()
+    return [line.rsplit(",", 1)[0] for line in lines]
+
+
+def assert_same_weights(a, b):
+    assert a["step"] == b["step"]
+    for key in a["model"]:
+        assert torch.equal(a["model"][key], b["model"][key]), key
+
+
 def test_interrupted_then_resumed_run_matches_uninterrupted(tiny_cache, tmp_path):
+    draws = {}
+
+    def record(name):
+        def callback(step, loss):  # numpy and python RNG draws are part of the resumed state too
+            draws.setdefault(name, []).append((np.random.random(), random.random()))
+        return callback
+
+    np.random.seed(5)
+    random.seed(5)
     full = config(tiny_cache, tmp_path / "full")
-    train(full, progress=False)
+    train(full, progress=False, callback=record("full"))
 
     def interrupt(step, loss):
+        record("part")(step, loss)
         if step == 4:
             raise KeyboardInterrupt
 
+    np.random.seed(5)
+    random.seed(5)
     part = config(tiny_cache, tmp_path / "part")
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(TrainingInterrupted, match="checkpoint saved at step 4"):
         train(part, progress=False, callback=interrupt)
-    assert torch.load(tmp_path / "part" / "checkpoint.pt", weights_only=False)["step"] == 4
-    train(part, progress=False)
-    a = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)
-    b = torch.load(tmp_path / "part" / "checkpoint.pt", weights_only=False)
-    assert a["step"] == b["step"] == 6
-    for key in a["model"]:
-        assert torch.equal(a["model"][key], b["model"][key]), key
+    assert load(tmp_path / "part" / "checkpoint.pt")["step"] == 4
+    np.random.seed(999)  # whatever happened in between, the checkpoint restores the states
+    random.seed(999)
+    train(part, progress=False, callback=record("part"))
+    assert_same_weights(load(tmp_path / "full" / "checkpoint.pt"), load(tmp_path / "part" / "checkpoint.pt"))
+    assert draws["part"] == draws["full"]
+    assert metric_rows(tmp_path / "part") == metric_rows(tmp_path / "full")  # loss average resumes too
+
+
+def test_checkpoint_is_plain_data(tiny_cache, tmp_path):
+    """The safe loader reads the checkpoint; RNG states are tensors and numbers, not numpy objects."""
+    run = tmp_path / "run"
+    train(config(tiny_cache, run, steps=3), progress=False)
+    state = load(run / "checkpoint.pt")
+    assert state["format"] == "smplik-checkpoint" and state["version"] == 2 and state["step"] == 3
+    assert isinstance(state["rng"]["numpy"]["key"], torch.Tensor) and state["rng"]["numpy"]["key"].shape == (624,)
+    assert isinstance(state["rng"]["python"]["state"], torch.Tensor)
+    assert state["config"]["network"]["width"] == 32 and isinstance(state["loss_ema"], float)
+
+
+def test_metrics_csv_is_cut_back_to_the_checkpoint_on_resume(tiny_cache, tmp_path):
+    """A kill after logging steps 4 and 6 but before their checkpoint: the resume logs them once, as
+    the uninterrupted run does (old code appended them a second time)."""
+    ref = tmp_path / "ref"
+    train(config(tiny_cache, ref, val_every=2), progress=False)
+    run = tmp_path / "run"
+    saved = {}
+
+    def keep_step3(step, loss):
+        if step == 3:
+            saved["ckpt"] = (run / "checkpoint.pt").read_bytes()
+
+    train(config(tiny_cache, run, val_every=2), progress=False, callback=keep_step3)
+    (run / "checkpoint.pt").write_bytes(saved["ckpt"])  # as if killed before the step-6 checkpoint
+    with open(run / "metrics.csv", "a") as fh:
+        fh.write("7,0.12")  # and mid-way through a row
+    assert len(metric_rows(run)) == 5
+    train(config(tiny_cache, run, val_every=2), progress=False)
+    assert metric_rows(run) == metric_rows(ref)
+    assert [int(r.split(",")[0]) for r in metric_rows(run)[1:]] == [2, 4, 6]
+
+
+_SIGINT_RUNS = 3
+
+
+def test_real_sigint_at_random_moments_resumes_bit_exactly(tiny_cache, tmp_path):
+    """SIGINT sent to a training process at a random moment (mostly mid-step), then resumed: the
+    weights and metrics equal an uninterrupted run's, bit for bit; the process says where it saved."""
+    steps = 200
+    net = NetworkConfig(width=16, encoder_blocks=1, decoder_blocks=1, layers_per_block=1, dropout=0.1)
+    ref_cfg = config(tiny_cache, tmp_path / "ref", steps=steps, batch_size=8, val_size=16, val_every=50,
+                     ckpt_every=100, network=net)
+    torch.set_num_threads(1)
+    train(ref_cfg, progress=False)
+    ref = load(tmp_path / "ref" / "checkpoint.pt")
+    rng = random.Random(1234)
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    interrupted = 0
+    for trial in range(_SIGINT_RUNS):
+        run = tmp_path / f"run{trial}"
+        cfg = replace(ref_cfg, out=str(run))
+        cfg_file = tmp_path / f"cfg{trial}.json"
+        cfg_file.write_text(json.dumps(cfg.to_dict()))
+        proc = subprocess.Popen([sys.executable, "-m", "smplik.cli", "train", "--config", str(cfg_file),
+                                 "--threads", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=env)
+        deadline = time.monotonic() + 120
+        while not (run / "metrics.csv").exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)  # training starts once the run folder is set up
+        time.sleep(rng.uniform(0.0, 0.6))
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        if proc.returncode == 130:
+            interrupted += 1
+            last = err.strip().splitlines()[-1]
+            assert last.startswith("checkpoint saved at step "), err[-1000:]
+            saved = int(last.removeprefix("checkpoint saved at step "))
+            assert 0 <= saved < steps and load(run / "checkpoint.pt")["step"] == saved
+        else:
+            assert proc.returncode == 0, err[-2000:]  # the run had finished before the signal arrived
+        train(cfg, progress=False)
+        assert_same_weights(ref, load(run / "checkpoint.pt"))
+        assert metric_rows(run) == metric_rows(tmp_path / "ref")
+        assert not [p.name for p in run.iterdir() if ".tmp" in p.name]
+    assert interrupted >= 1
+
+
+def test_no_validation_frames_trains_with_a_notice_or_held_out_clips(tiny_cache, tmp_path):
+    from smplik.data.dataset import build_cache, find_sources, load_cache
+
+    cache = tmp_path / "all_train.npz"  # the tiny cache's clips, built without a split: all in train
+    build_cache(find_sources(tiny_cache.parent / "clips", "amass"), fps=30, split=None, out=cache)
+    assert len(load_cache(cache).subset("validation")) == 0
+    with pytest.warns(UserWarning, match="no validation frames: validation is skipped"):
+        metrics = train(config(cache, tmp_path / "skip", steps=3), progress=False)
+    assert metrics == {} and load(tmp_path / "skip" / "checkpoint.pt")["step"] == 3
+    held = train(config(cache, tmp_path / "held", steps=3, val_fraction=0.3), progress=False)
+    assert held["mpjpe_mm"] > 0
+    with pytest.raises(ValueError, match="has 40 validation frames; val_fraction"):
+        train(config(tiny_cache, tmp_path / "bad", val_fraction=0.3), progress=False)
 
 
 def test_run_folder_artefacts_and_export(tiny_cache, tmp_path):
@@ -56,20 +185,23 @@ def test_run_folder_artefacts_and_export(tiny_cache, tmp_path):
     assert meta["network"]["width"] == 32 and not model.training
 
 
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def test_torchrun_two_processes_on_cpu(tiny_cache, tmp_path):
     run = tmp_path / "ddp"
     cfg = config(tiny_cache, run, steps=3, ckpt_every=3, val_every=3)
     (tmp_path / "cfg.json").write_text(json.dumps(cfg.to_dict()))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--standalone",
-           "-m", "smplik.cli", "train", "--data", str(tiny_cache), "--out", str(run), "--config",
-           str(tmp_path / "cfg.json"), "--steps", "3", "--batch-size", "16", "--width", "32",
-           "--encoder-blocks", "2", "--decoder-blocks", "1", "--layers-per-block", "1", "--val-every", "3",
-           "--ckpt-every", "3"]
+           "-m", "smplik.cli", "train", "--config", str(tmp_path / "cfg.json")]
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240)
-    assert res.returncode == 0, res.stderr[-3000:]
-    state = torch.load(run / "checkpoint.pt", weights_only=False)
-    assert state["step"] == 3
+    assert res.returncode == 0, res.stderr[:3000] + " ... " + res.stderr[-1500:]
+    state = load(run / "checkpoint.pt")
+    assert state["step"] == 3 and state["config"]["network"]["width"] == 32
 
 
 def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
@@ -78,8 +210,8 @@ def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
     # a 1-step run with lr 0 keeps exactly the weights it started from
     third = config(tiny_cache, tmp_path / "c", steps=1, lr=0.0, init_from=str(tmp_path / "a" / "checkpoint.pt"))
     train(third, progress=False)
-    a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
-    c = torch.load(tmp_path / "c" / "checkpoint.pt", weights_only=False)["model"]
+    a = load(tmp_path / "a" / "checkpoint.pt")["model"]
+    c = load(tmp_path / "c" / "checkpoint.pt")["model"]
     assert all(torch.equal(a[k], c[k]) for k in a)
     bad = config(tiny_cache, tmp_path / "d", init_from=str(tmp_path / "a" / "checkpoint.pt"),
                  network=replace(TINY, width=48))
@@ -87,16 +219,83 @@ def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
         train(bad, progress=False)
 
 
+# ----------------------------------------------------------------------------- config file and flags
+
+
+@pytest.fixture()
+def captured(monkeypatch):
+    """Run ``smplik train`` but capture the merged TrainConfig instead of training."""
+    from smplik.cli.main import app
+
+    seen = {}
+
+    def fake_train(cfg, **kwargs):
+        seen["cfg"] = cfg
+        return {}
+
+    monkeypatch.setattr("smplik.train.train", fake_train)
+
+    def run(*args):
+        res = CliRunner().invoke(app, ["train", *args])
+        assert res.exit_code == 0, res.output
+        return seen.pop("cfg")
+
+    return run
+
+
+ISSUE_CONFIG = {"steps": 777, "lr": 5e-4, "seed": 3, "val_every": 50,
+                "network": {"width": 256, "effector_slots": True}, "loss": {"w_rot_local": 4.0}}
+
+
+def test_config_file_alone_is_honoured(captured, tmp_path):
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps(ISSUE_CONFIG))
+    cfg = captured("--config", str(path), "--data", "c.npz", "--out", "run")
+    assert (cfg.steps, cfg.lr, cfg.seed, cfg.val_every) == (777, 5e-4, 3, 50)
+    assert (cfg.network.width, cfg.network.effector_slots, cfg.loss.w_rot_local) == (256, True, 4.0)
+    assert cfg.batch_size == TrainConfig.batch_size and cfg.network.encoder_blocks == NetworkConfig.encoder_blocks
+
+
+def test_config_file_plus_one_flag(captured, tmp_path):
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps({**ISSUE_CONFIG, "data": "from_file.npz", "out": "run_from_file"}))
+    cfg = captured("--config", str(path), "--lr", "1e-4")
+    assert cfg.lr == 1e-4
+    assert (cfg.steps, cfg.seed, cfg.network.width, cfg.network.effector_slots) == (777, 3, 256, True)
+    assert (cfg.data, cfg.out) == ("from_file.npz", "run_from_file")
+    cfg = captured("--config", str(path), "--no-effector-slots", "--width", "64")
+    assert (cfg.network.width, cfg.network.effector_slots, cfg.steps) == (64, False, 777)
+
+
+def test_flags_alone(captured):
+    cfg = captured("--data", "c.npz", "--out", "run", "--steps", "12", "--width", "48", "--seed", "7",
+                   "--no-augment", "--val-fraction", "0.2")
+    assert (cfg.steps, cfg.network.width, cfg.seed, cfg.augment, cfg.val_fraction) == (12, 48, 7, False, 0.2)
+    assert cfg.lr == TrainConfig.lr and cfg.network.decoder_blocks == NetworkConfig.decoder_blocks
+    assert captured("--data", "c.npz", "--out", "run", "--paper-sizes").network == NetworkConfig.paper()
+
+
+def test_bad_config_files_are_one_line_errors(tmp_path):
+    from smplik.cli.main import app
+
+    for text, message in [('{"width": 256}', "unknown key 'width'"), ('{"network": {"widht": 1}}', "network.widht"),
+                          ('{"steps": "777"}', "key 'steps' must be int"), ("{nope", "not valid JSON")]:
+        path = tmp_path / "cfg.json"
+        path.write_text(text)
+        res = CliRunner().invoke(app, ["train", "--config", str(path), "--data", "c.npz", "--out", "r"])
+        assert res.exit_code == 1 and message in res.output and "cfg.json" in res.output, res.output
+        assert len(res.output.strip().splitlines()) == 1 and res.exception is None or isinstance(res.exception,
+                                                                                                 SystemExit)
+    res = CliRunner().invoke(app, ["train", "--out", "r"])
+    assert res.exit_code == 1 and "--data is required" in res.output
+
+
 def test_shipped_recipe_configs_parse():
     """The fine-tuning configs of the shipped model's recipe (README) load as TrainConfig overrides."""
-    import json
     from pathlib import Path
 
-    from smplik.train import TrainConfig
-
     root = Path(__file__).resolve().parents[1] / "configs"
-    cfgs = {n: TrainConfig.from_dict({"data": "", "out": "", **json.loads((root / f"shipped_{n}.json").read_text())})
-            for n in ("ft1", "ft2")}
+    cfgs = {n: TrainConfig.from_file(root / f"shipped_{n}.json", data="", out="") for n in ("ft1", "ft2")}
     assert (cfgs["ft1"].loss.w_rot_local, cfgs["ft2"].loss.w_rot_local) == (2.0, 4.0)
     for cfg in cfgs.values():
         assert cfg.loss.w_pos_rnd == 1000.0 and cfg.effectors.eta == 4.0 and cfg.effectors.max_effectors == 16

@@ -1,81 +1,153 @@
-"""``smplik train`` and ``smplik export-model``: CLI over :class:`smplik.train.TrainConfig`."""
+"""``smplik train`` and ``smplik export-model``: CLI over :class:`smplik.train.TrainConfig`.
+
+Precedence: ``TrainConfig``'s defaults, then the ``--config`` file, then the flags actually given.
+Every option defaults to "unset" (None), so a flag overrides the file only when it is on the
+command line; the defaults shown in ``--help`` are read from the config dataclasses.
+"""
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+import warnings
+from dataclasses import fields, replace
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from rich.console import Console
+from rich.markup import escape
 
-app = typer.Typer()
+from smplik.network import NetworkConfig
+
+console = Console(stderr=True)
 
 
-@app.command("train")
+def _default(name: str, cls: type | None = None) -> str:
+    """The dataclass default of field ``name`` (of TrainConfig, or ``cls``), for the help text."""
+    from smplik.train import TrainConfig
+
+    value = {f.name: f.default for f in fields(cls or TrainConfig)}[name]
+    return f"default {value}"
+
+
+def _fail(message: str, code: int = 1) -> typer.Exit:
+    console.print(f"[red]error:[/red] {escape(message)}", highlight=False, soft_wrap=True)
+    return typer.Exit(code)
+
+
+def _net(help: str, name: str) -> Any:
+    return typer.Option(help=f"{help} ({_default(name, NetworkConfig)}).")
+
+
 def train_command(
-    data: Annotated[Path, typer.Option("--data", help="Pose cache from `smplik data build`.")],
-    out: Annotated[Path, typer.Option("--out", help="Run folder (checkpoint, config.json, metrics.csv).")],
-    steps: Annotated[int, typer.Option(help="Total optimizer steps.")] = 20_000,
-    batch_size: Annotated[int, typer.Option(help="Global batch size.")] = 512,
-    lr: Annotated[float, typer.Option(help="Adam learning rate.")] = 1e-3,
-    width: Annotated[int, typer.Option(help="Layer width d (paper: 1024).")] = 128,
-    encoder_blocks: Annotated[int, typer.Option(help="Encoder blocks R.")] = 3,
-    decoder_blocks: Annotated[int, typer.Option(help="Blocks per decoder.")] = 3,
-    layers_per_block: Annotated[int, typer.Option(help="Layers per block L (paper: 3).")] = 2,
-    paper_sizes: Annotated[bool, typer.Option("--paper-sizes", help="Use the paper's network sizes.")] = False,
-    effector_slots: Annotated[bool, typer.Option(help="Also feed the decoders per-joint effector slots "
-                                                 "(extension; off = the paper's architecture).")] = False,
-    val_every: int = 500,
-    ckpt_every: int = 500,
-    seed: int = 0,
+    data: Annotated[Path | None, typer.Option("--data", help="Pose cache from `smplik data build` (or 'data' in "
+                                              "--config).")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Run folder: checkpoint, config.json, metrics.csv "
+                                             "(or 'out' in --config).")] = None,
+    config: Annotated[Path | None, typer.Option(help="JSON TrainConfig (partial: e.g. {\"loss\": {...}}); flags "
+                                                "given on the command line override it.")] = None,
+    steps: Annotated[int | None, typer.Option(help=f"Total optimizer steps ({_default('steps')}).")] = None,
+    batch_size: Annotated[int | None, typer.Option(help=f"Global batch size ({_default('batch_size')}).")] = None,
+    lr: Annotated[float | None, typer.Option(help=f"Adam learning rate ({_default('lr')}).")] = None,
+    lr_final_fraction: Annotated[float | None, typer.Option(help="Cosine decay to lr * this "
+                                                            f"({_default('lr_final_fraction')}).")] = None,
+    width: Annotated[int | None, _net("Layer width d (paper: 1024)", "width")] = None,
+    encoder_blocks: Annotated[int | None, _net("Encoder blocks R", "encoder_blocks")] = None,
+    decoder_blocks: Annotated[int | None, _net("Blocks per decoder", "decoder_blocks")] = None,
+    layers_per_block: Annotated[int | None, _net("Layers per block L (paper: 3)", "layers_per_block")] = None,
+    embedding_dim: Annotated[int | None, _net("Joint-id and type embedding size", "embedding_dim")] = None,
+    dropout: Annotated[float | None, _net("Dropout after each hidden layer", "dropout")] = None,
+    paper_sizes: Annotated[bool, typer.Option("--paper-sizes", help="Start from the paper's network sizes "
+                                              "(size flags still override).")] = False,
+    effector_slots: Annotated[bool | None, typer.Option(
+        "--effector-slots/--no-effector-slots", help="Also feed the decoders per-joint effector slots (extension; "
+        f"off = the paper's architecture; {_default('effector_slots', NetworkConfig)}).")] = None,
+    val_every: Annotated[int | None, typer.Option(help=f"Validate every N steps ({_default('val_every')}).")] = None,
+    ckpt_every: Annotated[int | None, typer.Option(help=f"Checkpoint every N steps ({_default('ckpt_every')}).")
+                          ] = None,
+    val_size: Annotated[int | None, typer.Option(help=f"Validation poses ({_default('val_size')}).")] = None,
+    val_fraction: Annotated[float | None, typer.Option(help="For a cache without validation frames: hold out "
+                                                       "this fraction of the train clips "
+                                                       f"({_default('val_fraction')}: skip validation).")] = None,
+    seed: Annotated[int | None, typer.Option(help=f"Seed ({_default('seed')}).")] = None,
+    augment: Annotated[bool | None, typer.Option("--augment/--no-augment", help="Vertical rotation and mirroring "
+                                                 f"({_default('augment')}).")] = None,
+    beta_noise: Annotated[float | None, typer.Option(help=f"Std of the beta noise ({_default('beta_noise')}).")
+                          ] = None,
     model_dir: Annotated[Path | None, typer.Option(help="Folder with real SMPL files.")] = None,
-    config: Annotated[Path | None, typer.Option(help="JSON TrainConfig to start from (flags override).")] = None,
-    resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/checkpoint.pt if present.")] = True,
-    threads: Annotated[int | None, typer.Option(help="torch intra-op threads.")] = None,
     init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights (fine-tuning).")] = None,
+    resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/checkpoint.pt if present.")] = True,
+    threads: Annotated[int | None, typer.Option(min=1, help="torch intra-op threads (default: torch's; on a busy "
+                                                "machine 1 can be several times faster).")] = None,
 ) -> None:
     """Train SMPL-IK (ProtoRes) on a pose cache; resumable; works under torchrun (gloo)."""
     import torch
 
-    from smplik.network import NetworkConfig
-    from smplik.train import TrainConfig, train
+    from smplik.model_io import CheckpointError
+    from smplik.train import TrainConfig, TrainingInterrupted, train
 
     if threads:
         torch.set_num_threads(threads)
-    base = TrainConfig.from_dict({"data": "", "out": "", **json.loads(config.read_text())}) if config else \
-        TrainConfig(data="", out="")
-    net = NetworkConfig.paper() if paper_sizes else NetworkConfig(
-        width=width, encoder_blocks=encoder_blocks, decoder_blocks=decoder_blocks,
-        layers_per_block=layers_per_block, embedding_dim=base.network.embedding_dim, dropout=base.network.dropout,
-        effector_slots=effector_slots)
-    cfg = replace(base, data=str(data), out=str(out), steps=steps, batch_size=batch_size, lr=lr, network=net,
-                  val_every=val_every, ckpt_every=ckpt_every, seed=seed,
-                  model_dir=str(model_dir) if model_dir else None,
-                  init_from=str(init_from) if init_from else base.init_from)
-    metrics = train(cfg, resume=resume)
-    typer.echo(json.dumps({"run": str(out), **metrics}, indent=2))
+    try:
+        base = TrainConfig.from_file(config, data="", out="") if config else TrainConfig(data="", out="")
+    except (FileNotFoundError, ValueError) as exc:
+        raise _fail(str(exc)) from None
+    given = {"data": data, "out": out, "steps": steps, "batch_size": batch_size, "lr": lr,
+             "lr_final_fraction": lr_final_fraction, "val_every": val_every, "ckpt_every": ckpt_every,
+             "val_size": val_size, "val_fraction": val_fraction, "seed": seed, "augment": augment,
+             "beta_noise": beta_noise, "model_dir": model_dir, "init_from": init_from}
+    top = {k: str(v) if isinstance(v, Path) else v for k, v in given.items() if v is not None}
+    net = base.network
+    if paper_sizes:
+        net = replace(net, **{k: v for k, v in NetworkConfig.paper().to_dict().items() if k != "effector_slots"})
+    net_given = {"width": width, "encoder_blocks": encoder_blocks, "decoder_blocks": decoder_blocks,
+                 "layers_per_block": layers_per_block, "embedding_dim": embedding_dim, "dropout": dropout,
+                 "effector_slots": effector_slots}
+    net = replace(net, **{k: v for k, v in net_given.items() if v is not None})
+    cfg = replace(base, **top, network=net)
+    for key in ("data", "out"):
+        if not getattr(cfg, key):
+            raise _fail(f"--{key} is required (or '{key}' in the --config file).")
+
+    def notice(message: Any, *args: Any, **kwargs: Any) -> None:
+        console.print(f"notice: {escape(str(message))}", highlight=False, soft_wrap=True)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", UserWarning)
+        warnings.showwarning = notice
+        try:
+            metrics = train(cfg, resume=resume)
+        except TrainingInterrupted as exc:
+            console.print(str(exc), highlight=False)
+            raise typer.Exit(130) from None
+        except (FileNotFoundError, CheckpointError, ValueError) as exc:
+            raise _fail(str(exc)) from None
+    typer.echo(json.dumps({"run": cfg.out, **metrics}, indent=2))
 
 
-@app.command("export-model")
 def export_command(
-    checkpoint: Annotated[Path, typer.Argument(help="Training checkpoint (RUN_DIR/checkpoint.pt); with only "
-                                               "--onnx also an exported model file.")],
+    checkpoint: Annotated[Path, typer.Argument(help="Training checkpoint (RUN_DIR/checkpoint.pt) or model file.")],
     out: Annotated[Path | None, typer.Option(
         "--out", help="Compact model file for `smplik solve --checkpoint`.")] = None,
-    full_precision: bool = False,
+    full_precision: Annotated[bool, typer.Option(help="Keep fp32 weights (default: fp16).")] = False,
     onnx: Annotated[Path | None, typer.Option("--onnx", help="Also (or only) write the network + FK as ONNX "
                                               "(opset 15, dynamic batch and effector count; needs smplik[fast]). "
                                               "With --out it is exported from that file's weights.")] = None,
+    trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Read an old-format file with plain pickle "
+                                               "(runs code from the file; only for files you trust) and write "
+                                               "it in the safe format.")] = False,
 ) -> None:
-    """Write a compact inference model (fp16 weights by default) from a training checkpoint, and/or its ONNX graph."""
-    from smplik.train import export_model
+    """Write a compact inference model (fp16 weights by default) from a checkpoint (converts old files),
+    and/or its ONNX graph."""
+    from smplik.model_io import CheckpointError, export_model
 
     if out is None and onnx is None:
-        typer.echo("error: nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.", err=True)
-        raise typer.Exit(2)
+        raise _fail("nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.")
     if out is not None:
-        export_model(checkpoint, out, half=not full_precision)
+        try:
+            export_model(checkpoint, out, half=not full_precision, trust_pickle=trust_pickle)
+        except (FileNotFoundError, CheckpointError) as exc:
+            raise _fail(str(exc)) from None
         typer.echo(f"wrote {out}")
     if onnx is not None:
         from smplik.onnx_runtime import OnnxUnavailableError, export_onnx
@@ -86,6 +158,5 @@ def export_command(
             export_onnx(solver.model, onnx, meta={"source": solver.source, "step": solver.meta.get("step"),
                                                   "body_fingerprint": solver.bodies.fingerprint})
         except (FileNotFoundError, ValueError, OnnxUnavailableError) as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(1) from None
+            raise _fail(str(exc)) from None
         typer.echo(f"wrote {onnx}")

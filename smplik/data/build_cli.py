@@ -27,7 +27,11 @@ class StorageDtype(str, Enum):
 
 
 OutOpt = Annotated[Path, typer.Option("--out", help="Cache file to write (.npz); replaced atomically.")]
-SplitOpt = Annotated[Path, typer.Option("--split", help="Split file (CMU split.json format).")]
+SplitOpt = Annotated[Path | None, typer.Option("--split", help="Split file (CMU split.json format; default: every "
+                                                "clip in train, or see --split-by-subject).")]
+SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar="SEED", help="Instead of a split "
+                                                  "file: a seeded random split of the subjects (10 % validation, "
+                                                  "10 % test).")]
 BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH files (searched recursively).")]
 AmassOpt = Annotated[Path | None, typer.Option("--amass", help="Folder of AMASS .npz files (searched recursively).")]
 FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source).")]
@@ -40,7 +44,8 @@ ModelDirOpt = Annotated[Path | None, typer.Option("--model-dir", help="Real SMPL
 
 def build(
     out: OutOpt,
-    split: SplitOpt,
+    split: SplitOpt = None,
+    split_by_subject: SplitSeedOpt = None,
     bvh: BvhOpt = None,
     amass: AmassOpt = None,
     fps: FpsOpt = 30.0,
@@ -50,7 +55,7 @@ def build(
     model_dir: ModelDirOpt = None,
 ) -> None:
     """Build a training cache from a BVH folder (--bvh) or an AMASS folder (--amass)."""
-    from smplik.data.dataset import build_cache, find_sources, load_split
+    from smplik.data import dataset
 
     if (bvh is None) == (amass is None):
         raise typer.BadParameter("give exactly one of --bvh DIR or --amass DIR.")
@@ -61,13 +66,24 @@ def build(
     if not fps > 0:
         raise typer.BadParameter(f"must be positive, got {fps}.", param_hint="--fps")
     try:
-        sources = find_sources(root, kind)  # type: ignore[arg-type]
+        sources = dataset.find_sources(root, kind)  # type: ignore[arg-type]
     except (FileNotFoundError, ValueError) as exc:
         raise typer.BadParameter(str(exc), param_hint=option) from None
-    try:
-        spec = load_split(split)
-    except (FileNotFoundError, ValueError) as exc:
-        raise typer.BadParameter(str(exc), param_hint="--split") from None
+    if split is not None and split_by_subject is not None:
+        raise typer.BadParameter("give --split FILE or --split-by-subject SEED, not both.")
+    if split is not None:
+        try:
+            spec = dataset.load_split(split)
+        except (FileNotFoundError, ValueError) as exc:
+            raise typer.BadParameter(str(exc), param_hint="--split") from None
+        how = f"split file {split}"
+    elif split_by_subject is not None:
+        spec = dataset.split_by_subject(sources, split_by_subject)
+        how = f"split by subject with seed {split_by_subject}: " + "; ".join(
+            f"{name} {', '.join(sorted(spec.subjects[name])) or '-'}" for name in dataset.SPLIT_NAMES)
+    else:
+        spec = dataset.split_all_train(sources)
+        how = "every clip in train (no --split given; --split-by-subject SEED makes a seeded subject split)"
 
     body_models = None
     if kind == "amass":
@@ -84,13 +100,15 @@ def build(
             progress.update(task, advance=1, clip=getattr(src, "name", ""))
 
         try:
-            summary = build_cache(sources, fps=fps, split=spec, out=out, preset=preset, dtype=dtype.value,
-                                  body_models=body_models, skip_unassigned=skip_unassigned, progress=advance)
+            summary = dataset.build_cache(sources, fps=fps, split=spec, out=out, preset=preset,
+                                          dtype=dtype.value, body_models=body_models,
+                                          skip_unassigned=skip_unassigned, progress=advance)
         except (ValueError, FileNotFoundError) as exc:
             progress.stop()
             console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
             raise typer.Exit(1) from None
 
+    console.print(f"split: {escape(how)}", highlight=False)
     total = sum(summary.frames.values())
     console.print(f"wrote {summary.path} ({summary.num_bytes / 2**20:.1f} MiB, {total} frames at {fps:g} fps, "
                   f"{summary.seconds:.1f} s)", highlight=False)

@@ -3,7 +3,8 @@
 Building (:func:`build_cache`): each source clip is read into a :class:`PoseSequence` (BVH
 through :func:`smplik.data.retarget.retarget_bvh`, dropping its rest frame 0; AMASS through
 :func:`smplik.data.amass.read_amass`), assigned to a split from a split file
-(:func:`load_split`), subsampled to the requested frame rate and appended. The cache is written
+(:func:`load_split`; or every clip in train, :func:`split_all_train`; or a seeded split of the
+subjects, :func:`split_by_subject`), subsampled to the requested frame rate and appended. The cache is written
 atomically (temporary file, then rename): an interrupted build leaves no partial file and keeps
 a previous cache intact.
 
@@ -65,6 +66,8 @@ __all__ = [
     "find_sources",
     "load_split",
     "parse_split",
+    "split_all_train",
+    "split_by_subject",
     "subsample_indices",
     "read_source",
     "build_cache",
@@ -207,6 +210,25 @@ def parse_split(obj: Any, source: str = "<memory>") -> SplitSpec:
     return SplitSpec(subjects=subjects, clips=clips, source=source)
 
 
+def split_all_train(sources: Sequence[ClipSource]) -> SplitSpec:
+    """Every clip in train (what ``smplik data build`` does without ``--split``)."""
+    return SplitSpec(subjects={"train": frozenset(s.subject for s in sources)}, clips={},
+                     source="<no split file: every clip in train>")
+
+
+def split_by_subject(sources: Sequence[ClipSource], seed: int) -> SplitSpec:
+    """A seeded split of the subjects of ``sources``: 10 % validation and 10 % test (each at least one
+    subject from three subjects on; two subjects: one train, one validation; one: train), the rest train."""
+    subjects = sorted({s.subject for s in sources})
+    n = len(subjects)
+    order = [subjects[i] for i in np.random.default_rng(seed).permutation(n)]
+    n_val = max(1, round(0.1 * n)) if n >= 3 else n - 1
+    n_test = max(1, round(0.1 * n)) if n >= 3 else 0
+    groups = {"validation": order[:n_val], "test": order[n_val:n_val + n_test], "train": order[n_val + n_test:]}
+    return SplitSpec(subjects={k: frozenset(v) for k, v in groups.items()}, clips={},
+                     source=f"<split by subject, seed {seed}>")
+
+
 def load_split(path: str | Path) -> SplitSpec:
     """Read and validate a split file (see the module docstring)."""
     path = Path(path)
@@ -308,7 +330,7 @@ def build_cache(
     sources: Sequence[ClipSource],
     *,
     fps: float,
-    split: SplitSpec | str | Path,
+    split: SplitSpec | str | Path | None,
     out: str | Path,
     preset: str = "cmu",
     dtype: Literal["float16", "float32"] = "float32",
@@ -322,7 +344,8 @@ def build_cache(
     Args:
         sources: clips, e.g. from :func:`find_sources`.
         fps: target frame rate (nearest-frame subsampling; no upsampling).
-        split: a :class:`SplitSpec` or a split file path.
+        split: a :class:`SplitSpec`, a split file path, or None for every clip in train
+            (:func:`split_all_train`).
         out: the cache path (``.npz``); replaced only once the new cache is complete.
         preset: BVH rig preset for retargeting.
         dtype: storage dtype of the axis-angle rotations.
@@ -344,7 +367,10 @@ def build_cache(
         raise ValueError("No source clips to build a cache from.")
     if dtype not in ("float16", "float32"):
         raise ValueError(f"Unknown dtype {dtype!r}; expected float16 or float32.")
-    spec = split if isinstance(split, SplitSpec) else load_split(split)
+    if isinstance(split, SplitSpec):
+        spec = split
+    else:
+        spec = split_all_train(sources) if split is None else load_split(split)
     kinds = sorted({s.kind for s in sources})
     if reader is None:
         if "amass" in kinds and body_models is None:
@@ -358,7 +384,8 @@ def build_cache(
     if unassigned and not skip_unassigned:
         shown = ", ".join(unassigned[:5]) + (" ..." if len(unassigned) > 5 else "")
         raise ValueError(f"{len(unassigned)} clip(s) belong to no split in {spec.source}: {shown} "
-                         "(add them to the split file or skip unassigned clips).")
+                         "(add them to the split file, or pass --skip-unassigned / skip_unassigned=True to "
+                         "leave them out).")
 
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("pose", "transl", "betas", "has_betas", "gender",
                                                            "clip_id", "subject_id", "frame", "split")}
@@ -482,6 +509,23 @@ class PoseDataset:
         if split not in SPLIT_NAMES:
             raise ValueError(f"Unknown split {split!r}; expected one of: {', '.join(SPLIT_NAMES)}.")
         return self.select(self.split == SPLIT_NAMES.index(split))
+
+    def hold_out_clips(self, fraction: float, seed: int) -> tuple[PoseDataset, PoseDataset]:
+        """``(rest, held_out)``: whole clips, a seeded ``fraction`` of them (at least one, never all), held out.
+
+        Raises:
+            ValueError: ``fraction`` outside (0, 1), or fewer than two clips.
+        """
+        if not 0.0 < fraction < 1.0:
+            raise ValueError(f"The held-out fraction must be in (0, 1), got {fraction}.")
+        clips = torch.unique(self.clip_id)
+        if len(clips) < 2:
+            raise ValueError(f"{self.source or 'dataset'}: holding out clips needs at least 2 clips, "
+                             f"found {len(clips)}.")
+        n = min(len(clips) - 1, max(1, round(fraction * len(clips))))
+        held = clips[torch.randperm(len(clips), generator=torch.Generator().manual_seed(seed))[:n]]
+        mask = torch.isin(self.clip_id, held)
+        return self.select(~mask), self.select(mask)
 
     def select(self, index: Tensor) -> PoseDataset:
         """Rows picked by a boolean mask or index tensor (N,)."""

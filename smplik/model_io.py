@@ -1,0 +1,241 @@
+"""Model files: exported inference models and training checkpoints, read without running code.
+
+Both kinds are one :func:`torch.save` dict of **plain data only**: tensors, ``int``/``float``/
+``bool``/``str``/``None``, lists/tuples and dicts of those (no numpy objects, no classes). Every
+``.pt`` this package opens goes through :func:`read_model_file`, i.e. ``torch.load(...,
+weights_only=True)``, which refuses anything else before it can run. :func:`write_model_file`
+checks the same rule before writing (atomically), so what it writes is always loadable.
+
+==================  =============================================  ==================================
+key                 exported model (``format: smplik-model``)       checkpoint (``smplik-checkpoint``)
+==================  =============================================  ==================================
+``format``          ``"smplik-model"``                              ``"smplik-checkpoint"``
+``version``         :data:`FORMAT_VERSION` (2; 1 is read too)       same
+``network``         :class:`~smplik.network.NetworkConfig` dict     same
+``model``           state dict (fp16 weights by default)            state dict (fp32)
+``body_fingerprint`` fingerprint of the training body models        same
+``metrics``         last validation metrics                         same
+``step``            optimizer steps trained                         same
+``train_config`` /  the run's ``TrainConfig`` dict                  ``config`` (same dict)
+``optimizer``, ``rng``, ``loss_ema``   --                           Adam state; RNG states as tensors
+==================  =============================================  ==================================
+
+A file written some other way (a pickled class, numpy arrays, ...) is refused with a one-line
+:class:`CheckpointError` naming the file and the way out: ``smplik export-model OLD.pt --out
+NEW.pt --trust-pickle`` (:func:`export_model` with ``trust_pickle=True``) loads it once with plain
+pickle -- **which runs whatever code the file names: only for files you trust** -- and writes a
+safe model file. That opt-in is the only unsafe load in the package.
+"""
+
+from __future__ import annotations
+
+import pickle
+import re
+import warnings
+import zipfile
+from collections.abc import Collection, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from smplik.atomic import atomic_path
+from smplik.network import NetworkConfig, ProtoResIK
+
+__all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "export_model",
+           "load_checkpoint", "load_model", "read_model_file", "write_model_file"]
+
+MODEL_FORMAT = "smplik-model"
+CHECKPOINT_FORMAT = "smplik-checkpoint"
+FORMAT_VERSION = 2
+_KINDS = (MODEL_FORMAT, CHECKPOINT_FORMAT)
+_PLAIN_SCALARS = (bool, int, float, str, type(None))
+_UNSAFE_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
+
+
+class CheckpointError(ValueError):
+    """An smplik model file (exported model or training checkpoint) is unsafe, old, corrupt or malformed."""
+
+
+def convert_hint(path: str | Path) -> str:
+    """The one conversion command for a model file the safe loader refuses."""
+    return (f"if it is an smplik model file from a source you trust, convert it once with `smplik export-model "
+            f"{path} --out NEW.pt --trust-pickle` (that runs the file's code: only for files you trust)")
+
+
+def _check_plain(obj: Any, where: str) -> None:
+    """Raise ``TypeError`` naming the first value that ``torch.load(weights_only=True)`` would refuse."""
+    if isinstance(obj, torch.Tensor) or type(obj) in _PLAIN_SCALARS:
+        return
+    if type(obj) in (list, tuple):
+        for i, v in enumerate(obj):
+            _check_plain(v, f"{where}[{i}]")
+        return
+    if isinstance(obj, dict):  # dict and OrderedDict (state dicts)
+        for k, v in obj.items():
+            if type(k) not in (str, int):
+                raise TypeError(f"{where}: key {k!r} of type {type(k).__name__} cannot go into a model file.")
+            _check_plain(v, f"{where}[{k!r}]")
+        return
+    raise TypeError(f"{where}: a {type(obj).__module__}.{type(obj).__name__} cannot go into a model file "
+                    "(tensors, numbers, strings, None, lists and dicts only).")
+
+
+def write_model_file(path: str | Path, state: Mapping[str, Any]) -> Path:
+    """Write ``state`` (plain data only, see the module docstring) with ``torch.save``, atomically.
+
+    Raises:
+        TypeError: ``state`` holds something the safe loader would refuse (named by its key path).
+    """
+    _check_plain(dict(state), "state")
+    with atomic_path(path) as tmp:
+        torch.save(dict(state), tmp)
+    return Path(path)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0][:200] if text else type(exc).__name__
+
+
+def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[str, Any]:
+    """Read an smplik model file with ``torch.load(weights_only=True)`` and check its header.
+
+    Args:
+        path: the ``.pt`` file.
+        kinds: accepted ``format`` values (:data:`MODEL_FORMAT`, :data:`CHECKPOINT_FORMAT`).
+
+    Raises:
+        FileNotFoundError: no such file.
+        CheckpointError: not a torch file, unsafe content (never executed), another format or a
+            newer version; the one-line message names the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"Model file not found: {path}")
+    if not zipfile.is_zipfile(path):
+        raise CheckpointError(f"{path}: not a readable smplik model (not a torch.save zip file).")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = _UNSAFE_GLOBAL.search(str(exc))
+        named = f" (it names {found.group(1)})" if found else ""
+        raise CheckpointError(f"{path}: refused: the file holds Python objects other than tensors, numbers, "
+                              f"strings, lists and dicts{named}, which could run code when loaded; "
+                              f"{convert_hint(path)}.") from None
+    except Exception as exc:  # torch raises RuntimeError, EOFError, ... for corrupt files
+        raise CheckpointError(f"{path}: not a readable smplik model ({type(exc).__name__}: "
+                              f"{_first_line(exc)}).") from None
+    if not isinstance(state, dict) or state.get("format") not in _KINDS:
+        raise CheckpointError(f"{path}: not an smplik model or checkpoint (missing 'format').")
+    if state["format"] not in kinds:
+        raise CheckpointError(f"{path}: is an {state['format']} file; expected {' or '.join(kinds)}.")
+    version = state.get("version")
+    if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
+        raise CheckpointError(f"{path}: {state['format']} version {version!r}; this smplik reads versions "
+                              f"1..{FORMAT_VERSION} (a newer file needs a newer smplik).")
+    for key, typ in (("network", dict), ("model", dict)):
+        if not isinstance(state.get(key), typ):
+            raise CheckpointError(f"{path}: key '{key}' is missing or not a {typ.__name__}.")
+    return state
+
+
+def _network_config(state: Mapping[str, Any], path: Path) -> NetworkConfig:
+    try:
+        return NetworkConfig(**state["network"])
+    except TypeError as exc:
+        raise CheckpointError(f"{path}: key 'network' is not a network config ({exc}).") from None
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """A training checkpoint (``RUN_DIR/checkpoint.pt``) as a dict, read safely (see :func:`read_model_file`)."""
+    path = Path(path)
+    state = read_model_file(path, kinds=(CHECKPOINT_FORMAT,))
+    _network_config(state, path)
+    if type(state.get("step")) is not int or state["step"] < 0:
+        raise CheckpointError(f"{path}: key 'step' is missing or not a non-negative integer.")
+    return state
+
+
+def load_model(path: str | Path) -> tuple[ProtoResIK, dict[str, Any]]:
+    """Load a model from an exported model file or a training checkpoint (float32, eval mode).
+
+    Returns:
+        ``(model, meta)``: meta is the file's dict without ``model``, ``optimizer`` and ``rng``.
+
+    Raises:
+        FileNotFoundError: no such file. CheckpointError: see :func:`read_model_file`; weights that
+            do not fit the file's network config.
+    """
+    path = Path(path)
+    state = read_model_file(path)
+    cfg = _network_config(state, path)
+    weights = state["model"]
+    if not all(isinstance(v, torch.Tensor) for v in weights.values()):
+        raise CheckpointError(f"{path}: key 'model' must map names to tensors.")
+    weights = {k: v.float() if v.is_floating_point() else v for k, v in weights.items()}
+    if "J_template" not in weights or "J_dirs" not in weights:
+        raise CheckpointError(f"{path}: key 'model' lacks the J_template / J_dirs buffers.")
+    try:
+        model = ProtoResIK(cfg, weights["J_template"], weights["J_dirs"])
+        model.load_state_dict(weights)
+    except (RuntimeError, ValueError, TypeError, IndexError) as exc:
+        raise CheckpointError(f"{path}: weights do not fit its network config ({_first_line(exc)}).") from None
+    model.eval()
+    return model, {k: v for k, v in state.items() if k not in {"model", "optimizer", "rng"}}
+
+
+def _to_plain(obj: Any) -> Any:
+    """numpy arrays -> tensors, numpy scalars -> Python numbers, recursively (for converting old files)."""
+    if isinstance(obj, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(obj)) if obj.dtype != object else [_to_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, dict):
+        return {k: _to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_to_plain(v) for v in obj]
+    return obj
+
+
+def _read_trusted(path: Path) -> dict[str, Any]:
+    """The one unsafe load: plain pickle, reached only through ``--trust-pickle`` / ``trust_pickle=True``."""
+    if not path.is_file():
+        raise FileNotFoundError(f"Model file not found: {path}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)  # explicit opt-in: runs the file's code
+    except Exception as exc:
+        raise CheckpointError(f"{path}: not a readable torch file ({type(exc).__name__}: "
+                              f"{_first_line(exc)}).") from None
+    if not isinstance(state, dict) or state.get("format") not in _KINDS:
+        raise CheckpointError(f"{path}: not an smplik model or checkpoint (missing 'format').")
+    return _to_plain(state)
+
+
+def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, trust_pickle: bool = False) -> Path:
+    """Write a compact inference model file (config + weights, fp16 by default).
+
+    Args:
+        checkpoint: a training checkpoint or an exported model (re-export / conversion).
+        out: the model file to write (atomically; may equal ``checkpoint``).
+        half: store floating-point weights (not the skeleton buffers) as fp16.
+        trust_pickle: read ``checkpoint`` with plain pickle, which **runs any code it names**;
+            only for an old-format file from a source you trust.
+    """
+    checkpoint = Path(checkpoint)
+    state = _read_trusted(checkpoint) if trust_pickle else read_model_file(checkpoint)
+    for key in ("network", "model"):
+        if not isinstance(state.get(key), dict):
+            raise CheckpointError(f"{checkpoint}: key '{key}' is missing or not a dict.")
+    weights = {k: (v.half() if half and v.is_floating_point() and not k.startswith(("J_", "identity")) else v)
+               for k, v in state["model"].items()}
+    slim = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "network": state["network"], "model": weights,
+            "body_fingerprint": state.get("body_fingerprint"), "metrics": state.get("metrics", {}),
+            "step": state.get("step", 0), "train_config": state.get("train_config", state.get("config", {}))}
+    try:
+        return write_model_file(out, slim)
+    except TypeError as exc:
+        raise CheckpointError(f"{checkpoint}: {exc}") from None
