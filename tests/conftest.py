@@ -158,9 +158,8 @@ TINY_NETWORK = {"width": 32, "encoder_blocks": 2, "decoder_blocks": 2, "layers_p
 @pytest.fixture(scope="session")
 def tiny_model(tmp_path_factory, bodies) -> Path:
     """A train-free model file (seed 0) in the exported format, written through ``export_model``."""
-    from smplik.network import NetworkConfig, ProtoResIK
-
     from smplik.model_io import export_model
+    from smplik.network import NetworkConfig, ProtoResIK
 
     config = NetworkConfig(**TINY_NETWORK)
     torch.manual_seed(0)

@@ -7,7 +7,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_workflows_support import best_solver
 
 from shape_inversion.gltf_io import load_gltf
 from smplik.data.bvh import read_bvh
@@ -21,10 +20,10 @@ MM = 1e-3
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
+def demo(tmp_path_factory, best_solver):
     from workflows.demo import run_demo
 
-    return run_demo(tmp_path_factory.mktemp("demo"), best_solver(), previews=False)
+    return run_demo(tmp_path_factory.mktemp("demo"), best_solver, previews=False)
 
 
 def _glb_joint_positions(path, names):

@@ -8,7 +8,6 @@ import os
 import numpy as np
 import pytest
 from estimator_fixtures import CAMERA_WRITERS, framing, people, write_romp
-from test_workflows_support import best_solver
 
 from workflows.scene import load_scene
 
@@ -25,13 +24,13 @@ def _can_render() -> bool:
 
 
 @pytest.fixture()
-def cli(monkeypatch):
+def cli(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
     import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver())
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, ["from-estimate", *map(str, args)])
 
 
