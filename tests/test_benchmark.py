@@ -268,6 +268,9 @@ def test_cli_make_and_run(tmp_path, cli, tiny_cache, tiny_model):
     res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--methods", "magic",
                                    "--out", str(results)])
     assert res.exit_code != 0
+    res = CliRunner().invoke(cli, ["benchmark", "run", "--files", str(out), "--methods", "optim",
+                                   "--data", str(tmp_path / "absent.npz"), "--out", str(results)])
+    assert res.exit_code == 1 and "absent.npz" in res.output and "Traceback" not in res.output
 
 
 def test_optimization_runs_after_inference_mode_fk(bench, bodies):

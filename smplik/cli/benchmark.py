@@ -81,7 +81,11 @@ def run_command(
     if {"optim", "nn"} & set(chosen) or cache.is_file():  # train poses; the samples' subjects
         from smplik.data.dataset import load_cache
 
-        dataset = load_cache(cache)
+        try:
+            dataset = load_cache(cache)
+        except (FileNotFoundError, ValueError) as exc:
+            console.print(f"[red]error:[/red] {exc}", highlight=False)
+            raise typer.Exit(1) from None
     solver = None
     if {"smplik", "smplik_net"} & set(chosen):
         from smplik.solver import IKSolver
