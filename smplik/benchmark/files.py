@@ -32,10 +32,7 @@ A sample's subject is the subject of its ``frame`` in the source cache's split
 from __future__ import annotations
 
 import hashlib
-import io
 import json
-import zipfile
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,7 +41,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smplik.atomic import atomic_path
+from smplik.atomic import atomic_path, write_npz_deterministic
 from smplik.body_model import BodyModelSet
 from smplik.conventions import JOINT_INDEX, NUM_BETAS, EffectorType, Gender
 from smplik.effectors import EffectorBatch
@@ -71,31 +68,11 @@ FIXED_SETS: dict[str, tuple[str, ...]] = {
     "fixed_6pt": ("pelvis", "neck", "left_wrist", "right_wrist", "left_ankle", "right_ankle"),
 }
 LOOKAT_DISTANCE_STD = 2.0
-_NPZ_DATE = (1980, 1, 1, 0, 0, 0)
 
 
 def set_names() -> list[str]:
     """Set names in file order: random_06..random_12, then the fixed sets."""
     return [f"random_{n:02d}" for n in RANDOM_COUNTS] + list(FIXED_SETS)
-
-
-# ----------------------------------------------------------------------------- deterministic files
-
-
-def write_npz_deterministic(path: str | Path, arrays: Mapping[str, np.ndarray]) -> Path:
-    """Write a compressed ``.npz`` whose bytes depend only on the arrays (sorted keys, fixed zip dates).
-
-    ``np.savez`` stamps each member with the current time; this writer does not. Atomic.
-    """
-    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w") as zf:
-        for key in sorted(arrays):
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, np.ascontiguousarray(arrays[key]), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=_NPZ_DATE)
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, buf.getvalue())
-    return Path(path)
 
 
 def _sha256(path: Path) -> str:
