@@ -98,6 +98,8 @@ def invert_shape(
         raise typer.Exit(code=1) from None
     payload = shape_payload(char, estimate, model, rest=rest, elapsed_s=elapsed)
     payload["character"]["options"] = options.to_dict()
+    if char.rig.name == "auto":  # no preset fitted: say which map was chosen
+        console.print(f"rig auto, {escape(char.rig.description)}", soft_wrap=True)
     for note in estimate.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     write_json_atomic(out, payload)

@@ -141,3 +141,33 @@ def test_glb_character_is_drawn_with_its_own_posed_mesh(glb_scene):
     assert np.linalg.norm(own.vertices - smpl.vertices, axis=1).mean() < 0.03  # LBS without pose correctives
     meshes, _, _ = scene_items(scene)
     assert np.allclose(meshes[0].vertices, own.vertices)
+
+
+def test_several_frames_export_as_one_animation(glb_scene, demo, tmp_path):
+    import pygltflib
+
+    scene, _ = glb_scene
+    c = scene.characters[0]
+    second = dataclasses.replace(c.pose, transl=np.asarray(c.pose.transl) + [0.0, 0.1, 0.0])
+    files = export_scene(scene, tmp_path, poses={"hero": [c.pose, second]})
+    g = pygltflib.GLTF2.load_binary(str(tmp_path / "hero.glb"))
+    assert len(g.animations) == 1 and g.accessors[g.animations[0].samplers[0].input].count == 2
+    bvh = read_bvh(tmp_path / "hero.bvh")
+    assert bvh.num_frames == 2 and len(files) == 2
+    lift = bvh.positions[1] - bvh.positions[0]
+    char = character_from_estimate(c.skeleton.path, c.skeleton.options, c.betas, c.scale, c.gender)
+    np.testing.assert_allclose(lift @ char.C_canon_file.T * char.units_m, np.tile([0, 0.1 * c.scale, 0], (24, 1)),
+                               atol=1e-4)
+    smpl = load_scene(demo.smpl.scene).characters[0]
+    export_scene(Scene((smpl,)), tmp_path / "smpl", formats=("bvh",), poses={smpl.name: [smpl.pose, smpl.pose]})
+    assert read_bvh(tmp_path / "smpl" / f"{smpl.name}.bvh").num_frames == 2
+
+
+def test_scene_export_cli_error_is_one_line(demo, tmp_path):
+    from typer.testing import CliRunner
+
+    from workflows.cli import scene_app
+
+    res = CliRunner().invoke(scene_app, ["export", str(demo.smpl.scene), "--out", str(tmp_path), "--format", "fbx"])
+    assert res.exit_code == 1 and "Unknown export format" in res.output
+    assert len(res.output.strip().splitlines()) == 1

@@ -20,7 +20,8 @@ spine1..3       spine, chest, abdomen, torso, back, waist (ancestors of the neck
 neck, head      neck, head
 ==============  ====================================================
 
-Among several candidates the one nearest the root wins (``upperleg01`` before ``upperleg02``).
+Among several candidates the earlier word of the table wins (CMU's ``LeftUpLeg`` before
+``LHipJoint``), then the one nearest the root (``upperleg01`` before ``upperleg02``).
 The match is accepted only if the topology agrees: on each side hip -> knee -> ankle -> toes and
 collar -> shoulder -> elbow -> wrist are ancestor chains, neck -> head too, the left and right
 chains are disjoint, and all SMPL-SI's required joints are found; otherwise :class:`NameMatchError`
@@ -76,22 +77,23 @@ def _side_and_part(name: str) -> tuple[str | None, str]:
     return side, "".join(rest)
 
 
-def _classify(part: str, side: str | None) -> str | None:
+def _classify(part: str, side: str | None) -> tuple[str, int] | None:
+    """(label, rank of the matching word: lower is preferred) or None."""
     if any(f in part for f in _FINGERS):
-        return "finger"
+        return "finger", 0
     if side is None:
         if part in ("hips", "pelvis", "hip"):
-            return "pelvis"
-        if part == "neck" or (part.startswith("neck") and part[4:].isdigit()):
-            return "neck"
+            return "pelvis", 0
+        if part == "neck":
+            return "neck", 0
         if part == "head":
-            return "head"
+            return "head", 0
         if any(part == s or part.startswith(s) for s in _SPINE):
-            return "spine"
+            return "spine", 0
         return None
     for label, words in _SIDED_PARTS:
         if part in words:
-            return label
+            return label, words.index(part)
     return None
 
 
@@ -117,14 +119,14 @@ def match_humanoid(names: Sequence[str], parents: Sequence[int],
     if len(names) != len(parents) or any(p >= j for j, p in enumerate(parents)):
         raise NameMatchError("name matching needs parents listed before children")
     depth = _depths(parents)
-    cands: dict[tuple[str | None, str], list[int]] = {}
+    ranked: dict[tuple[str | None, str], list[tuple[int, int, int]]] = {}
     for j, n in enumerate(names):
         side, part = _side_and_part(n)
-        label = _classify(part, side)
-        if label is not None:
-            cands.setdefault((side, label), []).append(j)
-    for v in cands.values():
-        v.sort(key=lambda j: depth[j])
+        hit = _classify(part, side)
+        if hit is not None:
+            ranked.setdefault((side, hit[0]), []).append((hit[1], depth[j], j))
+    # per label: the preferred word first (CMU's LeftUpLeg before LHipJoint), then nearest the root
+    cands = {key: [j for _, _, j in sorted(v)] for key, v in ranked.items()}
     found: dict[str, int] = {}
 
     def first(side: str | None, label: str) -> int | None:
