@@ -218,7 +218,8 @@ def make_valid_inputs(work: Path) -> dict[str, Any]:
     glb = _write_glb(work / "char.glb", list(JOINT_NAMES), list(PARENTS), J)
     smpl_npz = write_npz_deterministic(work / "smpl_valid" / "SMPL_NEUTRAL.npz", smpl_arrays)
     return {"smpl_npz": smpl_npz, "effectors": effectors, "scene": scene, "smpl_arrays": smpl_arrays,
-            "pt": packaged_model_path(), "romp": romp, "bvh": bvh.read_text(), "joints_json": joints_json, "glb": glb.read_bytes()}
+            "pt": packaged_model_path(), "romp": romp, "bvh": bvh.read_text(), "joints_json": joints_json,
+            "glb": glb.read_bytes()}
 
 
 def _write_glb(path: Path, names: list[str], parents: list[int], positions: np.ndarray) -> Path:
