@@ -1,15 +1,15 @@
 """Fuzz campaign: the real ``smplik`` CLI in subprocesses over mutations of valid inputs, for every reader.
 
 Each run gets a wall-clock timeout and a 2 GB address-space cap (``resource.setrlimit(RLIMIT_AS)``); its
-outcome is one of: ``accepted`` (exit 0), ``clean_error`` (non-zero exit, exactly one ``error:`` line on
-stderr, no traceback), ``unclear_error`` (non-zero exit without a traceback but not one ``error:`` line,
-e.g. a usage panel), ``traceback``, ``hang`` (timeout), ``crash`` (killed by a signal or MemoryError) and
-``payload_run`` (a malicious input's marker file appeared). Peak resident memory per run comes from
-``os.wait4``. Readers: effector JSON (``smplik solve``), scene JSON (``smplik scene solve``), SMPL model
-folders, npz and pkl (``smplik body info --model-dir``), ``.pt`` model files (``smplik solve
---checkpoint``), estimator files (``smplik scene from-estimate``; valid ones from
-:mod:`workflows.examples_gen`), skeletons: BVH, joints JSON and GLB (``smplik invert-shape``), and output
-paths (``smplik body export --out``).
+outcome is one of: ``accepted`` (exit 0), ``clean_error`` (non-zero exit, stderr exactly one line,
+starting ``error:``), ``unclear_error`` (non-zero exit without a traceback but not that one line, e.g. a
+usage panel or a message wrapped over several lines), ``traceback``, ``hang`` (timeout), ``crash``
+(killed by a signal or MemoryError) and ``payload_run`` (a malicious input's marker file appeared). Peak
+resident memory per run comes from ``os.wait4``. Readers: effector JSON (``smplik solve``), scene JSON
+(``smplik scene solve``), SMPL model folders, npz and pkl (``smplik body info --model-dir``), ``.pt``
+model files (``smplik solve --checkpoint``), estimator files (``smplik scene from-estimate``; valid ones
+from :mod:`workflows.examples_gen`), skeletons: BVH, joints JSON and GLB (``smplik invert-shape``), and
+output paths (``smplik body export --out``).
 
     PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 300 --workers 2
 
@@ -309,8 +309,8 @@ def run_case(case: Case, timeout: float, env: dict[str, str]) -> dict[str, Any]:
     elif rc == 0:
         outcome = "accepted"
     else:
-        errors = [line for line in stderr.splitlines() if line.startswith("error:")]
-        outcome = "clean_error" if len(errors) == 1 else "unclear_error"
+        lines = [line for line in stderr.splitlines() if line.strip()]
+        outcome = "clean_error" if len(lines) == 1 and lines[0].startswith("error:") else "unclear_error"
     lines = [line for line in stderr.splitlines() if line.strip()]
     return {"reader": case.reader, "outcome": outcome, "rc": rc, "peak_mb": round(peak_mb, 1), "note": case.note,
             "last_line": lines[-1][:300] if lines else ""}
@@ -457,6 +457,7 @@ def main() -> None:
 
     work = Path(tempfile.mkdtemp(prefix="smplik-fuzz-"))
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1",
+           "PYTHONWARNINGS": "ignore", "COLUMNS": "80",
            "SMPLIK_CACHE_DIR": os.environ.get("SMPLIK_CACHE_DIR", str(work / "cache"))}
     env.pop("SMPLIK_MODEL_DIR", None)
     os.environ["SMPLIK_CACHE_DIR"] = env["SMPLIK_CACHE_DIR"]

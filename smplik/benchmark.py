@@ -57,11 +57,9 @@ Methods
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import time
-import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -71,7 +69,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smplik.atomic import atomic_path, write_json_atomic
+from smplik.atomic import atomic_path, write_json_atomic, write_npz_deterministic
 from smplik.body_model import BodyModelSet
 from smplik.conventions import JOINT_INDEX, NUM_BETAS, NUM_JOINTS, EffectorType, Gender
 from smplik.effectors import EffectorBatch
@@ -102,7 +100,6 @@ FIXED_SETS: dict[str, tuple[str, ...]] = {
     "fixed_6pt": ("pelvis", "neck", "left_wrist", "right_wrist", "left_ankle", "right_ankle"),
 }
 LOOKAT_DISTANCE_STD = 2.0
-_NPZ_DATE = (1980, 1, 1, 0, 0, 0)
 
 
 def set_names() -> list[str]:
@@ -111,22 +108,6 @@ def set_names() -> list[str]:
 
 
 # ----------------------------------------------------------------------------- deterministic files
-
-
-def write_npz_deterministic(path: str | Path, arrays: Mapping[str, np.ndarray]) -> Path:
-    """Write a compressed ``.npz`` whose bytes depend only on the arrays (sorted keys, fixed zip dates).
-
-    ``np.savez`` stamps each member with the current time; this writer does not. Atomic.
-    """
-    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w") as zf:
-        for key in sorted(arrays):
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, np.ascontiguousarray(arrays[key]), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=_NPZ_DATE)
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, buf.getvalue())
-    return Path(path)
 
 
 def _sha256(path: Path) -> str:
