@@ -35,6 +35,8 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
+    if path.exists() and not path.is_file():  # never replace a device, pipe or socket by a regular file
+        raise OSError(errno.EINVAL, "is not a regular file (a device, pipe or socket); give a file path", str(path))
     for parent in path.parents:  # mkdir says "File exists" for a file in the way: name the real problem
         if parent.exists():
             if not parent.is_dir():

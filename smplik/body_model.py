@@ -153,6 +153,9 @@ def _validate_layout(a: dict[str, np.ndarray], path: Path | str) -> None:
     for key in ("v_template", "shapedirs", "posedirs", "J_regressor", "weights"):
         if not np.isfinite(a[key]).all():
             raise ModelFileError(f"{path}: key '{key}' contains NaN or inf.")
+    extent = np.ptp(a["v_template"], axis=0).max()
+    if extent < 0.01:
+        raise ModelFileError(f"{path}: key 'v_template' spans {extent:.3g} m; an SMPL body is about 1.7 m tall.")
     if np.abs(a["v_template"]).max() > 100.0:
         raise ModelFileError(f"{path}: key 'v_template' has coordinates up to {np.abs(a['v_template']).max():.3g} m; "
                              "an SMPL body fits in a few metres.")

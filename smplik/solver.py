@@ -203,6 +203,10 @@ class IKSolver:
             model, meta = load_model(path)
         except (KeyError, TypeError, RuntimeError, AttributeError) as exc:
             raise ValueError(f"{path}: not a valid smplik model ({type(exc).__name__}: {exc}).") from exc
+        bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+        if bad:
+            raise ValueError(f"{path}: not a valid smplik model (weights '{bad[0]}' hold NaN or inf; the file is "
+                             "corrupt).")
         bodies = BodyModelSet.load(model_dir)
         trained_on = meta.get("body_fingerprint")
         if trained_on is not None and trained_on != bodies.fingerprint:
@@ -287,6 +291,10 @@ class IKSolver:
         aa = matrix_to_axis_angle_np(out.R_local.double().numpy())
         transl = out.transl.double().numpy()
         joints = out.p_world.double().numpy()
+        finite = np.isfinite(aa).all((1, 2)) & np.isfinite(transl).all(1) & np.isfinite(joints).all((1, 2))
+        if not finite.all():
+            raise ValueError(f"{self.source}: the model gave a non-finite pose for pose {int(np.argmin(finite))} "
+                             "(a corrupt model file?).")
         return [Pose(global_orient=aa[b, 0].copy(), body_pose=aa[b, 1:].copy(), transl=transl[b].copy(),
                      betas=np.array(betas[b], dtype=np.float64), gender=genders[b], joints=joints[b].copy())
                 for b in range(len(rows))]

@@ -81,10 +81,5 @@ def test_bvh_folder_without_split(shared_cmu, tmp_path):
 
 
 @pytest.fixture()
-def shared_cmu():
-    from smplik.data.cli import default_cmu_dir
-
-    root = default_cmu_dir()
-    if not (root / "09_06.bvh").is_file():
-        pytest.skip(f"CMU BVH data not found at {root} (set $SMPLIK_CMU_DIR)")
-    return root
+def shared_cmu(shared_data):
+    return shared_data.cmu("09_06.bvh").parent

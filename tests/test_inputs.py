@@ -194,10 +194,15 @@ def test_save_scene_refuses_a_nan_focal_length_and_writes_nothing(scene_dict, tm
     from workflows.scene import SceneError, save_scene, scene_from_dict
 
     scene = scene_from_dict(scene_dict)
-    bad = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, focal_px=float("nan")))
-    with pytest.raises(SceneError, match="focal_px"):
+    # The camera record refuses a NaN focal length itself; a scene can never carry one to the writer.
+    with pytest.raises(ValueError, match="focal"):
+        bad = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, focal_px=float("nan")))
         save_scene(bad, tmp_path / "scene.json")
     assert list(tmp_path.iterdir()) == []
+    data = scene.to_dict()
+    data["camera"]["focal_px"] = float("nan")
+    with pytest.raises(SceneError, match="focal"):
+        scene_from_dict(data)
 
 
 # ----------------------------------------------------------------------------- 11.7 SMPL model arrays

@@ -20,7 +20,6 @@ import zipfile
 from collections.abc import Iterator
 from typing import NoReturn
 
-import click
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -31,6 +30,7 @@ _OS_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.ENAMETOOLONG, errno.ELOOP, errno.
               errno.EFBIG, errno.EINVAL, errno.ENOTEMPTY, errno.EXDEV}
 
 console = Console(stderr=True, soft_wrap=True, highlight=False)
+_CLICK_EXCEPTION = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")  # typer's click
 
 
 def is_user_error(exc: BaseException) -> bool:
@@ -89,7 +89,9 @@ def user_errors() -> Iterator[None]:
     line and exit 1 (:func:`fail`); anything else propagates with its traceback."""
     try:
         yield
-    except (typer.Exit, typer.Abort, click.exceptions.ClickException):
+    except typer.BadParameter as exc:  # raised by a command body: one line too
+        fail(exc.format_message())
+    except (typer.Exit, typer.Abort, SystemExit, _CLICK_EXCEPTION):
         raise
     except Exception as exc:
         if isinstance(exc, ValueError) or is_user_error(exc):

@@ -142,7 +142,7 @@ def export_command(
     from smplik.model_io import CheckpointError, export_model
 
     if out is None and onnx is None:
-        raise _fail("nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.")
+        raise _fail("nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.", code=2)
     if out is not None:
         try:
             export_model(checkpoint, out, half=not full_precision, trust_pickle=trust_pickle)
