@@ -99,3 +99,34 @@ def test_negative_search_steps_are_refused():
     target = TargetPose.from_pose(synthetic_pose(2))
     with pytest.raises(ValueError, match="search_refine_steps"):
         recover_effectors(OracleSolver(target.p_world), target, RecoveryConfig(search_refine_steps=-1))
+
+
+class WorseWhenFullyRefined(OracleSolver):
+    """The search's solves are the oracle's; the final full-refinement solve lands 0.5 m off."""
+
+    def solve_tensors(self, eff, betas, gender, *, refine=None):
+        out = super().solve_tensors(eff, betas, gender)
+        if refine is not None:
+            return out
+        return type(out)(out.R_local, out.R_world, out.p_world + 0.5, out.draft, out.transl)
+
+
+def test_final_pose_is_never_worse_than_the_search():
+    target = TargetPose.from_pose(synthetic_pose(4))
+    res = recover_effectors(WorseWhenFullyRefined(target.p_world), target, RecoveryConfig(max_effectors=4,
+                                                                                          threshold=0.0))
+    assert res.final_error == pytest.approx(res.errors[-1])  # the searched pose, not the 0.5 m-off one
+    off = np.linalg.norm(res.pose.joints - target.p_world.numpy(), axis=-1)
+    assert off.max() < 0.31 and off.mean() == pytest.approx(res.errors[-1], rel=1e-4)
+
+
+def test_worst_limb_criterion_weighs_a_limb_far_off():
+    from workflows.recovery import JOINT_INDEX, LIMB_ZONES, limb_errors, recovery_score
+
+    spread = torch.full((24,), 0.03)  # 3 cm everywhere
+    one_arm = torch.zeros(24)
+    one_arm[[JOINT_INDEX[n] for n in LIMB_ZONES["right_arm"]]] = 0.12  # a raised arm lost, the rest exact
+    both = torch.stack([spread, one_arm])
+    assert recovery_score(both, "joints")[1] < recovery_score(both, "joints")[0]  # the mean prefers losing the arm
+    assert recovery_score(both, "joints+worst_limb")[1] > recovery_score(both, "joints+worst_limb")[0]
+    assert limb_errors(one_arm)[2] == pytest.approx(0.12)
