@@ -130,3 +130,21 @@ def test_worst_limb_criterion_weighs_a_limb_far_off():
     assert recovery_score(both, "joints")[1] < recovery_score(both, "joints")[0]  # the mean prefers losing the arm
     assert recovery_score(both, "joints+worst_limb")[1] > recovery_score(both, "joints+worst_limb")[0]
     assert limb_errors(one_arm)[2] == pytest.approx(0.12)
+
+
+def test_recover_many_equals_one_by_one():
+    from test_workflows_support import stand_in_solver
+
+    from workflows.recovery import recover_many
+
+    targets = [TargetPose.from_pose(synthetic_pose(s)) for s in (5, 6, 7)]
+    cfg = RecoveryConfig(max_effectors=4, threshold=0.0)
+    solver = stand_in_solver()
+    steps = []
+    many = recover_many(solver, targets, cfg, scales=[1.0, 1.3, 0.9], progress=lambda k, n: steps.append(k))
+    one = [recover_effectors(solver, t, cfg, scale=s) for t, s in zip(targets, (1.0, 1.3, 0.9), strict=True)]
+    for a, b in zip(many, one, strict=True):  # same choices, errors and final pose as one pose at a time
+        assert [(e.joint, e.type) for e in a.effectors] == [(e.joint, e.type) for e in b.effectors]
+        np.testing.assert_allclose(a.errors, b.errors, rtol=1e-4)
+        assert a.final_error == pytest.approx(b.final_error, rel=1e-3)
+    assert steps and steps[-1] <= 4

@@ -78,8 +78,8 @@ def from_estimate_cmd(
         with Progress(console=console, transient=True) as bar:
             task = bar.add_task("effector recovery", total=None)
 
-            def progress(done: int, total: int, name: str) -> None:
-                bar.update(task, completed=done, total=total, description=f"effector recovery ({name})")
+            def progress(done: int, total: int, what: str) -> None:
+                bar.update(task, completed=done, total=total, description=f"effector recovery ({what})")
 
             outputs = from_estimate(results, out, solver, format=format, character_path=character, rig=rig,
                                     config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
