@@ -5,9 +5,14 @@ refinement steps); the final pose error is that of the chosen set solved with th
 refinement.
 
 Poses: ~50 frames spread over the test split of ``/work/cache/cmu30.npz`` (or ``--cache``), else a
-cache built from ``../shared/data/cmu`` with :mod:`smplik.data.dataset`; skipped with a message when
-neither exists. Model: ``--checkpoint`` (default: the shipped model). One CPU thread, as in the
+cache built from ``../shared/data/cmu`` with :mod:`smplik.data.dataset` (or, without a split file,
+the middle frame of evenly spaced CMU clips); skipped with a message when neither exists.
+Model: ``--checkpoint`` (default: the shipped model). One CPU thread, as in the
 workflows on a 2-core machine.
+
+It also compares the search criteria (:func:`workflows.recovery.recovery_score`: the mean joint error,
+or its mean with the worst limb's error) on the final pose at 6 and 8 effectors: mean joint error,
+worst-limb error and limbs left more than 80 mm off (``--criteria-only`` runs just that).
 
 Prints a table and writes ``benchmarks/results/effector_recovery.json``.
 """
@@ -28,11 +33,31 @@ from _common import save, shared_dir  # noqa: E402
 
 from smplik.conventions import Gender  # noqa: E402
 from smplik.pose import Pose  # noqa: E402
-from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors  # noqa: E402
+from workflows.recovery import (  # noqa: E402
+    LIMB_ZONES,
+    RecoveryConfig,
+    TargetPose,
+    limb_errors,
+    recover_effectors,
+)
 
 DEFAULT_CACHE = Path("/work/cache/cmu30.npz")
 MAX_EFFECTORS = 10
 TIMED_EFFECTORS = 8
+
+
+def cmu_middle_frames(cmu: Path, count: int) -> list[Pose]:
+    """The middle frame of ``count`` evenly spaced CMU clips, retargeted to SMPL (real mocap poses)."""
+    from smplik.data.retarget import retarget_bvh
+
+    files = sorted(cmu.glob("*.bvh"))
+    poses = []
+    for i in np.linspace(0, len(files) - 1, min(count, len(files))).round().astype(int):
+        clip = retarget_bvh(files[i], "cmu")
+        f = clip.num_frames // 2
+        poses.append(Pose(clip.global_orient[f].astype(float), clip.body_pose[f].astype(float),
+                          clip.transl[f].astype(float), clip.betas.astype(float), clip.gender or Gender.NEUTRAL))
+    return poses
 
 
 def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
@@ -41,8 +66,10 @@ def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
     if not cache.is_file():
         cmu = shared_dir() / "data" / "cmu"
         split = shared_dir() / "data" / "split.json"
-        if not cmu.is_dir() or not split.is_file():
+        if not cmu.is_dir():
             return None
+        if not split.is_file():  # no split file: the middle frame of evenly spaced CMU clips
+            return cmu_middle_frames(cmu, count)
         cache = Path("/tmp/smplik_effector_recovery_cmu.npz")
         if not cache.is_file():
             build_cache(find_sources(cmu, "bvh"), fps=30, split=load_split(split), out=cache)
@@ -57,11 +84,38 @@ def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
     return poses
 
 
+CRITERIA = ("joints", "joints+worst_limb")
+COMPARED_COUNTS = (6, 8)
+
+
+def compare_criteria(solver, targets: list[TargetPose]) -> dict:
+    """Final pose quality per search criterion: mean joint error, worst-limb error, limbs left > 80 mm."""
+    out: dict = {}
+    for criterion in CRITERIA:
+        for k in COMPARED_COUNTS:
+            mean, worst, lost = [], [], []
+            for t in targets:
+                r = recover_effectors(solver, t, RecoveryConfig(max_effectors=k, threshold=0.0, criterion=criterion))
+                joints = torch.as_tensor(r.pose.joints, dtype=torch.float32)
+                err = (joints - t.p_world.float()).norm(dim=-1)
+                limbs = limb_errors(err)
+                mean.append(float(err.mean()) * 1000)
+                worst.append(float(limbs.max()) * 1000)
+                lost.append(int((limbs > 0.08).sum()))
+            out[f"{criterion}@{k}"] = {"final_mean_joint_error_mm": round(statistics.fmean(mean), 2),
+                                       "final_worst_limb_error_mm": round(statistics.fmean(worst), 2),
+                                       "limbs_over_80mm_per_pose": round(statistics.fmean(lost), 3)}
+            print(f"criterion {criterion:18s} {k} effectors: final mean joint {statistics.fmean(mean):6.1f} mm, "
+                  f"worst limb {statistics.fmean(worst):6.1f} mm, limbs > 80 mm per pose {statistics.fmean(lost):.2f}")
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", type=Path, default=None)
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     parser.add_argument("--poses", type=int, default=50)
+    parser.add_argument("--criteria-only", action="store_true", help="Only compare the search criteria.")
     args = parser.parse_args()
     torch.set_num_threads(1)
     poses = load_test_poses(args.cache, args.poses)
@@ -72,6 +126,11 @@ def main() -> None:
 
     solver = IKSolver.load(args.checkpoint)
     targets = [TargetPose.from_pose(p) for p in poses]
+    criteria = compare_criteria(solver, targets)
+    if args.criteria_only:
+        path = save("effector_recovery_criteria", {"poses": len(targets), "limbs": list(LIMB_ZONES), **criteria})
+        print(f"wrote {path}")
+        return
     full = RecoveryConfig(max_effectors=MAX_EFFECTORS, threshold=0.0)
     timed = RecoveryConfig(max_effectors=TIMED_EFFECTORS, threshold=0.0)
     recover_effectors(solver, targets[0], timed)  # warm-up
@@ -113,6 +172,7 @@ def main() -> None:
         "time_ms_for_8_effectors": {"median": round(statistics.median(ms), 2), "max": round(max(ms), 2),
                                     "mean": round(statistics.fmean(ms), 2)},
         "torch_threads": 1,
+        "criteria": criteria,
     })
     print(f"wrote {path}")
 

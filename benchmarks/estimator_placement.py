@@ -4,7 +4,7 @@ For every camera-frame format, fixtures are written in the producer's exact layo
 (``tests/estimator_fixtures.py``), read by smplik, and the built-in body's pelvis and head are projected
 through the scene's overlay camera (:func:`workflows.previews.image_camera`). The reference is where
 the producer draws them: the published SMPL rest joints posed by FK plus its translation, through its
-camera (for SMPL-X producers only the pelvis is known). Two framings: people 240 px and 400 px tall
+camera (for SMPL-X producers only the pelvis is known). Three framings: people 200, 240 and 400 px tall
 in a 640 x 480 image; 10 seeds x 2 people (1 for HybrIK and GVHMR) each. The head error is the
 built-in body's proportions differing from SMPL's (about 1 cm between pelvis and head); with real
 SMPL files configured both are exact. "before" is the pelvis error of the previous rule
@@ -40,7 +40,7 @@ from workflows.estimators import read_estimate  # noqa: E402
 from workflows.estimators.base import estimator_rest_pelvis, rest_pelvis  # noqa: E402
 
 SEEDS = 10
-HEIGHTS_PX = (240.0, 400.0)
+HEIGHTS_PX = (200.0, 240.0, 400.0)
 
 
 def main() -> None:

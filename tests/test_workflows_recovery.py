@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from smplik.conventions import EffectorType
 from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors
@@ -80,3 +81,49 @@ def test_negative_search_steps_are_refused(synthetic_pose, oracle_solver):
     target = TargetPose.from_pose(synthetic_pose(2))
     with pytest.raises(ValueError, match="search_refine_steps"):
         recover_effectors(oracle_solver(target.p_world), target, RecoveryConfig(search_refine_steps=-1))
+
+
+def test_final_pose_is_never_worse_than_the_search(synthetic_pose, oracle_solver):
+    class WorseWhenFullyRefined(oracle_solver):
+        """The search's solves are the oracle's; the final full-refinement solve lands 0.5 m off."""
+
+        def solve_tensors(self, eff, betas, gender, *, refine=None):
+            out = super().solve_tensors(eff, betas, gender)
+            if refine is not None:
+                return out
+            return type(out)(out.R_local, out.R_world, out.p_world + 0.5, out.draft, out.transl)
+
+    target = TargetPose.from_pose(synthetic_pose(4))
+    res = recover_effectors(WorseWhenFullyRefined(target.p_world), target, RecoveryConfig(max_effectors=4,
+                                                                                          threshold=0.0))
+    assert res.final_error == pytest.approx(res.errors[-1])  # the searched pose, not the 0.5 m-off one
+    off = np.linalg.norm(res.pose.joints - target.p_world.numpy(), axis=-1)
+    assert off.max() < 0.31 and off.mean() == pytest.approx(res.errors[-1], rel=1e-4)
+
+
+def test_worst_limb_criterion_weighs_a_limb_far_off():
+    from workflows.recovery import JOINT_INDEX, LIMB_ZONES, limb_errors, recovery_score
+
+    spread = torch.full((24,), 0.03)  # 3 cm everywhere
+    one_arm = torch.zeros(24)
+    one_arm[[JOINT_INDEX[n] for n in LIMB_ZONES["right_arm"]]] = 0.12  # a raised arm lost, the rest exact
+    both = torch.stack([spread, one_arm])
+    assert recovery_score(both, "joints")[1] < recovery_score(both, "joints")[0]  # the mean prefers losing the arm
+    assert recovery_score(both, "joints+worst_limb")[1] > recovery_score(both, "joints+worst_limb")[0]
+    assert limb_errors(one_arm)[2] == pytest.approx(0.12)
+
+
+def test_recover_many_equals_one_by_one(synthetic_pose, stand_in_solver):
+    from workflows.recovery import recover_many
+
+    targets = [TargetPose.from_pose(synthetic_pose(s)) for s in (5, 6, 7)]
+    cfg = RecoveryConfig(max_effectors=4, threshold=0.0)
+    solver = stand_in_solver
+    steps = []
+    many = recover_many(solver, targets, cfg, scales=[1.0, 1.3, 0.9], progress=lambda k, n: steps.append(k))
+    one = [recover_effectors(solver, t, cfg, scale=s) for t, s in zip(targets, (1.0, 1.3, 0.9), strict=True)]
+    for a, b in zip(many, one, strict=True):  # same choices, errors and final pose as one pose at a time
+        assert [(e.joint, e.type) for e in a.effectors] == [(e.joint, e.type) for e in b.effectors]
+        np.testing.assert_allclose(a.errors, b.errors, rtol=1e-4)
+        assert a.final_error == pytest.approx(b.final_error, rel=1e-3)
+    assert steps and steps[-1] <= 4

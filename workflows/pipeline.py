@@ -7,8 +7,8 @@ optionally put on a floor (``ground``), then per estimated person:
    body SMPL-SI fitted to it (``character.betas``, ``scale``, ``gender``).
 2. Retargeting onto that body: the estimated local rotations are kept; the pelvis stays where the
    estimator put it in the world (character space), so in SMPL space it is divided by ``scale``.
-3. Effector recovery (:mod:`workflows.recovery`) on that target gives a few effectors and the
-   pose they solve to; both go into the scene.
+3. Effector recovery (:mod:`workflows.recovery`, all people batched together) on that target gives
+   a few effectors and the pose they solve to; both go into the scene.
 4. With a custom character, the solved pose is retargeted onto the custom skeleton
    (:func:`workflows.character.smpl_to_custom`) for BVH export.
 """
@@ -26,11 +26,11 @@ import torch
 from smplik.pose import Pose
 from workflows.character import CharacterOptions, CustomCharacter, CustomPose, smpl_to_custom
 from workflows.estimators.base import EstimatedPerson
-from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_effectors
+from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_many
 from workflows.scene import GroundRecord, Scene, SceneCharacter, SkeletonSource
 
 Progress = Callable[[int, int, str], None]
-"""``progress(done, total, name)``: called after each person's recovery (e.g. to drive a progress bar)."""
+"""``progress(done, total, what)``: called after each greedy recovery step (e.g. to drive a progress bar)."""
 
 
 @dataclass(frozen=True)
@@ -98,30 +98,33 @@ def scene_from_people(
 ) -> tuple[Scene, list[PersonResult]]:
     """Build an editable scene from estimated people (see the module docstring).
 
-    ``ground``: first move the people onto a floor (:func:`put_on_ground`). ``progress`` is called
-    after each person.
+    ``ground``: first move the people onto a floor (:func:`put_on_ground`). Recovery runs for all
+    people at once (:func:`workflows.recovery.recover_many`); ``progress`` is called after each step.
     """
     config = RecoveryConfig() if config is None else config
     ground_record = None
     if ground:
         people, ground_record = put_on_ground(people)
+    unique_ids = len({p.person_id for p in people}) == len(people)
+    names, bodies, targets = [], [], []
+    for i, person in enumerate(people):
+        names.append(f"person_{person.person_id if unique_ids else i}")
+        if character is None:
+            bodies.append((person.betas, person.gender, 1.0))
+        else:
+            bodies.append((character.betas, character.gender, character.scale))
+        targets.append(retarget_to_body(person, *bodies[-1]))
+    # all people at once: one batched solve per greedy step (workflows.recovery.recover_many)
+    recs = recover_many(solver, [TargetPose.from_pose(t) for t in targets], config,
+                        scales=[b[2] for b in bodies],
+                        progress=None if progress is None else lambda k, n: progress(k, n, f"{len(people)} people"))
     characters = []
     results = []
-    unique_ids = len({p.person_id for p in people}) == len(people)
-    for i, person in enumerate(people):
-        name = f"person_{person.person_id if unique_ids else i}"
-        if character is None:
-            betas, gender, scale = person.betas, person.gender, 1.0
-        else:
-            betas, gender, scale = character.betas, character.gender, character.scale
-        target = retarget_to_body(person, betas, gender, scale)
-        rec = recover_effectors(solver, TargetPose.from_pose(target), config, scale=scale)
+    for name, (betas, gender, scale), target, rec in zip(names, bodies, targets, recs, strict=True):
         custom = smpl_to_custom(rec.pose, character) if character is not None else None
         characters.append(SceneCharacter(name, gender, np.asarray(betas, dtype=np.float64), float(scale),
                                          skeleton, rec.effectors, rec.pose))
         results.append(PersonResult(name, target, rec, custom))
-        if progress is not None:
-            progress(i + 1, len(people), name)
     camera = next((p.camera for p in people if p.camera is not None), None)
     return Scene(tuple(characters), source, image, camera, ground_record), results
 

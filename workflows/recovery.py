@@ -28,8 +28,9 @@ Speed: candidate effector data are precomputed once as tensors; each step builds
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 import torch
@@ -45,6 +46,35 @@ from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_
 
 HEAD_FORWARD = (0.0, 0.0, 1.0)
 """The head's forward axis in its own frame (SMPL faces +z at rest)."""
+
+LIMB_ZONES: dict[str, tuple[str, ...]] = {
+    "torso_head": ("pelvis", "spine1", "spine2", "spine3", "neck", "head"),
+    "left_arm": ("left_collar", "left_shoulder", "left_elbow", "left_wrist", "left_hand"),
+    "right_arm": ("right_collar", "right_shoulder", "right_elbow", "right_wrist", "right_hand"),
+    "left_leg": ("left_hip", "left_knee", "left_ankle", "left_foot"),
+    "right_leg": ("right_hip", "right_knee", "right_ankle", "right_foot"),
+}
+"""The body's limbs, for the ``"joints+worst_limb"`` criterion and the benchmark's per-limb errors."""
+
+Criterion = Literal["joints", "joints+worst_limb"]
+
+
+def limb_errors(joint_err: Tensor) -> Tensor:
+    """Per-limb mean joint error. joint_err (..., 24) -> (..., 5) in :data:`LIMB_ZONES` order."""
+    return torch.stack([joint_err[..., [JOINT_INDEX[n] for n in names]].mean(-1) for names in LIMB_ZONES.values()],
+                       -1)
+
+
+def recovery_score(joint_err: Tensor, criterion: Criterion) -> Tensor:
+    """What the greedy search minimises. joint_err (..., 24) per-joint L2 errors (m) -> (...,).
+
+    ``"joints"``: the mean per-joint error. ``"joints+worst_limb"``: the mean of that and the worst
+    limb's mean error, so a limb far off (a raised arm) costs more than many small errors elsewhere.
+    """
+    mean = joint_err.mean(-1)
+    if criterion == "joints":
+        return mean
+    return 0.5 * (mean + limb_errors(joint_err).max(-1).values)
 
 
 class TensorSolver(Protocol):
@@ -94,6 +124,8 @@ class RecoveryConfig:
     search_refine_steps: int = 1
     """Refinement steps (:mod:`smplik.refine`) while scoring candidates; the final pose gets the
     solver's own refinement. One step keeps 8 effectors under 100 ms on one CPU thread."""
+    criterion: Criterion = "joints"
+    """What each step minimises (:func:`recovery_score`); ``errors`` always report the mean joint error."""
 
 
 @dataclass(frozen=True)
@@ -149,10 +181,9 @@ def output_to_pose(out: IKOutput, row: int, betas: Tensor, gender: Gender) -> Po
                 out.p_world[row].double().numpy())
 
 
-@torch.inference_mode()
 def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryConfig = RecoveryConfig(), *,
                       scale: float = 1.0) -> RecoveryResult:
-    """Greedy effector recovery (see the module docstring).
+    """Greedy effector recovery of one pose (see the module docstring; :func:`recover_many` for several).
 
     Args:
         solver: anything with ``solve_tensors`` (e.g. :class:`smplik.solver.IKSolver`).
@@ -162,51 +193,124 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
 
     Returns: :class:`RecoveryResult` with at least one effector.
     """
-    if cfg.max_effectors < 1:
-        raise ValueError(f"max_effectors must be >= 1, got {cfg.max_effectors}.")
-    if not scale > 0:
-        raise ValueError(f"scale must be positive, got {scale}.")
-    if cfg.search_refine_steps < 0:
-        raise ValueError(f"search_refine_steps must be >= 0, got {cfg.search_refine_steps}.")
-    cand_joint, cand_type, cand_data = candidate_table(target, cfg)
-    C = cand_joint.shape[0]
-    remaining = torch.ones(C, dtype=torch.bool)
-    chosen: list[int] = []
-    errors: list[float] = []
-    p_target = target.p_world.float()
-    betas = target.betas.float().reshape(1, NUM_BETAS)
-    gender = torch.tensor([target.gender.index])
-    search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
+    return recover_many(solver, [target], cfg, scales=[scale])[0]
+
+
+@dataclass
+class _Search:
+    """One target's greedy state inside :func:`recover_many`."""
+
+    target: TargetPose
+    scale: float
+    cand: tuple[Tensor, Tensor, Tensor]
+    remaining: Tensor
+    chosen: list[int]
+    errors: list[float]
+    scores: list[float]
     best_eff: EffectorBatch | None = None
     best_pose: Pose | None = None
-    for k in range(min(cfg.max_effectors, C)):
-        rows = torch.nonzero(remaining)[:, 0]
-        B = rows.shape[0]
-        sel = torch.tensor(chosen, dtype=torch.long)
-        joint = torch.cat([cand_joint[sel].expand(B, k), cand_joint[rows, None]], 1)
-        kind = torch.cat([cand_type[sel].expand(B, k), cand_type[rows, None]], 1)
-        data = torch.cat([cand_data[sel].expand(B, k, 6), cand_data[rows, None]], 1)
-        eff = EffectorBatch(joint, kind, data, torch.full((B, k + 1), float(cfg.tolerance)),
-                            torch.ones(B, k + 1, dtype=torch.bool))
-        out = solver.solve_tensors(eff, betas.expand(B, NUM_BETAS), gender.expand(B), refine=search)
-        err = (out.p_world.float() - p_target).norm(dim=-1).mean(-1) * scale  # (B,)
-        best = int(torch.argmin(err))
-        if errors and float(err[best]) >= errors[-1]:
-            break  # no candidate improves on the current set
-        chosen.append(int(rows[best]))
-        remaining[rows[best]] = False
-        errors.append(float(err[best]))
-        best_eff = EffectorBatch(joint[best:best + 1], kind[best:best + 1], data[best:best + 1],
-                                 eff.tolerance[best:best + 1], eff.mask[best:best + 1])
-        best_pose = output_to_pose(out, best, target.betas, target.gender)
-        if errors[-1] < cfg.threshold:
+    done: bool = False
+
+
+@torch.inference_mode()
+def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: RecoveryConfig = RecoveryConfig(), *,
+                 scales: Sequence[float] | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> list[RecoveryResult]:
+    """Greedy effector recovery of several poses at once (many people / frames): each step solves the
+    candidates of every unfinished pose in ONE batched call; the final solves are batched per count.
+
+    Args:
+        targets: poses to reproduce (SMPL space); scales: their character scales (default 1).
+        progress: ``progress(step, max_steps)`` after each greedy step.
+
+    Returns: one :class:`RecoveryResult` per target, the same as :func:`recover_effectors` on each.
+    """
+    if cfg.max_effectors < 1:
+        raise ValueError(f"max_effectors must be >= 1, got {cfg.max_effectors}.")
+    if cfg.search_refine_steps < 0:
+        raise ValueError(f"search_refine_steps must be >= 0, got {cfg.search_refine_steps}.")
+    scales = [1.0] * len(targets) if scales is None else list(scales)
+    if len(scales) != len(targets):
+        raise ValueError(f"{len(targets)} targets but {len(scales)} scales.")
+    for scale in scales:
+        if not scale > 0:
+            raise ValueError(f"scale must be positive, got {scale}.")
+    states = []
+    for t, scale in zip(targets, scales, strict=True):
+        cand = candidate_table(t, cfg)
+        states.append(_Search(t, float(scale), cand, torch.ones(cand[0].shape[0], dtype=torch.bool), [], [], []))
+    search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
+    steps = min(cfg.max_effectors, min((s.cand[0].shape[0] for s in states), default=0))
+    for k in range(steps):
+        active = [s for s in states if not s.done]
+        if not active:
             break
-    effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(), scale,
-                                   cfg.tolerance) for c in chosen)
-    assert best_eff is not None and best_pose is not None
-    final = solver.solve_tensors(best_eff, betas, gender)
-    final_error = float((final.p_world[0].float() - p_target).norm(dim=-1).mean()) * scale
-    pose = output_to_pose(final, 0, target.betas, target.gender)
-    if not final_error <= errors[-1]:  # the full refinement made it worse (or NaN): keep the searched pose
-        pose, final_error = best_pose, errors[-1]
-    return RecoveryResult(effectors, tuple(errors), pose, float(scale), final_error)
+        parts, rows_of = [], []
+        for st in active:
+            cand_joint, cand_type, cand_data = st.cand
+            rows = torch.nonzero(st.remaining)[:, 0]
+            B = rows.shape[0]
+            sel = torch.tensor(st.chosen, dtype=torch.long)
+            parts.append((torch.cat([cand_joint[sel].expand(B, k), cand_joint[rows, None]], 1),
+                          torch.cat([cand_type[sel].expand(B, k), cand_type[rows, None]], 1),
+                          torch.cat([cand_data[sel].expand(B, k, 6), cand_data[rows, None]], 1)))
+            rows_of.append(rows)
+        joint, kind, data = (torch.cat([p[i] for p in parts]) for i in range(3))
+        sizes = [r.shape[0] for r in rows_of]
+        betas = torch.cat([st.target.betas.float().reshape(1, NUM_BETAS).expand(n, NUM_BETAS)
+                           for st, n in zip(active, sizes, strict=True)])
+        gender = torch.cat([torch.full((n,), st.target.gender.index) for st, n in zip(active, sizes, strict=True)])
+        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
+                            torch.ones(joint.shape, dtype=torch.bool))
+        out = solver.solve_tensors(eff, betas, gender, refine=search)
+        start = 0
+        for st, rows, n in zip(active, rows_of, sizes, strict=True):
+            sl = slice(start, start + n)
+            start += n
+            joint_err = (out.p_world[sl].float() - st.target.p_world.float()).norm(dim=-1)  # (n, 24), SMPL space
+            score = recovery_score(joint_err, cfg.criterion) * st.scale
+            err = joint_err.mean(-1) * st.scale
+            best = int(torch.argmin(score))
+            if st.scores and float(score[best]) >= st.scores[-1]:
+                st.done = True  # no candidate improves on the current set
+                continue
+            st.chosen.append(int(rows[best]))
+            st.remaining[rows[best]] = False
+            st.errors.append(float(err[best]))
+            st.scores.append(float(score[best]))
+            b = sl.start + best
+            st.best_eff = EffectorBatch(joint[b:b + 1], kind[b:b + 1], data[b:b + 1], eff.tolerance[b:b + 1],
+                                        eff.mask[b:b + 1])
+            st.best_pose = output_to_pose(out, b, st.target.betas, st.target.gender)
+            st.done = st.errors[-1] < cfg.threshold
+        if progress is not None:
+            progress(k + 1, steps)
+    return _finish(solver, states, cfg)
+
+
+def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) -> list[RecoveryResult]:
+    """Final solves with the solver's full refinement, batched per effector count; never worse than the search."""
+    results: list[RecoveryResult | None] = [None] * len(states)
+    by_count: dict[int, list[int]] = {}
+    for i, st in enumerate(states):
+        assert st.best_eff is not None and st.best_pose is not None
+        by_count.setdefault(len(st.chosen), []).append(i)
+    for group in by_count.values():
+        effs = [states[i].best_eff for i in group]
+        eff = EffectorBatch(*(torch.cat([getattr(e, f) for e in effs]) for f in  # type: ignore[union-attr]
+                              ("joint", "type", "data", "tolerance", "mask")))
+        betas = torch.stack([states[i].target.betas.float().reshape(NUM_BETAS) for i in group])
+        gender = torch.tensor([states[i].target.gender.index for i in group])
+        final = solver.solve_tensors(eff, betas, gender)
+        for row, i in enumerate(group):
+            st = states[i]
+            cand_joint, cand_type, cand_data = st.cand
+            effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(),
+                                           st.scale, cfg.tolerance) for c in st.chosen)
+            joint_err = (final.p_world[row].float() - st.target.p_world.float()).norm(dim=-1)
+            final_error = float(joint_err.mean()) * st.scale
+            pose = output_to_pose(final, row, st.target.betas, st.target.gender)
+            if not float(recovery_score(joint_err, cfg.criterion)) * st.scale <= st.scores[-1]:
+                pose, final_error = st.best_pose, st.errors[-1]  # full refinement made it worse: keep the search's
+            results[i] = RecoveryResult(effectors, tuple(st.errors), pose, st.scale, final_error)  # type: ignore[arg-type]
+    return results  # type: ignore[return-value]
