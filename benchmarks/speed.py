@@ -9,6 +9,9 @@ benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoin
   given as Effector objects and as dicts: p50 / p95 latency at 1 and 2 torch threads;
 * ``network`` and ``refined`` throughput (poses/s) at batch 1, 16, 256, 1024, 4096, and
   ``solve_batch()`` at 256;
+* the same ``network``/``refined``/``solve`` rows with the network run by onnxruntime
+  (``IKSolver.load(runtime="onnx")``, :mod:`smplik.onnx_runtime`; keys prefixed ``onnx_``; the
+  refinement stays torch), when onnxruntime is installed: ``--onnx FILE`` (default: exported in memory);
 * the optimization-IK baseline (:class:`smplik.benchmark.OptimizationIK`, default iterations) per
   solve: one pose alone, and per pose within a batch of 256, at 1 and 2 threads.
 
@@ -19,6 +22,8 @@ Run it on an otherwise idle machine: a second busy process makes the 2-thread nu
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import itertools
 import os
 import statistics
 import sys
@@ -34,6 +39,7 @@ from _common import save, time_call  # noqa: E402
 from smplik.benchmark import BenchmarkSet, OptimizationIK, PosePrior  # noqa: E402
 from smplik.effectors import Effector, EffectorBatch  # noqa: E402
 from smplik.kinematics import forward_kinematics  # noqa: E402
+from smplik.onnx_runtime import onnxruntime_available  # noqa: E402
 from smplik.paths import pose_cache  # noqa: E402
 from smplik.refine import NO_REFINEMENT  # noqa: E402
 from smplik.rotations import axis_angle_to_matrix  # noqa: E402
@@ -41,6 +47,9 @@ from smplik.solver import IKSolver  # noqa: E402
 
 N_EFFECTORS = 8
 BATCHES = (1, 16, 256, 1024, 4096)
+TARGETS = {"network_single_p50_ms_1thread": 0.3, "solve_single_p50_ms_1thread": 1.0,
+           "network_b1024_poses_per_s_2threads": 50_000, "refined_b1024_poses_per_s_2threads": 15_000}
+"""Issue 15's targets (8 effectors; single: one thread; batched: 2 threads, batch 1024)."""
 
 
 def example_inputs(solver: IKSolver, batch: int, seed: int = 0):
@@ -90,10 +99,29 @@ def main() -> None:
                              "(default: $SMPLIK_POSE_CACHE, else <cache>/cmu30.npz; a generic prior is used if it "
                              "is missing).")
     parser.add_argument("--min-time", type=float, default=1.0, help="Seconds per latency measurement.")
+    parser.add_argument("--onnx", default=None, help="ONNX file of the model (`smplik export-model --onnx`; "
+                                                     "default: exported in memory).")
+    parser.add_argument("--batches", default=",".join(map(str, BATCHES)),
+                        help="Comma-separated batch sizes of the throughput rows (256 and 1024 are always measured).")
+    parser.add_argument("--note", default="", help="Free text saved with the results (e.g. how busy the machine was).")
     args = parser.parse_args()
+    batches = sorted({256, 1024, *(int(b) for b in args.batches.split(","))})
 
     load_at_start = os.getloadavg()
     solver = IKSolver.load(args.checkpoint)
+    onnx_solver = IKSolver.load(args.checkpoint, runtime="onnx", onnx_file=args.onnx) if onnxruntime_available() \
+        else None
+    if onnx_solver is None:
+        print("onnxruntime is not installed: no onnx_* rows (pip install 'smplik[fast]').")
+
+    def backends(threads: int) -> list[tuple[str, IKSolver]]:
+        """("", torch solver) and ("onnx_", the onnxruntime solver with ``threads`` threads)."""
+        if onnx_solver is None:
+            return [("", solver)]
+        return [("", solver), ("onnx_", dataclasses.replace(onnx_solver,
+                                                           network=onnx_solver.network.with_threads(threads)))]
+
+    by_threads = {threads: backends(threads) for threads in (1, 2)}
     eff1, betas1, gender1, _, _ = example_inputs(solver, 1)
     objects = to_effectors(eff1)
     dicts = [e.to_dict() for e in objects]
@@ -102,26 +130,32 @@ def main() -> None:
     latency: dict[str, dict] = {}
     for threads in (1, 2):
         torch.set_num_threads(threads)
-        latency[f"network@{threads}"] = percentiles(time_call(
-            lambda: solver.solve_tensors(eff1, betas1, gender1, refine=NO_REFINEMENT), min_time=args.min_time,
-            warmup=20))
-        latency[f"refined@{threads}"] = percentiles(time_call(
-            lambda: solver.solve_tensors(eff1, betas1, gender1), min_time=args.min_time, warmup=20))
-        latency[f"solve_effectors@{threads}"] = percentiles(time_call(
-            lambda: solver.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time, warmup=20))
-        latency[f"solve_dicts@{threads}"] = percentiles(time_call(
-            lambda: solver.solve(dicts, betas=beta_np, gender=gender_name), min_time=args.min_time, warmup=20))
+        for prefix, sv in by_threads[threads]:
+            latency[f"{prefix}network@{threads}"] = percentiles(time_call(
+                lambda sv=sv: sv.solve_tensors(eff1, betas1, gender1, refine=NO_REFINEMENT), min_time=args.min_time,
+                warmup=20))
+            latency[f"{prefix}refined@{threads}"] = percentiles(time_call(
+                lambda sv=sv: sv.solve_tensors(eff1, betas1, gender1), min_time=args.min_time, warmup=20))
+            latency[f"{prefix}solve_effectors@{threads}"] = percentiles(time_call(
+                lambda sv=sv: sv.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time,
+                warmup=20))
+            if not prefix:
+                latency[f"solve_dicts@{threads}"] = percentiles(time_call(
+                    lambda: solver.solve(dicts, betas=beta_np, gender=gender_name), min_time=args.min_time,
+                    warmup=20))
 
     throughput: dict[str, dict] = {}
     for threads in (1, 2):
         torch.set_num_threads(threads)
-        for batch in BATCHES:
+        for batch in batches:
             eff, betas, gender, _, _ = example_inputs(solver, batch, seed=batch)
-            for name, refine in (("network", NO_REFINEMENT), ("refined", None)):
-                times = time_call(lambda eff=eff, betas=betas, gender=gender, refine=refine: solver.solve_tensors(
+            for (prefix, sv), (name, refine) in itertools.product(
+                    by_threads[threads], (("network", NO_REFINEMENT), ("refined", None))):
+                times = time_call(lambda eff=eff, betas=betas, gender=gender, refine=refine, sv=sv: sv.solve_tensors(
                     eff, betas, gender, refine=refine), min_time=args.min_time, warmup=2)
                 med = statistics.median(times)
-                throughput[f"{name}@{threads}/b{batch}"] = {"median_ms": med * 1e3, "poses_per_s": batch / med}
+                throughput[f"{prefix}{name}@{threads}/b{batch}"] = {"median_ms": med * 1e3,
+                                                                     "poses_per_s": batch / med}
         eff, betas, gender, _, _ = example_inputs(solver, 256, seed=256)
         lists = [to_effectors(eff, r) for r in range(256)]
         b_np = betas.numpy().astype(np.float64)
@@ -163,13 +197,25 @@ def main() -> None:
         "refined_best_poses_per_s": max(v["poses_per_s"] for k, v in throughput.items() if k.startswith("refined")),
         "optim_ms_per_single_solve_1thread": optim_rows["optim@1/b1"]["ms_per_pose"],
     }
-    for name in ("network", "refined"):
-        for threads in (1, 2):
-            summary[f"{name}_speedup_single_{threads}thread"] = (optim_rows[f"optim@{threads}/b1"]["ms_per_pose"]
-                                                                 / latency[f"{name}@{threads}"]["p50_ms"])
-            summary[f"{name}_speedup_batched_256_{threads}thread"] = (
-                optim_rows[f"optim@{threads}/b256"]["ms_per_pose"]
-                * throughput[f"{name}@{threads}/b256"]["poses_per_s"] / 1e3)
+    prefixes = ["", "onnx_"] if onnx_solver is not None else [""]
+    for prefix in prefixes:
+        summary[f"{prefix}network_single_p50_ms_1thread"] = latency[f"{prefix}network@1"]["p50_ms"]
+        summary[f"{prefix}refined_single_p50_ms_1thread"] = latency[f"{prefix}refined@1"]["p50_ms"]
+        summary[f"{prefix}solve_single_p50_ms_1thread"] = latency[f"{prefix}solve_effectors@1"]["p50_ms"]
+        for name in ("network", "refined"):
+            summary[f"{prefix}{name}_b1024_poses_per_s_2threads"] = throughput[f"{prefix}{name}@2/b1024"][
+                "poses_per_s"]
+            for threads in (1, 2):
+                summary[f"{prefix}{name}_speedup_single_{threads}thread"] = (
+                    optim_rows[f"optim@{threads}/b1"]["ms_per_pose"] / latency[f"{prefix}{name}@{threads}"]["p50_ms"])
+                summary[f"{prefix}{name}_speedup_batched_256_{threads}thread"] = (
+                    optim_rows[f"optim@{threads}/b256"]["ms_per_pose"]
+                    * throughput[f"{prefix}{name}@{threads}/b256"]["poses_per_s"] / 1e3)
+    targets = {}
+    for key, target in TARGETS.items():
+        measured = {"onnx" if p else "torch": summary[p + key] for p in prefixes}
+        met = {rt: v <= target if key.endswith("_ms_1thread") else v >= target for rt, v in measured.items()}
+        targets[key] = {"target": target, "measured": measured, "met": met}
     print(f"{'measurement':<28}{'p50 ms':>10}{'p95 ms':>10}")
     for k, v in latency.items():
         print(f"{k:<28}{v['p50_ms']:>10.3f}{v['p95_ms']:>10.3f}")
@@ -180,12 +226,17 @@ def main() -> None:
     for k, v in optim_rows.items():
         print(f"{k:<28}{v['ms_per_pose']:>10.2f}")
     print("\nsummary:", {k: round(v, 3) for k, v in summary.items()})
+    print("targets:", targets)
     path = save("speed", {"checkpoint": solver.source, "step": solver.meta.get("step"),
                           "network": solver.meta.get("network"), "effectors_per_pose": N_EFFECTORS,
                           "refine": solver.refine.to_dict(), "latency": latency, "throughput": throughput,
                           "optimization": optim_rows,
-                          "optim_prior": prior_source, "summary": summary,
-                          "load_average_at_start": load_at_start})
+                          "optim_prior": prior_source, "summary": summary, "targets": targets,
+                          "onnx": None if onnx_solver is None else {
+                              "file": onnx_solver.network.source, "opset": onnx_solver.network.meta.get("opset"),
+                              "onnxruntime": __import__("onnxruntime").__version__},
+                          "note": args.note,
+                          "load_average_at_start": load_at_start, "load_average_at_end": os.getloadavg()})
     print("wrote", path)
 
 

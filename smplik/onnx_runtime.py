@@ -62,6 +62,7 @@ ONNX_FORMAT = "smplik-onnx"
 """``metadata_props["format"]`` of an exported file."""
 INPUT_NAMES = ("joint", "type", "data", "tolerance", "mask", "betas", "gender")
 OUTPUT_NAMES = ("R_local", "R_world", "p_world", "draft", "transl")
+_INPUT_DTYPES = (np.int64, np.int64, np.float32, np.float32, np.bool_, np.float32, np.int64)
 Runtime = Literal["torch", "onnx", "auto"]
 RUNTIMES = ("torch", "onnx", "auto")
 INSTALL_HINT = "pip install 'smplik[fast]' (onnxruntime and onnx)"
@@ -208,12 +209,10 @@ class OnnxNetwork:
 
     def __call__(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput:
         """eff: B rows of N effectors; betas (B, 10); gender (B,) long -> :class:`IKOutput` (float32, CPU)."""
-        feed = {"joint": eff.joint, "type": eff.type, "data": eff.data, "tolerance": eff.tolerance, "mask": eff.mask,
-                "betas": betas, "gender": gender}
-        dtypes = (np.int64, np.int64, np.float32, np.float32, np.bool_, np.float32, np.int64)
-        arrays = {k: np.ascontiguousarray(v.detach().cpu().numpy(), dtype=dt)
-                  for (k, v), dt in zip(feed.items(), dtypes, strict=True)}
-        return IKOutput(*(torch.from_numpy(a) for a in self.session.run(None, arrays)))
+        tensors = (eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas, gender)
+        feed = {name: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # no copy when already so
+                for name, t, dtype in zip(INPUT_NAMES, tensors, _INPUT_DTYPES, strict=True)}
+        return IKOutput(*(torch.from_numpy(a) for a in self.session.run(OUTPUT_NAMES, feed)))
 
 
 def select_network(runtime: str, model: ProtoResIK, model_path: str | Path, onnx_file: str | Path | None = None, *,
