@@ -116,10 +116,10 @@ _SIGINT_RUNS = 3
 def test_real_sigint_at_random_moments_resumes_bit_exactly(tiny_cache, tmp_path):
     """SIGINT sent to a training process at a random moment (mostly mid-step), then resumed: the
     weights and metrics equal an uninterrupted run's, bit for bit; the process says where it saved."""
-    steps = 200
+    steps = 120
     net = NetworkConfig(width=16, encoder_blocks=1, decoder_blocks=1, layers_per_block=1, dropout=0.1)
-    ref_cfg = config(tiny_cache, tmp_path / "ref", steps=steps, batch_size=8, val_size=16, val_every=50,
-                     ckpt_every=100, network=net)
+    ref_cfg = config(tiny_cache, tmp_path / "ref", steps=steps, batch_size=8, val_size=16, val_every=40,
+                     ckpt_every=50, network=net)
     torch.set_num_threads(1)
     train(ref_cfg, progress=False)
     ref = load(tmp_path / "ref" / "checkpoint.pt")
