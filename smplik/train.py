@@ -385,6 +385,9 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
         model.load_state_dict(init_model.state_dict())
     if resuming:
         state = load_checkpoint(ckpt_path)
+        if NetworkConfig(**state["network"]) != cfg.network:
+            raise ValueError(f"{ckpt_path}: the run was trained with network sizes {state['network']}, this config "
+                             f"has {cfg.network.to_dict()}; give the same sizes, another --out, or --no-resume.")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         _set_rng_state(state["rng"], gens)
