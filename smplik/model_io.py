@@ -52,6 +52,8 @@ FORMAT_VERSION = 2
 _KINDS = (MODEL_FORMAT, CHECKPOINT_FORMAT)
 _PLAIN_SCALARS = (bool, int, float, str, type(None))
 _UNSAFE_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
+_MAX_INFLATED_BYTES = 64 << 20  # members above this size ...
+_MAX_INFLATION = 16  # ... may not expand more than this factor
 
 
 class CheckpointError(ValueError):
@@ -99,6 +101,22 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0][:200] if text else type(exc).__name__
 
 
+def _check_archive(path: Path) -> None:
+    """A torch.save zip whose members do not inflate: torch.save stores them uncompressed, so a
+    large member packed much smaller than it expands to can only be a decompression bomb."""
+    if not zipfile.is_zipfile(path):
+        raise CheckpointError(f"{path}: not a readable smplik model (not a torch.save zip file).")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = zf.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        raise CheckpointError(f"{path}: not a readable smplik model ({_first_line(exc)}).") from None
+    for m in members:
+        if m.file_size > _MAX_INFLATED_BYTES and m.file_size > _MAX_INFLATION * max(m.compress_size, 1):
+            raise CheckpointError(f"{path}: member {m.filename!r} inflates from {m.compress_size} to {m.file_size} "
+                                  "bytes; torch.save never compresses, so this is not a model file.")
+
+
 def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[str, Any]:
     """Read an smplik model file with ``torch.load(weights_only=True)`` and check its header.
 
@@ -114,8 +132,7 @@ def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[s
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"Model file not found: {path}")
-    if not zipfile.is_zipfile(path):
-        raise CheckpointError(f"{path}: not a readable smplik model (not a torch.save zip file).")
+    _check_archive(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
@@ -230,6 +247,8 @@ def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, 
     for key in ("network", "model"):
         if not isinstance(state.get(key), dict):
             raise CheckpointError(f"{checkpoint}: key '{key}' is missing or not a dict.")
+    if not all(isinstance(v, torch.Tensor) for v in state["model"].values()):
+        raise CheckpointError(f"{checkpoint}: key 'model' must map names to tensors.")
     weights = {k: (v.half() if half and v.is_floating_point() and not k.startswith(("J_", "identity")) else v)
                for k, v in state["model"].items()}
     slim = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "network": state["network"], "model": weights,

@@ -11,8 +11,8 @@ the TorchScript one needs no ``onnxscript``, exports in ~4 s instead of ~18 s, a
 torch the project supports (2.1+). Opset :data:`ONNX_OPSET` = 15, the highest that Unity Sentis
 documents support for (onnxruntime, onnxruntime-web and Unreal NNE read it too).
 
-Graph inputs, exactly the tensors :func:`smplik.effectors.pack_effectors` packs (:class:`~smplik.effectors.EffectorBatch`)
-plus the body; ``B`` (``batch``) and ``N`` (``effectors``) are dynamic axes:
+Graph inputs, exactly the tensors :func:`smplik.effectors.pack_effectors` packs
+(:class:`~smplik.effectors.EffectorBatch`) plus the body; ``B`` (``batch``) and ``N`` (``effectors``) are dynamic axes:
 
 ==========  =========  =======  ==============================================================
 name        shape      dtype    meaning

@@ -175,11 +175,13 @@ def evaluate(model: ProtoResIK, batch: Any, effectors: Any) -> dict[str, float]:
     }
 
 
-def _distributed() -> tuple[int, int]:
+def _distributed() -> tuple[int, int, bool]:
+    """``(rank, world size, whether this call created the process group)``."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
+    created = world > 1 and not dist.is_initialized()
+    if created:
         dist.init_process_group("gloo")
-    return (dist.get_rank(), world) if world > 1 else (0, 1)
+    return (dist.get_rank(), world, created) if world > 1 else (0, 1, False)
 
 
 # ----------------------------------------------------------------------------- RNG states as plain data
@@ -362,7 +364,7 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
            callback: Callable[[int, float], None] | None) -> dict[str, float]:
     from smplik.data.sampler import PoseSampler
 
-    rank, world = _distributed()
+    rank, world, own_group = _distributed()
     run = Path(cfg.out)
     if rank == 0:
         run.mkdir(parents=True, exist_ok=True)
@@ -385,6 +387,9 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
         model.load_state_dict(init_model.state_dict())
     if resuming:
         state = load_checkpoint(ckpt_path)
+        if NetworkConfig(**state["network"]) != cfg.network:
+            raise ValueError(f"{ckpt_path}: the run was trained with network sizes {state['network']}, this config "
+                             f"has {cfg.network.to_dict()}; give the same sizes, another --out, or --no-resume.")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         _set_rng_state(state["rng"], gens)
@@ -474,4 +479,6 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
             bar.close()
     if world > 1:
         dist.barrier()
+        if own_group:  # a clean shutdown: no rank tears down connections another still uses
+            dist.destroy_process_group()
     return metrics

@@ -224,3 +224,30 @@ def test_export_round_trip_keeps_weights(tmp_path, bodies):
     for key, value in model.state_dict().items():
         expected = value if key.startswith("J_") or not value.is_floating_point() else value.half().float()
         assert torch.equal(loaded.state_dict()[key], expected), key
+
+
+def test_solver_imports_no_training_code():
+    """Module boundaries: loading and solving never import the training loop, its data or its losses
+    (old code imported smplik.train from IKSolver.load); effector sampling sits with the pose sampler."""
+    import smplik.effectors
+    from smplik.data import effector_sampling
+
+    assert not hasattr(smplik.effectors, "sample_effectors") and callable(effector_sampling.sample_effectors)
+    code = ("import json, sys; from smplik.solver import IKSolver; IKSolver.load().solve([{'joint': 'head', "
+            "'type': 'position', 'value': [0, 1.6, 0]}]); "
+            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('smplik'))))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    loaded = set(json.loads(res.stdout.strip().splitlines()[-1]))
+    assert "smplik.model_io" in loaded
+    assert not loaded & {"smplik.train", "smplik.losses", "smplik.data.sampler", "smplik.data.dataset"}, loaded
+
+
+def test_decompression_bomb_is_refused_before_reading(tmp_path, monkeypatch):
+    import zipfile
+
+    monkeypatch.setattr("smplik.model_io._MAX_INFLATED_BYTES", 1 << 16)  # the real cap is 64 MiB
+    bomb = tmp_path / "bomb.pt"
+    with zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("archive/data.pkl", b"\0" * (1 << 20))
+    with pytest.raises(CheckpointError, match="bomb.pt: member 'archive/data.pkl' inflates"):
+        read_model_file(bomb)

@@ -77,6 +77,33 @@ def test_interrupted_then_resumed_run_matches_uninterrupted(tiny_cache, tmp_path
     assert metric_rows(tmp_path / "part") == metric_rows(tmp_path / "full")  # loss average resumes too
 
 
+def test_interrupt_mid_step_drops_the_step(tiny_cache, tmp_path, monkeypatch):
+    """A KeyboardInterrupt inside a step (a second Ctrl-C) saves nothing half-done: the run resumes
+    from the last checkpoint (step 3) and still ends equal to the uninterrupted run."""
+    import smplik.train as train_module
+
+    full = config(tiny_cache, tmp_path / "full")
+    train(full, progress=False)
+    calls = {"n": 0}
+    real_loss = train_module.protores_loss
+
+    def loss_then_interrupt(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:  # half-way through step 5: batch and effectors drawn, no update yet
+            raise KeyboardInterrupt
+        return real_loss(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "protores_loss", loss_then_interrupt)
+    part = config(tiny_cache, tmp_path / "part")
+    with pytest.raises(TrainingInterrupted, match="step was dropped and the checkpoint at step 3") as info:
+        train(part, progress=False)
+    assert info.value.dropped and load(tmp_path / "part" / "checkpoint.pt")["step"] == 3
+    monkeypatch.setattr(train_module, "protores_loss", real_loss)
+    train(part, progress=False)
+    assert_same_weights(load(tmp_path / "full" / "checkpoint.pt"), load(tmp_path / "part" / "checkpoint.pt"))
+    assert metric_rows(tmp_path / "part") == metric_rows(tmp_path / "full")
+
+
 def test_checkpoint_is_plain_data(tiny_cache, tmp_path):
     """The safe loader reads the checkpoint; RNG states are tensors and numbers, not numpy objects."""
     run = tmp_path / "run"
@@ -113,14 +140,22 @@ def test_metrics_csv_is_cut_back_to_the_checkpoint_on_resume(tiny_cache, tmp_pat
 _SIGINT_RUNS = 3
 
 
-def test_real_sigint_at_random_moments_resumes_bit_exactly(tiny_cache, tmp_path):
+@pytest.fixture()
+def one_thread():
+    """torch on one thread for the test (bit-exact comparisons with a ``--threads 1`` process), restored after."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_real_sigint_at_random_moments_resumes_bit_exactly(tiny_cache, tmp_path, one_thread):
     """SIGINT sent to a training process at a random moment (mostly mid-step), then resumed: the
     weights and metrics equal an uninterrupted run's, bit for bit; the process says where it saved."""
-    steps = 200
+    steps = 120
     net = NetworkConfig(width=16, encoder_blocks=1, decoder_blocks=1, layers_per_block=1, dropout=0.1)
-    ref_cfg = config(tiny_cache, tmp_path / "ref", steps=steps, batch_size=8, val_size=16, val_every=50,
-                     ckpt_every=100, network=net)
-    torch.set_num_threads(1)
+    ref_cfg = config(tiny_cache, tmp_path / "ref", steps=steps, batch_size=8, val_size=16, val_every=40,
+                     ckpt_every=50, network=net)
     train(ref_cfg, progress=False)
     ref = load(tmp_path / "ref" / "checkpoint.pt")
     rng = random.Random(1234)
@@ -217,6 +252,8 @@ def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
                  network=replace(TINY, width=48))
     with pytest.raises(ValueError, match="network sizes"):
         train(bad, progress=False)
+    with pytest.raises(ValueError, match="the run was trained with network sizes"):
+        train(replace(first, network=replace(TINY, width=48)), progress=False)  # resuming run "a"
 
 
 # ----------------------------------------------------------------------------- config file and flags
