@@ -20,11 +20,13 @@ key                 exported model (``format: smplik-model``)       checkpoint (
 ``optimizer``, ``rng``, ``loss_ema``   --                           Adam state; RNG states as tensors
 ==================  =============================================  ==================================
 
-A file written some other way (a pickled class, numpy arrays, ...) is refused with a one-line
-:class:`CheckpointError` naming the file and the way out: ``smplik export-model OLD.pt --out
-NEW.pt --trust-pickle`` (:func:`export_model` with ``trust_pickle=True``) loads it once with plain
-pickle -- **which runs whatever code the file names: only for files you trust** -- and writes a
-safe model file. That opt-in is the only unsafe load in the package.
+A file written some other way is refused with a one-line :class:`CheckpointError` naming the
+file. An older smplik file whose metadata holds numpy values (numpy scalars, arrays, a numpy RNG
+state) converts once with ``smplik export-model OLD.pt --out NEW.pt --legacy`` (:func:`export_model`
+with ``legacy=True``): still ``torch.load(weights_only=True)``, with only numpy's array and scalar
+reconstructors added to the allow-list (:func:`legacy_numpy_globals`; rebuilding an array from its
+bytes runs nothing from the file). A file that names any other global (a pickled class, a
+payload's ``os.system``) is refused by both paths: no smplik load runs code from a file.
 """
 
 from __future__ import annotations
@@ -62,8 +64,8 @@ class CheckpointError(ValueError):
 
 def convert_hint(path: str | Path) -> str:
     """The one conversion command for a model file the safe loader refuses."""
-    return (f"if it is an smplik model file from a source you trust, convert it once with `smplik export-model "
-            f"{path} --out NEW.pt --trust-pickle` (that runs the file's code: only for files you trust)")
+    return (f"if it is an older smplik model file (numpy values in its metadata), convert it once with "
+            f"`smplik export-model {path} --out NEW.pt --legacy` (restricted loader too: runs no code)")
 
 
 def _check_plain(obj: Any, where: str) -> None:
@@ -218,12 +220,38 @@ def _to_plain(obj: Any) -> Any:
     return obj
 
 
-def _read_trusted(path: Path) -> dict[str, Any]:
-    """The one unsafe load: plain pickle, reached only through ``--trust-pickle`` / ``trust_pickle=True``."""
+def legacy_numpy_globals() -> list[Any]:
+    """The allow-list additions of the legacy reader: numpy's array/scalar reconstructors and dtypes.
+
+    They rebuild an ``ndarray`` or a numpy scalar from the bytes stored in the file (numpy checks the
+    byte count against the shape), so they allocate nothing beyond the file's own data and run no
+    code of the file. Old pickles name them under ``numpy.core`` (numpy 1), new ones under ``numpy._core``.
+    """
+    try:
+        from numpy._core import multiarray
+    except ImportError:  # numpy < 2
+        from numpy.core import multiarray
+    dtypes = sorted({type(np.dtype(c)) for c in "?bhilqBHILQefdgFDGUS"}, key=str)
+    names = [(multiarray._reconstruct, f"{root}.multiarray._reconstruct") for root in ("numpy.core", "numpy._core")]
+    names += [(multiarray.scalar, f"{root}.multiarray.scalar") for root in ("numpy.core", "numpy._core")]
+    return [np.ndarray, np.dtype, *dtypes, *names]
+
+
+def _read_legacy(path: Path) -> dict[str, Any]:
+    """An older smplik file: ``torch.load(weights_only=True)`` with :func:`legacy_numpy_globals` allowed."""
     if not path.is_file():
         raise FileNotFoundError(f"Model file not found: {path}")
+    _check_archive(path)
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)  # explicit opt-in: runs the file's code
+        with warnings.catch_warnings(), torch.serialization.safe_globals(legacy_numpy_globals()):
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = _UNSAFE_GLOBAL.search(str(exc))
+        named = f" (it names {found.group(1)})" if found else ""
+        raise CheckpointError(f"{path}: refused even as a legacy file: it holds Python objects other than "
+                              f"tensors, numbers, strings, containers and numpy values{named}, which could run "
+                              "code when loaded; smplik never loads such a file.") from None
     except Exception as exc:
         raise CheckpointError(f"{path}: not a readable torch file ({type(exc).__name__}: "
                               f"{_first_line(exc)}).") from None
@@ -232,18 +260,18 @@ def _read_trusted(path: Path) -> dict[str, Any]:
     return _to_plain(state)
 
 
-def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, trust_pickle: bool = False) -> Path:
+def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, legacy: bool = False) -> Path:
     """Write a compact inference model file (config + weights, fp16 by default).
 
     Args:
         checkpoint: a training checkpoint or an exported model (re-export / conversion).
         out: the model file to write (atomically; may equal ``checkpoint``).
         half: store floating-point weights (not the skeleton buffers) as fp16.
-        trust_pickle: read ``checkpoint`` with plain pickle, which **runs any code it names**;
-            only for an old-format file from a source you trust.
+        legacy: read ``checkpoint`` as an older smplik file whose metadata holds numpy values
+            (:func:`_read_legacy`; still the restricted loader).
     """
     checkpoint = Path(checkpoint)
-    state = _read_trusted(checkpoint) if trust_pickle else read_model_file(checkpoint)
+    state = _read_legacy(checkpoint) if legacy else read_model_file(checkpoint)
     for key in ("network", "model"):
         if not isinstance(state.get(key), dict):
             raise CheckpointError(f"{checkpoint}: key '{key}' is missing or not a dict.")

@@ -1,5 +1,5 @@
 """Model files never run code: every entry point refuses a payload ``.pt`` before it runs, with a
-one-line error naming the file; old-format files convert only through ``--trust-pickle``."""
+one-line error naming the file; older files convert through ``--legacy``, which is the restricted loader too."""
 
 from __future__ import annotations
 
@@ -81,7 +81,7 @@ def test_the_payload_is_live(payload):
 
 def test_iksolver_load_refuses_payload(payload):
     path, marker = payload
-    with pytest.raises(CheckpointError, match="refused.*posix.system.*--trust-pickle") as info:
+    with pytest.raises(CheckpointError, match="refused.*posix.system.*--legacy") as info:
         IKSolver.load(path)
     assert str(path) in str(info.value) and "\n" not in str(info.value)
     assert not marker.exists()
@@ -131,7 +131,10 @@ def test_export_model_refuses_payload(payload, tmp_path):
     path = path.rename(tmp_path / "evil[red].pt")  # file names are printed verbatim, not as rich markup
     res = cli("export-model", str(path), "--out", str(tmp_path / "out.pt"))
     assert_refused(res, path, marker)
-    assert "--trust-pickle" in res.output and not (tmp_path / "out.pt").exists()
+    assert "--legacy" in res.output and not (tmp_path / "out.pt").exists()
+    res = cli("export-model", str(path), "--out", str(tmp_path / "out.pt"), "--legacy")  # the conversion path
+    assert_refused(res, path, marker)
+    assert not (tmp_path / "out.pt").exists()
 
 
 def test_scene_commands_refuse_payload(payload, tmp_path):
@@ -160,13 +163,13 @@ def old_format_model(tmp_path, bodies):
     return path, model
 
 
-def test_old_format_file_refused_then_converted_with_trust_pickle(old_format_model, tmp_path):
+def test_old_format_file_refused_then_converted_with_legacy(old_format_model, tmp_path):
     path, model = old_format_model
     with pytest.raises(CheckpointError, match=r"refused.*numpy.*smplik export-model .*old\.pt --out NEW\.pt "
-                                              r"--trust-pickle"):
+                                              r"--legacy"):
         load_model(path)
     new = tmp_path / "new.pt"
-    res = cli("export-model", str(path), "--out", str(new), "--trust-pickle", "--full-precision")
+    res = cli("export-model", str(path), "--out", str(new), "--legacy", "--full-precision")
     assert res.exit_code == 0, res.output
     converted, meta = load_model(new)
     assert meta["version"] == FORMAT_VERSION and meta["step"] == 12 and meta["metrics"] == {"mpjpe_mm": 81.5}

@@ -133,9 +133,9 @@ def export_command(
     onnx: Annotated[Path | None, typer.Option("--onnx", help="Also (or only) write the network + FK as ONNX "
                                               "(opset 15, dynamic batch and effector count; needs smplik[fast]). "
                                               "With --out it is exported from that file's weights.")] = None,
-    trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Read an old-format file with plain pickle "
-                                               "(runs code from the file; only for files you trust) and write "
-                                               "it in the safe format.")] = False,
+    legacy: Annotated[bool, typer.Option("--legacy", help="Read an older smplik file whose metadata holds numpy "
+                                         "values (still the restricted loader: runs no code) and write it in "
+                                         "the current format.")] = False,
 ) -> None:
     """Write a compact inference model (fp16 weights by default) from a checkpoint (converts old files),
     and/or its ONNX graph."""
@@ -145,7 +145,7 @@ def export_command(
         raise _fail("nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.", code=2)
     if out is not None:
         try:
-            export_model(checkpoint, out, half=not full_precision, trust_pickle=trust_pickle)
+            export_model(checkpoint, out, half=not full_precision, legacy=legacy)
         except (FileNotFoundError, CheckpointError) as exc:
             raise _fail(str(exc)) from None
         typer.echo(f"wrote {out}")
