@@ -107,6 +107,7 @@ def _register_optional() -> None:
         ("shape_inversion.cli", "app", None),
         ("workflows.cli", "scene_app", "scene"),
         ("workflows.cli", "demo_app", None),
+        ("workflows.editor.cli", "app", None),
     ):
         try:
             mod = import_module(module)
