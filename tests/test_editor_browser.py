@@ -203,3 +203,34 @@ def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkey
     assert "characters[0].betas" in result.output and "Traceback" not in result.output
     result = CliRunner().invoke(cli.app, [str(tmp_path / "scene.yaml")])
     assert result.exit_code == 1 and "must be a .json file" in result.output
+
+
+def test_gizmo_drags_re_solve_and_redraw_without_a_browser(editor):
+    """The wiring a gizmo's callback runs: the state moves, the mesh handle gets the new vertices,
+    rotation handles turn the joint, undo/redo come back to the handles."""
+    from types import SimpleNamespace
+
+    from workflows.editor.app import matrix_to_wxyz, wxyz_to_matrix
+
+    state = editor.state
+    mesh = editor._meshes[0]
+    before = np.asarray(mesh.vertices).copy()
+    editor.drag(1, np.array([-0.2, 1.7, 0.5]), np.array([1.0, 0.0, 0.0, 0.0]))  # the right-wrist handle
+    assert np.allclose(state.character().effectors[1].value, [-0.2, 1.7, 0.5])
+    assert np.allclose(np.asarray(mesh.vertices), state.view().vertices)
+    assert np.abs(np.asarray(mesh.vertices) - before).max() > 0.05
+    R = wxyz_to_matrix([np.cos(0.4), 0.0, np.sin(0.4), 0.0])  # 0.8 rad about y
+    assert np.allclose(wxyz_to_matrix(matrix_to_wxyz(R)), R)
+    editor.drag(2, np.zeros(3), matrix_to_wxyz(R))  # the pelvis rotation handle
+    assert np.abs(state.view().R_world[0] - R).max() < 0.1
+    assert np.allclose(editor._gizmos[2].position, state.view().joints[0])  # it sits on the pelvis
+    # an assignment made on the server (client None) is not an edit
+    n = len(state._undo)
+    editor._on_gizmo(0, SimpleNamespace(client=None, phase="update", target=editor._gizmos[0]))
+    assert len(state._undo) == n
+    editor._run(state.undo)
+    assert np.allclose(np.asarray(mesh.vertices), state.view().vertices)
+    assert np.allclose(editor._gizmos[1].position, [-0.2, 1.7, 0.5])  # the undo restored the first drag only
+    editor._run(state.undo)
+    assert np.allclose(editor._gizmos[1].position, [-0.35, 1.85, 0.25])
+    assert editor.undo_button.disabled is False and editor.redo_button.disabled is False
