@@ -118,6 +118,7 @@ def main() -> None:
     parser.add_argument("--drags", type=int, default=200)
     parser.add_argument("--checkpoint", type=Path, default=None)
     args = parser.parse_args()
+    load_at_start = list(os.getloadavg())
     solver = IKSolver.load(args.checkpoint)
     results: dict[str, dict] = {}
     for n in (1, 2):
@@ -133,7 +134,7 @@ def main() -> None:
                 "character, built-in body, 1 torch thread; state_only: EditorState.move_effector + view "
                 "(solve + skinning)",
         "targets_ms": {"p50": TARGET_P50_MS, "p95": TARGET_P95_MS},
-        "load_average_at_start": list(os.getloadavg()),
+        "load_average_at_start": load_at_start, "load_average_at_end": list(os.getloadavg()),
         "model": solver.source, "results": results})
     print(f"wrote {path}")
 
