@@ -14,6 +14,7 @@ from smplik.cli.solve import solve_command
 from smplik.cli.train import export_command, train_command
 from smplik.data.cli import app as data_app
 from workflows.cli import demo_cmd, scene_app
+from workflows.editor.cli import edit_cmd
 
 app = typer.Typer(help="Morphology-aware learned IK on the SMPL body model.", no_args_is_help=True,
                   pretty_exceptions_enable=False)
@@ -26,6 +27,7 @@ app.command("export-model")(export_command)
 app.command("solve")(solve_command)
 app.command("invert-shape")(invert_shape)
 app.command("demo")(demo_cmd)
+app.command("edit")(edit_cmd)
 
 
 def main() -> None:

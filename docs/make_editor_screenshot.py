@@ -1,0 +1,59 @@
+"""Make docs/editor_scene.png: the editor on the demo's custom-character scene, in headless Chromium.
+
+``PYTHONPATH=. python docs/make_editor_screenshot.py [--out docs/editor_scene.png]`` runs the demo
+into a temporary folder (``workflows.demo.run_demo``), opens ``character/scene.json`` in the editor
+on a free loopback port and screenshots it with Debian's Chromium (``/usr/bin/chromium``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+
+def main() -> None:
+    import torch
+    from playwright.sync_api import sync_playwright
+    from test_editor_browser import CHROMIUM, CHROMIUM_ARGS, body_pixels
+
+    from smplik.solver import IKSolver
+    from workflows.demo import run_demo
+    from workflows.editor.app import EditorApp
+    from workflows.editor.state import EditorState
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "editor_scene.png")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    solver = IKSolver.load()
+    with tempfile.TemporaryDirectory() as tmp:
+        run_demo(Path(tmp), solver)
+        app = EditorApp(EditorState.open(Path(tmp) / "character" / "scene.json", solver), port=0)
+        try:
+            with sync_playwright() as pw:
+                browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, timeout=60_000)
+                page = browser.new_page(viewport={"width": 1280, "height": 800})
+                page.goto(app.url)
+                page.wait_for_selector("canvas", timeout=60_000)
+                deadline = time.monotonic() + 120
+                while body_pixels(page.screenshot(timeout=60_000)) < 5000 and time.monotonic() < deadline:
+                    time.sleep(1.0)
+                close = page.locator(".mantine-Notification-closeButton")
+                if close.count():
+                    close.first.click()
+                time.sleep(5.0)  # let the scene finish fading in
+                args.out.write_bytes(page.screenshot(timeout=60_000))
+                browser.close()
+        finally:
+            app.stop()
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

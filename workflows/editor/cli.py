@@ -1,0 +1,106 @@
+"""``smplik edit``: the interactive pose editor in the browser (needs the ``edit`` extra: viser)."""
+
+from __future__ import annotations
+
+import ipaddress
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+app = typer.Typer(help="Interactive pose editor.")
+console = Console(stderr=True)
+
+
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and 'localhost'."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _fail(message: object) -> None:
+    console.print(f"[red]error:[/red] {message}", soft_wrap=True, highlight=False)
+    raise typer.Exit(1) from None
+
+
+@app.command("edit")
+def edit_cmd(
+    scene: Annotated[Path | None, typer.Argument(help="Scene JSON to edit (a new file: start from a T-pose body "
+                                                      "and create it on Save; none: ./scene.json).")] = None,
+    host: Annotated[str, typer.Option("--host", help="Address to listen on (0.0.0.0: the whole network).")]
+    = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port (0: any free port).")] = 8080,
+    checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
+    = None,
+    character: Annotated[Path | None, typer.Option("--character", help="Add a custom character (BVH, glTF, JSON "
+                                                                       "skeleton) fitted by SMPL-SI.")] = None,
+    rig: Annotated[str | None, typer.Option("--rig", help="Rig preset of --character (default: detected).")] = None,
+) -> None:
+    """Edit a scene in the browser: drag effectors, shape sliders, recovery, undo/redo, Save, Export."""
+    import dataclasses
+
+    import numpy as np
+
+    from workflows.cli import _solver
+    from workflows.scene import SceneCharacter, SkeletonSource, load_scene
+
+    try:
+        from workflows.editor.app import EditorApp
+    except ModuleNotFoundError as exc:
+        if exc.name != "viser":
+            raise
+        _fail("smplik edit needs viser: pip install 'smplik[edit]' (or pip install viser).")
+    from workflows.editor.state import EditorError, EditorState, fresh_scene
+
+    path = scene if scene is not None else Path("scene.json")
+    if path.suffix.lower() != ".json":
+        _fail(f"SCENE must be a .json file, got {path}.")
+    try:
+        loaded = load_scene(path) if path.exists() else None
+    except ValueError as exc:
+        _fail(exc)
+    if character is not None:
+        from workflows.character import load_character
+
+        try:
+            custom = load_character(character, rig=rig)
+        except (ValueError, OSError) as exc:
+            _fail(exc)
+        added = SceneCharacter(character.stem, custom.gender, np.asarray(custom.betas, np.float64), custom.scale,
+                               SkeletonSource(str(character.resolve()), custom.rig.name))
+        loaded = dataclasses.replace(loaded, characters=loaded.characters + (added,)) if loaded is not None \
+            else dataclasses.replace(fresh_scene(), characters=(added,))
+    if loaded is None:
+        console.print(f"{path} does not exist: editing a new T-pose body; Save writes {path}.", highlight=False,
+                      soft_wrap=True)
+        loaded = fresh_scene()
+    solver = _solver(checkpoint)
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    # One pose per solve: a second torch thread does not help (benchmarks/speed.py), and a 2-thread BLAS
+    # slows the skinning several times over when other processes share the cores.
+    torch.set_num_threads(1)
+    threadpool_limits(1)
+    try:
+        state = EditorState(loaded, solver, path=path)
+        editor = EditorApp(state, host=host, port=port)
+    except (EditorError, OSError) as exc:
+        _fail(exc)
+    if not is_loopback(host):
+        console.print(f"[yellow]warning:[/yellow] listening on {host}: anyone who can reach this machine on port "
+                      f"{editor.port} can edit the scene and save files.", highlight=False, soft_wrap=True)
+    typer.echo(f"smplik editor: {editor.url}  (Ctrl+C to stop)")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        editor.stop()

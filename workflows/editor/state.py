@@ -1,0 +1,489 @@
+"""The pose editor's state: the scene being edited, the selection and the undo/redo history.
+
+Plain Python (no viser): :mod:`workflows.editor.app` wires it to the browser, tests drive it
+directly. Every edit builds a new immutable :class:`~workflows.scene.Scene` (re-solving the edited
+character with :func:`workflows.scene.solve_character`, the code path of ``smplik scene solve``)
+and pushes the previous :class:`Snapshot` on the undo stack. Consecutive edits with the same
+*gesture key* (one gizmo drag, one slider being moved) merge into one undo step until
+:meth:`EditorState.end_gesture`.
+
+Spaces are those of :mod:`workflows.scene`: effectors and everything drawn are in character space
+(the SMPL body scaled by ``scale`` about the world origin); poses are in SMPL space.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smplik.conventions import JOINT_NAMES, NUM_BETAS, NUM_JOINTS, EffectorType, Gender, joint_index
+from smplik.effectors import Effector
+from smplik.pose import Pose
+from smplik.refine import RefineConfig
+from workflows.editor.skinning import ShapedBody, Skinner
+from workflows.scene import Scene, SceneCharacter, load_scene, save_scene, solve_character
+
+EFFECTOR_TYPES: tuple[str, ...] = tuple(t.name.lower() for t in EffectorType)
+"""Effector type names, in :class:`~smplik.conventions.EffectorType` order."""
+LOOK_AT_DIRECTION = (0.0, 0.0, 1.0)
+"""A new look-at effector aims the joint's forward axis (+z in its frame: SMPL faces +z at rest)."""
+LOOK_AT_DISTANCE = 0.5
+"""Distance (metres, character space) of a new look-at effector's target from its joint."""
+BETA_RANGE = (-3.0, 3.0)
+"""Range of the shape sliders."""
+
+
+class EditorError(ValueError):
+    """An edit that cannot be applied (no such character or effector, bad value); the message says why."""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Everything an undo step restores."""
+
+    scene: Scene
+    active: int
+    selected: int | None
+    refine: bool
+
+
+@dataclass(frozen=True, eq=False)
+class CharacterView:
+    """What is drawn for one character, in character space.
+
+    Attributes:
+        vertices: (V, 3) float32 posed SMPL mesh; faces: (F, 3) int32.
+        joints: (24, 3) posed joints; R_world: (24, 3, 3) their global rotations.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray
+    R_world: np.ndarray
+
+
+def fresh_scene() -> Scene:
+    """A scene of one neutral body in the T-pose, without effectors."""
+    return Scene((SceneCharacter("body", Gender.NEUTRAL, np.zeros(NUM_BETAS)),))
+
+
+def rest_pose(character: SceneCharacter) -> Pose:
+    """The character's T-pose (zero rotations and translation) in SMPL space."""
+    return Pose(np.zeros(3), np.zeros((NUM_JOINTS - 1, 3)), np.zeros(3), np.asarray(character.betas, np.float64),
+                character.gender)
+
+
+def nearest_joint(joints: np.ndarray, ray_origin: Sequence[float], ray_direction: Sequence[float]) -> int:
+    """The joint closest to a picking ray (a click). joints (24, 3); ties go to the joint nearer the origin."""
+    o = np.asarray(ray_origin, np.float64)
+    d = np.asarray(ray_direction, np.float64)
+    d = d / max(np.linalg.norm(d), 1e-12)
+    rel = np.asarray(joints, np.float64) - o
+    along = np.clip(rel @ d, 0.0, None)
+    dist = np.linalg.norm(rel - along[:, None] * d, axis=1)
+    return int(np.lexsort((along, np.round(dist, 4)))[0])
+
+
+def _rebase(name: str | None, old_dir: Path | None, new_dir: Path) -> str | None:
+    """A path stored relative to the old scene folder, rewritten for a scene saved in ``new_dir``."""
+    if name is None or old_dir is None or Path(name).is_absolute() or old_dir.resolve() == new_dir.resolve():
+        return name
+    return str((old_dir / name).resolve())
+
+
+class EditorState:
+    """The editor's model (see the module docstring).
+
+    Args:
+        scene: the scene to edit (e.g. :func:`workflows.scene.load_scene`, or :func:`fresh_scene`).
+        solver: an :class:`smplik.solver.IKSolver` (anything with ``solve`` and ``solve_tensors``
+            that is a dataclass with a ``refine`` field).
+        path: where :meth:`save` writes by default (the scene file).
+        refine: solve with the solver's effector refinement (False: the network alone).
+        max_history: undo steps kept.
+    """
+
+    def __init__(self, scene: Scene, solver: Any, *, path: str | Path | None = None, refine: bool = True,
+                 max_history: int = 500) -> None:
+        if not scene.characters:
+            raise EditorError("The scene has no character to edit.")
+        self._solver = solver
+        self._solver_raw = dataclasses.replace(solver, refine=RefineConfig(iterations=0))
+        self.path = None if path is None else Path(path)
+        self._loaded_from = self.path.parent if self.path is not None else None
+        self._now = Snapshot(scene, 0, None, refine)
+        self._undo: list[Snapshot] = []
+        self._redo: list[Snapshot] = []
+        self._gesture: Hashable | None = None
+        self._max_history = max_history
+        self.version = 0
+        """Increments on every change (edits, undo, redo, selection)."""
+        self._reference = {i: c.pose for i, c in enumerate(scene.characters)}
+        self._skinners: dict[Gender, Skinner] = {}
+        self._shaped: dict[int, tuple[Gender, ShapedBody]] = {}
+        self._views: dict[int, tuple[SceneCharacter, CharacterView]] = {}
+        self._customs: dict[tuple[str, str | None, Gender], Any] = {}
+
+    @classmethod
+    def open(cls, path: str | Path, solver: Any, **kwargs: Any) -> EditorState:
+        """Edit the scene file at ``path`` (SceneError naming the file and JSON path when invalid)."""
+        return cls(load_scene(path), solver, path=path, **kwargs)
+
+    # ------------------------------------------------------------------------- read access
+
+    @property
+    def scene(self) -> Scene:
+        return self._now.scene
+
+    @property
+    def active(self) -> int:
+        """Index of the character being edited."""
+        return self._now.active
+
+    @property
+    def selected(self) -> int | None:
+        """Index of the selected effector of the active character (None: none)."""
+        return self._now.selected
+
+    @property
+    def refine(self) -> bool:
+        return self._now.refine
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._redo)
+
+    def character(self, index: int | None = None) -> SceneCharacter:
+        """The character at ``index`` (default: the active one)."""
+        i = self.active if index is None else self._check_character(index)
+        return self.scene.characters[i]
+
+    def effector_labels(self, index: int | None = None) -> list[str]:
+        """``"0: left_wrist position"``-style labels of a character's effectors."""
+        return [f"{k}: {e.joint_name} {e.type.name.lower()}" for k, e in enumerate(self.character(index).effectors)]
+
+    def view(self, index: int | None = None) -> CharacterView:
+        """The posed mesh and joints of a character (cached until that character changes)."""
+        i = self.active if index is None else self._check_character(index)
+        c = self.scene.characters[i]
+        cached = self._views.get(i)
+        if cached is not None and cached[0] is c:
+            return cached[1]
+        view = self._compute_view(i, c)
+        self._views[i] = (c, view)
+        return view
+
+    # ------------------------------------------------------------------------- selection
+
+    def select_character(self, index: int) -> None:
+        i = self._check_character(index)
+        if i != self.active:
+            self._now = dataclasses.replace(self._now, active=i, selected=None)
+            self._gesture = None
+            self.version += 1
+
+    def select_effector(self, index: int | None) -> None:
+        if index is not None:
+            self._check_effector(index)
+        if index != self.selected:
+            self._now = dataclasses.replace(self._now, selected=index)
+            self.version += 1
+
+    def pick_joint(self, ray_origin: Sequence[float], ray_direction: Sequence[float],
+                   index: int | None = None) -> str:
+        """The name of the character's joint nearest a click ray (character space)."""
+        return JOINT_NAMES[nearest_joint(self.view(index).joints, ray_origin, ray_direction)]
+
+    # ------------------------------------------------------------------------- edits
+
+    def add_effector(self, joint: str | int, kind: str | EffectorType = "position", *,
+                     tolerance: float = 0.0) -> int:
+        """Add an effector on ``joint`` holding the joint's current position / rotation / heading;
+        select it and return its index."""
+        try:
+            j = joint_index(joint)
+            t = EffectorType.parse(kind)
+        except ValueError as exc:
+            raise EditorError(str(exc)) from None
+        view = self.view()
+        if t == EffectorType.POSITION:
+            eff = Effector.position(j, view.joints[j], tolerance)
+        elif t == EffectorType.ROTATION:
+            eff = Effector.rotation(j, view.R_world[j], tolerance)
+        else:
+            d = np.asarray(LOOK_AT_DIRECTION)
+            target = view.joints[j] + LOOK_AT_DISTANCE * (view.R_world[j] @ d)
+            eff = Effector.look_at(j, target, d, tolerance)
+        c = self.character()
+        self._edit(dataclasses.replace(c, effectors=c.effectors + (eff,)), selected=len(c.effectors))
+        return len(c.effectors)
+
+    def delete_effector(self, index: int | None = None) -> None:
+        """Delete an effector (default: the selected one)."""
+        k = self._effector_or_selected(index)
+        c = self.character()
+        effs = c.effectors[:k] + c.effectors[k + 1:]
+        self._edit(dataclasses.replace(c, effectors=effs), selected=None)
+
+    def move_effector(self, index: int, *, position: Sequence[float] | None = None,
+                      rotation: np.ndarray | None = None) -> None:
+        """Move an effector: ``position`` (3,) for position effectors and look-at targets,
+        ``rotation`` (3, 3) ``R_world_joint`` for rotation effectors (character space).
+
+        Consecutive moves of the same effector are one undo step until :meth:`end_gesture`.
+        """
+        k = self._check_effector(index)
+        c = self.character()
+        e = c.effectors[k]
+        try:
+            if e.type == EffectorType.ROTATION:
+                if rotation is None:
+                    raise EditorError(f"Effector {k} ({e.joint_name}) is a rotation effector: give rotation=.")
+                new = Effector.rotation(e.joint, np.asarray(rotation, np.float64), e.tolerance)
+            else:
+                if position is None:
+                    raise EditorError(f"Effector {k} ({e.joint_name}) is a {e.type.name.lower()} effector: "
+                                      "give position=.")
+                if e.type == EffectorType.POSITION:
+                    new = Effector.position(e.joint, position, e.tolerance)
+                else:
+                    new = Effector.look_at(e.joint, position, e.direction, e.tolerance)
+        except EditorError:
+            raise
+        except ValueError as exc:
+            raise EditorError(str(exc)) from None
+        self._edit(self._with_effector(c, k, new), selected=k, gesture=("move", self.active, k))
+
+    def set_tolerance(self, tolerance: float, index: int | None = None) -> None:
+        """Set an effector's tolerance in [0, 1] (default: the selected effector)."""
+        k = self._effector_or_selected(index)
+        c = self.character()
+        try:
+            new = dataclasses.replace(c.effectors[k], tolerance=float(tolerance))
+        except ValueError as exc:
+            raise EditorError(str(exc)) from None
+        self._edit(self._with_effector(c, k, new), selected=k, gesture=("tolerance", self.active, k))
+
+    def set_beta(self, component: int, value: float) -> None:
+        """Set one shape component of the active character."""
+        if not 0 <= int(component) < NUM_BETAS:
+            raise EditorError(f"Shape component {component} is out of range [0, {NUM_BETAS - 1}].")
+        if not np.isfinite(value):
+            raise EditorError(f"beta {component}: {value} is not a finite number.")
+        c = self.character()
+        betas = np.array(c.betas, np.float64)
+        betas[int(component)] = float(value)
+        self._edit(dataclasses.replace(c, betas=betas), gesture=("beta", self.active, int(component)))
+
+    def set_gender(self, gender: str | Gender) -> None:
+        try:
+            g = Gender.parse(gender)
+        except ValueError as exc:
+            raise EditorError(str(exc)) from None
+        c = self.character()
+        if g != c.gender:
+            self._edit(dataclasses.replace(c, gender=g))
+
+    def set_refine(self, refine: bool) -> None:
+        """Switch the effector refinement on or off; re-solves every character (one undo step)."""
+        if bool(refine) == self.refine:
+            return
+        self._push()
+        self._now = dataclasses.replace(self._now, refine=bool(refine))
+        chars = tuple(self._solve(c) for c in self.scene.characters)
+        self._now = dataclasses.replace(self._now, scene=dataclasses.replace(self.scene, characters=chars))
+        self.version += 1
+
+    def recover(self, max_effectors: int = 8, *, threshold: float = 0.0) -> tuple[float, ...]:
+        """Greedy effector recovery (:func:`workflows.recovery.recover_effectors`) of the active character's
+        estimated pose (the pose it had when the scene was opened; the current pose without one).
+        Replaces its effectors; returns the error (metres) after each recovered effector."""
+        from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors
+
+        if int(max_effectors) < 1:
+            raise EditorError(f"max effectors must be >= 1, got {max_effectors}.")
+        c = self.character()
+        target = self._reference.get(self.active) or c.pose or rest_pose(c)
+        target = dataclasses.replace(target, betas=np.asarray(c.betas, np.float64), gender=c.gender, joints=None)
+        cfg = RecoveryConfig(max_effectors=int(max_effectors), threshold=float(threshold))
+        result = recover_effectors(self._current_solver(), TargetPose.from_pose(target), cfg, scale=c.scale)
+        self._edit(dataclasses.replace(c, effectors=result.effectors), selected=None)
+        return result.errors
+
+    def end_gesture(self) -> None:
+        """End the current drag / slider gesture: the next edit starts a new undo step."""
+        self._gesture = None
+
+    def undo(self) -> bool:
+        """Restore the state before the last edit; False when there is nothing to undo."""
+        if not self._undo:
+            return False
+        self._redo.append(self._now)
+        self._now = self._undo.pop()
+        self._gesture = None
+        self.version += 1
+        return True
+
+    def redo(self) -> bool:
+        """Re-apply the last undone edit; False when there is nothing to redo."""
+        if not self._redo:
+            return False
+        self._undo.append(self._now)
+        self._now = self._redo.pop()
+        self._gesture = None
+        self.version += 1
+        return True
+
+    # ------------------------------------------------------------------------- files
+
+    def save(self, path: str | Path | None = None) -> Path:
+        """Write the scene (atomically, the ``smplik-scene`` format) to ``path`` (default: :attr:`path`).
+
+        Relative ``image`` / skeleton paths are rewritten when saving into another folder.
+        """
+        target = Path(path) if path is not None else self.path
+        if target is None:
+            raise EditorError("No file to save to: give a path.")
+        if target.suffix.lower() != ".json":
+            raise EditorError(f"Save: {target} must end in .json.")
+        scene = self.scene
+        new_dir = target.parent
+        chars = tuple(c if c.skeleton is None else dataclasses.replace(
+            c, skeleton=dataclasses.replace(c.skeleton, path=_rebase(c.skeleton.path, self._loaded_from, new_dir)))
+            for c in scene.characters)
+        scene = dataclasses.replace(scene, image=_rebase(scene.image, self._loaded_from, new_dir), characters=chars)
+        written = save_scene(scene, target)
+        self.path = target
+        return written
+
+    def export(self, out_dir: str | Path) -> list[Path]:
+        """Write the posed characters: :func:`workflows.export.export_scene` when available, else one BVH
+        of the SMPL skeleton per character (:func:`workflows.editor.export.write_smpl_bvh`)."""
+        from workflows.editor.export import export_posed_scene
+
+        return export_posed_scene(self._posed_scene(), Path(out_dir), scene_dir=self._loaded_from)
+
+    def skeleton_bones(self, index: int | None = None) -> np.ndarray | None:
+        """Bones (B, 2, 3) of a character's posed custom skeleton (character space), or None without one.
+
+        The skeleton is read and mapped once (:func:`workflows.character.load_character`).
+        """
+        from workflows.character import smpl_to_custom
+        from workflows.previews import custom_skeleton_segments
+
+        c = self.character(index)
+        if c.skeleton is None:
+            return None
+        src = Path(c.skeleton.path)
+        if not src.is_absolute() and self._loaded_from is not None:
+            src = self._loaded_from / src
+        key = (str(src), c.skeleton.rig, c.gender)
+        if key not in self._customs:
+            from workflows.character import load_character
+
+            self._customs[key] = load_character(src, rig=c.skeleton.rig, gender=c.gender)
+        char = self._customs[key]
+        pose = c.pose if c.pose is not None else rest_pose(c)
+        segments = custom_skeleton_segments(char, smpl_to_custom(pose, char))
+        return np.array([[s.start, s.end] for s in segments], np.float64).reshape(-1, 2, 3)
+
+    # ------------------------------------------------------------------------- internals
+
+    def _posed_scene(self) -> Scene:
+        """The scene with a pose for every character (the T-pose where none was solved)."""
+        chars = tuple(c if c.pose is not None else dataclasses.replace(c, pose=rest_pose(c))
+                      for c in self.scene.characters)
+        return dataclasses.replace(self.scene, characters=chars)
+
+    def _check_character(self, index: int) -> int:
+        n = len(self.scene.characters)
+        if not 0 <= int(index) < n:
+            raise EditorError(f"No character {index}: the scene has {n} (0..{n - 1}).")
+        return int(index)
+
+    def _check_effector(self, index: int) -> int:
+        c = self.character()
+        if not 0 <= int(index) < len(c.effectors):
+            raise EditorError(f"No effector {index} on {c.name}: it has {len(c.effectors)}.")
+        return int(index)
+
+    def _effector_or_selected(self, index: int | None) -> int:
+        if index is None:
+            if self.selected is None:
+                raise EditorError("No effector is selected.")
+            index = self.selected
+        return self._check_effector(index)
+
+    @staticmethod
+    def _with_effector(c: SceneCharacter, k: int, new: Effector) -> SceneCharacter:
+        return dataclasses.replace(c, effectors=c.effectors[:k] + (new,) + c.effectors[k + 1:])
+
+    def _current_solver(self) -> Any:
+        return self._solver if self.refine else self._solver_raw
+
+    def _solve(self, c: SceneCharacter) -> SceneCharacter:
+        """Re-solve from the effectors; without effectors keep the pose's rotations on the new body."""
+        if c.effectors:
+            try:
+                return solve_character(c, self._current_solver())
+            except ValueError as exc:
+                raise EditorError(f"{c.name}: {exc}") from None
+        if c.pose is None:
+            return c
+        pose = dataclasses.replace(c.pose, betas=np.asarray(c.betas, np.float64), gender=c.gender, joints=None)
+        return dataclasses.replace(c, pose=pose)
+
+    def _push(self) -> None:
+        self._undo.append(self._now)
+        del self._undo[:-self._max_history]
+        self._redo.clear()
+
+    def _edit(self, character: SceneCharacter, *, selected: int | None | str = "keep",
+              gesture: Hashable | None = None) -> None:
+        """Replace the active character (re-solved) and record the undo step."""
+        solved = self._solve(character)
+        if gesture is None or gesture != self._gesture or not self._undo:
+            self._push()
+        self._gesture = gesture
+        chars = list(self.scene.characters)
+        chars[self.active] = solved
+        sel = self.selected if selected == "keep" else selected
+        self._now = dataclasses.replace(self._now, scene=dataclasses.replace(self.scene, characters=tuple(chars)),
+                                        selected=sel)
+        self.version += 1
+
+    def _skinner(self, gender: Gender) -> Skinner:
+        if gender not in self._skinners:
+            from smplik.body_model import load_body_model
+
+            self._skinners[gender] = Skinner.from_model(load_body_model(gender))
+        return self._skinners[gender]
+
+    def _compute_view(self, i: int, c: SceneCharacter) -> CharacterView:
+        from workflows.recovery import TargetPose
+
+        skinner = self._skinner(c.gender)
+        gender, body = self._shaped.get(i, (None, None))
+        if body is None or gender != c.gender or not np.array_equal(body.betas, np.asarray(c.betas, np.float32)):
+            body = skinner.shaped(c.betas)
+            self._shaped[i] = (c.gender, body)
+        pose = c.pose if c.pose is not None else rest_pose(c)
+        pose = dataclasses.replace(pose, betas=np.asarray(c.betas, np.float64), gender=c.gender)
+        fk = TargetPose.from_pose(pose)
+        R_world, p_world = fk.R_world.numpy(), fk.p_world.numpy()
+        R_local = None
+        if skinner.posedirs is not None:
+            from scipy.spatial.transform import Rotation
+
+            R_local = Rotation.from_rotvec(np.concatenate([pose.global_orient[None], pose.body_pose])).as_matrix()
+        verts = skinner.skin(body, R_world, p_world, R_local) * np.float32(c.scale)
+        return CharacterView(verts, skinner.faces, p_world.astype(np.float64) * c.scale, R_world.astype(np.float64))
