@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_workflows_support import best_solver
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 IN_CI = os.environ.get("CI", "").lower() == "true"
@@ -58,11 +57,12 @@ def body_pixels(png: bytes) -> int:
 def editor(tmp_path):
     import torch
 
+    from smplik.solver import IKSolver
     from workflows.editor.app import EditorApp
     from workflows.editor.state import EditorState, fresh_scene
 
     torch.set_num_threads(1)
-    state = EditorState(fresh_scene(), best_solver(), path=tmp_path / "scene.json")
+    state = EditorState(fresh_scene(), IKSolver.load(), path=tmp_path / "scene.json")
     state.add_effector("head", "look_at")  # all three handle types in view
     state.add_effector("right_wrist", "position")
     state.move_effector(1, position=[-0.35, 1.85, 0.25])  # the right arm raised
@@ -189,7 +189,9 @@ def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkey
         raise KeyboardInterrupt
 
     monkeypatch.setattr(app_mod, "EditorApp", FakeApp)
-    monkeypatch.setattr(wcli, "_solver", lambda checkpoint: best_solver())
+    from smplik.solver import IKSolver
+
+    monkeypatch.setattr(wcli, "_solver", lambda checkpoint: IKSolver.load())
     monkeypatch.setattr(cli.time, "sleep", interrupt)
     result = CliRunner().invoke(cli.app, [str(tmp_path / "s.json"), "--host", "0.0.0.0", "--port", "8123"])
     assert result.exit_code == 0, result.output

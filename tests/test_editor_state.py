@@ -8,7 +8,6 @@ import json
 import numpy as np
 import pytest
 import torch
-from test_workflows_support import best_solver
 
 from smplik.conventions import JOINT_INDEX, NUM_BETAS, EffectorType, Gender
 from smplik.data.bvh import read_bvh
@@ -20,7 +19,9 @@ from workflows.scene import Scene, SceneCharacter, SkeletonSource, load_scene, s
 
 @pytest.fixture(scope="module")
 def solver():
-    return best_solver()
+    from smplik.solver import IKSolver
+
+    return IKSolver.load()  # the shipped model
 
 
 @pytest.fixture()
