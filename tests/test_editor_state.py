@@ -11,7 +11,6 @@ import torch
 
 from smplik.conventions import JOINT_INDEX, NUM_BETAS, EffectorType, Gender
 from smplik.data.bvh import read_bvh
-from workflows.editor.export import write_smpl_bvh
 from workflows.editor.skinning import Skinner
 from workflows.editor.state import EditorError, EditorState, fresh_scene, nearest_joint
 from workflows.scene import Scene, SceneCharacter, SkeletonSource, load_scene, save_scene, solve_scene
@@ -218,39 +217,19 @@ def test_nearest_joint_picks_the_joint_on_the_ray(state):
         assert state.pick_joint(origin, joints[j] - origin) == name
 
 
-def test_smpl_skeleton_bvh_reproduces_the_joints(state, tmp_path):
+def test_export_writes_the_posed_scene_through_the_scene_exporter(state, tmp_path):
     state.add_effector("left_wrist")
     state.move_effector(0, position=[0.3, 1.5, 0.3])
     state.set_beta(0, 1.0)
-    c = dataclasses.replace(state.character(), scale=1.1)
-    motion = read_bvh(write_smpl_bvh(tmp_path / "body.bvh", c))
-    assert motion.joint_names[0] == "pelvis" and motion.num_frames == 1
-    order = [motion.joint_names.index(n) for n in ("pelvis", "left_wrist", "head", "right_foot")]
-    expected = c.pose.joints[[JOINT_INDEX[n] for n in ("pelvis", "left_wrist", "head", "right_foot")]] * 1.1
-    assert np.abs(motion.positions[0, order] / 100.0 - expected).max() < 1e-4
-
-
-def test_export_uses_the_scene_exporter_when_installed(state, tmp_path, monkeypatch):
-    import sys
-    import types
-
-    state.add_effector("left_wrist")
-    state.move_effector(0, position=[0.3, 1.5, 0.3])
-    monkeypatch.setitem(sys.modules, "workflows.export", None)  # no scene exporter: SMPL skeleton BVH
-    files = state.export(tmp_path / "fallback")
-    assert [p.name for p in files] == ["body.bvh"]
-    assert read_bvh(files[0]).num_joints == 24
-    calls = []
-
-    def export_scene(scene, out_dir, *, formats, base_dir):
-        calls.append((scene, out_dir, formats, base_dir))
-        return [out_dir / "x.glb"]
-
-    monkeypatch.setitem(sys.modules, "workflows.export", types.SimpleNamespace(export_scene=export_scene))
-    assert state.export(tmp_path / "out") == [tmp_path / "out" / "x.glb"]
-    scene, out_dir, formats, base_dir = calls[0]
-    assert formats == ("bvh", "glb") and base_dir == tmp_path and out_dir == tmp_path / "out"
-    assert np.allclose(scene.characters[0].effectors[0].value, [0.3, 1.5, 0.3])
+    files = state.export(tmp_path / "out")
+    assert sorted(p.suffix for p in files) == [".bvh", ".glb"]
+    motion = read_bvh(next(p for p in files if p.suffix == ".bvh"))
+    c = state.character()
+    names = ("pelvis", "left_wrist", "head", "right_foot")
+    order = [motion.joint_names.index(n) for n in names]
+    expected = c.pose.joints[[JOINT_INDEX[n] for n in names]] * c.scale
+    assert np.abs(motion.positions[0, order] - expected).max() < 1e-3  # the solved pose (metres), within 1 mm
+    assert np.abs(expected[1] - [0.3, 1.5, 0.3]).max() < 0.05  # and it is the edited pose
 
 
 def test_custom_character_skeleton_is_posed(solver, tmp_path):

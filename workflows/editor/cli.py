@@ -10,6 +10,20 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from shape_inversion.options import (
+    BindOption,
+    MapOption,
+    MaxJointsOption,
+    PositionsOption,
+    RestOption,
+    RigOption,
+    UnitsOption,
+    UpOption,
+    character_options_from_cli,
+)
+from smplik.cli.errors import fail
+from smplik.data.bvh import DEFAULT_MAX_JOINTS
+
 app = typer.Typer(help="Interactive pose editor.")
 console = Console(stderr=True)
 
@@ -24,11 +38,6 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def _fail(message: object) -> None:
-    console.print(f"[red]error:[/red] {message}", soft_wrap=True, highlight=False)
-    raise typer.Exit(1) from None
-
-
 @app.command("edit")
 def edit_cmd(
     scene: Annotated[Path | None, typer.Argument(help="Scene JSON to edit (a new file: start from a T-pose body "
@@ -40,7 +49,14 @@ def edit_cmd(
     = None,
     character: Annotated[Path | None, typer.Option("--character", help="Add a custom character (BVH, glTF, JSON "
                                                                        "skeleton) fitted by SMPL-SI.")] = None,
-    rig: Annotated[str | None, typer.Option("--rig", help="Rig preset of --character (default: detected).")] = None,
+    rig: RigOption = None,
+    map_file: MapOption = None,
+    units: UnitsOption = "auto",
+    up: UpOption = "auto",
+    rest: RestOption = "frame0",
+    bind: BindOption = "inverse_bind",
+    positions: PositionsOption = "auto",
+    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
 ) -> None:
     """Edit a scene in the browser: drag effectors, shape sliders, recovery, undo/redo, Save, Export."""
     import dataclasses
@@ -55,25 +71,30 @@ def edit_cmd(
     except ModuleNotFoundError as exc:
         if exc.name != "viser":
             raise
-        _fail("smplik edit needs viser: pip install 'smplik[edit]' (or pip install viser).")
+        fail("smplik edit needs viser: pip install 'smplik[edit]' (or pip install viser).")
     from workflows.editor.state import EditorError, EditorState, fresh_scene
 
     path = scene if scene is not None else Path("scene.json")
     if path.suffix.lower() != ".json":
-        _fail(f"SCENE must be a .json file, got {path}.")
+        fail(f"SCENE must be a .json file, got {path}.")
     try:
         loaded = load_scene(path) if path.exists() else None
     except ValueError as exc:
-        _fail(exc)
+        fail(exc)
     if character is not None:
         from workflows.character import load_character
 
+        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
         try:
-            custom = load_character(character, rig=rig)
+            custom = load_character(character, options)
         except (ValueError, OSError) as exc:
-            _fail(exc)
+            fail(exc)
+        from shape_inversion.rigs import available_presets
+
+        if options.map is None and custom.rig.name in available_presets():  # a re-read skips detection
+            options = dataclasses.replace(options, rig=custom.rig.name)
         added = SceneCharacter(character.stem, custom.gender, np.asarray(custom.betas, np.float64), custom.scale,
-                               SkeletonSource(str(character.resolve()), custom.rig.name))
+                               SkeletonSource.from_options(str(character.resolve()), options))
         loaded = dataclasses.replace(loaded, characters=loaded.characters + (added,)) if loaded is not None \
             else dataclasses.replace(fresh_scene(), characters=(added,))
     if loaded is None:
@@ -92,7 +113,7 @@ def edit_cmd(
         state = EditorState(loaded, solver, path=path)
         editor = EditorApp(state, host=host, port=port)
     except (EditorError, OSError) as exc:
-        _fail(exc)
+        fail(exc)
     if not is_loopback(host):
         console.print(f"[yellow]warning:[/yellow] listening on {host}: anyone who can reach this machine on port "
                       f"{editor.port} can edit the scene and save files.", highlight=False, soft_wrap=True)

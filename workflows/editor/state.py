@@ -366,16 +366,18 @@ class EditorState:
         return written
 
     def export(self, out_dir: str | Path) -> list[Path]:
-        """Write the posed characters: :func:`workflows.export.export_scene` when available, else one BVH
-        of the SMPL skeleton per character (:func:`workflows.editor.export.write_smpl_bvh`)."""
-        from workflows.editor.export import export_posed_scene
+        """Write the posed characters with the scene exporter (:func:`workflows.export.export_scene`, as
+        ``smplik scene export``): a BVH of each character's own skeleton and a posed GLB."""
+        from workflows.export import export_scene
 
-        return export_posed_scene(self._posed_scene(), Path(out_dir), scene_dir=self._loaded_from)
+        return list(export_scene(self._posed_scene(), Path(out_dir), formats=("bvh", "glb"),
+                                 base_dir=self._loaded_from))
 
     def skeleton_bones(self, index: int | None = None) -> np.ndarray | None:
         """Bones (B, 2, 3) of a character's posed custom skeleton (character space), or None without one.
 
-        The skeleton is read and mapped once (:func:`workflows.character.load_character`).
+        The skeleton is read once with the character options the scene stores, at the scene's shape
+        (:func:`workflows.character.character_from_estimate`, as ``scene solve`` and ``scene export`` do).
         """
         from workflows.character import smpl_to_custom
         from workflows.previews import custom_skeleton_segments
@@ -386,11 +388,11 @@ class EditorState:
         src = Path(c.skeleton.path)
         if not src.is_absolute() and self._loaded_from is not None:
             src = self._loaded_from / src
-        key = (str(src), c.skeleton.rig, c.gender)
+        key = (str(src), c.skeleton, c.gender, tuple(np.round(c.betas, 9)), c.scale)
         if key not in self._customs:
-            from workflows.character import load_character
+            from workflows.character import character_from_estimate
 
-            self._customs[key] = load_character(src, rig=c.skeleton.rig, gender=c.gender)
+            self._customs[key] = character_from_estimate(src, c.skeleton.options, c.betas, c.scale, c.gender)
         char = self._customs[key]
         pose = c.pose if c.pose is not None else rest_pose(c)
         segments = custom_skeleton_segments(char, smpl_to_custom(pose, char))
