@@ -4,7 +4,8 @@ The per-count errors are those scored during the greedy search (network + ``sear
 refinement steps); the final pose error is that of the chosen set solved with the solver's full
 refinement.
 
-Poses: ~50 frames spread over the test split of ``/work/cache/cmu30.npz`` (or ``--cache``), else a
+Poses: ~50 frames spread over the test split of the pose cache (``$SMPLIK_POSE_CACHE`` or
+``<cache>/cmu30.npz``; or ``--cache``), else a
 cache built from ``../shared/data/cmu`` with :mod:`smplik.data.dataset` (or, without a split file,
 the middle frame of evenly spaced CMU clips); skipped with a message when neither exists.
 Model: ``--checkpoint`` (default: the shipped model). One CPU thread, as in the
@@ -32,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import save, shared_dir  # noqa: E402
 
 from smplik.conventions import Gender  # noqa: E402
+from smplik.paths import pose_cache  # noqa: E402
 from smplik.pose import Pose  # noqa: E402
 from workflows.recovery import (  # noqa: E402
     LIMB_ZONES,
@@ -41,7 +43,7 @@ from workflows.recovery import (  # noqa: E402
     recover_effectors,
 )
 
-DEFAULT_CACHE = Path("/work/cache/cmu30.npz")
+DEFAULT_CACHE = pose_cache()  # $SMPLIK_POSE_CACHE, else <cache>/cmu30.npz (smplik.paths)
 MAX_EFFECTORS = 10
 TIMED_EFFECTORS = 8
 

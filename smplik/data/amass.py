@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, Gender
+from smplik.validation import check_betas
 
 __all__ = ["PoseSequence", "read_amass", "z_up_to_y_up", "R_YUP_ZUP", "RestPelvis"]
 
@@ -84,8 +85,8 @@ class PoseSequence:
             raise ValueError(f"{self.source}: body_pose has shape {self.body_pose.shape}; expected ({T}, 23, 3).")
         if self.transl.shape != (T, 3):
             raise ValueError(f"{self.source}: transl has shape {self.transl.shape}; expected ({T}, 3).")
-        if self.betas is not None and self.betas.shape != (NUM_BETAS,):
-            raise ValueError(f"{self.source}: betas has shape {self.betas.shape}; expected ({NUM_BETAS},).")
+        if self.betas is not None:
+            check_betas(self.betas, where=f"{self.source}: betas")
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise ValueError(f"{self.source}: invalid frame rate {self.fps}.")
 

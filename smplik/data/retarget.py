@@ -58,6 +58,7 @@ from smplik.data.bvh import BVHMotion, read_bvh
 from smplik.kinematics import global_to_local
 from smplik.rotations import matrix_to_axis_angle
 from smplik.units import UNIT_NAMES
+from smplik.validation import check_betas
 
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
 RestMode = Literal["auto", "frame0", "offsets"]
@@ -379,10 +380,7 @@ def retarget_bvh(
     preset = load_preset(preset)
     gender = Gender.parse(gender)
     model = load_body_model(gender, model_dir)
-    betas_np = np.zeros(NUM_BETAS) if betas is None else np.asarray(
-        betas.detach().cpu() if isinstance(betas, torch.Tensor) else betas, dtype=np.float64).reshape(-1)
-    if betas_np.shape != (NUM_BETAS,):
-        raise ValueError(f"Invalid betas shape {betas_np.shape}; expected ({NUM_BETAS},).")
+    betas_np = check_betas(betas)
     J_rest = model.rest_joints(torch.from_numpy(betas_np).float()).double().numpy()  # (24, 3)
     shapedirs = model.arrays["shapedirs"][:, :, :NUM_BETAS].astype(np.float64)
     floor_smpl = float((model.arrays["v_template"] + shapedirs @ betas_np)[:, 1].min())
