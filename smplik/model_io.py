@@ -132,22 +132,7 @@ def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[s
             newer version; the one-line message names the file.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"Model file not found: {path}")
-    _check_archive(path)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
-            state = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        found = _UNSAFE_GLOBAL.search(str(exc))
-        named = f" (it names {found.group(1)})" if found else ""
-        raise CheckpointError(f"{path}: refused: the file holds Python objects other than tensors, numbers, "
-                              f"strings, lists and dicts{named}, which could run code when loaded; "
-                              f"{convert_hint(path)}.") from None
-    except Exception as exc:  # torch raises RuntimeError, EOFError, ... for corrupt files
-        raise CheckpointError(f"{path}: not a readable smplik model ({type(exc).__name__}: "
-                              f"{_first_line(exc)}).") from None
+    state = _safe_load(path, legacy=False)
     if not isinstance(state, dict) or state.get("format") not in _KINDS:
         raise CheckpointError(f"{path}: not an smplik model or checkpoint (missing 'format').")
     if state["format"] not in kinds:
@@ -237,24 +222,38 @@ def legacy_numpy_globals() -> list[Any]:
     return [np.ndarray, np.dtype, *dtypes, *names]
 
 
-def _read_legacy(path: Path) -> dict[str, Any]:
-    """An older smplik file: ``torch.load(weights_only=True)`` with :func:`legacy_numpy_globals` allowed."""
+def _safe_load(path: Path, *, legacy: bool) -> Any:
+    """``torch.load(weights_only=True)`` of a checked archive; ``legacy`` adds :func:`legacy_numpy_globals`.
+
+    Raises FileNotFoundError, or a one-line :class:`CheckpointError` naming the file (and the refused
+    global) for unsafe or unreadable content, which is never executed.
+    """
     if not path.is_file():
         raise FileNotFoundError(f"Model file not found: {path}")
     _check_archive(path)
+    extra = legacy_numpy_globals() if legacy else []
     try:
-        with warnings.catch_warnings(), torch.serialization.safe_globals(legacy_numpy_globals()):
-            warnings.simplefilter("ignore")
-            state = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings(), torch.serialization.safe_globals(extra):
+            warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
+            return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         found = _UNSAFE_GLOBAL.search(str(exc))
         named = f" (it names {found.group(1)})" if found else ""
-        raise CheckpointError(f"{path}: refused even as a legacy file: it holds Python objects other than "
-                              f"tensors, numbers, strings, containers and numpy values{named}, which could run "
-                              "code when loaded; smplik never loads such a file.") from None
-    except Exception as exc:
-        raise CheckpointError(f"{path}: not a readable torch file ({type(exc).__name__}: "
+        if legacy:
+            raise CheckpointError(f"{path}: refused even as a legacy file: it holds Python objects other than "
+                                  f"tensors, numbers, strings, containers and numpy values{named}, which could "
+                                  "run code when loaded; smplik never loads such a file.") from None
+        raise CheckpointError(f"{path}: refused: the file holds Python objects other than tensors, numbers, "
+                              f"strings, lists and dicts{named}, which could run code when loaded; "
+                              f"{convert_hint(path)}.") from None
+    except Exception as exc:  # torch raises RuntimeError, EOFError, ... for corrupt files
+        raise CheckpointError(f"{path}: not a readable smplik model ({type(exc).__name__}: "
                               f"{_first_line(exc)}).") from None
+
+
+def _read_legacy(path: Path) -> dict[str, Any]:
+    """An older smplik file: :func:`_safe_load` with numpy values allowed, converted to plain values."""
+    state = _safe_load(path, legacy=True)
     if not isinstance(state, dict) or state.get("format") not in _KINDS:
         raise CheckpointError(f"{path}: not an smplik model or checkpoint (missing 'format').")
     return _to_plain(state)
