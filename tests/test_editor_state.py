@@ -250,3 +250,25 @@ def test_custom_character_skeleton_is_posed(solver, tmp_path):
     verts = state.view().vertices
     d = np.linalg.norm(moved.reshape(-1, 1, 3) - verts[None, ::10], axis=2).min(axis=1)
     assert d.max() < 0.25
+
+
+def test_glb_character_own_mesh_follows_the_edit(solver, tmp_path):
+    """A GLB character's own skinned mesh (the fixture's skin is SMPL's rest mesh) is posed with every
+    edit and lies on the posed SMPL body; a BVH character has none."""
+    from shape_inversion.options import CharacterOptions
+    from workflows.character import load_character
+    from workflows.layout_examples import smpl_rest, write_mixamo_gltf
+
+    J, V, F, W = smpl_rest()
+    path = write_mixamo_gltf(tmp_path / "hero.glb", J, (V, F, W))
+    char = load_character(path)
+    c = SceneCharacter("hero", char.gender, np.asarray(char.betas), char.scale,
+                       SkeletonSource.from_options(str(path), CharacterOptions()))
+    state = EditorState(Scene((c,)), solver, path=tmp_path / "scene.json")
+    rest, faces = state.own_mesh()
+    assert rest.shape == V.shape and faces.shape == F.shape
+    state.add_effector("left_wrist")
+    state.move_effector(0, position=state.view().joints[JOINT_INDEX["left_wrist"]] + [0.0, 0.4, 0.3])
+    moved, _ = state.own_mesh()
+    assert np.abs(moved - rest).max() > 0.1  # the arm moved with the edit
+    assert np.linalg.norm(moved - state.view().vertices, axis=1).mean() < 0.05  # on the solved SMPL body

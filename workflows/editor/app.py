@@ -67,6 +67,7 @@ class EditorApp:
         self._meshes: dict[int, Any] = {}
         self._drawn: dict[int, Any] = {}
         self._skeletons: dict[int, Any] = {}
+        self._own_meshes: dict[int, Any] = {}
         self._gizmos: list[Any] = []
         self._rays: dict[int, Any] = {}
         self._gizmo_key: tuple | None = None
@@ -366,6 +367,13 @@ class EditorApp:
                 else:
                     self._skeletons[i] = self.server.scene.add_line_segments(
                         f"/char{i}/skeleton", pts, (240, 130, 30), thickness=0.012 * c.scale)
+                own = self.state.own_mesh(i)  # a glTF/GLB character's own skinned mesh, posed
+                if own is not None:
+                    if i in self._own_meshes:
+                        self._own_meshes[i].vertices = own[0].astype(np.float32)
+                    else:
+                        self._own_meshes[i] = self.server.scene.add_mesh_simple(
+                            f"/char{i}/own_mesh", own[0].astype(np.float32), own[1], color=(217, 184, 153))
         self._drawn[i] = c
 
     def _pick(self, i: int, event: Any) -> None:

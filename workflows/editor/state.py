@@ -127,7 +127,7 @@ class EditorState:
         self._skinners: dict[Gender, Skinner] = {}
         self._shaped: dict[int, tuple[Gender, ShapedBody]] = {}
         self._views: dict[int, tuple[SceneCharacter, CharacterView]] = {}
-        self._customs: dict[tuple[str, str | None, Gender], Any] = {}
+        self._customs: dict[tuple[Any, ...], Any] = {}
 
     @classmethod
     def open(cls, path: str | Path, solver: Any, **kwargs: Any) -> EditorState:
@@ -373,14 +373,13 @@ class EditorState:
         return list(export_scene(self._posed_scene(), Path(out_dir), formats=("bvh", "glb"),
                                  base_dir=self._loaded_from))
 
-    def skeleton_bones(self, index: int | None = None) -> np.ndarray | None:
-        """Bones (B, 2, 3) of a character's posed custom skeleton (character space), or None without one.
+    def _custom(self, index: int | None) -> tuple[Any, Any] | None:
+        """(CustomCharacter, its posed CustomPose) of a character with a custom skeleton, else None.
 
         The skeleton is read once with the character options the scene stores, at the scene's shape
         (:func:`workflows.character.character_from_estimate`, as ``scene solve`` and ``scene export`` do).
         """
         from workflows.character import smpl_to_custom
-        from workflows.previews import custom_skeleton_segments
 
         c = self.character(index)
         if c.skeleton is None:
@@ -395,8 +394,25 @@ class EditorState:
             self._customs[key] = character_from_estimate(src, c.skeleton.options, c.betas, c.scale, c.gender)
         char = self._customs[key]
         pose = c.pose if c.pose is not None else rest_pose(c)
-        segments = custom_skeleton_segments(char, smpl_to_custom(pose, char))
+        return char, smpl_to_custom(dataclasses.replace(pose, betas=c.betas), char)
+
+    def skeleton_bones(self, index: int | None = None) -> np.ndarray | None:
+        """Bones (B, 2, 3) of a character's posed custom skeleton (character space), or None without one."""
+        from workflows.previews import custom_skeleton_segments
+
+        custom = self._custom(index)
+        if custom is None:
+            return None
+        segments = custom_skeleton_segments(*custom)
         return np.array([[s.start, s.end] for s in segments], np.float64).reshape(-1, 2, 3)
+
+    def own_mesh(self, index: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The custom character's own skinned mesh, posed (glTF/GLB skins): (vertices (V, 3) character
+        space, faces (F, 3)), or None for characters without one (:mod:`workflows.character_mesh`)."""
+        from workflows.character_mesh import character_mesh_canon
+
+        custom = self._custom(index)
+        return None if custom is None else character_mesh_canon(*custom)
 
     # ------------------------------------------------------------------------- internals
 
