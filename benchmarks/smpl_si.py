@@ -15,7 +15,7 @@
    SMPL estimate), max feature residual.
 4. Timings: bank build, estimator build from the cached bank, query per character.
 
-Run: ``python benchmarks/shape_inversion.py [--gender neutral] [--samples 1000]``.
+Run: ``python benchmarks/smpl_si.py [--gender neutral] [--samples 1000]``.
 """
 
 from __future__ import annotations
@@ -27,8 +27,7 @@ import time
 import warnings
 from pathlib import Path
 
-if __package__ in (None, ""):  # run as a script: this file's folder must not shadow the shape_inversion package
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's packages
 
 import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
