@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from workflows.estimators import aist, amass_params, gvhmr, hybrik, phalp, plain, pymafx, romp, wham
+from workflows.estimators import aist, amass_params, gvhmr, hybrik, phalp, plain, pymafx, romp, sam3d, wham
 from workflows.estimators.base import (
     M_WORLD_CAMERA,
     MAX_PEOPLE,
@@ -34,11 +34,13 @@ from workflows.estimators.base import (
     camera_to_world,
 )
 
-FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain"]
-FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain")
+FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d",
+                     "plain"]
+FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d",
+                            "plain")
 _MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx,
-            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "plain": plain}
-_DETECT_ORDER = (romp, hybrik, gvhmr, aist, phalp, wham, pymafx, amass_params, plain)
+            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "plain": plain}
+_DETECT_ORDER = (romp, hybrik, gvhmr, aist, sam3d, phalp, wham, pymafx, amass_params, plain)
 SUFFIXES = (".npz", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
 MAX_BYTES = 1 << 30
 """Default cap (1 GiB) on the uncompressed size of an estimator file's data."""
