@@ -304,14 +304,17 @@ def write_sam3d(folder: Path, aa, transl, *, layout: str = "pkl") -> tuple[Writt
 
     ``layout="pkl"``: ``process_one_image``'s list of person dicts, pickled (``pickle.dump(outputs, f)``);
     ``"npz"``: one person per ``.npz`` without ``focal_length``/``mask`` (the MHR repository's
-    ``sam3d_body_outputs/img_subj00.npz``; the intrinsics come from the keypoints); ``"pt"``: the list
-    through ``torch.save`` (tensors).
+    ``sam3d_body_outputs/img_subj00.npz``; the intrinsics come from the keypoints); ``"npz_list"``: the list
+    as an object array, ``np.savez(path, outputs=outputs)``; ``"pt"``: the list through ``torch.save`` (tensors).
     """
     J = sam3d_joints_cam(aa, transl)
     outputs = [sam3d_person(J[i]) for i in range(J.shape[0])]
     if layout == "npz":
         path = folder / "img_subj00.npz"
         np.savez(path, **{k: v for k, v in outputs[0].items() if k not in ("focal_length", "mask")})
+    elif layout == "npz_list":
+        path = folder / "sam3d_outputs.npz"
+        np.savez(path, outputs=np.array(outputs, dtype=object))
     elif layout == "pt":
         path = folder / "sam3d_outputs.pt"
         torch.save([{k: torch.as_tensor(v) for k, v in p.items() if v is not None} for p in outputs], path)

@@ -35,12 +35,12 @@ def _people(n: int = 2, seed: int = 3):
     return people(seed=seed, n=n, depth=4.0, focal=700.0)[:2]
 
 
-@pytest.mark.parametrize("layout", ["pkl", "npz", "pt"])
-def test_fit_recovers_the_joints_and_the_producers_pixels(tmp_path, layout):
+@pytest.mark.parametrize("layout", ["pkl", "npz", "pt", "npz_list"])
+def test_fit_recovers_the_joints_and_the_producers_pixels(tmp_path, layout, shipped_solver):
     aa, transl = _people(1 if layout == "npz" else 2)
     written, J_cam = write_sam3d(tmp_path, aa, transl, layout=layout)
     assert detect_format(_load_raw(written.path, False, 1 << 30)) == "sam3d"
-    found = read_estimate(written.path)
+    found = read_estimate(written.path, solver=shipped_solver)
     assert [p.person_id for p in found] == [str(i) for i in range(aa.shape[0])]
     for i, p in enumerate(found):
         err = np.linalg.norm(our_joints(p) - J_cam[i] @ M_WORLD_CAMERA.T, axis=-1)
@@ -54,7 +54,7 @@ def test_fit_recovers_the_joints_and_the_producers_pixels(tmp_path, layout):
     assert err_px.max() < 2.0, err_px
 
 
-def test_intrinsics_least_squares_and_fallbacks(tmp_path):
+def test_intrinsics_least_squares_and_fallbacks(tmp_path, best_solver):
     rng = np.random.default_rng(0)
     pts = rng.uniform(-1, 1, (70, 3)) + [0, 0, 5]
     f, cx, cy, res = intrinsics_from_keypoints(pts, project(pts, 1234.0, 400.0, 300.0))
@@ -62,9 +62,11 @@ def test_intrinsics_least_squares_and_fallbacks(tmp_path):
     aa, transl = _people(1)
     person = sam3d_person(sam3d_joints_cam(aa, transl)[0])
     no_kp = {k: v for k, v in person.items() if k not in ("pred_keypoints_2d",)}
-    assert people_from_data([no_kp], source="x", format="sam3d")[0].camera.focal_px == pytest.approx(700.0)
+    cam = people_from_data([no_kp], source="x", format="sam3d", solver=best_solver)[0].camera
+    assert cam.focal_px == pytest.approx(700.0) and cam.image_size is None
     bare = {k: v for k, v in no_kp.items() if k != "focal_length"}
-    assert people_from_data(bare, source="x")[0].camera.focal_rule == "diagonal"  # the producer's default K
+    cam = people_from_data(bare, source="x", solver=best_solver)[0].camera
+    assert cam.focal_px is None and cam.focal_rule == "diagonal"  # the producer's default intrinsics
 
 
 def test_mapping_is_the_mhr_rig_order():
@@ -116,3 +118,41 @@ def test_frames_people_cap_and_non_dicts(tmp_path):
         people_from_data([sam3d_person(sam3d_joints_cam(aa, transl)[0]), "x"], source="s", format="sam3d")
     with pytest.raises(EstimateFormatError, match="no people found"):
         people_from_data([], source="s", format="sam3d")
+
+
+def test_the_given_solver_fits(tmp_path, shipped_solver):
+    from dataclasses import replace
+
+    from smplik.refine import RefineConfig
+
+    aa, transl = _people(1)
+    written, J_cam = write_sam3d(tmp_path, aa, transl)
+    network_only = replace(shipped_solver, refine=RefineConfig(iterations=0))
+    a = read_estimate(written.path)[0]  # the default: the shipped model, with its refinement
+    b = read_estimate(written.path, solver=network_only)[0]
+    target = J_cam[0] @ M_WORLD_CAMERA.T
+    err_a = np.linalg.norm(our_joints(a) - target, axis=-1)[TARGETS].mean()
+    err_b = np.linalg.norm(our_joints(b) - target, axis=-1)[TARGETS].mean()
+    assert err_b > err_a + 1e-3  # the network alone, without the refinement: a different, looser fit
+
+
+def test_scene_from_estimate_fits_with_the_commands_solver(tmp_path, monkeypatch, best_solver):
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.cli import scene_app
+    from workflows.scene import load_scene
+
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    aa, transl = _people(2)
+    written, _ = write_sam3d(tmp_path, aa, transl)
+    result = CliRunner().invoke(scene_app, ["from-estimate", str(written.path), "--out", str(tmp_path / "out"),
+                                            "--no-previews", "--max-effectors", "3", "--format", "sam3d"])
+    assert result.exit_code == 0, result.output
+    scene = load_scene(tmp_path / "out" / "scene.json")
+    assert [c.name for c in scene.characters] == ["person_0", "person_1"]
+    assert all(len(c.effectors) == 3 and c.pose is not None for c in scene.characters)
+    assert scene.camera.focal_px == pytest.approx(700.0) and scene.camera.image_size == (IMAGE_W, IMAGE_H)
+    bad = CliRunner().invoke(scene_app, ["from-estimate", str(written.path), "--out", str(tmp_path / "o2"),
+                                         "--no-previews", "--frame", "1"])
+    assert bad.exit_code == 1 and "only frame 0" in bad.output.replace("\n", "")

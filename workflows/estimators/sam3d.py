@@ -8,8 +8,9 @@ with numpy float32 arrays: ``bbox (4,)``, ``focal_length ()``, ``pred_keypoints_
 ``shape_params (45,)``, ``expr_params (72,)``, ``mask`` (None without a segmentor),
 ``pred_joint_coords (127, 3)``, ``pred_global_rots (127, 3, 3)``, ``mhr_model_params (204,)``, ``lhand_bbox`` /
 ``rhand_bbox (4,)`` float64. ``demo.py`` only renders; files are saved by the user: this reader takes that
-list (``.pkl`` through the restricted unpickler, ``.pt`` with ``torch.load(weights_only=True)``), one such
-dict, or one person per ``.npz`` with the dict's keys, the layout of the sample outputs in
+list (``.pkl`` through the restricted unpickler, ``.pt`` with ``torch.load(weights_only=True)``, or an
+``.npz`` holding it under one key, ``np.savez(path, outputs=outputs)``), one such dict, or one person per
+``.npz`` with the dict's keys, the layout of the sample outputs in
 github.com/facebookresearch/MHR ``tools/mhr_smpl_conversion/data/sam3d_body_outputs/img_subj0*.npz``
 (read by ``tools/mhr_smpl_conversion/example.py::example_sam3d_output_to_smplx`` with ``np.load``;
 they have no ``focal_length`` and no ``mask``).
@@ -46,8 +47,9 @@ Mapping to SMPL (:data:`MHR_FOR_SMPL`): every SMPL joint but ``spine3`` has an M
 ``*_upleg`` -> hips, ``*_lowleg`` -> knees, ``*_foot`` -> ankles, ``*_ball`` -> feet). MHR's
 ``c_spine3`` sits at collar height, well above SMPL's spine3, so spine3 gets no target. The 23 targets,
 turned into our y-up world like every camera-frame reader (``M = diag(1, -1, -1)``), are **position
-effectors** solved by the shipped SMPL-IK model (:class:`smplik.solver.IKSolver`, one
-``solve_batch`` for all people, with its refinement). **Positions only**: MHR joint frames have
+effectors** solved by the SMPL-IK model (:class:`smplik.solver.IKSolver`: the shipped one, or the
+solver passed in, e.g. the scene command's ``--checkpoint``; one ``solve_batch`` for all people, with its
+refinement). **Positions only**: MHR joint frames have
 rest orientations of their own (the rig's pre-rotations, stored in the MHR model asset, not in the
 output), so ``pred_global_rots`` cannot be related to SMPL's joint frames reliably and are not used.
 
@@ -115,7 +117,19 @@ def _is_person(item: Any) -> bool:
     return isinstance(item, dict) and "pred_joint_coords" in item and "pred_cam_t" in item
 
 
+def _unwrap(data: Any) -> Any:
+    """The person list of a one-key wrapper (``np.savez(path, outputs=outputs)``: an object array), else ``data``."""
+    if isinstance(data, dict) and len(data) == 1 and not _is_person(data):
+        inner = next(iter(data.values()))
+        if isinstance(inner, np.ndarray) and inner.dtype == object:
+            inner = inner.tolist() if inner.ndim else inner.item()
+        if isinstance(inner, (list, tuple, dict)):
+            return inner
+    return data
+
+
 def matches(data: Any) -> bool:
+    data = _unwrap(data)
     if isinstance(data, (list, tuple)):
         return bool(data) and all(_is_person(p) for p in data)
     return _is_person(data)
@@ -172,18 +186,20 @@ def _solver():
     return IKSolver.load()
 
 
-def fit_smpl(targets_world: np.ndarray, source: str = "<sam3d>"):
+def fit_smpl(targets_world: np.ndarray, source: str = "<sam3d>", solver: Any = None):
     """SMPL poses (our body, betas 0) fitted to (N, 23, 3) world targets of :data:`SMPL_TARGETS`.
 
-    One :meth:`smplik.solver.IKSolver.solve_batch` call with 23 position effectors per person.
+    One :meth:`smplik.solver.IKSolver.solve_batch` call with 23 position effectors per person, on
+    ``solver`` (default: the shipped model, loaded once).
     """
     from smplik.effectors import Effector
 
-    try:
-        solver = _solver()
-    except (FileNotFoundError, ValueError) as exc:
-        raise EstimateFormatError(f"{source}: fitting SMPL to MHR joints needs the SMPL-IK model "
-                                  f"({' '.join(str(exc).split())[:200]}).") from None
+    if solver is None:
+        try:
+            solver = _solver()
+        except (FileNotFoundError, ValueError) as exc:
+            raise EstimateFormatError(f"{source}: fitting SMPL to MHR joints needs the SMPL-IK model "
+                                      f"({' '.join(str(exc).split())[:200]}).") from None
     rows = [[Effector.position(j, t[k]) for k, j in enumerate(SMPL_TARGETS)] for t in targets_world]
     return solver.solve_batch(rows, betas=np.zeros((len(rows), NUM_BETAS)), gender=Gender.NEUTRAL)
 
@@ -196,11 +212,14 @@ def _people_list(data: Any, source: str) -> list[dict]:
     return people
 
 
-def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0,
-              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
+def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0, max_people: int = MAX_PEOPLE,
+              solver: Any = None) -> list[EstimatedPerson]:
+    """The people of a SAM-3D-Body result, their SMPL poses fitted by ``solver`` (an
+    :class:`smplik.solver.IKSolver`; default the shipped model); see the module docstring."""
     if frame != 0:
         raise EstimateFormatError(f"{source}: a SAM-3D-Body result is one image and has only frame 0, "
                                   f"got --frame {frame}.")
+    data = _unwrap(data)
     people = _people_list(data, source)
     if not people:
         raise EstimateFormatError(f"{source}: no people found.")
@@ -225,7 +244,7 @@ def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0,
         cam_ts.append(t)
         cameras.append(_camera(p, t, where))
     targets = smpl_targets_world(np.stack(coords), np.stack(cam_ts))
-    poses = fit_smpl(targets, source)
+    poses = fit_smpl(targets, source, solver)
     label = f"{source} (sam3d)"
     out = []
     for i, pose in enumerate(poses):
