@@ -93,6 +93,7 @@ def _bad(person: dict, key: str, value) -> dict:
     ("pred_cam_t", np.zeros(2, np.float32), "'pred_cam_t' has 2 numbers; expected 3"),
     ("pred_cam_t", np.array([0, 0, np.inf], np.float32), "'pred_cam_t' contains NaN or inf"),
     ("pred_cam_t", KeyError, "missing key 'pred_cam_t'"),
+    ("pred_cam_t", np.array([0, 0, 2e3], np.float32), r"'pred_cam_t' of 2e\+03 m is outside the physical range"),
     ("focal_length", np.float32(-5), "'focal_length' -5.0 must be positive"),
 ])
 def test_bad_inputs_give_one_line_errors(tmp_path, key, value, message):

@@ -110,7 +110,7 @@ SMPL_TARGETS: tuple[str, ...] = tuple(j for j in JOINT_NAMES if j in MHR_FOR_SMP
 
 _MHR_INDEX = np.array([MHR_JOINTS[MHR_FOR_SMPL[j]] for j in SMPL_TARGETS])
 _MAX_COORD_M = 20.0  # MHR joints relative to pred_cam_t: a body is ~2 m across
-_MAX_CAM_T_M = 1000.0
+_MAX_CAM_T_M = 900.0  # plus the coordinates, within the effectors' 1 km range (smplik.validation)
 
 
 def _is_person(item: Any) -> bool:
@@ -239,7 +239,7 @@ def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0, max_people:
             raise EstimateFormatError(f"{where}: 'pred_cam_t' has {t.shape[0]} numbers; expected 3.")
         if np.abs(t).max() > _MAX_CAM_T_M:
             raise EstimateFormatError(f"{where}: 'pred_cam_t' of {np.abs(t).max():.3g} m is outside the physical "
-                                      "range (|t| <= 1 km).")
+                                      f"range (|t| <= {_MAX_CAM_T_M:g} m).")
         coords.append(c)
         cam_ts.append(t)
         cameras.append(_camera(p, t, where))
