@@ -10,6 +10,10 @@ built-in body's proportions differing from SMPL's (about 1 cm between pelvis and
 SMPL files configured both are exact. "before" is the pelvis error of the previous rule
 (``J0`` of the built-in body instead of the producer's).
 
+SAM-3D-Body (``sam3d``, MHR joints, the SMPL pose fitted by the SMPL-IK solver): the fixtures hold the
+MHR joints at the joints of a known pose of our body, the reference is the producer's projection of
+``pred_joint_coords + pred_cam_t``; also reported: the fitted body's joint error (mm, all 24 joints).
+
 Prints a table and writes ``benchmarks/results/estimator_placement.json``.
 """
 
@@ -33,6 +37,7 @@ from estimator_fixtures import (  # noqa: E402
     people,
     producer_pixels,
     project,
+    write_sam3d,
 )
 
 from smplik.conventions import Gender  # noqa: E402
@@ -80,10 +85,41 @@ def main() -> None:
                 hx = "-" if not head else f"{row['head_px_max']:.2f}"
                 print(f"{fmt:8s} {height:9.0f} {row['pelvis_px_mean']:11.3f} {row['pelvis_px_max']:10.3f} {hm:>9s} "
                       f"{hx:>8s} {row['before_fix_pelvis_px_mean']:15.1f}")
+        results["sam3d"] = sam3d_rows(Path(tmp))
     path = save("estimator_placement", {"image_size": [640, 480], "seeds": SEEDS, "formats": results,
                                         "note": "head error = built-in body proportions vs SMPL's; SMPL-X "
-                                                "producers (gvhmr): pelvis only"})
+                                                "producers (gvhmr): pelvis only; sam3d: fitted SMPL pose"})
     print(f"wrote {path}")
+
+
+def sam3d_rows(tmp: Path) -> dict:
+    """SAM-3D-Body fixtures: pelvis / head pixels against the producer's projection, and the fit's joint error."""
+    from estimator_fixtures import SAM3D_F, our_joints
+
+    from workflows.estimators.base import M_WORLD_CAMERA
+
+    rows = {}
+    for height in HEIGHTS_PX:
+        px, mm = [], []
+        for seed in range(SEEDS):
+            aa, transl, _ = people(seed=seed, n=2, depth=SAM3D_F * 1.7 / height, focal=SAM3D_F)
+            folder = tmp / f"sam3d_{height:.0f}_{seed}"
+            folder.mkdir()
+            w, J_cam = write_sam3d(folder, aa, transl)
+            found = read_estimate(w.path)
+            px.append(np.linalg.norm(overlay_pixels(found) - project(J_cam[:, [0, 15]], w.f, w.cx, w.cy), axis=-1))
+            mm += [1000 * np.linalg.norm(our_joints(p) - J_cam[i] @ M_WORLD_CAMERA.T, axis=-1)
+                   for i, p in enumerate(found)]
+        e, j = np.concatenate(px), np.stack(mm)
+        row = {"pelvis_px_mean": round(float(e[:, 0].mean()), 3), "pelvis_px_max": round(float(e[:, 0].max()), 3),
+               "head_px_mean": round(float(e[:, 1].mean()), 3), "head_px_max": round(float(e[:, 1].max()), 3),
+               "joint_mm_mean": round(float(j.mean()), 2), "joint_mm_max": round(float(j.max()), 2),
+               "people": int(e.shape[0])}
+        rows[f"{height:.0f}px_tall"] = row
+        print(f"{'sam3d':8s} {height:9.0f} {row['pelvis_px_mean']:11.3f} {row['pelvis_px_max']:10.3f} "
+              f"{row['head_px_mean']:9.2f} {row['head_px_max']:8.2f} {'-':>15s}  joints {row['joint_mm_mean']:.1f} "
+              f"mm mean, {row['joint_mm_max']:.1f} max")
+    return rows
 
 
 def producer_pixels_3d(w, aa: np.ndarray, transl: np.ndarray) -> np.ndarray:

@@ -237,6 +237,93 @@ CAMERA_WRITERS = {"romp": write_romp, "bev": lambda *a: write_romp(*a, bev=True)
 SINGLE_PERSON = {"hybrik", "gvhmr"}
 
 
+# SAM-3D-Body: MHR-rig slots of the SMPL joints (the reader's table is not used to write them)
+_MHR_SLOT = {"pelvis": 1, "left_hip": 2, "left_knee": 3, "left_ankle": 4, "left_foot": 8, "right_hip": 18,
+             "right_knee": 19, "right_ankle": 20, "right_foot": 24, "spine1": 35, "spine2": 36, "spine3": 37,
+             "right_collar": 38, "right_shoulder": 39, "right_elbow": 40, "right_wrist": 42, "right_hand": 52,
+             "left_collar": 74, "left_shoulder": 75, "left_elbow": 76, "left_wrist": 78, "left_hand": 88,
+             "neck": 110, "head": 113}
+_MHR70_SLOT = {"head": 0, "left_shoulder": 5, "right_shoulder": 6, "left_elbow": 7, "right_elbow": 8, "left_hip": 9,
+               "right_hip": 10, "left_knee": 11, "right_knee": 12, "left_ankle": 13, "right_ankle": 14,
+               "right_wrist": 41, "left_wrist": 62, "neck": 69}
+SAM3D_F = 700.0
+
+
+def sam3d_joints_cam(aa, transl) -> np.ndarray:
+    """Our body's posed joints (N, 24, 3) in the OpenCV camera frame for people in the producers' convention
+    (root rotation in camera axes, pelvis at SMPL's rest pelvis + ``transl``): the known answer."""
+    from smplik.body_model import load_body_model
+    from smplik.conventions import Gender
+    from workflows.estimators.base import rest_pelvis
+
+    M = np.diag([1.0, -1.0, -1.0])
+    n = aa.shape[0]
+    go = np.stack([Rotation.from_matrix(M @ _R(aa[i, 0])).as_rotvec() for i in range(n)])
+    pelvis_world = (SMPL_NEUTRAL_REST_JOINTS[0] + transl) @ M.T
+    ours = pelvis_world - rest_pelvis(np.zeros((n, 10)), Gender.NEUTRAL)
+    m = load_body_model(Gender.NEUTRAL)
+    t = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32)  # noqa: E731
+    J = m.joints(t(go), t(aa[:, 1:]), t(ours), t(np.zeros((n, 10)))).double().numpy()
+    return J @ M.T
+
+
+def sam3d_person(J_cam: np.ndarray, f: float = SAM3D_F, cx: float = IMAGE_W / 2, cy: float = IMAGE_H / 2,
+                 rots_world: np.ndarray | None = None) -> dict:
+    """One person's dict as ``SAM3DBodyEstimator.process_one_image`` returns it (float32 numpy arrays).
+
+    MHR's y-up rig flipped to camera axes, relative to ``pred_cam_t``; ``body_world`` at the origin and
+    the root 0.924 m above it (as in the MHR sample outputs); unmapped rig joints at the root.
+    """
+    from smplik.conventions import JOINT_NAMES
+
+    root_rel = np.array([0.0, -0.924, 0.0])
+    cam_t = J_cam[0] - root_rel
+    coords = np.tile(root_rel, (127, 1))
+    coords[0] = 0.0
+    rots = np.tile(np.eye(3), (127, 1, 1))
+    for name, slot in _MHR_SLOT.items():
+        coords[slot] = J_cam[JOINT_NAMES.index(name)] - cam_t
+        if rots_world is not None:
+            rots[slot] = rots_world[JOINT_NAMES.index(name)]
+    kp = np.tile(J_cam[0], (70, 1)) + np.linspace(-0.05, 0.05, 70)[:, None]
+    for name, slot in _MHR70_SLOT.items():
+        kp[slot] = J_cam[JOINT_NAMES.index(name)]
+    f32 = np.float32
+    return {"bbox": np.array([cx - 100, cy - 150, cx + 100, cy + 150], f32), "focal_length": f32(f),
+            "pred_keypoints_3d": (kp - cam_t).astype(f32), "pred_keypoints_2d": project(kp, f, cx, cy).astype(f32),
+            "pred_vertices": np.zeros((18439, 3), f32), "pred_cam_t": cam_t.astype(f32),
+            "pred_pose_raw": np.zeros(266, f32), "global_rot": np.zeros(3, f32),
+            "body_pose_params": np.zeros(133, f32), "hand_pose_params": np.zeros(108, f32),
+            "scale_params": np.zeros(28, f32), "shape_params": np.zeros(45, f32), "expr_params": np.zeros(72, f32),
+            "mask": None, "pred_joint_coords": coords.astype(f32), "pred_global_rots": rots.astype(f32),
+            "mhr_model_params": np.zeros(204, f32), "lhand_bbox": np.zeros(4), "rhand_bbox": np.zeros(4)}
+
+
+def write_sam3d(folder: Path, aa, transl, *, layout: str = "pkl") -> tuple[Written, np.ndarray]:
+    """SAM-3D-Body outputs of people in the producers' convention, and their joints (N, 24, 3) camera frame.
+
+    ``layout="pkl"``: ``process_one_image``'s list of person dicts, pickled (``pickle.dump(outputs, f)``);
+    ``"npz"``: one person per ``.npz`` without ``focal_length``/``mask`` (the MHR repository's
+    ``sam3d_body_outputs/img_subj00.npz``; the intrinsics come from the keypoints); ``"npz_list"``: the list
+    as an object array, ``np.savez(path, outputs=outputs)``; ``"pt"``: the list through ``torch.save`` (tensors).
+    """
+    J = sam3d_joints_cam(aa, transl)
+    outputs = [sam3d_person(J[i]) for i in range(J.shape[0])]
+    if layout == "npz":
+        path = folder / "img_subj00.npz"
+        np.savez(path, **{k: v for k, v in outputs[0].items() if k not in ("focal_length", "mask")})
+    elif layout == "npz_list":
+        path = folder / "sam3d_outputs.npz"
+        np.savez(path, outputs=np.array(outputs, dtype=object))
+    elif layout == "pt":
+        path = folder / "sam3d_outputs.pt"
+        torch.save([{k: torch.as_tensor(v) for k, v in p.items() if v is not None} for p in outputs], path)
+    else:
+        path = folder / "sam3d_outputs.pkl"
+        path.write_bytes(pickle.dumps(outputs))
+    return Written(path, SAM3D_F, IMAGE_W / 2, IMAGE_H / 2, fmt="sam3d"), J
+
+
 def write_aist(folder: Path, aa, transl) -> Path:
     """AIST++ ``motions/<seq>.pkl``: plain pickle of ``smpl_poses (T, 72)``, ``smpl_trans``, ``smpl_scaling``."""
     scaling = 93.0

@@ -21,7 +21,16 @@ import zipfile
 
 import numpy as np
 import pytest
-from estimator_fixtures import CAMERA_WRITERS, SINGLE_PERSON, people, write_aist, write_amass, write_hybrik, write_romp
+from estimator_fixtures import (
+    CAMERA_WRITERS,
+    SINGLE_PERSON,
+    people,
+    write_aist,
+    write_amass,
+    write_hybrik,
+    write_romp,
+    write_sam3d,
+)
 
 from workflows.estimators import EstimatedPerson, EstimateFormatError, _load_raw, people_from_data, read_estimate
 from workflows.safe_pickle import UnsafePickleError
@@ -44,6 +53,8 @@ def _fixtures(tmp_path):
     files["aist"] = write_aist(tmp_path / "aist", aa, transl)
     (tmp_path / "amass").mkdir()
     files["amass"] = write_amass(tmp_path / "amass", aa, transl)
+    (tmp_path / "sam3d").mkdir()
+    files["sam3d"] = write_sam3d(tmp_path / "sam3d", aa[:2], transl[:2])[0].path
     return files
 
 

@@ -27,7 +27,7 @@ scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve 
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
-FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain")
+FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d", "plain")
 
 
 def _solver(checkpoint: Path | None):

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from smplik.pose import Pose
+from smplik.solver import IKSolver
 from workflows.character import CharacterOptions, CustomCharacter, CustomPose, smpl_to_custom
 from workflows.estimators.base import EstimatedPerson
 from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_many
@@ -183,7 +184,8 @@ def from_estimate(
 
     people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame,  # type: ignore[arg-type]
                            max_people=MAX_PEOPLE if max_people is None else max_people,
-                           max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space)  # type: ignore[arg-type]
+                           max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space,  # type: ignore[arg-type]
+                           solver=solver if isinstance(solver, IKSolver) else None)  # fits SAM-3D-Body's MHR joints
     character = skeleton = None
     if character_path is not None:
         options = CharacterOptions() if character_options is None else character_options

@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from workflows.estimators import aist, amass_params, gvhmr, hybrik, phalp, plain, pymafx, romp, wham
+from workflows.estimators import aist, amass_params, gvhmr, hybrik, phalp, plain, pymafx, romp, sam3d, wham
 from workflows.estimators.base import (
     M_WORLD_CAMERA,
     MAX_PEOPLE,
@@ -34,11 +34,13 @@ from workflows.estimators.base import (
     camera_to_world,
 )
 
-FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain"]
-FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "plain")
+FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d",
+                     "plain"]
+FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d",
+                            "plain")
 _MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx,
-            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "plain": plain}
-_DETECT_ORDER = (romp, hybrik, gvhmr, aist, phalp, wham, pymafx, amass_params, plain)
+            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "plain": plain}
+_DETECT_ORDER = (romp, hybrik, gvhmr, aist, sam3d, phalp, wham, pymafx, amass_params, plain)
 SUFFIXES = (".npz", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
 MAX_BYTES = 1 << 30
 """Default cap (1 GiB) on the uncompressed size of an estimator file's data."""
@@ -147,7 +149,7 @@ def detect_format(data: Any) -> str:
 
 def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle: bool = False,
                   frame: int = 0, max_people: int = MAX_PEOPLE, max_bytes: int = MAX_BYTES,
-                  space: Literal["camera", "world"] | None = None) -> list[EstimatedPerson]:
+                  space: Literal["camera", "world"] | None = None, solver: Any = None) -> list[EstimatedPerson]:
     """Read the people of one frame of an estimator output file, placed on our body in the y-up world.
 
     Args:
@@ -159,6 +161,8 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
         max_people: refuse more people than this in the frame.
         max_bytes: refuse files whose (uncompressed) data is larger.
         space: for WHAM and GVHMR, ``"camera"`` or ``"world"`` output (default: WHAM world, GVHMR camera).
+        solver: for SAM-3D-Body (not SMPL), the :class:`smplik.solver.IKSolver` that fits the SMPL pose
+            (default: the shipped model).
 
     Raises:
         EstimateFormatError: unknown format, a layout mismatch (naming the key), a limit exceeded.
@@ -175,18 +179,20 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
         raise EstimateFormatError(f"--max-people must be >= 1, got {max_people}.")
     data = _load_raw(path, trust_pickle, max_bytes)
     return people_from_data(data, source=str(path), format=format, frame=frame, max_people=max_people, space=space,
-                            path=path)
+                            path=path, solver=solver)
 
 
 def people_from_data(data: Any, *, source: str, format: FormatName = "auto", frame: int = 0,
                      max_people: int = MAX_PEOPLE, space: Literal["camera", "world"] | None = None,
-                     path: Path | None = None) -> list[EstimatedPerson]:
+                     path: Path | None = None, solver: Any = None) -> list[EstimatedPerson]:
     """:func:`read_estimate` on already loaded data (``path`` is needed for the AMASS reader only)."""
     name = detect_format(data) if format == "auto" else format
     module = _MODULES[name]
     kwargs: dict[str, Any] = {"frame": int(frame), "max_people": max_people}
     if space is not None and module in (wham, gvhmr):
         kwargs["space"] = space
+    if solver is not None and module is sam3d:
+        kwargs["solver"] = solver
     try:
         if module is amass_params:
             if path is None:
