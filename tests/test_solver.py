@@ -331,3 +331,10 @@ def test_numpy_axis_angle_matches_scipy():
     np.testing.assert_allclose(Rotation.from_rotvec(out).as_matrix(), R, atol=1e-9)
     np.testing.assert_allclose(out[5:], rv[5:], atol=1e-9)
     assert matrix_to_axis_angle_np(R.reshape(10, 50, 3, 3)).shape == (10, 50, 3)
+    # both branches (the trace/vee formula up to 120 degrees, Shepperd's beyond) agree with Shepperd's
+    from smplik.solver import _axis_angle_shepperd
+
+    angle = np.linalg.norm(rv, axis=-1)
+    assert (angle < 2.0).sum() > 100 and (angle > 2.2).sum() > 100
+    below_pi = angle < np.pi - 1e-3
+    np.testing.assert_allclose(out[below_pi], _axis_angle_shepperd(R[below_pi]), atol=1e-12)
