@@ -37,6 +37,7 @@ from torch import Tensor
 from smplik.body_model import BodyModelSet
 from smplik.conventions import EffectorType, Gender
 from smplik.effectors import Effector, EffectorBatch, EffectorError, pack_effectors, parse_effector_dict
+from smplik.ensemble import NO_ENSEMBLE, EnsembleConfig, run_ensemble
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput, ProtoResIK
 from smplik.onnx_runtime import OnnxNetwork, Runtime, select_network
@@ -188,11 +189,15 @@ class IKSolver:
     network: OnnxNetwork | None = None
     """The network backend of :meth:`solve_tensors`: an onnxruntime session (:mod:`smplik.onnx_runtime`), or
     None for ``model`` (torch, the reference)."""
+    ensemble: EnsembleConfig = NO_ENSEMBLE
+    """Test-time ensemble of the network (:mod:`smplik.ensemble`): mirrored and turned copies of each
+    problem, averaged; the default runs the network once."""
 
     @classmethod
     def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None,
              refine: RefineConfig = DEFAULT_REFINEMENT, runtime: Runtime = "torch",
-             onnx_file: str | Path | None = None, onnx_threads: int = 1) -> IKSolver:
+             onnx_file: str | Path | None = None, onnx_threads: int = 1,
+             ensemble: EnsembleConfig = NO_ENSEMBLE) -> IKSolver:
         """Load a model file (default: the packaged ``smplik/checkpoints/smplik_cmu.pt``).
 
         Args:
@@ -202,6 +207,7 @@ class IKSolver:
             runtime: network backend, ``"torch"`` (default), ``"onnx"`` (onnxruntime) or ``"auto"`` (onnxruntime
                 when installed and a matching ``onnx_file``/``PATH.onnx`` exists); see
                 :func:`smplik.onnx_runtime.select_network`. ``onnx_threads``: onnxruntime threads.
+            ensemble: test-time ensemble (e.g. ``EnsembleConfig(yaw=4, mirror=True)``; default: none).
 
         Raises:
             FileNotFoundError: no such file (or no packaged model in this installation).
@@ -237,22 +243,28 @@ class IKSolver:
         model.requires_grad_(False)
         network = select_network(runtime, model, path, onnx_file, threads=onnx_threads,
                                  meta={"source": str(path), "body_fingerprint": bodies.fingerprint})
-        return cls(model, bodies, meta, str(path), refine, network)
+        return cls(model, bodies, meta, str(path), refine, network, ensemble)
 
     # ------------------------------------------------------------------------- fast path
 
     def solve_tensors(self, eff: EffectorBatch, betas: Tensor, gender: Tensor, *,
-                      refine: RefineConfig | None = None) -> IKOutput:
+                      refine: RefineConfig | None = None, ensemble: EnsembleConfig | None = None) -> IKOutput:
         """Network + FK, then the effector refinement, without validation, under ``torch.inference_mode()``.
 
         Args: eff (B rows of N), betas (B, 10) float32, gender (B,) long in :class:`Gender` order;
-        refine: overrides the solver's ``refine`` (``RefineConfig(iterations=0)``: the network alone).
+        refine: overrides the solver's ``refine`` (``RefineConfig(iterations=0)``: the network alone);
+        ensemble: overrides the solver's ``ensemble``.
         """
         cfg = self.refine if refine is None else refine
+        ens = self.ensemble if ensemble is None else ensemble
+        network = self.model if self.network is None else self.network
         with torch.inference_mode():
-            out = (self.model if self.network is None else self.network)(eff, betas, gender)
+            if ens.size == 1 and cfg.iterations == 0:
+                return network(eff, betas, gender)
+            J_rest = self.model.rest_joints(betas, gender)
+            out = run_ensemble(network, eff, betas, gender, J_rest, ens)
             if cfg.iterations > 0:
-                out = refine_output(out, self.model.rest_joints(betas, gender), eff, cfg)
+                out = refine_output(out, J_rest, eff, cfg)
             return out
 
     # ------------------------------------------------------------------------- validated API
