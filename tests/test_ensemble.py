@@ -134,3 +134,34 @@ def test_solver_ensemble_lowers_error_on_its_own_problems(shipped_solver, bodies
         return float(torch.arccos(((M.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)).mean())
 
     assert geodesic(EnsembleConfig(mirror=True)) < geodesic(NO_ENSEMBLE)
+
+
+def test_cli_solve_ensemble_option(tmp_path, shipped_solver):
+    import json
+
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app as cli
+
+    eff = tmp_path / "e.json"
+    eff.write_text(json.dumps({"format": "smplik-effectors", "version": 1, "effectors": [
+        {"joint": "left_wrist", "type": "position", "value": [0.5, 1.2, 0.1]},
+        {"joint": "head", "type": "look_at", "target": [0, 1.6, 2.0], "direction": [0, 0, 1]}]}))
+    res = CliRunner().invoke(cli, ["solve", str(eff), "--out", str(tmp_path / "p.json"), "--ensemble", "flip"])
+    assert res.exit_code != 0 and "Unknown ensemble 'flip'" in res.output
+    poses = {}
+    for ens in ("none", "mirror+yaw2"):
+        res = CliRunner().invoke(cli, ["solve", str(eff), "--out", str(tmp_path / f"{ens}.json"), "--ensemble", ens])
+        assert res.exit_code == 0, res.output
+        poses[ens] = np.asarray(json.loads((tmp_path / f"{ens}.json").read_text())["body_pose"])
+    assert np.abs(poses["none"] - poses["mirror+yaw2"]).max() > 1e-3  # the ensemble changed the answer
+
+
+def test_benchmark_ensemble_methods(shipped_solver, bodies):
+    from smplik.benchmark import build_methods
+
+    methods, settings = build_methods(["smplik_ens", "smplik_net_ens"], bodies, solver=shipped_solver,
+                                      ensemble=EnsembleConfig(yaw=2, mirror=True))
+    assert settings["ensemble"] == {"yaw": 2, "mirror": True}
+    assert methods["smplik_ens"].ensemble == EnsembleConfig(yaw=2, mirror=True)
+    assert methods["smplik_net_ens"].refine == NO_REFINEMENT and methods["smplik_ens"].refine is None

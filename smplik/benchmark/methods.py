@@ -24,6 +24,7 @@ from torch import Tensor
 from smplik.body_model import BodyModelSet
 from smplik.conventions import NUM_JOINTS, EffectorType
 from smplik.effectors import EffectorBatch
+from smplik.ensemble import EnsembleConfig
 from smplik.refine import RefineConfig
 
 from .evaluate import Prediction
@@ -70,12 +71,13 @@ class RestPoseMethod:
 class LearnedMethod:
     """SMPL-IK: the solver's local rotations and translation, in batches of ``batch_size``.
 
-    ``refine`` overrides the solver's refinement; None keeps it.
+    ``refine`` overrides the solver's refinement and ``ensemble`` its test-time ensemble; None keeps them.
     """
 
     solver: Any  # smplik.solver.IKSolver (not imported here: keeps this module free of the solver)
     batch_size: int = 1024
     refine: RefineConfig | None = None
+    ensemble: EnsembleConfig | None = None
 
     def __call__(self, bset: BenchmarkSet) -> Prediction:
         Rs, ts = [], []
@@ -83,7 +85,8 @@ class LearnedMethod:
         for s in range(0, len(bset), self.batch_size):
             sl = slice(s, s + self.batch_size)
             chunk = EffectorBatch(e.joint[sl], e.type[sl], e.data[sl], e.tolerance[sl], e.mask[sl])
-            out = self.solver.solve_tensors(chunk, bset.betas[sl], bset.gender[sl], refine=self.refine)
+            out = self.solver.solve_tensors(chunk, bset.betas[sl], bset.gender[sl], refine=self.refine,
+                                            ensemble=self.ensemble)
             Rs.append(out.R_local)
             ts.append(out.transl)
         return Prediction(torch.cat(Rs), torch.cat(ts))

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from smplik.atomic import write_json_atomic
 from smplik.body_model import BodyModelSet
+from smplik.ensemble import EnsembleConfig
 from smplik.refine import NO_REFINEMENT
 
 from .evaluate import SampleErrors, SetMetrics, sample_errors
@@ -32,13 +33,17 @@ RESULTS_VERSION = 1
 METHOD_DESCRIPTIONS = {
     "smplik": "SMPL-IK solver: network + 3 Levenberg-Marquardt refinement steps (batched solve_tensors)",
     "smplik_net": "SMPL-IK network alone (no refinement)",
+    "smplik_ens": "SMPL-IK solver with the test-time ensemble (smplik.ensemble), then the refinement",
+    "smplik_net_ens": "SMPL-IK network alone with the test-time ensemble (smplik.ensemble)",
     "optim": "Adam IK on SMPL + diagonal Gaussian 6D pose prior (train split)",
     "nn": "nearest neighbour in the train split (scikit-learn)",
     "rest": "rest pose at the effector centroid",
 }
 ALL_METHODS = tuple(METHOD_DESCRIPTIONS)
 """Method names understood by :func:`build_methods`."""
-LEARNED_METHODS = ("smplik", "smplik_net")
+LEARNED_METHODS = ("smplik", "smplik_net", "smplik_ens", "smplik_net_ens")
+DEFAULT_BENCHMARK_ENSEMBLE = EnsembleConfig(yaw=4, mirror=True)
+"""The ensemble of the ``*_ens`` methods unless told otherwise."""
 TRAIN_DATA_METHODS = ("optim", "nn")
 """Methods that need the train split's poses."""
 METRIC_KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "geodesic_rad", "position_residual_mm", "rotation_residual_deg",
@@ -46,7 +51,8 @@ METRIC_KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "geodesic_rad", "position_residual_mm"
 
 
 def build_methods(names: Sequence[str], bodies: BodyModelSet, *, solver: Any = None, train_pose: Tensor | None = None,
-                  optim_iterations: int = 200, nn_samples: int = 20_000) -> tuple[dict[str, Method], dict[str, Any]]:
+                  optim_iterations: int = 200, nn_samples: int = 20_000,
+                  ensemble: EnsembleConfig = DEFAULT_BENCHMARK_ENSEMBLE) -> tuple[dict[str, Method], dict[str, Any]]:
     """The named methods and the settings that describe them (for the results document).
 
     Args:
@@ -55,6 +61,7 @@ def build_methods(names: Sequence[str], bodies: BodyModelSet, *, solver: Any = N
         solver: an :class:`smplik.solver.IKSolver`, needed by ``smplik`` and ``smplik_net``.
         train_pose: (M, 24, 3) axis-angle train poses, needed by ``optim`` (prior) and ``nn`` (index).
         optim_iterations: Adam iterations of ``optim``. nn_samples: train poses indexed by ``nn``.
+        ensemble: the test-time ensemble of ``smplik_ens`` and ``smplik_net_ens``.
 
     Raises:
         ValueError: an unknown name, or a method whose solver or train poses are missing.
@@ -70,11 +77,14 @@ def build_methods(names: Sequence[str], bodies: BodyModelSet, *, solver: Any = N
     settings: dict[str, Any] = {"methods": list(names)}
     for name in names:
         if name in LEARNED_METHODS:
-            methods[name] = LearnedMethod(solver, refine=NO_REFINEMENT if name == "smplik_net" else None)
+            methods[name] = LearnedMethod(solver, refine=NO_REFINEMENT if name.startswith("smplik_net") else None,
+                                          ensemble=ensemble if name.endswith("_ens") else None)
             settings["checkpoint"] = solver.source
             settings["checkpoint_step"] = solver.meta.get("step")
-            if name == "smplik":
+            if not name.startswith("smplik_net"):
                 settings["refine"] = solver.refine.to_dict()
+            if name.endswith("_ens"):
+                settings["ensemble"] = ensemble.to_dict()
         elif name == "optim":
             optim = OptimizationIK(bodies, PosePrior.fit(train_pose), iterations=optim_iterations)
             methods[name] = optim

@@ -11,7 +11,8 @@ from rich.console import Console
 app = typer.Typer(help="Randomized-effector IK benchmark: make the files, run methods on them.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
 console = Console(stderr=True)
-ALL_METHODS = ("smplik", "smplik_net", "optim", "nn", "rest")
+LEARNED_METHODS = ("smplik", "smplik_net", "smplik_ens", "smplik_net_ens")
+ALL_METHODS = (*LEARNED_METHODS, "optim", "nn", "rest")
 
 
 @app.command("make")
@@ -39,8 +40,8 @@ def make_command(
 def run_command(
     files: Annotated[Path, typer.Option("--files", help="Folder written by `smplik benchmark make`.")],
     out: Annotated[Path, typer.Option("--out", help="Results JSON.")],
-    methods: Annotated[str, typer.Option(help="Comma-separated subset of smplik,smplik_net,optim,nn,rest.")] = ",".join(
-        ALL_METHODS),
+    methods: Annotated[str, typer.Option(help="Comma-separated subset of " + ",".join(ALL_METHODS) + ".")] = ",".join(
+        m for m in ALL_METHODS if not m.endswith("_ens")),
     checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
     data: Annotated[Path | None, typer.Option(help="Pose cache with the train split for the prior and the "
                                                    "nearest neighbour (default: the manifest's source).")] = None,
@@ -48,6 +49,8 @@ def run_command(
     optim_iterations: Annotated[int, typer.Option(help="Adam iterations of the optimization baseline.")] = 200,
     nn_samples: Annotated[int, typer.Option(help="Train poses indexed by the nearest-neighbour baseline.")] = 20_000,
     threads: Annotated[int | None, typer.Option(help="torch intra-op threads.")] = None,
+    ensemble: Annotated[str, typer.Option(help="Test-time ensemble of the *_ens methods: none, mirror, yawK or "
+                                               "mirror+yawK.")] = "mirror+yaw4",
     markdown: Annotated[Path | None, typer.Option(help="Also write the markdown table here.")] = None,
 ) -> None:
     """Evaluate methods on benchmark files; writes per-method, per-set metrics and prints a markdown table."""
@@ -66,6 +69,12 @@ def run_command(
 
     if threads:
         torch.set_num_threads(threads)
+    from smplik.ensemble import EnsembleConfig
+
+    try:
+        ensemble_cfg = EnsembleConfig.parse(ensemble)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--ensemble") from None
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = [m for m in chosen if m not in ALL_METHODS]
     if unknown or not chosen:
@@ -87,7 +96,7 @@ def run_command(
             console.print(f"[red]error:[/red] {exc}", highlight=False)
             raise typer.Exit(1) from None
     solver = None
-    if {"smplik", "smplik_net"} & set(chosen):
+    if set(LEARNED_METHODS) & set(chosen):
         from smplik.solver import IKSolver
 
         try:
@@ -98,7 +107,7 @@ def run_command(
     try:
         subjects = None if dataset is None else sample_subjects(bench, dataset)
         runners, settings = build_methods(chosen, bodies, solver=solver, optim_iterations=optim_iterations,
-                                          nn_samples=nn_samples,
+                                          nn_samples=nn_samples, ensemble=ensemble_cfg,
                                           train_pose=None if dataset is None else dataset.subset("train").pose)
     except ValueError as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False)
