@@ -31,9 +31,13 @@ as they do for the network.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from functools import lru_cache
+from typing import Literal
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -115,8 +119,65 @@ def tolerance_weight(tolerance: Tensor, eta: float = 4.0) -> Tensor:
     return tolerance_loss_weight(tolerance, cfg) / cfg.weight_max
 
 
+RefineBackend = Literal["auto", "fast", "reference"]
+"""``"reference"``: :func:`refine_output_reference` (torch, any device, autograd); ``"fast"``: the numba
+kernels of :mod:`smplik.refine_fast` (CPU, no autograd, same results within 1e-5 rad); ``"auto"``: fast
+where numba is installed and the inputs allow it, else the reference."""
+
+_default_backend: RefineBackend = "auto"
+
+
+@lru_cache(maxsize=1)
+def numba_available() -> bool:
+    """Whether numba imports (``pip install 'smplik[fast]'``), i.e. the ``"fast"`` backend can run."""
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@contextmanager
+def refine_backend(backend: RefineBackend) -> Iterator[None]:
+    """Within the block, :func:`refine_output` calls without an explicit ``backend`` use this one."""
+    global _default_backend
+    if backend not in ("auto", "fast", "reference"):
+        raise ValueError(f"Unknown refinement backend {backend!r}; expected 'auto', 'fast' or 'reference'.")
+    previous, _default_backend = _default_backend, backend
+    try:
+        yield
+    finally:
+        _default_backend = previous
+
+
+def resolve_backend(out: IKOutput, J_rest: Tensor, backend: RefineBackend | None = None) -> str:
+    """The backend :func:`refine_output` runs for these inputs: ``"fast"`` or ``"reference"``.
+
+    Raises:
+        ValueError: ``backend="fast"`` when numba is missing, a tensor is not on the CPU or needs gradients.
+    """
+    backend = _default_backend if backend is None else backend
+    if backend not in ("auto", "fast", "reference"):
+        raise ValueError(f"Unknown refinement backend {backend!r}; expected 'auto', 'fast' or 'reference'.")
+    if backend == "reference":
+        return "reference"
+    tensors = (out.R_local, out.R_world, out.p_world, out.transl, J_rest)
+    problem = None
+    if not numba_available():
+        problem = "numba is not installed (pip install 'smplik[fast]')"
+    elif any(t.device.type != "cpu" for t in tensors):
+        problem = "its inputs are not on the CPU"
+    elif torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
+        problem = "its inputs need gradients"
+    if problem is None:
+        return "fast"
+    if backend == "fast":
+        raise ValueError(f"The fast refinement backend cannot run: {problem}.")
+    return "reference"
+
+
 def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: RefineConfig = DEFAULT_REFINEMENT,
-                  parents: tuple[int, ...] = PARENTS) -> IKOutput:
+                  parents: tuple[int, ...] = PARENTS, *, backend: RefineBackend | None = None) -> IKOutput:
     """Refine network poses towards their effectors (module docstring).
 
     Args:
@@ -124,11 +185,48 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
         J_rest: (B, J, 3) rest joints of each body (``ProtoResIK.rest_joints``).
         eff: the B rows of N effectors the network was given.
         cfg: steps, residual scales, prior and damping.
+        backend: :data:`RefineBackend` (None: ``"auto"``, or the one set by :func:`refine_backend`);
+            :func:`resolve_backend` tells which one runs.
 
     Returns:
         An :class:`IKOutput` with refined ``R_local``, ``R_world``, ``p_world`` and ``transl``
-        (``draft`` is the network's); ``out`` itself when ``cfg.iterations == 0``.
+        (``draft`` is the network's) in the network's dtype; ``out`` itself when ``cfg.iterations == 0``.
     """
+    if cfg.iterations == 0:
+        return out
+    if resolve_backend(out, J_rest, backend) == "fast":
+        return _refine_output_fast(out, J_rest, eff, cfg, parents)
+    return refine_output_reference(out, J_rest, eff, cfg, parents)
+
+
+def _as_f64(t: Tensor) -> np.ndarray:
+    """A float64 C-contiguous array of a tensor (a view when it is one already; the kernel only reads it)."""
+    return np.ascontiguousarray(t.detach().numpy(), dtype=np.float64)
+
+
+def _refine_output_fast(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: RefineConfig,
+                        parents: tuple[int, ...]) -> IKOutput:
+    """:func:`refine_output` through :func:`smplik.refine_fast.refine_arrays`."""
+    from smplik.refine_fast import refine_arrays
+
+    B, N = eff.joint.shape
+    J = len(parents)
+    if J_rest.shape != (B, J, 3):
+        J_rest = J_rest.expand(B, J, 3)
+    R_local, R_world, p_world, transl = refine_arrays(
+        _as_f64(out.R_local), _as_f64(out.R_world), _as_f64(out.p_world), _as_f64(out.transl), _as_f64(J_rest),
+        np.ascontiguousarray(eff.joint.numpy(), dtype=np.int64), np.ascontiguousarray(eff.type.numpy(), dtype=np.int64),
+        _as_f64(eff.data), _as_f64(eff.tolerance), np.ascontiguousarray(eff.mask.numpy(), dtype=np.bool_),
+        tuple(parents), cfg)
+    dt = out.R_local.dtype
+    return IKOutput(torch.from_numpy(R_local).to(dt), torch.from_numpy(R_world).to(dt),
+                    torch.from_numpy(p_world).to(dt), out.draft, torch.from_numpy(transl).to(dt))
+
+
+def refine_output_reference(out: IKOutput, J_rest: Tensor, eff: EffectorBatch,
+                            cfg: RefineConfig = DEFAULT_REFINEMENT, parents: tuple[int, ...] = PARENTS) -> IKOutput:
+    """The torch implementation of :func:`refine_output` (any device, differentiable); the ``"fast"``
+    backend is tested against it."""
     if cfg.iterations == 0:
         return out
     B, N = eff.joint.shape
