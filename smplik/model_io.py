@@ -281,7 +281,21 @@ def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, 
     slim = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "network": state["network"], "model": weights,
             "body_fingerprint": state.get("body_fingerprint"), "metrics": state.get("metrics", {}),
             "step": state.get("step", 0), "train_config": state.get("train_config", state.get("config", {}))}
+    for key in ("refine", "refine_calibration"):  # a calibrated model keeps its refinement settings
+        if state.get(key) is not None:
+            slim[key] = state[key]
     try:
         return write_model_file(out, slim)
     except TypeError as exc:
         raise CheckpointError(f"{checkpoint}: {exc}") from None
+
+
+def write_calibrated_model(source: str | Path, out: str | Path, refine: Mapping[str, Any],
+                           calibration: Mapping[str, Any] | None = None) -> Path:
+    """Copy a model file with refinement settings (``refine``: ``RefineConfig.to_dict()``) that its solver
+    then uses by default, and how they were found (``refine_calibration``); written atomically."""
+    state = dict(read_model_file(source))
+    state["refine"] = dict(refine)
+    if calibration is not None:
+        state["refine_calibration"] = dict(calibration)
+    return write_model_file(out, state)

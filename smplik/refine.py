@@ -31,11 +31,12 @@ as they do for the network.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -69,6 +70,10 @@ class RefineConfig:
     tolerance_eta: float = 4.0
     """Exponent of the tolerance weight ``min(1, 1 / (100 tolerance^eta))`` (the sampler's
     ``W / W_M`` with sigma_M = 0.1 m and W_M = 1000)."""
+    joint_prior: tuple[float, ...] | None = None
+    """Relative prior weight of each joint (one per joint, > 0), multiplying ``1 / sigma_prior^2``: joints the
+    network gets right more often are held closer to its answer. None: 1 for every joint. A model file's
+    calibrated values (``smplik benchmark calibrate``) are its solver's default."""
 
     def __post_init__(self) -> None:
         if self.iterations < 0:
@@ -78,9 +83,47 @@ class RefineConfig:
                 raise ValueError(f"RefineConfig.{name} must be > 0, got {getattr(self, name)}.")
         if self.damping < 0:
             raise ValueError(f"RefineConfig.damping must be >= 0, got {self.damping}.")
+        if self.joint_prior is not None:
+            values = tuple(self.joint_prior)
+            if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                     and v > 0 for v in values):
+                raise ValueError("RefineConfig.joint_prior must be a list of finite numbers > 0 (one per joint), "
+                                 f"got {str(self.joint_prior)[:80]}.")
+            object.__setattr__(self, "joint_prior", tuple(float(v) for v in values))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        if self.joint_prior is not None:
+            out["joint_prior"] = list(self.joint_prior)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "refine") -> RefineConfig:
+        """The config of :meth:`to_dict` (as stored in a model file); unknown keys or bad values raise
+        ``ValueError`` naming ``where`` and the key."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}: expected a dict of RefineConfig fields, got {type(data).__name__}.")
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(f"{where}: unknown key(s) {unknown}; valid keys: {', '.join(sorted(names))}.")
+        try:
+            return cls(**data)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+
+    def joint_prior_array(self, num_joints: int) -> np.ndarray:
+        """(J,) float64 relative prior weights (ones when ``joint_prior`` is None).
+
+        Raises:
+            ValueError: ``joint_prior`` has another length than the skeleton's joints.
+        """
+        if self.joint_prior is None:
+            return np.ones(num_joints)
+        if len(self.joint_prior) != num_joints:
+            raise ValueError(f"RefineConfig.joint_prior has {len(self.joint_prior)} values for a skeleton of "
+                             f"{num_joints} joints.")
+        return np.asarray(self.joint_prior, dtype=np.float64)
 
 
 DEFAULT_REFINEMENT = RefineConfig()
@@ -253,7 +296,8 @@ def refine_output_reference(out: IKOutput, J_rest: Tensor, eff: EffectorBatch,
     root_frame = torch.zeros(J, 1, 1, dtype=dt)
     root_frame[0] = 1.0
     prior = 1.0 / cfg.sigma_prior ** 2
-    H_prior = torch.diag(torch.cat([torch.full((3 * J,), prior, dtype=dt), torch.zeros(3, dtype=dt)]))
+    prior_j = torch.from_numpy(cfg.joint_prior_array(J)).to(dt) * prior  # (J,)
+    H_prior = torch.diag(torch.cat([prior_j.repeat_interleave(3), torch.zeros(3, dtype=dt)]))
     p_type, r_type, l_type = is_pos[..., None], is_rot[..., None], is_look[..., None]
     look = is_look.bool()
 
@@ -272,7 +316,7 @@ def refine_output_reference(out: IKOutput, J_rest: Tensor, eff: EffectorBatch,
     def cost(terms: tuple[Tensor, ...]) -> Tensor:
         """The objective per pose (B,): weighted effector residuals plus the prior."""
         r, dev = terms[-2], terms[-1]
-        return (w[..., None] * r.square()).sum((1, 2)) + prior * dev.square().sum((1, 2))
+        return (w[..., None] * r.square()).sum((1, 2)) + (prior_j[:, None] * dev.square()).sum((1, 2))
 
     R_net = R_local = out.R_local.to(dt)
     transl, R_world, p_world, J_rest = out.transl.to(dt), out.R_world.to(dt), out.p_world.to(dt), J_rest.to(dt)
@@ -297,7 +341,7 @@ def refine_output_reference(out: IKOutput, J_rest: Tensor, eff: EffectorBatch,
         R_world_parent = R_world[:, parent_idx] * (1 - root_frame) + eye * root_frame
         e = (R_world_parent @ dev[..., None])[..., 0]
         g = (JtW @ r.reshape(B, 3 * N, 1))[..., 0]
-        g = g + torch.cat([prior * e.reshape(B, 3 * J), torch.zeros(B, 3, dtype=dt)], -1)
+        g = g + torch.cat([(prior_j[:, None] * e).reshape(B, 3 * J), torch.zeros(B, 3, dtype=dt)], -1)
         A = JtW @ Jac + H_prior + lam * eye_n  # symmetric positive definite, unless the numbers overflow
         A = torch.where(torch.isfinite(A).all(-1, keepdim=True).all(-2, keepdim=True), A, eye_n)
         L, info = torch.linalg.cholesky_ex(A)

@@ -5,7 +5,7 @@ Levenberg-Marquardt accept/reject rule and lambda schedule, same failure handlin
 float64 scalar code, with the normal equations solved through the tree sparsity instead of a dense
 ``(3J + 3)`` Cholesky factorisation:
 
-``A = D + J^T W J`` with ``D = (prior + lambda) I`` on the 3J rotation parameters and ``lambda I`` on the
+``A = D + J^T W J`` with ``D = (prior_j + lambda) I`` on joint j's 3 rotation parameters and ``lambda I`` on the
 translation, and ``J`` only 3N rows (N effectors). With ``U = S J_rot`` (``S = W^(1/2)``, so zero-weight
 padded rows are harmless), ``V = S J_transl`` and ``K = I + U U^T / d`` (3N x 3N, eigenvalues >= 1, so
 its Cholesky factorisation fails only on non-finite numbers), block elimination of the translation
@@ -160,7 +160,8 @@ def _vee_product(A, B):
 @_jit
 def _state_cost(R_local, R_net, R_world, p_world, joint, is_pos, is_rot, is_look, w, target, RtT, look_dir,
                 prior, r, f, u, dist, dev):
-    """Residuals r (N, 3), facing f, unit ray u, distance (N,), deviations dev (J, 3); returns the objective."""
+    """Residuals r (N, 3), facing f, unit ray u, distance (N,), deviations dev (J, 3); returns the objective
+    (``prior`` (J,): each joint's prior weight)."""
     N = joint.shape[0]
     total = 0.0
     for a in range(N):
@@ -180,11 +181,10 @@ def _state_cost(R_local, R_net, R_world, p_world, joint, is_pos, is_rot, is_look
             r[a, i] = ri
             s += ri * ri
         total += w[a] * s
-    dsum = 0.0
     for j in range(R_local.shape[0]):
         dev[j, 0], dev[j, 1], dev[j, 2] = _vee_product(R_local[j], R_net[j].T)
-        dsum += dev[j, 0] * dev[j, 0] + dev[j, 1] * dev[j, 1] + dev[j, 2] * dev[j, 2]
-    return total + prior * dsum
+        total += prior[j] * (dev[j, 0] * dev[j, 0] + dev[j, 1] * dev[j, 1] + dev[j, 2] * dev[j, 2])
+    return total
 
 
 @_jit
@@ -224,18 +224,21 @@ def _cho_solve(L, n, x):
 @_jit
 def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data, tolerance, mask,
                   parent, order, chain, chain_len, common,
-                  iterations, sigma_pos, sigma_rot, sigma_lookat, sigma_prior, damping, eta,
+                  iterations, sigma_pos, sigma_rot, sigma_lookat, sigma_prior, damping, eta, joint_prior,
                   R_local_out, R_world_out, p_world_out, transl_out):
     """Refine B poses (module docstring); writes the four ``*_out`` arrays (B, ...) float64.
 
     R_net, R_world0 (B, J, 3, 3), p_world0 (B, J, 3), transl0 (B, 3), J_rest (B, J, 3); joint, kind (B, N)
-    int64, data (B, N, 6), tolerance (B, N), mask (B, N) bool; skeleton tables of :func:`skeleton_tables`.
+    int64, data (B, N, 6), tolerance (B, N), mask (B, N) bool; skeleton tables of :func:`skeleton_tables`;
+    joint_prior (J,) each joint's relative prior weight (``RefineConfig.joint_prior``, ones when None).
     """
     B, N = joint.shape
     J = R_net.shape[1]
     L = chain.shape[1]
     n3 = 3 * N
     prior = 1.0 / (sigma_prior * sigma_prior)
+    prior_j = joint_prior * prior
+    dr = np.empty(J)  # the diagonal D on each joint's rotation parameters: prior_j + lambda
     # scratch, reused for every pose
     is_pos, is_rot, is_look = np.empty(N), np.empty(N), np.empty(N)
     w, s_w = np.empty(N), np.empty(N)
@@ -283,7 +286,7 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
         p_world[:] = p_world0[b]
         transl[:] = transl0[b]
         current = _state_cost(R_local, R_net[b], R_world, p_world, joint[b], is_pos, is_rot, is_look, w, target,
-                              RtT, look_dir, prior, r, f, u, dist, dev)
+                              RtT, look_dir, prior_j, r, f, u, dist, dev)
         lam = prior * damping
         for _ in range(iterations):
             # ---- Jacobian blocks along each effector's chain
@@ -325,7 +328,8 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                 else:
                     Rwp[j] = R_world[parent[j]]
                 for i in range(3):
-                    g[j, i] = prior * (Rwp[j, i, 0] * dev[j, 0] + Rwp[j, i, 1] * dev[j, 1] + Rwp[j, i, 2] * dev[j, 2])
+                    g[j, i] = prior_j[j] * (Rwp[j, i, 0] * dev[j, 0] + Rwp[j, i, 1] * dev[j, 1]
+                                            + Rwp[j, i, 2] * dev[j, 2])
             g[J, 0] = g[J, 1] = g[J, 2] = 0.0
             for a in range(N):
                 k = joint[b, a]
@@ -336,19 +340,20 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                                            + Jc[a, m, 2, c] * r[a, 2])
                 for c in range(3):
                     g[J, c] += w[a] * (Jt[a, 0, c] * r[a, 0] + Jt[a, 1, c] * r[a, 1] + Jt[a, 2, c] * r[a, 2])
-            # ---- K = I + U U^T / d over common ancestors
-            dr = prior + lam
+            # ---- K = I + U D^-1 U^T over common ancestors
+            for j in range(J):
+                dr[j] = prior_j[j] + lam
             for a in range(N):
                 ka = joint[b, a]
                 for bb in range(a + 1):
                     kb = joint[b, bb]
-                    sab = s_w[a] * s_w[bb] / dr
+                    sab = s_w[a] * s_w[bb]
                     for i in range(3):
                         for c in range(3):
                             t = 0.0
                             for m in range(common[ka, kb]):
                                 t += (Jc[a, m, i, 0] * Jc[bb, m, c, 0] + Jc[a, m, i, 1] * Jc[bb, m, c, 1]
-                                      + Jc[a, m, i, 2] * Jc[bb, m, c, 2])
+                                      + Jc[a, m, i, 2] * Jc[bb, m, c, 2]) / dr[chain[ka, m]]
                             val = sab * t + (1.0 if (a == bb and i == c) else 0.0)
                             K[3 * a + i, 3 * bb + c] = val
                             K[3 * bb + c, 3 * a + i] = val
@@ -363,15 +368,16 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                         finite = False
             factored = finite and _cholesky(K, n3)
             if factored:
-                # y = K^-1 U g_rot / d; Z = K^-1 V
+                # y = K^-1 U D^-1 g_rot; Z = K^-1 V
                 for a in range(N):
                     k = joint[b, a]
                     for i in range(3):
                         t = 0.0
                         for m in range(chain_len[k]):
                             j = chain[k, m]
-                            t += Jc[a, m, i, 0] * g[j, 0] + Jc[a, m, i, 1] * g[j, 1] + Jc[a, m, i, 2] * g[j, 2]
-                        y[3 * a + i] = s_w[a] * t / dr
+                            t += (Jc[a, m, i, 0] * g[j, 0] + Jc[a, m, i, 1] * g[j, 1]
+                                  + Jc[a, m, i, 2] * g[j, 2]) / dr[j]
+                        y[3 * a + i] = s_w[a] * t
                         for c in range(3):
                             Z[c, 3 * a + i] = s_w[a] * Jt[a, i, c]
                 _cho_solve(K, n3, y)
@@ -397,7 +403,7 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                 factored = _cholesky(Sc, 3)
             if factored:
                 _cho_solve(Sc, 3, xt)
-                # rotations: x_rot = (g_rot - U^T (y + Z x_t)) / d
+                # rotations: x_rot = D^-1 (g_rot - U^T (y + Z x_t))
                 for i in range(n3):
                     q[i] = y[i] + Z[0, i] * xt[0] + Z[1, i] * xt[1] + Z[2, i] * xt[2]
                 for j in range(J):
@@ -412,7 +418,7 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                                                  + Jc[a, m, 2, c] * q[3 * a + 2])
                 for j in range(J):
                     for i in range(3):
-                        x[j, i] = x[j, i] / dr
+                        x[j, i] = x[j, i] / dr[j]
                         if not math.isfinite(x[j, i]):
                             factored = False
                 for i in range(3):
@@ -435,7 +441,7 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                     transl_n[i] = transl[i] - xt[i]
                 _fk(R_local_n, J_rest[b], transl_n, parent, order, R_world_n, p_world_n)
                 new = _state_cost(R_local_n, R_net[b], R_world_n, p_world_n, joint[b], is_pos, is_rot, is_look, w,
-                                  target, RtT, look_dir, prior, r_n, f_n, u_n, dist_n, dev_n)
+                                  target, RtT, look_dir, prior_j, r_n, f_n, u_n, dist_n, dev_n)
                 ok = new < current and math.isfinite(new)
             if ok:
                 R_local[:] = R_local_n
@@ -482,7 +488,8 @@ def refine_arrays(R_net: np.ndarray, R_world: np.ndarray, p_world: np.ndarray, t
     B = R_net.shape[0]
     outs = (np.empty_like(R_net), np.empty_like(R_world), np.empty_like(p_world), np.empty_like(transl))
     params = (int(cfg.iterations), float(cfg.sigma_pos), float(cfg.sigma_rot), float(cfg.sigma_lookat),
-              float(cfg.sigma_prior), float(cfg.damping), float(cfg.tolerance_eta))
+              float(cfg.sigma_prior), float(cfg.damping), float(cfg.tolerance_eta),
+              cfg.joint_prior_array(len(parents)))
     ins = (R_net, R_world, p_world, transl, J_rest, joint, kind, data, tolerance, mask)
 
     def run(lo: int, hi: int) -> None:

@@ -195,7 +195,7 @@ class IKSolver:
 
     @classmethod
     def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None,
-             refine: RefineConfig = DEFAULT_REFINEMENT, runtime: Runtime = "torch",
+             refine: RefineConfig | None = None, runtime: Runtime = "torch",
              onnx_file: str | Path | None = None, onnx_threads: int = 1,
              ensemble: EnsembleConfig = NO_ENSEMBLE) -> IKSolver:
         """Load a model file (default: the packaged ``smplik/checkpoints/smplik_cmu.pt``).
@@ -203,7 +203,9 @@ class IKSolver:
         Args:
             path: an exported model (``smplik export-model``) or a training checkpoint.
             model_dir: folder with real SMPL files (default ``$SMPLIK_MODEL_DIR``, else built-in).
-            refine: refinement after the network (default: 3 Levenberg-Marquardt steps; ``iterations=0``: none).
+            refine: refinement after the network (default: the model file's calibrated ``refine`` settings
+                (``smplik benchmark calibrate``) when it has them, else :data:`~smplik.refine.DEFAULT_REFINEMENT`,
+                3 Levenberg-Marquardt steps; ``iterations=0``: none).
             runtime: network backend, ``"torch"`` (default), ``"onnx"`` (onnxruntime) or ``"auto"`` (onnxruntime
                 when installed and a matching ``onnx_file``/``PATH.onnx`` exists); see
                 :func:`smplik.onnx_runtime.select_network`. ``onnx_threads``: onnxruntime threads.
@@ -232,6 +234,9 @@ class IKSolver:
         if bad:
             raise ValueError(f"{path}: not a valid smplik model (weights '{bad[0]}' hold NaN or inf; the file is "
                              "corrupt).")
+        if refine is None:
+            refine = DEFAULT_REFINEMENT if meta.get("refine") is None else \
+                RefineConfig.from_dict(meta["refine"], f"{path}: key 'refine'")
         bodies = BodyModelSet.load(model_dir)
         trained_on = meta.get("body_fingerprint")
         if trained_on is not None and trained_on != bodies.fingerprint:

@@ -23,7 +23,8 @@ pytest.importorskip("numba", reason="the fast refinement backend needs numba (pi
 
 from smplik import refine_fast  # noqa: E402
 
-CONFIGS = (DEFAULT_REFINEMENT, RefineConfig(iterations=6, sigma_prior=2.0, damping=0.01, tolerance_eta=2.0))
+CONFIGS = (DEFAULT_REFINEMENT, RefineConfig(iterations=6, sigma_prior=2.0, damping=0.01, tolerance_eta=2.0),
+           RefineConfig(sigma_prior=1.5, joint_prior=tuple(np.random.default_rng(0).uniform(0.1, 10.0, 24).tolist())))
 
 
 def random_problem(B: int, N: int, seed: int, dtype: torch.dtype = torch.float64) -> tuple[IKOutput, torch.Tensor,
@@ -66,7 +67,7 @@ def assert_same_refinement(a: IKOutput, b: IKOutput, rot_tol: float = 1e-5, m_to
     assert float((a.transl.double() - b.transl.double()).abs().max()) <= m_tol
 
 
-@pytest.mark.parametrize("cfg", CONFIGS, ids=["default", "loose-prior"])
+@pytest.mark.parametrize("cfg", CONFIGS, ids=["default", "loose-prior", "per-joint-prior"])
 @pytest.mark.parametrize("B", [1, 48])
 def test_fast_equals_reference(cfg, B):
     out, J_rest, eff = random_problem(B, 9, seed=B)
@@ -201,3 +202,29 @@ def test_read_only_install_compiles_without_a_cache(monkeypatch):
     kernel = refine_fast._jit(add_one)
     assert kernel(1) == 2
     assert type(kernel._cache).__name__ == "NullCache"
+
+
+def test_joint_prior_config_round_trip_and_validation():
+    cfg = RefineConfig(sigma_prior=1.5, joint_prior=[1.0, 2] + [0.5] * 22)
+    assert cfg.joint_prior == (1.0, 2.0, *([0.5] * 22))
+    assert RefineConfig.from_dict(cfg.to_dict()) == cfg
+    np.testing.assert_array_equal(DEFAULT_REFINEMENT.joint_prior_array(24), np.ones(24))
+    with pytest.raises(ValueError, match="joint_prior must be a list of finite numbers > 0"):
+        RefineConfig(joint_prior=[1.0] * 23 + [0.0])
+    with pytest.raises(ValueError, match="joint_prior has 3 values for a skeleton of 24 joints"):
+        RefineConfig(joint_prior=[1.0, 1.0, 1.0]).joint_prior_array(24)
+    with pytest.raises(ValueError, match=r"model.pt: refine: unknown key\(s\) \['sigma'\]"):
+        RefineConfig.from_dict({"sigma": 1.0}, "model.pt: refine")
+
+
+def test_joint_prior_weights_hold_joints_differently():
+    """A joint whose prior weight is 100x the others' moves far less from the network's answer (both backends)."""
+    out, J_rest, eff = random_problem(8, 8, seed=5)
+    heavy = [1.0] * 24
+    heavy[3] = 100.0
+    for backend in ("reference", "fast"):
+        moved = {}
+        for name, cfg in (("uniform", DEFAULT_REFINEMENT), ("heavy", RefineConfig(joint_prior=heavy))):
+            res = refine_output(out, J_rest, eff, cfg, backend=backend)
+            moved[name] = float(geodesic_distance(res.R_local[:, 3], out.R_local[:, 3]).mean())
+        assert moved["heavy"] < 0.2 * moved["uniform"], (backend, moved)

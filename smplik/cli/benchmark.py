@@ -130,3 +130,53 @@ def run_command(
         write_text_atomic(markdown, table)
     typer.echo(table)
     console.print(f"wrote {out}")
+
+
+@app.command("calibrate")
+def calibrate_command(
+    files: Annotated[Path, typer.Option("--files", help="Validation-split folder from `smplik benchmark make "
+                                                        "--split validation` (test-split files are refused).")],
+    out: Annotated[Path, typer.Option("--out", help="Model file to write: the model with the chosen refinement "
+                                                    "settings, its solver's default from then on.")],
+    checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
+    model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files.")] = None,
+    ensemble: Annotated[str, typer.Option(help="Test-time ensemble the model will run with (none, mirror, "
+                                               "mirror+yawK).")] = "none",
+    threads: Annotated[int | None, typer.Option(help="torch intra-op threads.")] = None,
+    results: Annotated[Path | None, typer.Option(help="Also write the grid's results here (JSON).")] = None,
+) -> None:
+    """Fit the refinement's per-joint prior to a model on validation files (smplik.benchmark.calibrate)."""
+    import torch
+
+    from smplik.atomic import write_json_atomic
+    from smplik.benchmark import load_benchmark
+    from smplik.benchmark.calibrate import calibrate_refinement
+    from smplik.cli.errors import say, user_errors
+    from smplik.ensemble import EnsembleConfig
+    from smplik.model_io import write_calibrated_model
+    from smplik.solver import IKSolver, packaged_model_path
+
+    if threads:
+        torch.set_num_threads(threads)
+    with user_errors():
+        try:
+            ensemble_cfg = EnsembleConfig.parse(ensemble)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--ensemble") from None
+        bench = load_benchmark(files)
+        source = checkpoint or packaged_model_path()
+        solver = IKSolver.load(source, model_dir=model_dir)
+
+        def report(row: dict) -> None:
+            order = "keeps" if row["tolerance_order"] else "loses"
+            say(f"alpha {row['alpha']:.1f}  sigma_prior {row['sigma_prior']:.2f}:  geodesic {row['geodesic_rad']:.4f} "
+                f"rad  MPJPE {row['mpjpe_mm']:.1f} mm  PA-MPJPE {row['pa_mpjpe_mm']:.1f} mm  ({order} the tolerance "
+                "order)")
+
+        cal = calibrate_refinement(solver, bench, ensemble=ensemble_cfg, progress=report)
+        record = cal.to_dict(str(files)) | {"ensemble": ensemble_cfg.to_dict()}
+        write_calibrated_model(source, out, cal.refine.to_dict(), record)
+        if results is not None:
+            write_json_atomic(results, {"refine": cal.refine.to_dict(), **record})
+        say(f"chosen: alpha {cal.alpha:.1f}, sigma_prior {cal.refine.sigma_prior:.2f}")
+        say(f"wrote {out}")

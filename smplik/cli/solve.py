@@ -110,7 +110,7 @@ def solve_command(
 
     from smplik.effector_schema import load_effector_file
     from smplik.ensemble import EnsembleConfig
-    from smplik.refine import DEFAULT_REFINEMENT, RefineConfig
+    from smplik.refine import RefineConfig
     from smplik.solver import IKSolver
 
     with user_errors():
@@ -121,8 +121,10 @@ def solve_command(
         doc = load_effector_file(effectors)
         beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
         g = gender or doc.gender or Gender.NEUTRAL
-        refine = DEFAULT_REFINEMENT if refine_steps is None else replace(DEFAULT_REFINEMENT, iterations=refine_steps)
-        solver = IKSolver.load(checkpoint, model_dir=model_dir, refine=refine, ensemble=ensemble_cfg)
+        solver = IKSolver.load(checkpoint, model_dir=model_dir, ensemble=ensemble_cfg)
+        if refine_steps is not None:
+            solver = replace(solver, refine=replace(solver.refine, iterations=refine_steps))
+        refine = solver.refine
         pose = solver.solve(list(doc.effectors), betas=beta, gender=g)
         network = replace(solver, refine=RefineConfig(iterations=0)).solve(list(doc.effectors), betas=beta, gender=g)
         pose.save(out)
