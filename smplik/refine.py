@@ -27,6 +27,10 @@ Residuals ``r_i`` (3 per effector) and their analytic Jacobians (first order):
 Weights ``w_i = W(tolerance) / sigma_type^2`` with ``W`` the training sampler's tolerance weight
 relative to its cap (1 at tolerance 0, about 0.01 at tolerance 1), so loose effectors pull less,
 as they do for the network.
+
+Two backends compute this (:data:`RefineBackend`): :func:`refine_output_reference` here (torch) and the
+numba kernels of :mod:`smplik.refine_fast` (CPU, no autograd; the normal equations solved through the tree
+sparsity), which :func:`refine_output` runs by default where it can.
 """
 
 from __future__ import annotations
