@@ -15,6 +15,9 @@ It also compares the search criteria (:func:`workflows.recovery.recovery_score`:
 or its mean with the worst limb's error) on the final pose at 6 and 8 effectors: mean joint error,
 worst-limb error and limbs left more than 80 mm off (``--criteria-only`` runs just that).
 
+``--refine-backend reference`` times the torch refinement instead of the default (``auto``: the numba
+kernels of :mod:`smplik.refine_fast` when numba is installed); the JSON records the one that ran.
+
 Prints a table and writes ``benchmarks/results/effector_recovery.json``.
 """
 
@@ -35,6 +38,7 @@ from _common import save, shared_dir  # noqa: E402
 from smplik.conventions import Gender  # noqa: E402
 from smplik.paths import pose_cache  # noqa: E402
 from smplik.pose import Pose  # noqa: E402
+from smplik.refine import numba_available, refine_backend  # noqa: E402
 from workflows.recovery import (  # noqa: E402
     LIMB_ZONES,
     RecoveryConfig,
@@ -118,7 +122,14 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     parser.add_argument("--poses", type=int, default=50)
     parser.add_argument("--criteria-only", action="store_true", help="Only compare the search criteria.")
+    parser.add_argument("--refine-backend", choices=("auto", "fast", "reference"), default="auto",
+                        help="Refinement backend (smplik.refine.refine_output).")
     args = parser.parse_args()
+    with refine_backend(args.refine_backend):
+        run(args)
+
+
+def run(args: argparse.Namespace) -> None:
     torch.set_num_threads(1)
     poses = load_test_poses(args.cache, args.poses)
     if poses is None:
@@ -174,6 +185,8 @@ def main() -> None:
         "time_ms_for_8_effectors": {"median": round(statistics.median(ms), 2), "max": round(max(ms), 2),
                                     "mean": round(statistics.fmean(ms), 2)},
         "torch_threads": 1,
+        "refine_backend": args.refine_backend if args.refine_backend != "auto" else (
+            "fast" if numba_available() else "reference"),
         "criteria": criteria,
     })
     print(f"wrote {path}")

@@ -12,6 +12,10 @@ benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoin
 * the same ``network``/``refined``/``solve`` rows with the network run by onnxruntime
   (``IKSolver.load(runtime="onnx")``, :mod:`smplik.onnx_runtime`; keys prefixed ``onnx_``; the
   refinement stays torch), when onnxruntime is installed: ``--onnx FILE`` (default: exported in memory);
+* the refinement alone (:func:`smplik.refine.refine_output` on the network's output), ``"reference"``
+  (torch) against ``"fast"`` (numba, :mod:`smplik.refine_fast`; when numba is installed) at batch 1 and
+  1024, at 1 and 2 threads (``refinement`` in the JSON; ``refine_backend`` says which one the solver rows
+  above ran);
 * the optimization-IK baseline (:class:`smplik.benchmark.OptimizationIK`, default iterations) per
   solve: one pose alone, and per pose within a batch of 256, at 1 and 2 threads.
 
@@ -41,7 +45,7 @@ from smplik.effectors import Effector, EffectorBatch  # noqa: E402
 from smplik.kinematics import forward_kinematics  # noqa: E402
 from smplik.onnx_runtime import onnxruntime_available  # noqa: E402
 from smplik.paths import pose_cache  # noqa: E402
-from smplik.refine import NO_REFINEMENT  # noqa: E402
+from smplik.refine import NO_REFINEMENT, numba_available, refine_output, resolve_backend  # noqa: E402
 from smplik.rotations import axis_angle_to_matrix  # noqa: E402
 from smplik.solver import IKSolver  # noqa: E402
 
@@ -165,6 +169,27 @@ def main() -> None:
         med = statistics.median(times)
         throughput[f"solve_batch@{threads}/b256"] = {"median_ms": med * 1e3, "poses_per_s": 256 / med}
 
+    refinement: dict[str, dict] = {}
+    refine_backends = ("reference", "fast") if numba_available() else ("reference",)
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        for batch in (1, 1024):
+            eff, betas, gender, _, _ = example_inputs(solver, batch, seed=batch)
+            with torch.inference_mode():
+                net = solver.solve_tensors(eff, betas, gender, refine=NO_REFINEMENT)
+                J_rest = solver.model.rest_joints(betas, gender)
+            for backend in refine_backends:
+                def refine(net=net, J_rest=J_rest, eff=eff, backend=backend):
+                    with torch.inference_mode():
+                        return refine_output(net, J_rest, eff, solver.refine, backend=backend)
+
+                times = time_call(refine, min_time=args.min_time, warmup=20 if batch == 1 else 1)
+                refinement[f"refine_{backend}@{threads}/b{batch}"] = {
+                    **percentiles(times), "poses_per_s": batch / statistics.median(times)}
+    with torch.inference_mode():
+        net1 = solver.solve_tensors(eff1, betas1, gender1, refine=NO_REFINEMENT)
+        refine_backend_used = resolve_backend(net1, solver.model.rest_joints(betas1, gender1))
+
     try:
         from smplik.data.dataset import load_cache
 
@@ -197,6 +222,9 @@ def main() -> None:
         "refined_best_poses_per_s": max(v["poses_per_s"] for k, v in throughput.items() if k.startswith("refined")),
         "optim_ms_per_single_solve_1thread": optim_rows["optim@1/b1"]["ms_per_pose"],
     }
+    for backend in refine_backends:
+        summary[f"refine_{backend}_single_p50_ms_1thread"] = refinement[f"refine_{backend}@1/b1"]["p50_ms"]
+        summary[f"refine_{backend}_b1024_ms_2threads"] = refinement[f"refine_{backend}@2/b1024"]["p50_ms"]
     prefixes = ["", "onnx_"] if onnx_solver is not None else [""]
     for prefix in prefixes:
         summary[f"{prefix}network_single_p50_ms_1thread"] = latency[f"{prefix}network@1"]["p50_ms"]
@@ -222,6 +250,9 @@ def main() -> None:
     print(f"\n{'throughput':<28}{'median ms':>10}{'poses/s':>12}")
     for k, v in throughput.items():
         print(f"{k:<28}{v['median_ms']:>10.2f}{v['poses_per_s']:>12.0f}")
+    print(f"\n{'refinement alone':<28}{'p50 ms':>10}{'poses/s':>12}   (solver rows ran: {refine_backend_used})")
+    for k, v in refinement.items():
+        print(f"{k:<28}{v['p50_ms']:>10.3f}{v['poses_per_s']:>12.0f}")
     print(f"\n{'optimization baseline':<28}{'ms/pose':>10}")
     for k, v in optim_rows.items():
         print(f"{k:<28}{v['ms_per_pose']:>10.2f}")
@@ -229,7 +260,8 @@ def main() -> None:
     print("targets:", targets)
     path = save("speed", {"checkpoint": solver.source, "step": solver.meta.get("step"),
                           "network": solver.meta.get("network"), "effectors_per_pose": N_EFFECTORS,
-                          "refine": solver.refine.to_dict(), "latency": latency, "throughput": throughput,
+                          "refine": solver.refine.to_dict(), "refine_backend": refine_backend_used,
+                          "latency": latency, "throughput": throughput, "refinement": refinement,
                           "optimization": optim_rows,
                           "optim_prior": prior_source, "summary": summary, "targets": targets,
                           "onnx": None if onnx_solver is None else {

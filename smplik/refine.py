@@ -27,6 +27,10 @@ Residuals ``r_i`` (3 per effector) and their analytic Jacobians (first order):
 Weights ``w_i = W(tolerance) / sigma_type^2`` with ``W`` the training sampler's tolerance weight
 relative to its cap (1 at tolerance 0, about 0.01 at tolerance 1), so loose effectors pull less,
 as they do for the network.
+
+Two backends compute this (:data:`RefineBackend`): :func:`refine_output_reference` here (torch) and the
+numba kernels of :mod:`smplik.refine_fast` (CPU, no autograd; the normal equations solved through the tree
+sparsity), which :func:`refine_output` runs by default where it can.
 """
 
 from __future__ import annotations
@@ -180,12 +184,16 @@ def numba_available() -> bool:
     return True
 
 
+def _check_backend(backend: str) -> None:
+    if backend not in ("auto", "fast", "reference"):
+        raise ValueError(f"Unknown refinement backend {backend!r}; expected 'auto', 'fast' or 'reference'.")
+
+
 @contextmanager
 def refine_backend(backend: RefineBackend) -> Iterator[None]:
     """Within the block, :func:`refine_output` calls without an explicit ``backend`` use this one."""
     global _default_backend
-    if backend not in ("auto", "fast", "reference"):
-        raise ValueError(f"Unknown refinement backend {backend!r}; expected 'auto', 'fast' or 'reference'.")
+    _check_backend(backend)
     previous, _default_backend = _default_backend, backend
     try:
         yield
@@ -200,17 +208,16 @@ def resolve_backend(out: IKOutput, J_rest: Tensor, backend: RefineBackend | None
         ValueError: ``backend="fast"`` when numba is missing, a tensor is not on the CPU or needs gradients.
     """
     backend = _default_backend if backend is None else backend
-    if backend not in ("auto", "fast", "reference"):
-        raise ValueError(f"Unknown refinement backend {backend!r}; expected 'auto', 'fast' or 'reference'.")
+    _check_backend(backend)
     if backend == "reference":
         return "reference"
-    tensors = (out.R_local, out.R_world, out.p_world, out.transl, J_rest)
     problem = None
     if not numba_available():
         problem = "numba is not installed (pip install 'smplik[fast]')"
-    elif any(t.device.type != "cpu" for t in tensors):
+    elif out.R_local.device.type != "cpu" or J_rest.device.type != "cpu":
         problem = "its inputs are not on the CPU"
-    elif torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
+    elif torch.is_grad_enabled() and any(t.requires_grad for t in (out.R_local, out.R_world, out.p_world, out.transl,
+                                                                    J_rest)):
         problem = "its inputs need gradients"
     if problem is None:
         return "fast"
@@ -243,13 +250,14 @@ def refine_output(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: Refine
 
 
 def _as_f64(t: Tensor) -> np.ndarray:
-    """A float64 C-contiguous array of a tensor (a view when it is one already; the kernel only reads it)."""
-    return np.ascontiguousarray(t.detach().numpy(), dtype=np.float64)
+    """A float64 C-contiguous numpy copy of a CPU tensor."""
+    return t.detach().numpy().astype(np.float64, order="C")
 
 
 def _refine_output_fast(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: RefineConfig,
                         parents: tuple[int, ...]) -> IKOutput:
-    """:func:`refine_output` through :func:`smplik.refine_fast.refine_arrays`."""
+    """:func:`refine_output` through :func:`smplik.refine_fast.refine_arrays` (few conversions: one pose's
+    call is mostly Python overhead)."""
     from smplik.refine_fast import refine_arrays
 
     B, N = eff.joint.shape
@@ -258,12 +266,20 @@ def _refine_output_fast(out: IKOutput, J_rest: Tensor, eff: EffectorBatch, cfg: 
         J_rest = J_rest.expand(B, J, 3)
     R_local, R_world, p_world, transl = refine_arrays(
         _as_f64(out.R_local), _as_f64(out.R_world), _as_f64(out.p_world), _as_f64(out.transl), _as_f64(J_rest),
-        np.ascontiguousarray(eff.joint.numpy(), dtype=np.int64), np.ascontiguousarray(eff.type.numpy(), dtype=np.int64),
-        _as_f64(eff.data), _as_f64(eff.tolerance), np.ascontiguousarray(eff.mask.numpy(), dtype=np.bool_),
-        tuple(parents), cfg)
+        eff.joint.numpy().astype(np.int64, order="C"), eff.type.numpy().astype(np.int64, order="C"),
+        _as_f64(eff.data), _as_f64(eff.tolerance), eff.mask.numpy().astype(np.bool_, order="C"), tuple(parents), cfg)
     dt = out.R_local.dtype
-    return IKOutput(torch.from_numpy(R_local).to(dt), torch.from_numpy(R_world).to(dt),
-                    torch.from_numpy(p_world).to(dt), out.draft, torch.from_numpy(transl).to(dt))
+    return IKOutput(_as_tensor(R_local, dt), _as_tensor(R_world, dt), _as_tensor(p_world, dt), out.draft,
+                    _as_tensor(transl, dt))
+
+
+_NUMPY_FLOAT = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+def _as_tensor(a: np.ndarray, dtype: torch.dtype) -> Tensor:
+    """A float64 kernel result as a tensor of ``dtype`` (converted by numpy where it can: cheaper)."""
+    np_dtype = _NUMPY_FLOAT.get(dtype)
+    return torch.from_numpy(a.astype(np_dtype, copy=False)) if np_dtype else torch.from_numpy(a).to(dtype)
 
 
 def refine_output_reference(out: IKOutput, J_rest: Tensor, eff: EffectorBatch,

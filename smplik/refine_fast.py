@@ -498,7 +498,7 @@ def refine_arrays(R_net: np.ndarray, R_world: np.ndarray, p_world: np.ndarray, t
     threads = torch.get_num_threads() if threads is None else threads
     chunks = max(1, min(threads, B // CHUNK_MIN))
     if chunks == 1:
-        run(0, B)
+        refine_kernel(*ins, *tables, *params, *outs)
     else:
         bounds = np.linspace(0, B, chunks + 1).astype(int)
         futures = [_pool(chunks).submit(run, int(lo), int(hi)) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]

@@ -159,6 +159,11 @@ def test_backend_selection():
     assert resolve_backend(out, J_rest) == "fast"
     with pytest.raises(ValueError, match="Unknown refinement backend 'numpy'"):
         resolve_backend(out, J_rest, "numpy")  # type: ignore[arg-type]
+    meta = IKOutput(*(torch.empty(t.shape, device="meta") for t in (out.R_local, out.R_world, out.p_world,
+                                                                    out.draft, out.transl)))
+    assert resolve_backend(meta, J_rest.to("meta")) == "reference"
+    with pytest.raises(ValueError, match="fast refinement backend cannot run: its inputs are not on the CPU"):
+        resolve_backend(meta, J_rest.to("meta"), "fast")
     # autograd: "auto" runs the differentiable reference, "fast" refuses in one line
     R_local = out.R_local.clone().requires_grad_(True)
     grad_out = IKOutput(R_local, out.R_world, out.p_world, out.draft, out.transl)
