@@ -7,13 +7,13 @@ float64 scalar code, with the normal equations solved through the tree sparsity 
 
 ``A = D + J^T W J`` with ``D = (prior_j + lambda) I`` on joint j's 3 rotation parameters and ``lambda I`` on the
 translation, and ``J`` only 3N rows (N effectors). With ``U = S J_rot`` (``S = W^(1/2)``, so zero-weight
-padded rows are harmless), ``V = S J_transl`` and ``K = I + U U^T / d`` (3N x 3N, eigenvalues >= 1, so
+padded rows are harmless), ``V = S J_transl`` and ``K = I + U D^-1 U^T`` (3N x 3N, eigenvalues >= 1, so
 its Cholesky factorisation fails only on non-finite numbers), block elimination of the translation
 with the Woodbury identity gives
 
-* ``y = K^-1 U g_rot / d``, ``Z = K^-1 V``;
-* translation: ``(lambda I + V^T Z) x_t = g_t - V^T y`` (3 x 3; positive definite when lambda > 0);
-* rotations: ``x_rot = (g_rot - U^T (y + Z x_t)) / d``; the step is ``delta = -x``.
+* with ``K = L L^T``: ``y = L^-1 U D^-1 g_rot``, ``Z = L^-1 V``;
+* translation: ``(lambda I + Z^T Z) x_t = g_t - Z^T y`` (3 x 3; positive definite when lambda > 0);
+* rotations: ``x_rot = D^-1 (g_rot - U^T L^-T (y + Z x_t))``; the step is ``delta = -x``.
 
 Effector ``i``'s rows of ``J_rot`` are non-zero only on the ancestor chain of its joint (at most 9
 joints for SMPL), so ``U U^T`` block ``(a, b)`` sums over the common ancestors of the two joints only
@@ -207,13 +207,18 @@ def _cholesky(A, n):
 
 
 @_jit
-def _cho_solve(L, n, x):
-    """Solve (L L^T) y = x in place for x (n,)."""
+def _forward(L, n, x):
+    """Solve L y = x in place for x (n,) (L lower triangular)."""
     for i in range(n):
         t = x[i]
         for m in range(i):
             t -= L[i, m] * x[m]
         x[i] = t / L[i, i]
+
+
+@_jit
+def _backward(L, n, x):
+    """Solve L^T y = x in place for x (n,)."""
     for i in range(n - 1, -1, -1):
         t = x[i]
         for m in range(i + 1, n):
@@ -256,7 +261,7 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
     g = np.empty((J + 1, 3))  # gradient: rotations, then translation
     K = np.empty((n3, n3))
     y = np.empty(n3)
-    Z = np.empty((3, n3))  # K^-1 V, column by column
+    Z = np.empty((3, n3))  # L^-1 V, column by column
     Sc = np.empty((3, 3))
     xt = np.empty(3)
     q = np.empty(n3)
@@ -368,7 +373,7 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                         finite = False
             factored = finite and _cholesky(K, n3)
             if factored:
-                # y = K^-1 U D^-1 g_rot; Z = K^-1 V
+                # with K = L L^T: y = L^-1 U D^-1 g_rot, Z = L^-1 V
                 for a in range(N):
                     k = joint[b, a]
                     for i in range(3):
@@ -380,32 +385,28 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
                         y[3 * a + i] = s_w[a] * t
                         for c in range(3):
                             Z[c, 3 * a + i] = s_w[a] * Jt[a, i, c]
-                _cho_solve(K, n3, y)
+                _forward(K, n3, y)
                 for c in range(3):
-                    _cho_solve(K, n3, Z[c])
-                # translation: (lam I + V^T Z) x_t = g_t - V^T y
+                    _forward(K, n3, Z[c])
+                # translation: (lam I + Z^T Z) x_t = g_t - Z^T y
                 for c in range(3):
-                    xt[c] = g[J, c]
+                    t = g[J, c]
+                    for i in range(n3):
+                        t -= Z[c, i] * y[i]
+                    xt[c] = t
                     for c2 in range(3):
-                        Sc[c, c2] = lam if c == c2 else 0.0
-                for a in range(N):
-                    for i in range(3):
-                        for c in range(3):
-                            v = s_w[a] * Jt[a, i, c]
-                            xt[c] -= v * y[3 * a + i]
-                            for c2 in range(3):
-                                Sc[c, c2] += v * Z[c2, 3 * a + i]
-                for c in range(3):  # symmetrise (V^T K^-1 V is symmetric up to rounding)
-                    for c2 in range(c):
-                        avg = 0.5 * (Sc[c, c2] + Sc[c2, c])
-                        Sc[c, c2] = avg
-                        Sc[c2, c] = avg
+                        t = lam if c == c2 else 0.0
+                        for i in range(n3):
+                            t += Z[c, i] * Z[c2, i]
+                        Sc[c, c2] = t
                 factored = _cholesky(Sc, 3)
             if factored:
-                _cho_solve(Sc, 3, xt)
-                # rotations: x_rot = D^-1 (g_rot - U^T (y + Z x_t))
+                _forward(Sc, 3, xt)
+                _backward(Sc, 3, xt)
+                # rotations: x_rot = D^-1 (g_rot - U^T L^-T (y + Z x_t))
                 for i in range(n3):
                     q[i] = y[i] + Z[0, i] * xt[0] + Z[1, i] * xt[1] + Z[2, i] * xt[2]
+                _backward(K, n3, q)
                 for j in range(J):
                     for i in range(3):
                         x[j, i] = g[j, i]

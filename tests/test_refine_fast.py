@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from smplik.conventions import PARENTS
 from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
@@ -27,20 +28,20 @@ CONFIGS = (DEFAULT_REFINEMENT, RefineConfig(iterations=6, sigma_prior=2.0, dampi
            RefineConfig(sigma_prior=1.5, joint_prior=tuple(np.random.default_rng(0).uniform(0.1, 10.0, 24).tolist())))
 
 
-def random_problem(B: int, N: int, seed: int, dtype: torch.dtype = torch.float64) -> tuple[IKOutput, torch.Tensor,
-                                                                                             EffectorBatch]:
+def random_problem(B: int, N: int, seed: int, dtype: torch.dtype = torch.float64, parents: tuple[int, ...] = PARENTS
+                   ) -> tuple[IKOutput, torch.Tensor, EffectorBatch]:
     """B random start poses on random skeletons and N effectors per pose of all three types, from a different
     random pose: random tolerances (half of them 0), padded rows, and targets moved out of reach in half of
     the poses (so that Levenberg-Marquardt rejects steps)."""
     g = torch.Generator().manual_seed(seed)
-    J = 24
+    J = len(parents)
     J_rest = torch.randn(B, J, 3, generator=g, dtype=torch.float64) * 0.3
     R_true = axis_angle_to_matrix(torch.randn(B, J, 3, generator=g, dtype=torch.float64) * 0.3)
     R_world_true, p_world_true = forward_kinematics(R_true, J_rest, torch.randn(B, 3, generator=g,
-                                                                                dtype=torch.float64))
+                                                                                dtype=torch.float64), parents)
     R_start = axis_angle_to_matrix(torch.randn(B, J, 3, generator=g, dtype=torch.float64) * 0.2) @ R_true
     transl = torch.randn(B, 3, generator=g, dtype=torch.float64)
-    R_world, p_world = forward_kinematics(R_start, J_rest, transl)
+    R_world, p_world = forward_kinematics(R_start, J_rest, transl, parents)
     joint = torch.randint(0, J, (B, N), generator=g)
     kind = torch.randint(0, 3, (B, N), generator=g)
     kind[:, :3] = torch.tensor([0, 1, 2])
@@ -93,6 +94,15 @@ def test_fast_equals_reference_where_steps_are_rejected():
             out, J_rest, eff, c))
 
 
+def test_another_skeleton():
+    """The kernel takes any tree (its ancestor chains are built per parent tuple)."""
+    parents = (-1, 0, 1, 2, 0, 4, 1, 6, 7, 7)
+    out, J_rest, eff = random_problem(12, 6, seed=8, parents=parents)
+    cfg = CONFIGS[1]
+    assert_same_refinement(refine_output(out, J_rest, eff, cfg, parents, backend="fast"),
+                           refine_output_reference(out, J_rest, eff, cfg, parents))
+
+
 def test_float32_network_output_keeps_its_dtype_and_matches():
     out, J_rest, eff = random_problem(16, 8, seed=2, dtype=torch.float32)
     fast = refine_output(out, J_rest, eff, backend="fast")
@@ -117,8 +127,6 @@ def test_threaded_chunks_equal_one_chunk_bit_for_bit():
     out, J_rest, eff = random_problem(4 * refine_fast.CHUNK_MIN + 7, 8, seed=11)
     arrays = [np.ascontiguousarray(t.numpy()) for t in (out.R_local, out.R_world, out.p_world, out.transl, J_rest,
                                                         eff.joint, eff.type, eff.data, eff.tolerance, eff.mask)]
-    from smplik.conventions import PARENTS
-
     one = refine_fast.refine_arrays(*arrays, PARENTS, DEFAULT_REFINEMENT, threads=1)
     four = refine_fast.refine_arrays(*arrays, PARENTS, DEFAULT_REFINEMENT, threads=4)
     for a, b in zip(one, four, strict=True):
