@@ -167,3 +167,16 @@ def test_shipped_solver_meets_effectors_the_network_misses():
         model_out = network.model(pack_effectors(effectors), torch.as_tensor(kwargs["betas"]).float()[None],
                                   torch.tensor([2]))
     torch.testing.assert_close(torch.as_tensor(raw.joints).float(), model_out.p_world[0], atol=1e-5, rtol=0)
+
+
+def test_without_numba_auto_runs_the_reference(scene, monkeypatch):
+    """No numba installed: "auto" falls back to the torch reference; "fast" names the missing package."""
+    import smplik.refine as refine
+
+    _, start, J_rest, eff = scene
+    monkeypatch.setattr(refine, "numba_available", lambda: False)
+    assert refine.resolve_backend(start, J_rest) == "reference"
+    torch.testing.assert_close(refine_output(start, J_rest, eff).R_local,
+                               refine.refine_output_reference(start, J_rest, eff).R_local, atol=0, rtol=0)
+    with pytest.raises(ValueError, match=r"numba is not installed \(pip install 'smplik\[fast\]'\)"):
+        refine_output(start, J_rest, eff, backend="fast")
