@@ -7,7 +7,8 @@ local rotations are all identity (SMPL's convention). The root rotates about its
 and ``transl`` is added afterwards (smplx's convention).
 
 Joints are processed one tree-depth level at a time (8 levels for SMPL instead of 23 joint
-steps), which keeps small batches fast.
+steps), which keeps small batches fast. :func:`compose_to_root` composes the same chains by
+pointer jumping (4 rounds for SMPL's 9 levels, two operations each): the form the ONNX graph uses.
 """
 
 from __future__ import annotations
@@ -104,6 +105,69 @@ def forward_kinematics(
     if transl is not None:
         p_world_joint = p_world_joint + transl[..., None, :]
     return R_world_joint, p_world_joint
+
+
+@lru_cache(maxsize=16)
+def _jumps(parents: tuple[int, ...]) -> tuple[Tensor, ...]:
+    """Pointer-jumping rounds of a parent list: per round, each joint's ancestor ``2^round`` levels up,
+    ``J`` (a sentinel standing for the identity) where there is none; indices over ``J + 1`` entries.
+
+    Built outside inference mode (see :func:`_levels`).
+    """
+    with torch.inference_mode(False):
+        J = len(parents)
+        up = [p if p >= 0 else J for p in parents] + [J]
+        rounds = []
+        while any(a != J for a in up[:J]):
+            rounds.append(torch.tensor(up))
+            up = [up[a] for a in up]
+        return tuple(rounds)
+
+
+@lru_cache(maxsize=16)
+def _homogeneous(J: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """(4, 4, J + 1, 1): 1 at [3, 3] of every joint, the identity for the sentinel J (outside inference mode)."""
+    with torch.inference_mode(False):
+        out = torch.zeros(4, 4, J + 1, 1, dtype=dtype, device=device)
+        out[3, 3] = 1.0
+        out[:, :, J, 0] = torch.eye(4, dtype=dtype, device=device)
+        return out
+
+
+def compose_to_root(A_parent_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:
+    """World transforms from local ones by pointer jumping: ``log2(depth + 1)`` rounds of one gather and
+    one batched matmul over all joints (4 rounds for SMPL), instead of one step per tree level.
+
+    Transforms are affine maps in row-vector form: ``A (..., J, 4, 3)`` holds ``R^T`` in rows 0-2 and the
+    translation ``t`` in row 3, so that ``[x^T, 1] @ A = (R x + t)^T``. For FK, ``A_parent_joint[j]`` is
+    ``(R_parent_joint[j]^T, J_rest[j] - J_rest[parent(j)])`` and, for the root, ``(R_world_root^T,
+    J_rest[0] + transl)``; the result's row 3 is then ``p_world_joint`` and rows 0-2 ``R_world_joint^T``
+    (:func:`forward_kinematics`' outputs, up to float rounding of the different product order).
+
+    Args:
+        A_parent_joint: (..., J, 4, 3) local transforms (joint 0: the root's world transform).
+        parents: parent index per joint, parents before children.
+
+    Returns:
+        ``A_world_joint`` (..., J, 4, 3).
+    """
+    J = len(parents)
+    if A_parent_joint.shape[-3:] != (J, 4, 3):
+        raise ValueError(f"Invalid local transforms shape {tuple(A_parent_joint.shape)}; expected (..., {J}, 4, 3).")
+    batch = A_parent_joint.shape[:-3]
+    # Batch last, (4, 3, J, B): every product below is then an elementwise operation over long contiguous rows
+    # (onnxruntime would run a matmul of B x J 4x4 matrices as that many small GEMMs, and broadcasts over short
+    # inner dimensions slowly). Homogeneous (4, 4, J + 1, B): a zero last column and an all-zero sentinel
+    # entry J, then the constant part (1 at [3, 3]; the sentinel the identity) added in one operation.
+    flat = A_parent_joint.dim() != 4  # one batch axis: no reshapes (nodes of dynamic shape in the ONNX graph)
+    T = (A_parent_joint.reshape(-1, J, 4, 3) if flat else A_parent_joint).permute(2, 3, 1, 0)
+    T = torch.nn.functional.pad(T, (0, 0, 0, 1, 0, 1))
+    T = T + _homogeneous(J, T.dtype, T.device)
+    for up in _jumps(tuple(parents)):
+        # row form: A_world = A_local @ A_world_parent, i.e. T[i, k] = sum_m T[i, m] T_parent[m, k]
+        T = (T[:, :, None] * T[:, :, up.to(T.device)]).sum(1)  # (4, 4, 1, ...) * (4, 4, ...): [i, m, k]
+    A_world_joint = T[:, :3, :J].permute(3, 2, 0, 1)
+    return A_world_joint.reshape(*batch, J, 4, 3) if flat else A_world_joint
 
 
 def global_to_local(R_world_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:

@@ -1,9 +1,10 @@
-"""Skeleton FK: against a naive per-joint recursion, and inverse relations."""
+"""Skeleton FK: against a naive per-joint recursion, and inverse relations; pointer-jumping composition."""
 
+import pytest
 import torch
 
 from smplik.conventions import LEFT_RIGHT, PARENTS, tree_depth
-from smplik.kinematics import forward_kinematics, global_to_local, local_to_global
+from smplik.kinematics import _jumps, compose_to_root, forward_kinematics, global_to_local, local_to_global
 from smplik.rotations import axis_angle_to_matrix
 
 
@@ -52,3 +53,39 @@ def test_fk_gradients_flow():
 def test_tree_facts():
     assert max(tree_depth()) == 8
     assert all(LEFT_RIGHT[LEFT_RIGHT[j]] == j for j in range(24))
+
+
+def _row_transforms(R_local, J_rest, transl, parents):
+    """compose_to_root's input: rows R^T and the bone offset (the root: J_rest[0] + transl)."""
+    parent = torch.tensor([max(p, 0) for p in parents])
+    offsets = J_rest - J_rest[..., parent, :]
+    offsets[..., 0, :] = J_rest[..., 0, :] + transl
+    return torch.cat([R_local.transpose(-1, -2), offsets[..., None, :]], -2)
+
+
+@pytest.mark.parametrize("batch", [(), (5,), (3, 2)])
+def test_pointer_jumping_composition_is_fk(batch):
+    g = torch.Generator().manual_seed(len(batch))
+    R_local = axis_angle_to_matrix(torch.randn(*batch, 24, 3, generator=g, dtype=torch.float64))
+    J_rest = torch.randn(*batch, 24, 3, generator=g, dtype=torch.float64)
+    transl = torch.randn(*batch, 3, generator=g, dtype=torch.float64)
+    A_world = compose_to_root(_row_transforms(R_local, J_rest, transl, PARENTS))
+    R_ref, p_ref = naive_fk(R_local, J_rest, transl)
+    assert A_world.shape == (*batch, 24, 4, 3)
+    torch.testing.assert_close(A_world[..., :3, :].transpose(-1, -2), R_ref)
+    torch.testing.assert_close(A_world[..., 3, :], p_ref)
+
+
+def test_pointer_jumping_rounds_follow_depth():
+    assert len(_jumps(PARENTS)) == 4  # SMPL: 9 levels, 2^4 >= 9
+    chain = tuple(range(-1, 19))  # 20 joints in a line: 20 levels, 5 rounds
+    assert len(_jumps(chain)) == 5
+    g = torch.Generator().manual_seed(1)
+    R_local = axis_angle_to_matrix(torch.randn(2, 20, 3, generator=g, dtype=torch.float64))
+    J_rest = torch.randn(2, 20, 3, generator=g, dtype=torch.float64)
+    A_world = compose_to_root(_row_transforms(R_local, J_rest, torch.zeros(2, 3, dtype=torch.float64), chain), chain)
+    R_ref, p_ref = forward_kinematics(R_local, J_rest, None, chain)
+    torch.testing.assert_close(A_world[..., :3, :].transpose(-1, -2), R_ref)
+    torch.testing.assert_close(A_world[..., 3, :], p_ref)
+    with pytest.raises(ValueError, match=r"Invalid local transforms shape \(24, 3, 3\)"):
+        compose_to_root(R_local[0, :24].new_zeros(24, 3, 3))

@@ -1,12 +1,15 @@
 """ONNX export of the network + FK (smplik.onnx_runtime) and the solver's onnxruntime backend.
 
-The round trip runs the shipped model (smplik/checkpoints/smplik_cmu.pt) exported by the CLI
-(``smplik export-model --onnx``) and compares every output with the torch network at several batch
-sizes and effector counts, which only works if both axes of the graph are really dynamic.
+The exported graph is :class:`smplik.network_folded.FoldedProtoResIK`, tested here to be the network's
+function (float64: to rounding; float32: within 1e-5). The round trip runs the shipped model
+(smplik/checkpoints/smplik_cmu.pt) exported by the CLI (``smplik export-model --onnx``) and compares every
+output with the torch network at several batch sizes and effector counts, which only works if both axes
+of the graph are really dynamic.
 """
 
 from __future__ import annotations
 
+import copy
 import shutil
 import sys
 from importlib import resources
@@ -19,6 +22,7 @@ from typer.testing import CliRunner
 
 from smplik.effectors import Effector, EffectorBatch
 from smplik.network import NetworkConfig, ProtoResIK
+from smplik.network_folded import FoldedProtoResIK
 from smplik.onnx_runtime import (
     INPUT_NAMES,
     ONNX_OPSET,
@@ -72,6 +76,53 @@ def random_effectors(bodies, B: int, N: int, seed: int) -> tuple[EffectorBatch, 
     tolerance = torch.rand(B, N, generator=g) * 0.5 * (torch.rand(B, N, generator=g) < 0.3)
     eff = EffectorBatch(joint, kind, data * mask[..., None], tolerance * mask, mask)
     return eff, betas, gender
+
+
+def _as(eff: EffectorBatch, dtype: torch.dtype) -> EffectorBatch:
+    return EffectorBatch(eff.joint, eff.type, eff.data.to(dtype), eff.tolerance.to(dtype), eff.mask)
+
+
+@needs_shipped
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_folded_network_is_the_network(torch_solver_plain, dtype):
+    """Every fold is exact algebra: equal to rounding in float64, within 1e-5 in float32; all three genders
+    (random_effectors draws them), padded rows, one to twelve effectors."""
+    model = copy.deepcopy(torch_solver_plain.model).to(dtype)
+    folded = FoldedProtoResIK(model)
+    tol = 1e-10 if dtype == torch.float64 else 1e-5
+    genders = set()
+    for B, N in [(1, 1), (3, 8), (64, 12)]:
+        eff, betas, gender = random_effectors(torch_solver_plain.bodies, B, N, seed=7 * B + N)
+        genders |= set(gender.tolist())
+        eff = _as(eff, dtype)
+        with torch.inference_mode():
+            ref = model(eff, betas.to(dtype), gender)
+            out = folded(eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas.to(dtype), gender)
+        for name, got in zip(OUTPUT_NAMES, out, strict=True):
+            want = getattr(ref, name)
+            assert got.shape == want.shape and got.dtype == dtype, name
+            assert float((got - want).abs().max()) < tol, f"{name} (B={B}, N={N}): {float((got - want).abs().max())}"
+    assert genders == {0, 1, 2}
+
+
+def test_folded_slots_model_is_the_network(bodies):
+    """The effector-slots extension and other block counts fold too (float64, to rounding)."""
+    torch.manual_seed(0)
+    model = ProtoResIK(NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=4, layers_per_block=3,
+                                     effector_slots=True), bodies.J_template, bodies.J_dirs).double().eval()
+    folded = FoldedProtoResIK(model)
+    eff, betas, gender = random_effectors(bodies, 9, 7, seed=1)
+    eff = _as(eff, torch.float64)
+    with torch.inference_mode():
+        ref = model(eff, betas.double(), gender)
+        out = folded(eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas.double(), gender)
+    for name, got in zip(OUTPUT_NAMES, out, strict=True):
+        torch.testing.assert_close(got, getattr(ref, name), rtol=0, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def torch_solver_plain():
+    return IKSolver.load(SHIPPED)
 
 
 @pytest.fixture(scope="module")
