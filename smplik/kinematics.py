@@ -8,7 +8,7 @@ and ``transl`` is added afterwards (smplx's convention).
 
 Joints are processed one tree-depth level at a time (8 levels for SMPL instead of 23 joint
 steps), which keeps small batches fast. :func:`compose_to_root` composes the same chains by
-pointer jumping (4 rounds for SMPL's 9 levels, two operations each): the form the ONNX graph uses.
+pointer jumping (4 rounds for SMPL's 9 levels), batch last: the form the ONNX graph uses.
 """
 
 from __future__ import annotations
@@ -134,40 +134,36 @@ def _homogeneous(J: int, dtype: torch.dtype, device: torch.device) -> Tensor:
         return out
 
 
-def compose_to_root(A_parent_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:
-    """World transforms from local ones by pointer jumping: ``log2(depth + 1)`` rounds of one gather and
-    one batched matmul over all joints (4 rounds for SMPL), instead of one step per tree level.
+def compose_to_root(T_parent_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:
+    """World transforms from local ones by pointer jumping: ``log2(depth + 1)`` rounds over all joints at once
+    (4 rounds for SMPL), instead of one step per tree level.
 
-    Transforms are affine maps in row-vector form: ``A (..., J, 4, 3)`` holds ``R^T`` in rows 0-2 and the
-    translation ``t`` in row 3, so that ``[x^T, 1] @ A = (R x + t)^T``. For FK, ``A_parent_joint[j]`` is
-    ``(R_parent_joint[j]^T, J_rest[j] - J_rest[parent(j)])`` and, for the root, ``(R_world_root^T,
-    J_rest[0] + transl)``; the result's row 3 is then ``p_world_joint`` and rows 0-2 ``R_world_joint^T``
-    (:func:`forward_kinematics`' outputs, up to float rounding of the different product order).
+    Layout: **batch last**, ``(3, 4, J, B)``: ``T[:, :, j, b] = [R | t]``, the affine map ``x -> R x + t`` of
+    joint j in batch row b. This is the ONNX graph's layout: every product is then an elementwise operation
+    over contiguous rows of J B values (onnxruntime would run a matmul of B x J 4x4 matrices as that many small
+    GEMMs, and broadcasts over short inner axes slowly). For FK, ``T_parent_joint[..., j, :] = [R_parent_joint[j]
+    | J_rest[j] - J_rest[parent(j)]]`` and, for the root, ``[R_world_root | J_rest[0] + transl]``; the result is
+    ``[R_world_joint | p_world_joint]`` (:func:`forward_kinematics`' outputs, up to float rounding of the
+    different product order).
 
     Args:
-        A_parent_joint: (..., J, 4, 3) local transforms (joint 0: the root's world transform).
+        T_parent_joint: (3, 4, J, B) local transforms (joint 0: the root's world transform).
         parents: parent index per joint, parents before children.
 
     Returns:
-        ``A_world_joint`` (..., J, 4, 3).
+        ``T_world_joint`` (3, 4, J, B).
     """
     J = len(parents)
-    if A_parent_joint.shape[-3:] != (J, 4, 3):
-        raise ValueError(f"Invalid local transforms shape {tuple(A_parent_joint.shape)}; expected (..., {J}, 4, 3).")
-    batch = A_parent_joint.shape[:-3]
-    # Batch last, (4, 3, J, B): every product below is then an elementwise operation over long contiguous rows
-    # (onnxruntime would run a matmul of B x J 4x4 matrices as that many small GEMMs, and broadcasts over short
-    # inner dimensions slowly). Homogeneous (4, 4, J + 1, B): a zero last column and an all-zero sentinel
-    # entry J, then the constant part (1 at [3, 3]; the sentinel the identity) added in one operation.
-    flat = A_parent_joint.dim() != 4  # one batch axis: no reshapes (nodes of dynamic shape in the ONNX graph)
-    T = (A_parent_joint.reshape(-1, J, 4, 3) if flat else A_parent_joint).permute(2, 3, 1, 0)
-    T = torch.nn.functional.pad(T, (0, 0, 0, 1, 0, 1))
-    T = T + _homogeneous(J, T.dtype, T.device)
+    if T_parent_joint.dim() != 4 or T_parent_joint.shape[:3] != (3, 4, J):
+        raise ValueError(f"Invalid local transforms shape {tuple(T_parent_joint.shape)}; expected (3, 4, {J}, B).")
+    # Homogeneous (4, 4, J + 1, B): a zero last row and an all-zero sentinel entry J, then the constant part
+    # (1 at [3, 3]; the sentinel the identity) added in one operation.
+    T = torch.nn.functional.pad(T_parent_joint, (0, 0, 0, 1, 0, 0, 0, 1)) + _homogeneous(J, T_parent_joint.dtype,
+                                                                                       T_parent_joint.device)
     for up in _jumps(tuple(parents)):
-        # row form: A_world = A_local @ A_world_parent, i.e. T[i, k] = sum_m T[i, m] T_parent[m, k]
-        T = (T[:, :, None] * T[:, :, up.to(T.device)]).sum(1)  # (4, 4, 1, ...) * (4, 4, ...): [i, m, k]
-    A_world_joint = T[:, :3, :J].permute(3, 2, 0, 1)
-    return A_world_joint.reshape(*batch, J, 4, 3) if flat else A_world_joint
+        # T_world = T_world_parent @ T_local: T[r, c] = sum_m T_up[r, m] T[m, c]; (4, 4, 1, ...) * (4, 4, ...)
+        T = (T[:, :, up.to(T.device)][:, :, None] * T).sum(1)
+    return T[:3, :, :J]
 
 
 def global_to_local(R_world_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:

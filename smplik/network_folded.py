@@ -13,9 +13,11 @@ This is the graph :mod:`smplik.onnx_runtime` exports (one-pose latency there is 
   runs once per pose instead of once per token.
 * The decoders' outputs accumulate in the ``C`` input of their output ``Gemm``; the IKD reads the draft
   directly (the root-relative shift folded into its weights) and the 6D identity offset is a bias.
-* J(beta, gender) and the bone offsets are one gathered linear map of beta; the 6D -> matrix Gram-Schmidt
-  writes the local transforms in :func:`~smplik.kinematics.compose_to_root`'s row form, whose FK takes four
-  pointer-jumping rounds instead of eight tree levels.
+* J(beta, gender) and the bone offsets are one ``Gemm`` of beta for the three genders, the row's gender
+  picked by a one-hot product. From the 6D outputs on, tensors are batch last, ``(C, J, B)``, so every
+  elementwise operation runs over long contiguous rows (onnxruntime broadcasts over short inner axes slowly):
+  the Gram-Schmidt writes the local transforms in :func:`~smplik.kinematics.compose_to_root`'s layout,
+  whose FK takes four pointer-jumping rounds instead of eight tree levels.
 """
 
 from __future__ import annotations
@@ -100,10 +102,15 @@ class FoldedProtoResIK(nn.Module):
             not_root = (torch.arange(J) > 0).to(J_template.dtype)
             off_t = (J_template - J_template[:, parent]) * not_root[:, None]
             off_d = (J_dirs - J_dirs[:, parent]) * not_root[:, None, None]
-            self.register_buffer("rest_template", torch.cat([off_t.reshape(3, -1), J_template[:, 0]], -1))
-            self.register_buffer("rest_dirs", torch.cat([off_d.reshape(3, -1, NUM_BETAS),
-                                                         J_dirs[:, 0]], 1).transpose(1, 2).contiguous())
-            self.register_buffer("root_row", torch.eye(3, 3 * J, **f))  # pelvis -> row 0 of the translations
+            # all three genders in one Gemm, (10, 3 * 75) and (3 * 75,); offsets component-major (c J + j)
+            rest_t = torch.cat([off_t.transpose(1, 2).reshape(3, -1), J_template[:, 0]], -1)  # (3, 75)
+            rest_d = torch.cat([off_d.permute(0, 2, 1, 3).reshape(3, -1, NUM_BETAS), J_dirs[:, 0]], 1)  # (3, 75, 10)
+            self.register_buffer("rest_template", rest_t.reshape(-1))
+            self.register_buffer("rest_dirs", rest_d.permute(2, 0, 1).reshape(NUM_BETAS, -1).contiguous())
+            self.register_buffer("gender_onehot", torch.eye(3, **f)[:, :, None])  # (3, 3, 1): selects a gender
+            root_row = torch.zeros(3, 3, J, **f)
+            root_row[:, :, 0] = torch.eye(3, **f)
+            self.register_buffer("root_row", root_row.reshape(3, -1))  # pelvis -> the root's translation
             # (6, 3J): the centroid's xyz (columns 0-2 of the 6-wide centroid) added to every joint
             self.register_buffer("centroid_tile", tile)
             # per effector type: is it a position effector, and which data columns the centroid shifts
@@ -114,13 +121,17 @@ class FoldedProtoResIK(nn.Module):
             # cross product of the columns [b1, b2] (6): (b1.yzx, b1.zxy) * (b2.zxy, b2.yzx), then first - second
             self.register_buffer("cross_left", torch.tensor([1, 2, 0, 2, 0, 1]))
             self.register_buffer("cross_right", torch.tensor([5, 3, 4, 4, 5, 3]))
-            self.register_buffer("cross_sum", torch.cat([torch.eye(3, **f), -torch.eye(3, **f)]))
         self.encoder = nn.ModuleList(_Block(b, r == 0) for r, b in enumerate(model.encoder))
         self.gpd = nn.ModuleList(_Block(b, r == 0) for r, b in enumerate(model.gpd.blocks))
         self.ikd = nn.ModuleList(_Block(b, r == 0) for r, b in enumerate(model.ikd.blocks))
         with torch.no_grad():
             self.register_buffer("gpd_bias", sum(b.forward_out.bias for b in model.gpd.blocks))
-            self.register_buffer("ikd_bias", sum(b.forward_out.bias for b in model.ikd.blocks) + model.identity_6d)
+            # the IKD's outputs component-major (k J + j, not 6 j + k), so that they go batch last as (6, J, B)
+            order = torch.arange(6 * J).reshape(J, 6).T.reshape(-1)
+            for block in self.ikd:
+                block.forward_out.weight.copy_(block.forward_out.weight[order])
+            self.register_buffer("ikd_bias", (sum(b.forward_out.bias for b in model.ikd.blocks)
+                                              + model.identity_6d)[order])
         self.requires_grad_(False)
         self.eval()
 
@@ -192,20 +203,23 @@ class FoldedProtoResIK(nn.Module):
         draft = torch.addmm(draft, centroid, self.centroid_tile)
         pelvis = draft[:, :3]
         # Rest skeleton: bone offsets and J_rest[0] of (beta, gender).
-        rest = (torch.einsum("bn,bnk->bk", betas, self.rest_dirs[gender]) + self.rest_template[gender])
+        rest = torch.addmm(self.rest_template, betas, self.rest_dirs).reshape(-1, 3, 3 * J + 3)
+        rest = (rest * self.gender_onehot[gender]).sum(1)  # the row's gender: exact (one 1, two 0)
         offsets, J0 = rest.split([3 * J, 3], -1)
-        t = torch.addmm(offsets, pelvis, self.root_row).reshape(-1, J, 3)  # the root's: J0 + transl = pelvis
-        # 6D -> rotation columns (Gram-Schmidt, ProtoRes eq. 14), as rows of the local transforms.
-        a1, a2 = rot6d.reshape(-1, J, 6).split(3, -1)
-        b1 = a1 / a1.norm(dim=-1, keepdim=True).clamp_min(_EPS)
-        a2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
-        b2 = a2 / a2.norm(dim=-1, keepdim=True).clamp_min(_EPS)
-        b12 = torch.cat([b1, b2], -1)
-        # b3 = b1 x b2 = b1.yzx * b2.zxy - b1.zxy * b2.yzx: two gathers, one product, one signed sum
-        b3 = (b12[..., self.cross_left] * b12[..., self.cross_right]) @ self.cross_sum
-        A_local = torch.cat([b12, b3, t], -1).reshape(-1, J, 4, 3)
-        A_world = compose_to_root(A_local)
-        R_local = A_local[:, :, :3].transpose(-1, -2)
-        R_world = A_world[:, :, :3].transpose(-1, -2)
-        p_world = A_world[:, :, 3]
+        t = torch.addmm(offsets, pelvis, self.root_row)  # (B, 3J); the root's: J0 + transl = pelvis
+        # Batch last from here, (C, J, B): each operation runs over contiguous rows of J B values, and each
+        # output goes batch-first with one block transpose and one 2-D transpose.
+        # 6D -> rotation columns b1, b2, b3 (Gram-Schmidt, ProtoRes eq. 14), each (3, J, B).
+        a1, a2 = rot6d.T.reshape(6, J, -1).split(3, 0)
+        b1 = a1 / a1.norm(dim=0, keepdim=True).clamp_min(_EPS)
+        a2 = a2 - (b1 * a2).sum(0, keepdim=True) * b1
+        b2 = a2 / a2.norm(dim=0, keepdim=True).clamp_min(_EPS)
+        b12 = torch.cat([b1, b2], 0)
+        # b3 = b1 x b2 = b1.yzx * b2.zxy - b1.zxy * b2.yzx: two gathers, one product, one difference
+        left, right = (b12[self.cross_left] * b12[self.cross_right]).split(3, 0)
+        R_local = torch.stack([b1, b2, left - right], 1)  # (3, 3, J, B)
+        T_world = compose_to_root(torch.cat([R_local, t.T.reshape(3, 1, J, -1)], 1))  # (3, 4, J, B)
+        R_world, p_world = T_world.split([3, 1], 1)
+        R_local, R_world = (R.permute(2, 0, 1, 3).reshape(9 * J, -1).T.reshape(-1, J, 3, 3) for R in (R_local, R_world))
+        p_world = p_world.reshape(3, J, -1).transpose(0, 1).reshape(3 * J, -1).T.reshape(-1, J, 3)
         return R_local, R_world, p_world, draft.reshape(-1, J, 3), pelvis - J0
