@@ -48,6 +48,7 @@ import hashlib
 import importlib.util
 import json
 import tempfile
+import threading
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -184,7 +185,7 @@ class OnnxNetwork:
             self.session = ort.InferenceSession(self._model, options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf/... types
             raise OnnxModelError(f"{self.source}: not a readable ONNX model ({type(exc).__name__}).") from None
-        self._run = self.session.run
+        self._local = threading.local()  # per thread: the input buffers bound to the session
         self.meta: dict[str, str] = dict(self.session.get_modelmeta().custom_metadata_map)
         names = tuple(i.name for i in self.session.get_inputs())
         if self.meta.get("format") != ONNX_FORMAT or names != INPUT_NAMES:
@@ -202,13 +203,29 @@ class OnnxNetwork:
             OnnxNetwork(self.source, threads=threads)
 
     def __call__(self, eff: EffectorBatch, betas: Tensor, gender: Tensor) -> IKOutput:
-        """eff: B rows of N effectors; betas (B, 10); gender (B,) long -> :class:`IKOutput` (float32, CPU)."""
-        feed = {}
-        for name, t, dtype in zip(INPUT_NAMES, (eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas, gender),
-                                  _INPUT_DTYPES, strict=True):
-            a = (t if t.device.type == "cpu" else t.cpu()).detach().numpy()  # a view, no copy
-            feed[name] = a if a.dtype == dtype and a.flags.c_contiguous else np.ascontiguousarray(a, dtype=dtype)
-        return IKOutput(*map(torch.from_numpy, self._run(OUTPUT_NAMES, feed)))
+        """eff: B rows of N effectors; betas (B, 10); gender (B,) long -> :class:`IKOutput` (float32, CPU).
+
+        The inputs are copied (cast where needed) into numpy buffers bound to the session once per thread and
+        input shape (``io_binding``): for one pose that costs a fraction of what ``session.run`` spends turning
+        seven fresh arrays into onnxruntime values. Each call returns new output tensors (copies).
+        """
+        tensors = (eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas, gender)
+        shapes = tuple(t.shape for t in tensors)
+        bound = getattr(self._local, "bound", None)
+        if bound is None or bound[0] != shapes:
+            buffers = [np.empty(tuple(shape), dtype) for shape, dtype in zip(shapes, _INPUT_DTYPES, strict=True)]
+            binding = self.session.io_binding()
+            for name, buffer in zip(INPUT_NAMES, buffers, strict=True):
+                binding.bind_cpu_input(name, buffer)
+            for name in OUTPUT_NAMES:
+                binding.bind_output(name, "cpu")
+            self._local.bound = bound = (shapes, buffers, binding)
+        _, buffers, binding = bound
+        for buffer, t in zip(buffers, tensors, strict=True):
+            t = t if t.is_cpu else t.cpu()
+            np.copyto(buffer, (t.detach() if t.requires_grad else t).numpy(), casting="unsafe")
+        self.session.run_with_iobinding(binding)
+        return IKOutput(*map(torch.from_numpy, binding.copy_outputs_to_cpu()))  # copies: the buffers are reused
 
 
 def select_network(runtime: str, model: ProtoResIK, model_path: str | Path, onnx_file: str | Path | None = None, *,

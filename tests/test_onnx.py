@@ -268,3 +268,39 @@ def test_cli_export_errors_are_one_line(tmp_path):
     result = CliRunner().invoke(app, ["export-model", str(SHIPPED)])
     assert result.exit_code == 2 and "give --out FILE.pt and/or --onnx FILE.onnx" in result.output
     assert not (tmp_path / "m.onnx").exists()
+
+
+@needs_ort
+def test_calls_return_their_own_outputs_across_shapes_dtypes_and_threads(onnx_net, torch_solver):
+    """The session's bound input buffers are reused per thread and shape: an earlier call's outputs must not
+    change, other dtypes are cast, and threads do not share buffers."""
+    import threading
+
+    first = random_effectors(torch_solver.bodies, 1, 8, seed=11)
+    with torch.inference_mode():
+        ref = torch_solver.model(*first)
+        out = onnx_net(*first)
+        kept = {name: getattr(out, name).clone() for name in OUTPUT_NAMES}
+        onnx_net(*random_effectors(torch_solver.bodies, 1, 8, seed=12))  # same shapes: same buffers
+        onnx_net(*random_effectors(torch_solver.bodies, 4, 3, seed=13))  # other shapes: rebound
+        eff, betas, gender = first
+        cast = onnx_net(EffectorBatch(eff.joint.int(), eff.type, eff.data.double(), eff.tolerance.double(), eff.mask),
+                        betas.double(), gender.int())
+    for name in OUTPUT_NAMES:
+        assert torch.equal(getattr(out, name), kept[name]), name
+        assert torch.allclose(getattr(out, name), getattr(ref, name), atol=1e-4, rtol=0), name
+        assert torch.allclose(getattr(cast, name), kept[name], atol=1e-6, rtol=0), name
+    agree: dict[int, bool] = {}
+
+    def work(i: int) -> None:
+        inputs = random_effectors(torch_solver.bodies, 3, 5, seed=20 + i)
+        with torch.inference_mode():
+            want = torch_solver.model(*inputs).p_world
+            agree[i] = all(torch.allclose(onnx_net(*inputs).p_world, want, atol=1e-4) for _ in range(30))
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert agree == {0: True, 1: True, 2: True, 3: True}
