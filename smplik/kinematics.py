@@ -7,7 +7,8 @@ local rotations are all identity (SMPL's convention). The root rotates about its
 and ``transl`` is added afterwards (smplx's convention).
 
 Joints are processed one tree-depth level at a time (8 levels for SMPL instead of 23 joint
-steps), which keeps small batches fast.
+steps), which keeps small batches fast. :func:`compose_to_root` composes the same chains by
+pointer jumping (4 rounds for SMPL's 9 levels), batch last: the form the ONNX graph uses.
 """
 
 from __future__ import annotations
@@ -104,6 +105,65 @@ def forward_kinematics(
     if transl is not None:
         p_world_joint = p_world_joint + transl[..., None, :]
     return R_world_joint, p_world_joint
+
+
+@lru_cache(maxsize=16)
+def _jumps(parents: tuple[int, ...]) -> tuple[Tensor, ...]:
+    """Pointer-jumping rounds of a parent list: per round, each joint's ancestor ``2^round`` levels up,
+    ``J`` (a sentinel standing for the identity) where there is none; indices over ``J + 1`` entries.
+
+    Built outside inference mode (see :func:`_levels`).
+    """
+    with torch.inference_mode(False):
+        J = len(parents)
+        up = [p if p >= 0 else J for p in parents] + [J]
+        rounds = []
+        while any(a != J for a in up[:J]):
+            rounds.append(torch.tensor(up))
+            up = [up[a] for a in up]
+        return tuple(rounds)
+
+
+@lru_cache(maxsize=16)
+def _homogeneous(J: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """(4, 4, J + 1, 1): 1 at [3, 3] of every joint, the identity for the sentinel J (outside inference mode)."""
+    with torch.inference_mode(False):
+        out = torch.zeros(4, 4, J + 1, 1, dtype=dtype, device=device)
+        out[3, 3] = 1.0
+        out[:, :, J, 0] = torch.eye(4, dtype=dtype, device=device)
+        return out
+
+
+def compose_to_root(T_parent_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:
+    """World transforms from local ones by pointer jumping: ``log2(depth + 1)`` rounds over all joints at once
+    (4 rounds for SMPL), instead of one step per tree level.
+
+    Layout: **batch last**, ``(3, 4, J, B)``: ``T[:, :, j, b] = [R | t]``, the affine map ``x -> R x + t`` of
+    joint j in batch row b. This is the ONNX graph's layout: every product is then an elementwise operation
+    over contiguous rows of J B values (onnxruntime would run a matmul of B x J 4x4 matrices as that many small
+    GEMMs, and broadcasts over short inner axes slowly). For FK, ``T_parent_joint[..., j, :] = [R_parent_joint[j]
+    | J_rest[j] - J_rest[parent(j)]]`` and, for the root, ``[R_world_root | J_rest[0] + transl]``; the result is
+    ``[R_world_joint | p_world_joint]`` (:func:`forward_kinematics`' outputs, up to float rounding of the
+    different product order).
+
+    Args:
+        T_parent_joint: (3, 4, J, B) local transforms (joint 0: the root's world transform).
+        parents: parent index per joint, parents before children.
+
+    Returns:
+        ``T_world_joint`` (3, 4, J, B).
+    """
+    J = len(parents)
+    if T_parent_joint.dim() != 4 or T_parent_joint.shape[:3] != (3, 4, J):
+        raise ValueError(f"Invalid local transforms shape {tuple(T_parent_joint.shape)}; expected (3, 4, {J}, B).")
+    # Homogeneous (4, 4, J + 1, B): a zero last row and an all-zero sentinel entry J, then the constant part
+    # (1 at [3, 3]; the sentinel the identity) added in one operation.
+    T = torch.nn.functional.pad(T_parent_joint, (0, 0, 0, 1, 0, 0, 0, 1)) + _homogeneous(J, T_parent_joint.dtype,
+                                                                                       T_parent_joint.device)
+    for up in _jumps(tuple(parents)):
+        # T_world = T_world_parent @ T_local: T[r, c] = sum_m T_up[r, m] T[m, c]; (4, 4, 1, ...) * (4, 4, ...)
+        T = (T[:, :, up.to(T.device)][:, :, None] * T).sum(1)
+    return T[:3, :, :J]
 
 
 def global_to_local(R_world_joint: Tensor, parents: tuple[int, ...] = PARENTS) -> Tensor:

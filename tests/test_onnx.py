@@ -1,12 +1,15 @@
 """ONNX export of the network + FK (smplik.onnx_runtime) and the solver's onnxruntime backend.
 
-The round trip runs the shipped model (smplik/checkpoints/smplik_cmu.pt) exported by the CLI
-(``smplik export-model --onnx``) and compares every output with the torch network at several batch
-sizes and effector counts, which only works if both axes of the graph are really dynamic.
+The exported graph is :class:`smplik.network_folded.FoldedProtoResIK`, tested here to be the network's
+function (float64: to rounding; float32: within 1e-5). The round trip runs the shipped model
+(smplik/checkpoints/smplik_cmu.pt) exported by the CLI (``smplik export-model --onnx``) and compares every
+output with the torch network at several batch sizes and effector counts, which only works if both axes
+of the graph are really dynamic.
 """
 
 from __future__ import annotations
 
+import copy
 import shutil
 import sys
 from importlib import resources
@@ -19,6 +22,7 @@ from typer.testing import CliRunner
 
 from smplik.effectors import Effector, EffectorBatch
 from smplik.network import NetworkConfig, ProtoResIK
+from smplik.network_folded import FoldedProtoResIK
 from smplik.onnx_runtime import (
     INPUT_NAMES,
     ONNX_OPSET,
@@ -72,6 +76,53 @@ def random_effectors(bodies, B: int, N: int, seed: int) -> tuple[EffectorBatch, 
     tolerance = torch.rand(B, N, generator=g) * 0.5 * (torch.rand(B, N, generator=g) < 0.3)
     eff = EffectorBatch(joint, kind, data * mask[..., None], tolerance * mask, mask)
     return eff, betas, gender
+
+
+def _as(eff: EffectorBatch, dtype: torch.dtype) -> EffectorBatch:
+    return EffectorBatch(eff.joint, eff.type, eff.data.to(dtype), eff.tolerance.to(dtype), eff.mask)
+
+
+@needs_shipped
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_folded_network_is_the_network(torch_solver_plain, dtype):
+    """Every fold is exact algebra: equal to rounding in float64, within 1e-5 in float32; all three genders
+    (random_effectors draws them), padded rows, one to twelve effectors."""
+    model = copy.deepcopy(torch_solver_plain.model).to(dtype)
+    folded = FoldedProtoResIK(model)
+    tol = 1e-10 if dtype == torch.float64 else 1e-5
+    genders = set()
+    for B, N in [(1, 1), (3, 8), (64, 12)]:
+        eff, betas, gender = random_effectors(torch_solver_plain.bodies, B, N, seed=7 * B + N)
+        genders |= set(gender.tolist())
+        eff = _as(eff, dtype)
+        with torch.inference_mode():
+            ref = model(eff, betas.to(dtype), gender)
+            out = folded(eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas.to(dtype), gender)
+        for name, got in zip(OUTPUT_NAMES, out, strict=True):
+            want = getattr(ref, name)
+            assert got.shape == want.shape and got.dtype == dtype, name
+            assert float((got - want).abs().max()) < tol, f"{name} (B={B}, N={N}): {float((got - want).abs().max())}"
+    assert genders == {0, 1, 2}
+
+
+def test_folded_slots_model_is_the_network(bodies):
+    """The effector-slots extension and other block counts fold too (float64, to rounding)."""
+    torch.manual_seed(0)
+    model = ProtoResIK(NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=4, layers_per_block=3,
+                                     effector_slots=True), bodies.J_template, bodies.J_dirs).double().eval()
+    folded = FoldedProtoResIK(model)
+    eff, betas, gender = random_effectors(bodies, 9, 7, seed=1)
+    eff = _as(eff, torch.float64)
+    with torch.inference_mode():
+        ref = model(eff, betas.double(), gender)
+        out = folded(eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas.double(), gender)
+    for name, got in zip(OUTPUT_NAMES, out, strict=True):
+        torch.testing.assert_close(got, getattr(ref, name), rtol=0, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def torch_solver_plain():
+    return IKSolver.load(SHIPPED)
 
 
 @pytest.fixture(scope="module")
@@ -217,3 +268,39 @@ def test_cli_export_errors_are_one_line(tmp_path):
     result = CliRunner().invoke(app, ["export-model", str(SHIPPED)])
     assert result.exit_code == 2 and "give --out FILE.pt and/or --onnx FILE.onnx" in result.output
     assert not (tmp_path / "m.onnx").exists()
+
+
+@needs_ort
+def test_calls_return_their_own_outputs_across_shapes_dtypes_and_threads(onnx_net, torch_solver):
+    """The session's bound input buffers are reused per thread and shape: an earlier call's outputs must not
+    change, other dtypes are cast, and threads do not share buffers."""
+    import threading
+
+    first = random_effectors(torch_solver.bodies, 1, 8, seed=11)
+    with torch.inference_mode():
+        ref = torch_solver.model(*first)
+        out = onnx_net(*first)
+        kept = {name: getattr(out, name).clone() for name in OUTPUT_NAMES}
+        onnx_net(*random_effectors(torch_solver.bodies, 1, 8, seed=12))  # same shapes: same buffers
+        onnx_net(*random_effectors(torch_solver.bodies, 4, 3, seed=13))  # other shapes: rebound
+        eff, betas, gender = first
+        cast = onnx_net(EffectorBatch(eff.joint.int(), eff.type, eff.data.double(), eff.tolerance.double(), eff.mask),
+                        betas.double(), gender.int())
+    for name in OUTPUT_NAMES:
+        assert torch.equal(getattr(out, name), kept[name]), name
+        assert torch.allclose(getattr(out, name), getattr(ref, name), atol=1e-4, rtol=0), name
+        assert torch.allclose(getattr(cast, name), kept[name], atol=1e-6, rtol=0), name
+    agree: dict[int, bool] = {}
+
+    def work(i: int) -> None:
+        inputs = random_effectors(torch_solver.bodies, 3, 5, seed=20 + i)
+        with torch.inference_mode():
+            want = torch_solver.model(*inputs).p_world
+            agree[i] = all(torch.allclose(onnx_net(*inputs).p_world, want, atol=1e-4) for _ in range(30))
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert agree == {0: True, 1: True, 2: True, 3: True}
