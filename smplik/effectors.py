@@ -219,6 +219,15 @@ def pack_effectors(effectors: Sequence[Effector] | Sequence[Sequence[Effector]],
                    dtype: torch.dtype = torch.float32) -> EffectorBatch:
     """The one effector packing: one list (-> batch of 1) or a batch of lists (padded to the longest,
     with a mask), building numpy arrays once (fast for the small inputs of one solve)."""
+    joint, kind, data, tol, mask = pack_effector_arrays(effectors)
+    return EffectorBatch(torch.from_numpy(joint), torch.from_numpy(kind), torch.from_numpy(data).to(dtype),
+                         torch.from_numpy(tol).to(dtype), torch.from_numpy(mask))
+
+
+def pack_effector_arrays(effectors: Sequence[Effector] | Sequence[Sequence[Effector]]
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`pack_effectors` as numpy arrays: joint, type (B, N) int64, data (B, N, 6), tolerance (B, N)
+    float64 and mask (B, N) bool."""
     if len(effectors) == 0:
         raise EffectorError("At least one effector is needed.")
     rows = [effectors] if isinstance(effectors[0], Effector) else effectors
@@ -241,5 +250,4 @@ def pack_effectors(effectors: Sequence[Effector] | Sequence[Sequence[Effector]],
                 data[b, i, :3], data[b, i, 3:] = e.value[:, 0], e.value[:, 1]
             else:
                 data[b, i, :3], data[b, i, 3:] = e.value, e.direction
-    return EffectorBatch(torch.from_numpy(joint), torch.from_numpy(kind), torch.from_numpy(data).to(dtype),
-                         torch.from_numpy(tol).to(dtype), torch.from_numpy(mask))
+    return joint, kind, data, tol, mask

@@ -210,7 +210,13 @@ class OnnxNetwork:
         seven fresh arrays into onnxruntime values. Each call returns new output tensors (copies).
         """
         tensors = (eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas, gender)
-        shapes = tuple(t.shape for t in tensors)
+        arrays = [(t.detach() if t.requires_grad else t).cpu().numpy() for t in tensors]
+        return IKOutput(*map(torch.from_numpy, self.run_arrays(*arrays)))
+
+    def run_arrays(self, *arrays: np.ndarray) -> list[np.ndarray]:
+        """The graph on numpy inputs in :data:`INPUT_NAMES` order (any numeric dtype: cast into the bound
+        buffers) -> the outputs in :data:`OUTPUT_NAMES` order, new float32 arrays."""
+        shapes = tuple(a.shape for a in arrays)
         bound = getattr(self._local, "bound", None)
         if bound is None or bound[0] != shapes:
             buffers = [np.empty(tuple(shape), dtype) for shape, dtype in zip(shapes, _INPUT_DTYPES, strict=True)]
@@ -221,11 +227,10 @@ class OnnxNetwork:
                 binding.bind_output(name, "cpu")
             self._local.bound = bound = (shapes, buffers, binding)
         _, buffers, binding = bound
-        for buffer, t in zip(buffers, tensors, strict=True):
-            t = t if t.is_cpu else t.cpu()
-            np.copyto(buffer, (t.detach() if t.requires_grad else t).numpy(), casting="unsafe")
+        for buffer, a in zip(buffers, arrays, strict=True):
+            np.copyto(buffer, a, casting="unsafe")
         self.session.run_with_iobinding(binding)
-        return IKOutput(*map(torch.from_numpy, binding.copy_outputs_to_cpu()))  # copies: the buffers are reused
+        return binding.copy_outputs_to_cpu()  # copies: the buffers are reused
 
 
 def select_network(runtime: str, model: ProtoResIK, model_path: str | Path, onnx_file: str | Path | None = None, *,

@@ -201,6 +201,12 @@ def refine_backend(backend: RefineBackend) -> Iterator[None]:
         _default_backend = previous
 
 
+def fast_backend_default() -> bool:
+    """Whether :func:`refine_output` calls without a ``backend`` run the fast kernels on CPU inputs (numba is
+    installed and no :func:`refine_backend` block asks for the reference)."""
+    return _default_backend != "reference" and numba_available()
+
+
 def resolve_backend(out: IKOutput, J_rest: Tensor, backend: RefineBackend | None = None) -> str:
     """The backend :func:`refine_output` runs for these inputs: ``"fast"`` or ``"reference"``.
 

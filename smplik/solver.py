@@ -26,6 +26,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -35,14 +36,21 @@ import torch
 from torch import Tensor
 
 from smplik.body_model import BodyModelSet
-from smplik.conventions import EffectorType, Gender
-from smplik.effectors import Effector, EffectorBatch, EffectorError, pack_effectors, parse_effector_dict
+from smplik.conventions import PARENTS, EffectorType, Gender
+from smplik.effectors import (
+    Effector,
+    EffectorBatch,
+    EffectorError,
+    pack_effector_arrays,
+    pack_effectors,
+    parse_effector_dict,
+)
 from smplik.ensemble import NO_ENSEMBLE, EnsembleConfig, run_ensemble
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput, ProtoResIK
 from smplik.onnx_runtime import OnnxNetwork, Runtime, select_network
 from smplik.pose import Pose
-from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, refine_output
+from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, fast_backend_default, refine_output
 from smplik.rotations import axis_angle_to_matrix
 from smplik.validation import check_betas
 
@@ -321,16 +329,47 @@ class IKSolver:
         return self._solve_rows(rows, beta_arr, genders)
 
     def _solve_rows(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
+        if self.network is not None and self.ensemble.size == 1 and (self.refine.iterations == 0
+                                                                     or fast_backend_default()):
+            return self._solve_rows_numpy(rows, betas, genders)
         eff = pack_effectors(rows)
         out = self.solve_tensors(eff, torch.from_numpy(np.ascontiguousarray(betas, np.float32)),
                                  torch.tensor([g.index for g in genders]))
-        aa = matrix_to_axis_angle_np(out.R_local.double().numpy())
-        transl = out.transl.double().numpy()
-        joints = out.p_world.double().numpy()
+        return self._poses(out.R_local.double().numpy(), out.transl.double().numpy(), out.p_world.double().numpy(),
+                           betas, genders)
+
+    @cached_property
+    def _rest_skeleton(self) -> tuple[np.ndarray, np.ndarray]:
+        """The model's rest skeletons per gender as float64 numpy: J_template (3, J, 3), J_dirs (3, J * 3, 10)."""
+        J_dirs = self.model.J_dirs.double().numpy()
+        return self.model.J_template.double().numpy(), J_dirs.reshape(J_dirs.shape[0], -1, J_dirs.shape[-1])
+
+    def _solve_rows_numpy(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
+        """:meth:`_solve_rows` without torch for the onnxruntime network and the fast refinement: the same
+        network graph and refinement kernels as :meth:`solve_tensors` (tested equal), with the refined pose kept
+        in float64, minus half the Python glue of one pose's solve."""
+        from smplik.refine_fast import refine_arrays
+
+        joint, kind, data, tol, mask = pack_effector_arrays(rows)
+        gender = np.array([g.index for g in genders], np.int64)
+        R_local, R_world, p_world, _, transl = self.network.run_arrays(joint, kind, data, tol, mask, betas, gender)
+        if self.refine.iterations > 0:
+            J_template, J_dirs = self._rest_skeleton
+            J_rest = J_template[gender] + (J_dirs[gender] @ betas[..., None]).reshape(J_template[gender].shape)
+            R_local, _, p_world, transl = refine_arrays(
+                R_local.astype(np.float64), R_world.astype(np.float64), p_world.astype(np.float64),
+                transl.astype(np.float64), J_rest, joint, kind, data, tol, mask, PARENTS, self.refine)
+        return self._poses(R_local, transl, p_world, betas, genders)
+
+    def _poses(self, R_local: np.ndarray, transl: np.ndarray, joints: np.ndarray, betas: np.ndarray,
+               genders: list[Gender]) -> list[Pose]:
+        """Poses from local rotations (B, J, 3, 3), transl (B, 3) and joints (B, J, 3); non-finite ones raise."""
+        aa = matrix_to_axis_angle_np(R_local)
+        transl, joints = np.asarray(transl, np.float64), np.asarray(joints, np.float64)
         finite = np.isfinite(aa).all((1, 2)) & np.isfinite(transl).all(1) & np.isfinite(joints).all((1, 2))
         if not finite.all():
             raise ValueError(f"{self.source}: the model gave a non-finite pose for pose {int(np.argmin(finite))} "
                              "(a corrupt model file?).")
         return [Pose(global_orient=aa[b, 0].copy(), body_pose=aa[b, 1:].copy(), transl=transl[b].copy(),
                      betas=np.array(betas[b], dtype=np.float64), gender=genders[b], joints=joints[b].copy())
-                for b in range(len(rows))]
+                for b in range(len(genders))]

@@ -304,3 +304,34 @@ def test_calls_return_their_own_outputs_across_shapes_dtypes_and_threads(onnx_ne
     for t in threads:
         t.join()
     assert agree == {0: True, 1: True, 2: True, 3: True}
+
+
+@needs_ort
+def test_onnx_solves_take_the_numpy_path_and_equal_the_tensor_path(exported, torch_solver, monkeypatch):
+    """With onnxruntime and the fast refinement, solve()/solve_batch() skip torch (IKSolver._solve_rows_numpy);
+    the poses equal the tensor path's (solve_tensors with the reference refinement) within 1e-5."""
+    from smplik.refine import numba_available, refine_backend
+
+    if not numba_available():
+        pytest.skip("the numpy path needs the fast refinement (numba)")
+    solver = IKSolver.load(exported[0], runtime="onnx", onnx_file=exported[1])
+    eff, betas, gender = random_effectors(torch_solver.bodies, 5, 7, seed=11)
+    lists = [[Effector.position(int(j), d[:3].numpy()) if t == 0 else
+              Effector.rotation(int(j), np.stack([d[:3], d[3:], np.cross(d[:3], d[3:])], 1)) if t == 1 else
+              Effector.look_at(int(j), d[:3].numpy(), d[3:].numpy())
+              for j, t, d, m in zip(eff.joint[b], eff.type[b], eff.data[b].double(), eff.mask[b], strict=True) if m]
+             for b in range(5)]
+    kwargs = {"betas": betas.double().numpy(), "gender": [["neutral", "male", "female"][int(g)] for g in gender]}
+    calls = []
+    original = IKSolver._solve_rows_numpy
+    monkeypatch.setattr(IKSolver, "_solve_rows_numpy", lambda self, *a: calls.append(1) or original(self, *a))
+    fast = solver.solve_batch(lists, **kwargs)
+    assert calls == [1]
+    with refine_backend("reference"):
+        reference = solver.solve_batch(lists, **kwargs)
+    assert calls == [1]  # the reference refinement goes through solve_tensors
+    for a, b in zip(fast, reference, strict=True):
+        angle = (Rotation.from_rotvec(np.concatenate([a.global_orient[None], a.body_pose])).inv()
+                 * Rotation.from_rotvec(np.concatenate([b.global_orient[None], b.body_pose]))).magnitude()
+        assert angle.max() < 1e-5
+        assert np.abs(a.joints - b.joints).max() < 1e-5 and np.abs(a.transl - b.transl).max() < 1e-5
