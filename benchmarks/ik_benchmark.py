@@ -25,6 +25,7 @@ from _common import RESULTS, machine  # noqa: E402
 
 from smplik.atomic import write_text_atomic  # noqa: E402
 from smplik.benchmark import (  # noqa: E402
+    LEARNED_METHODS,
     MANIFEST,
     Benchmark,
     build_methods,
@@ -40,7 +41,7 @@ from smplik.data.dataset import load_cache  # noqa: E402
 from smplik.paths import POSE_CACHE_ENV, benchmark_files_dir, pose_cache  # noqa: E402
 from smplik.solver import IKSolver  # noqa: E402
 
-METHODS = ("smplik", "optim", "nn", "rest")
+METHODS = ("smplik", "smplik_net", "smplik_ens", "smplik_net_ens", "optim", "nn", "rest")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     dataset = load_cache(data)
     bodies = BodyModelSet.load()
     names = [m.strip() for m in args.methods.split(",") if m.strip()]
-    solver = IKSolver.load(args.checkpoint) if {"smplik", "smplik_net"} & set(names) else None
+    solver = IKSolver.load(args.checkpoint) if set(LEARNED_METHODS) & set(names) else None
     methods, settings = build_methods(names, bodies, solver=solver, train_pose=dataset.subset("train").pose,
                                       optim_iterations=args.optim_iterations)
     settings |= {"machine": machine(), "train_data": str(data), "max_samples": args.max_samples}

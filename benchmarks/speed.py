@@ -6,7 +6,8 @@ benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoin
 * ``solve_tensors`` (no validation) twice: ``network`` (network + FK, ``refine=NO_REFINEMENT``) and
   ``refined`` (the solver's default: network, then 3 Levenberg-Marquardt refinement steps), and the full
   ``solve()`` (validation, packing, refinement, axis-angle conversion) for one pose of 8 effectors
-  given as Effector objects and as dicts: p50 / p95 latency at 1 and 2 torch threads;
+  given as Effector objects and as dicts, and ``solve_network`` (``solve()`` with ``refine=NO_REFINEMENT``:
+  validation, packing, the network alone, conversion): p50 / p95 latency at 1 and 2 torch threads;
 * ``network`` and ``refined`` throughput (poses/s) at batch 1, 16, 256, 1024, 4096, and
   ``solve_batch()`` at 256;
 * the same ``network``/``refined``/``solve`` rows with the network run by onnxruntime
@@ -112,7 +113,7 @@ def main() -> None:
     batches = sorted({256, 1024, *(int(b) for b in args.batches.split(","))})
 
     load_at_start = os.getloadavg()
-    solver = IKSolver.load(args.checkpoint)
+    solver = IKSolver.load(args.checkpoint, runtime="torch")
     onnx_solver = IKSolver.load(args.checkpoint, runtime="onnx", onnx_file=args.onnx) if onnxruntime_available() \
         else None
     if onnx_solver is None:
@@ -143,6 +144,10 @@ def main() -> None:
             latency[f"{prefix}solve_effectors@{threads}"] = percentiles(time_call(
                 lambda sv=sv: sv.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time,
                 warmup=20))
+            net_only = dataclasses.replace(sv, refine=NO_REFINEMENT)
+            latency[f"{prefix}solve_network@{threads}"] = percentiles(time_call(
+                lambda sv=net_only: sv.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time,
+                warmup=20))
             if not prefix:
                 latency[f"solve_dicts@{threads}"] = percentiles(time_call(
                     lambda: solver.solve(dicts, betas=beta_np, gender=gender_name), min_time=args.min_time,
@@ -164,10 +169,11 @@ def main() -> None:
         lists = [to_effectors(eff, r) for r in range(256)]
         b_np = betas.numpy().astype(np.float64)
         g_names = [["neutral", "male", "female"][int(g)] for g in gender]
-        times = time_call(lambda lists=lists, b_np=b_np, g_names=g_names: solver.solve_batch(
-            lists, betas=b_np, gender=g_names), min_time=args.min_time, warmup=2)
-        med = statistics.median(times)
-        throughput[f"solve_batch@{threads}/b256"] = {"median_ms": med * 1e3, "poses_per_s": 256 / med}
+        for prefix, sv in by_threads[threads]:
+            times = time_call(lambda lists=lists, b_np=b_np, g_names=g_names, sv=sv: sv.solve_batch(
+                lists, betas=b_np, gender=g_names), min_time=args.min_time, warmup=2)
+            med = statistics.median(times)
+            throughput[f"{prefix}solve_batch@{threads}/b256"] = {"median_ms": med * 1e3, "poses_per_s": 256 / med}
 
     refinement: dict[str, dict] = {}
     refine_backends = ("reference", "fast") if numba_available() else ("reference",)
@@ -230,6 +236,7 @@ def main() -> None:
         summary[f"{prefix}network_single_p50_ms_1thread"] = latency[f"{prefix}network@1"]["p50_ms"]
         summary[f"{prefix}refined_single_p50_ms_1thread"] = latency[f"{prefix}refined@1"]["p50_ms"]
         summary[f"{prefix}solve_single_p50_ms_1thread"] = latency[f"{prefix}solve_effectors@1"]["p50_ms"]
+        summary[f"{prefix}solve_network_single_p50_ms_1thread"] = latency[f"{prefix}solve_network@1"]["p50_ms"]
         for name in ("network", "refined"):
             summary[f"{prefix}{name}_b1024_poses_per_s_2threads"] = throughput[f"{prefix}{name}@2/b1024"][
                 "poses_per_s"]

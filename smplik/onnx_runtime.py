@@ -135,6 +135,8 @@ def export_onnx_bytes(model: ProtoResIK, meta: Mapping[str, Any] | None = None) 
         # The legacy-exporter notice and the tracer's notes on the static (24, 3) shape checks.
         warnings.simplefilter("ignore", DeprecationWarning)
         warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        # strided Slice nodes (the batch-last layout) cannot be constant-folded; harmless, said three times
+        warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
         path = Path(tmp) / "model.onnx"
         torch.onnx.export(graph, _example_inputs(), str(path), dynamo=False, opset_version=ONNX_OPSET,
                           input_names=list(INPUT_NAMES), output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic,

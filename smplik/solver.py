@@ -203,7 +203,7 @@ class IKSolver:
 
     @classmethod
     def load(cls, path: str | Path | None = None, *, model_dir: str | Path | None = None,
-             refine: RefineConfig | None = None, runtime: Runtime = "torch",
+             refine: RefineConfig | None = None, runtime: Runtime = "auto",
              onnx_file: str | Path | None = None, onnx_threads: int = 1,
              ensemble: EnsembleConfig = NO_ENSEMBLE) -> IKSolver:
         """Load a model file (default: the packaged ``smplik/checkpoints/smplik_cmu.pt``).
@@ -214,9 +214,9 @@ class IKSolver:
             refine: refinement after the network (default: the model file's calibrated ``refine`` settings
                 (``smplik benchmark calibrate``) when it has them, else :data:`~smplik.refine.DEFAULT_REFINEMENT`,
                 3 Levenberg-Marquardt steps; ``iterations=0``: none).
-            runtime: network backend, ``"torch"`` (default), ``"onnx"`` (onnxruntime) or ``"auto"`` (onnxruntime
-                when installed and a matching ``onnx_file``/``PATH.onnx`` exists); see
-                :func:`smplik.onnx_runtime.select_network`. ``onnx_threads``: onnxruntime threads.
+            runtime: network backend, ``"auto"`` (default: onnxruntime when it is installed and a matching
+                ``onnx_file``/``PATH.onnx`` exists, as for the packaged model; else torch), ``"torch"`` or ``"onnx"``
+                (onnxruntime); see :func:`smplik.onnx_runtime.select_network`. ``onnx_threads``: onnxruntime threads.
             ensemble: test-time ensemble (e.g. ``EnsembleConfig(yaw=4, mirror=True)``; default: none).
 
         Raises:

@@ -13,6 +13,7 @@ import copy
 import shutil
 import sys
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -122,7 +123,7 @@ def test_folded_slots_model_is_the_network(bodies):
 
 @pytest.fixture(scope="module")
 def torch_solver_plain():
-    return IKSolver.load(SHIPPED)
+    return IKSolver.load(SHIPPED, runtime="torch")
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +145,7 @@ def exported(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def torch_solver(exported):
-    return IKSolver.load(exported[0])
+    return IKSolver.load(exported[0], runtime="torch")
 
 
 @pytest.fixture(scope="module")
@@ -335,3 +336,20 @@ def test_onnx_solves_take_the_numpy_path_and_equal_the_tensor_path(exported, tor
                  * Rotation.from_rotvec(np.concatenate([b.global_orient[None], b.body_pose]))).magnitude()
         assert angle.max() < 1e-5
         assert np.abs(a.joints - b.joints).max() < 1e-5 and np.abs(a.transl - b.transl).max() < 1e-5
+
+
+@needs_ort
+def test_packaged_model_runs_its_shipped_onnx_file_by_default():
+    """smplik/checkpoints/smplik_cmu.onnx is the packaged model's network (same fingerprint), so a default
+    IKSolver.load() with onnxruntime installed runs it; runtime="torch" still gives the torch network."""
+    onnx_file = SHIPPED.with_suffix(".onnx")
+    if not (SHIPPED.is_file() and onnx_file.is_file()):
+        pytest.skip("the packaged model or its .onnx file is absent")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a stale file would warn and fall back to torch
+        solver = IKSolver.load()
+    assert solver.network is not None and Path(solver.network.source) == onnx_file
+    assert solver.network.fingerprint == model_fingerprint(solver.model)
+    assert IKSolver.load(runtime="torch").network is None
