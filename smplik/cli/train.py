@@ -154,7 +154,7 @@ def export_command(
         from smplik.solver import IKSolver
 
         try:
-            solver = IKSolver.load(out or checkpoint)
+            solver = IKSolver.load(out or checkpoint, runtime="torch")
             export_onnx(solver.model, onnx, meta={"source": solver.source, "step": solver.meta.get("step"),
                                                   "body_fingerprint": solver.bodies.fingerprint})
         except (FileNotFoundError, ValueError, OnnxUnavailableError) as exc:
