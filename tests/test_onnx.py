@@ -189,16 +189,21 @@ def test_graph_io_is_documented_and_dynamic(exported, onnx_net, torch_solver):
     assert meta["model_fingerprint"] == model_fingerprint(torch_solver.model)
 
 
+def effector_lists(eff: EffectorBatch) -> list[list[Effector]]:
+    """The Effector objects of each row of a packed batch (padding dropped)."""
+    return [[Effector.position(int(j), d[:3].numpy()) if t == 0 else
+             Effector.rotation(int(j), np.stack([d[:3], d[3:], np.cross(d[:3], d[3:])], 1)) if t == 1 else
+             Effector.look_at(int(j), d[:3].numpy(), d[3:].numpy())
+             for j, t, d, m in zip(eff.joint[b], eff.type[b], eff.data[b].double(), eff.mask[b], strict=True) if m]
+            for b in range(eff.joint.shape[0])]
+
+
 @needs_ort
 def test_solver_onnx_runtime_gives_the_torch_poses(exported, torch_solver):
     solver = IKSolver.load(exported[0], runtime="onnx", onnx_file=exported[1])
     assert solver.network is not None and torch_solver.network is None
     eff, betas, gender = random_effectors(torch_solver.bodies, 6, 8, seed=3)
-    lists = [[Effector.position(int(j), d[:3].numpy()) if t == 0 else
-              Effector.rotation(int(j), np.stack([d[:3], d[3:], np.cross(d[:3], d[3:])], 1)) if t == 1 else
-              Effector.look_at(int(j), d[:3].numpy(), d[3:].numpy())
-              for j, t, d, m in zip(eff.joint[b], eff.type[b], eff.data[b].double(), eff.mask[b], strict=True) if m]
-             for b in range(6)]
+    lists = effector_lists(eff)
     names = ["neutral", "male", "female"]
     kwargs = {"betas": betas.double().numpy(), "gender": [names[int(g)] for g in gender]}
     ref, got = torch_solver.solve_batch(lists, **kwargs), solver.solve_batch(lists, **kwargs)
@@ -317,11 +322,7 @@ def test_onnx_solves_take_the_numpy_path_and_equal_the_tensor_path(exported, tor
         pytest.skip("the numpy path needs the fast refinement (numba)")
     solver = IKSolver.load(exported[0], runtime="onnx", onnx_file=exported[1])
     eff, betas, gender = random_effectors(torch_solver.bodies, 5, 7, seed=11)
-    lists = [[Effector.position(int(j), d[:3].numpy()) if t == 0 else
-              Effector.rotation(int(j), np.stack([d[:3], d[3:], np.cross(d[:3], d[3:])], 1)) if t == 1 else
-              Effector.look_at(int(j), d[:3].numpy(), d[3:].numpy())
-              for j, t, d, m in zip(eff.joint[b], eff.type[b], eff.data[b].double(), eff.mask[b], strict=True) if m]
-             for b in range(5)]
+    lists = effector_lists(eff)
     kwargs = {"betas": betas.double().numpy(), "gender": [["neutral", "male", "female"][int(g)] for g in gender]}
     calls = []
     original = IKSolver._solve_rows_numpy

@@ -1,4 +1,4 @@
-"""``smplik benchmark make`` and ``smplik benchmark run`` (see :mod:`smplik.benchmark`)."""
+"""``smplik benchmark make``, ``run`` and ``calibrate`` (see :mod:`smplik.benchmark`)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+
+from smplik.cli.options import parse_ensemble
 
 app = typer.Typer(help="Randomized-effector IK benchmark: make the files, run methods on them.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
@@ -69,12 +71,7 @@ def run_command(
 
     if threads:
         torch.set_num_threads(threads)
-    from smplik.ensemble import EnsembleConfig
-
-    try:
-        ensemble_cfg = EnsembleConfig.parse(ensemble)
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--ensemble") from None
+    ensemble_cfg = parse_ensemble(ensemble)
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = [m for m in chosen if m not in ALL_METHODS]
     if unknown or not chosen:
@@ -152,17 +149,13 @@ def calibrate_command(
     from smplik.benchmark import load_benchmark
     from smplik.benchmark.calibrate import calibrate_refinement
     from smplik.cli.errors import say, user_errors
-    from smplik.ensemble import EnsembleConfig
     from smplik.model_io import write_calibrated_model
     from smplik.solver import IKSolver, packaged_model_path
 
     if threads:
         torch.set_num_threads(threads)
     with user_errors():
-        try:
-            ensemble_cfg = EnsembleConfig.parse(ensemble)
-        except ValueError as exc:
-            raise typer.BadParameter(str(exc), param_hint="--ensemble") from None
+        ensemble_cfg = parse_ensemble(ensemble)
         bench = load_benchmark(files)
         source = checkpoint or packaged_model_path()
         solver = IKSolver.load(source, model_dir=model_dir)

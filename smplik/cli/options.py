@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from smplik.conventions import NUM_BETAS, Gender
+
+if TYPE_CHECKING:
+    from smplik.ensemble import EnsembleConfig
 
 ModelDir = Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
@@ -26,3 +29,13 @@ def parse_betas(text: str | None) -> list[float]:
     if len(values) > NUM_BETAS:
         raise typer.BadParameter(f"--betas takes at most {NUM_BETAS} values, got {len(values)}.")
     return values + [0.0] * (NUM_BETAS - len(values))
+
+
+def parse_ensemble(text: str) -> EnsembleConfig:
+    """Parse ``--ensemble`` (``none``, ``mirror``, ``yawK``, ``mirror+yawK``) into an EnsembleConfig."""
+    from smplik.ensemble import EnsembleConfig
+
+    try:
+        return EnsembleConfig.parse(text)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--ensemble") from None

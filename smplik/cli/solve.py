@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from smplik.cli.errors import say, user_errors
-from smplik.cli.options import parse_betas
+from smplik.cli.options import parse_betas, parse_ensemble
 from smplik.conventions import EffectorType, Gender
 
 app = typer.Typer(pretty_exceptions_enable=False)
@@ -109,15 +109,11 @@ def solve_command(
     from dataclasses import replace
 
     from smplik.effector_schema import load_effector_file
-    from smplik.ensemble import EnsembleConfig
     from smplik.refine import RefineConfig
     from smplik.solver import IKSolver
 
     with user_errors():
-        try:
-            ensemble_cfg = EnsembleConfig.parse(ensemble)
-        except ValueError as exc:
-            raise typer.BadParameter(str(exc), param_hint="--ensemble") from None
+        ensemble_cfg = parse_ensemble(ensemble)
         doc = load_effector_file(effectors)
         beta = np.asarray(parse_betas(betas)) if betas is not None else doc.betas
         g = gender or doc.gender or Gender.NEUTRAL
