@@ -79,3 +79,13 @@ def protores_loss(out: IKOutput, R_local: Tensor, R_world: Tensor, p_world: Tens
              + (cfg.w_lookat * terms["lookat"] + cfg.w_rot_global * terms["glob_geo"]
                 + cfg.w_rot_local * terms["loc_geo"]) / J)
     return total, terms
+
+
+def distillation_loss(out: IKOutput, teacher: IKOutput, cfg: LossConfig) -> Tensor:
+    """Pull the network towards a teacher's answer (scalar, mean over the batch): the deterministic
+    terms of :func:`protores_loss` with the teacher's pose as the target,
+    ``w_pos_det (|draft - p_t|^2 + |p - p_t|^2) + w_rot_local / J * sum_j geodesic(R_t, R)``."""
+    p_t = teacher.p_world.detach()
+    det = (out.draft - p_t).square().sum(-1).sum(-1) + (out.p_world - p_t).square().sum(-1).sum(-1)
+    loc = geodesic_distance(teacher.R_local.detach(), out.R_local).sum(-1)
+    return (cfg.w_pos_det * det + cfg.w_rot_local / NUM_JOINTS * loc).mean()

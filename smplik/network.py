@@ -216,11 +216,14 @@ class ProtoResIK(nn.Module):
         p = self.encode(eff, data, cond)
         context = torch.cat([p, cond, effector_slots(eff, data)], -1) if self.cfg.effector_slots else \
             torch.cat([p, cond], -1)
-        draft = self.gpd(context).view(B, NUM_JOINTS, 3)
+        # Under autocast (training with precision "bf16") only the layers above run in low precision:
+        # the outputs are cast back, and rotations and FK run in the input's precision.
+        draft = self.gpd(context).view(B, NUM_JOINTS, 3).to(betas.dtype)
         root_relative = (draft - draft[:, :1]).reshape(B, -1)
-        rot6d = self.ikd(torch.cat([context, root_relative], -1)) + self.identity_6d
-        R_local = rot6d_to_matrix(rot6d.view(B, NUM_JOINTS, 6))
-        J_rest = self.rest_joints(betas, gender)
-        transl = draft[:, 0] - J_rest[:, 0] + centroid
-        R_world, p_world = forward_kinematics(R_local, J_rest, transl)
+        rot6d = self.ikd(torch.cat([context, root_relative], -1)).to(betas.dtype) + self.identity_6d
+        with torch.autocast(betas.device.type, enabled=False):
+            R_local = rot6d_to_matrix(rot6d.view(B, NUM_JOINTS, 6))
+            J_rest = self.rest_joints(betas, gender)
+            transl = draft[:, 0] - J_rest[:, 0] + centroid
+            R_world, p_world = forward_kinematics(R_local, J_rest, transl)
         return IKOutput(R_local, R_world, p_world, draft + centroid[:, None, :], transl)

@@ -27,7 +27,6 @@ the compiled code next to this module (or in numba's user cache directory when t
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import numba
@@ -35,6 +34,7 @@ import numpy as np
 import torch
 
 from smplik.conventions import tree_depth
+from smplik.threads import run_spread
 
 CHUNK_MIN = 64
 """Batches of at least this many poses per thread are split over ``torch.get_num_threads()`` threads."""
@@ -464,17 +464,6 @@ def refine_kernel(R_net, R_world0, p_world0, transl0, J_rest, joint, kind, data,
         transl_out[b] = transl
 
 
-_POOL: tuple[int, ThreadPoolExecutor] | None = None
-
-
-def _pool(workers: int) -> ThreadPoolExecutor:
-    """A shared thread pool with at least ``workers`` threads (created on first use)."""
-    global _POOL
-    if _POOL is None or _POOL[0] < workers:
-        _POOL = (workers, ThreadPoolExecutor(max_workers=workers, thread_name_prefix="smplik-refine"))
-    return _POOL[1]
-
-
 def refine_arrays(R_net: np.ndarray, R_world: np.ndarray, p_world: np.ndarray, transl: np.ndarray,
                   J_rest: np.ndarray, joint: np.ndarray, kind: np.ndarray, data: np.ndarray, tolerance: np.ndarray,
                   mask: np.ndarray, parents: tuple[int, ...], cfg, threads: int | None = None
@@ -501,8 +490,5 @@ def refine_arrays(R_net: np.ndarray, R_world: np.ndarray, p_world: np.ndarray, t
     if chunks == 1:
         refine_kernel(*ins, *tables, *params, *outs)
     else:
-        bounds = np.linspace(0, B, chunks + 1).astype(int)
-        futures = [_pool(chunks).submit(run, int(lo), int(hi)) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
-        for fut in futures:
-            fut.result()
+        run_spread(run, np.linspace(0, B, chunks + 1).astype(int), chunks)
     return outs

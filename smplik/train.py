@@ -37,10 +37,10 @@ import torch.distributed as dist
 from smplik.atomic import atomic_path, write_json_atomic, write_text_atomic
 from smplik.body_model import BodyModelSet
 from smplik.data.effector_sampling import EffectorSamplingConfig, sample_effectors
-from smplik.losses import LossConfig, protores_loss
+from smplik.losses import LossConfig, distillation_loss, protores_loss
 from smplik.metrics import local_geodesic, mpjpe, pa_mpjpe
 from smplik.model_io import CHECKPOINT_FORMAT, FORMAT_VERSION, load_checkpoint, load_model, write_model_file
-from smplik.network import NetworkConfig, ProtoResIK
+from smplik.network import IKOutput, NetworkConfig, ProtoResIK
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -82,6 +82,16 @@ class TrainConfig:
     """Folder with real SMPL files (default: built-in model)."""
     init_from: str | None = None
     """Start a new run from this model's weights (a checkpoint or exported model; same network sizes)."""
+    precision: str = "fp32"
+    """"fp32", or "bf16": the network's layers run under CPU/CUDA autocast in bfloat16 (Intel AMX and
+    recent GPUs run these several times faster); rotations, FK and the loss stay float32."""
+    distill_from: str | None = None
+    """Teacher model file: the loss also pulls the network towards the teacher's test-time ensemble
+    answer (``distill_ensemble``) on the same noisy effectors (self-distillation of the ensemble)."""
+    distill_weight: float = 1.0
+    """Weight of the distillation term (:func:`smplik.losses.distillation_loss`)."""
+    distill_ensemble: str = "mirror+yaw4"
+    """The teacher's ensemble (:meth:`smplik.ensemble.EnsembleConfig.parse`)."""
     network: NetworkConfig = field(default_factory=NetworkConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
@@ -318,6 +328,31 @@ def _any_rank(flag: bool, world: int) -> bool:
 # ----------------------------------------------------------------------------- the loop
 
 
+PRECISIONS = ("fp32", "bf16")
+
+
+def _load_teacher(cfg: TrainConfig) -> Callable[..., IKOutput] | None:
+    """``cfg.distill_from``'s ensemble as a function of (effectors, betas, gender), without gradients;
+    None without a teacher."""
+    if not cfg.distill_from:
+        return None
+    from smplik.ensemble import EnsembleConfig, run_ensemble
+
+    from smplik.onnx_runtime import select_network
+
+    ensemble = EnsembleConfig.parse(cfg.distill_ensemble)
+    teacher, _ = load_model(cfg.distill_from)
+    teacher.requires_grad_(False)
+    # onnxruntime runs the teacher (its K * B rows) about twice as fast when its graph lies beside it
+    network = select_network("auto", teacher, cfg.distill_from, threads=torch.get_num_threads()) or teacher
+
+    def answer(eff: Any, betas: torch.Tensor, gender: torch.Tensor) -> IKOutput:
+        with torch.no_grad():
+            return run_ensemble(network, eff, betas, gender, teacher.rest_joints(betas, gender), ensemble)
+
+    return answer
+
+
 def _train_val_sets(cfg: TrainConfig) -> tuple[Any, Any]:
     """The cache's train and validation frames (validation held out from train clips by ``val_fraction``)."""
     from smplik.data.dataset import load_cache
@@ -371,6 +406,11 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
     bodies = BodyModelSet.load(cfg.model_dir)
     train_set, val_set = _train_val_sets(cfg)
 
+    if cfg.precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {cfg.precision!r}.")
+    if not cfg.distill_weight >= 0:
+        raise ValueError(f"distill_weight must be >= 0, got {cfg.distill_weight}.")
+    teacher = _load_teacher(cfg)
     torch.manual_seed(cfg.seed + rank)
     model = build_model(cfg.network, bodies)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -436,9 +476,13 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
             whole = False
             batch = sampler.sample()
             sampled = sample_effectors(batch.p_world, batch.R_world, cfg.effectors, gens["effectors"])
-            out = net(sampled.effectors, batch.betas, batch.gender)
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.precision == "bf16"):
+                out = net(sampled.effectors, batch.betas, batch.gender)
             loss, _ = protores_loss(out, batch.R_local, batch.R_world, batch.p_world, sampled.effectors,
                                     sampled.weight, cfg.loss)
+            if teacher is not None:
+                loss = loss + cfg.distill_weight * distillation_loss(
+                    out, teacher(sampled.effectors, batch.betas, batch.gender), cfg.loss)
             for group in opt.param_groups:
                 group["lr"] = lr_at(step)
             opt.zero_grad(set_to_none=True)

@@ -156,7 +156,7 @@ def onnx_net(exported):
 
 
 @needs_ort
-@pytest.mark.parametrize(("B", "N"), [(1, 1), (1, 8), (5, 3), (64, 12), (200, 6)])
+@pytest.mark.parametrize(("B", "N"), [(1, 1), (1, 8), (5, 3), (64, 12), (200, 6), (300, 4)])
 def test_round_trip_matches_torch(onnx_net, torch_solver, B, N):
     eff, betas, gender = random_effectors(torch_solver.bodies, B, N, seed=B * 100 + N)
     with torch.inference_mode():
@@ -247,8 +247,8 @@ def test_onnx_without_file_exports_in_memory_and_threads_are_configurable(bodies
     model = ProtoResIK(NetworkConfig(width=32, encoder_blocks=2, decoder_blocks=2, effector_slots=True),
                        bodies.J_template, bodies.J_dirs).eval()  # the slots extension exports too
     net = OnnxNetwork(export_onnx_bytes(model), threads=2)
-    assert net.session.get_session_options().intra_op_num_threads == 2
-    assert net.with_threads(1).session.get_session_options().intra_op_num_threads == 1
+    assert net.threads == 2 and net.with_threads(1).threads == 1
+    assert net.session.get_session_options().intra_op_num_threads == 1  # threads spread chunks instead
     for B, N in ((1, 2), (9, 7)):
         eff, betas, gender = random_effectors(bodies, B, N, seed=N)
         with torch.inference_mode():
@@ -310,6 +310,39 @@ def test_calls_return_their_own_outputs_across_shapes_dtypes_and_threads(onnx_ne
     for t in threads:
         t.join()
     assert agree == {0: True, 1: True, 2: True, 3: True}
+
+
+@needs_ort
+def test_large_batches_run_in_chunks_over_threads_with_the_same_answer(onnx_net, torch_solver, monkeypatch):
+    """A batch of 2 * CHUNK_ROWS rows or more is cut into CHUNK_ROWS-row session calls (the last one shorter),
+    spread over the threads; the answer is the one-call answer bit for bit, whatever the thread count."""
+    from smplik import onnx_runtime
+
+    B = 2 * onnx_runtime.CHUNK_ROWS + 37
+    eff, betas, gender = random_effectors(torch_solver.bodies, B, 7, seed=5)
+    arrays = [t.numpy() for t in (eff.joint, eff.type, eff.data, eff.tolerance, eff.mask, betas, gender)]
+    whole = onnx_net._run_chunk(arrays)  # one session call of all B rows
+    two = onnx_net.with_threads(2)
+    calls: list[tuple[int, str]] = []
+    run_chunk = onnx_runtime.OnnxNetwork._run_chunk
+
+    def spy(self, chunk):
+        import threading
+
+        calls.append((chunk[0].shape[0], threading.current_thread().name))
+        return run_chunk(self, chunk)
+
+    monkeypatch.setattr(onnx_runtime.OnnxNetwork, "_run_chunk", spy)
+    for net in (onnx_net, two):
+        calls.clear()
+        outs = net.run_arrays(*arrays)
+        assert sorted(n for n, _ in calls) == [37, onnx_runtime.CHUNK_ROWS, onnx_runtime.CHUNK_ROWS]
+        assert len({name for _, name in calls}) == min(net.threads, 3)
+        for name, got, want in zip(OUTPUT_NAMES, outs, whole, strict=True):
+            assert got.shape == want.shape and np.array_equal(got, want), name
+    with torch.inference_mode():
+        ref = torch_solver.model(eff, betas, gender)
+    assert np.allclose(outs[OUTPUT_NAMES.index("p_world")], ref.p_world.numpy(), atol=1e-4, rtol=0)
 
 
 @needs_ort

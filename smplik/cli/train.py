@@ -76,6 +76,15 @@ def train_command(
                           ] = None,
     model_dir: Annotated[Path | None, typer.Option(help="Folder with real SMPL files.")] = None,
     init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights (fine-tuning).")] = None,
+    precision: Annotated[str | None, typer.Option(help="fp32, or bf16: the layers under autocast in bfloat16 "
+                                                  "(several times faster on CPUs with AMX; FK and loss stay "
+                                                  f"float32) ({_default('precision')}).")] = None,
+    distill_from: Annotated[Path | None, typer.Option(help="Teacher model: also pull the network towards its "
+                                                      "test-time ensemble answer (self-distillation).")] = None,
+    distill_weight: Annotated[float | None, typer.Option(help="Weight of the distillation term "
+                                                         f"({_default('distill_weight')}).")] = None,
+    distill_ensemble: Annotated[str | None, typer.Option(help="The teacher's ensemble, e.g. mirror+yaw4 "
+                                                         f"({_default('distill_ensemble')}).")] = None,
     resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/checkpoint.pt if present.")] = True,
     threads: Annotated[int | None, typer.Option(min=1, help="torch intra-op threads (default: torch's; on a busy "
                                                 "machine 1 can be several times faster).")] = None,
@@ -95,7 +104,8 @@ def train_command(
     given = {"data": data, "out": out, "steps": steps, "batch_size": batch_size, "lr": lr,
              "lr_final_fraction": lr_final_fraction, "val_every": val_every, "ckpt_every": ckpt_every,
              "val_size": val_size, "val_fraction": val_fraction, "seed": seed, "augment": augment,
-             "beta_noise": beta_noise, "model_dir": model_dir, "init_from": init_from}
+             "beta_noise": beta_noise, "model_dir": model_dir, "init_from": init_from, "precision": precision,
+             "distill_from": distill_from, "distill_weight": distill_weight, "distill_ensemble": distill_ensemble}
     top = {k: str(v) if isinstance(v, Path) else v for k, v in given.items() if v is not None}
     net = base.network
     if paper_sizes:
