@@ -337,7 +337,6 @@ def _load_teacher(cfg: TrainConfig) -> Callable[..., IKOutput] | None:
     if not cfg.distill_from:
         return None
     from smplik.ensemble import EnsembleConfig, run_ensemble
-
     from smplik.onnx_runtime import select_network
 
     ensemble = EnsembleConfig.parse(cfg.distill_ensemble)
