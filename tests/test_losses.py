@@ -92,3 +92,24 @@ def test_lookat_angle_is_the_angle_to_the_target():
         got = lookat_angle(target, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), p,
                            torch.eye(3, dtype=torch.float64))
         assert float(got) == pytest.approx(angle, abs=1e-9)
+
+
+def test_distillation_loss_is_the_deterministic_terms_towards_the_teacher(truth):
+    """Zero at the teacher's pose; else w_pos_det (|draft - p_t|^2 + |p - p_t|^2) + w_rot_local / J * sum
+    geodesic, with no gradient into the teacher."""
+    from smplik.losses import distillation_loss
+
+    R_local, R_world, p_world, eff, weight = truth
+    teacher = IKOutput(R_local, R_world, p_world, p_world.clone(), torch.zeros(B, 3))
+    cfg = LossConfig(w_pos_det=0.5, w_rot_local=2.0)
+    assert float(distillation_loss(teacher, teacher, cfg)) == pytest.approx(0.0, abs=1e-10)
+    u, a = torch.tensor([0.01, -0.02, 0.03], dtype=torch.float64), 0.2
+    R_off = R_local @ _axis_rotation("x", a).expand(B, NUM_JOINTS, 3, 3)
+    draft = (p_world + u).requires_grad_(True)
+    student = IKOutput(R_off, R_world, p_world, draft, torch.zeros(B, 3))
+    teacher_p = p_world.clone().requires_grad_(True)
+    loss = distillation_loss(student, IKOutput(R_local, R_world, teacher_p, p_world, torch.zeros(B, 3)), cfg)
+    want = 0.5 * NUM_JOINTS * float(u.square().sum()) + 2.0 / NUM_JOINTS * NUM_JOINTS * a
+    assert float(loss) == pytest.approx(want, rel=1e-6)
+    loss.backward()
+    assert draft.grad is not None and teacher_p.grad is None

@@ -5,7 +5,7 @@ import dataclasses
 import pytest
 import torch
 
-from smplik.conventions import JOINT_INDEX, EffectorType
+from smplik.conventions import JOINT_INDEX, PARENTS, EffectorType
 from smplik.data.effector_sampling import EffectorSamplingConfig, sample_effectors
 from smplik.effectors import Effector, EffectorBatch, pack_effectors
 from smplik.kinematics import forward_kinematics
@@ -156,3 +156,24 @@ def test_effector_validation_errors():
         Effector.look_at("head", [0, 0, 1], [0, 0, 0])
     with pytest.raises(ValueError, match=r"value: has shape \(2,\)"):
         Effector.position("head", [0, 0])
+
+
+def test_bf16_autocast_runs_only_the_layers_in_low_precision(model, bodies):
+    """Training with precision "bf16": the layers run in bfloat16, but the outputs are float32 and the
+    rotations and FK run in float32 (orthonormal, bones of exactly the rest lengths), close to fp32."""
+    R_local, R_world, p_world, betas, gender, g = ground_truth(bodies)
+    eff = sample_effectors(p_world, R_world, EffectorSamplingConfig(), g, num_effectors=7).effectors
+    with torch.no_grad():
+        ref = model(eff, betas, gender)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = model(eff, betas, gender)
+    for name in ("R_local", "R_world", "p_world", "draft", "transl"):
+        assert getattr(out, name).dtype == torch.float32, name
+    eye = torch.eye(3).expand(8, 24, 3, 3)
+    torch.testing.assert_close(out.R_local.transpose(-1, -2) @ out.R_local, eye, atol=1e-5, rtol=0)
+    J_rest = model.rest_joints(betas, gender)
+    parents = list(PARENTS)
+    bone = (J_rest[:, 1:] - J_rest[:, parents[1:]]).norm(dim=-1)
+    posed = (out.p_world[:, 1:] - out.p_world[:, parents[1:]]).norm(dim=-1)
+    torch.testing.assert_close(posed, bone, atol=1e-5, rtol=0)
+    assert 0 < float((out.p_world - ref.p_world).abs().max()) < 0.05  # bfloat16 layers: close, not equal

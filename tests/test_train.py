@@ -256,6 +256,49 @@ def test_init_from_starts_from_given_weights(tiny_cache, tmp_path):
         train(replace(first, network=replace(TINY, width=48)), progress=False)  # resuming run "a"
 
 
+def test_bf16_precision_trains_float32_weights_and_bad_precision_is_an_error(tiny_cache, tmp_path):
+    train(config(tiny_cache, tmp_path / "bf", steps=3, precision="bf16"), progress=False)
+    state = load(tmp_path / "bf" / "checkpoint.pt")
+    assert all(v.dtype == torch.float32 for v in state["model"].values() if v.is_floating_point())
+    rows = (tmp_path / "bf" / "metrics.csv").read_text().splitlines()
+    assert np.isfinite(float(rows[-1].split(",")[1]))
+    fp = config(tiny_cache, tmp_path / "fp", steps=3)
+    train(fp, progress=False)
+    assert not torch.equal(state["model"]["encoder.0.mlp.0.weight"],
+                           load(tmp_path / "fp" / "checkpoint.pt")["model"]["encoder.0.mlp.0.weight"])
+    with pytest.raises(ValueError, match="precision must be one of fp32, bf16, got 'fp16'"):
+        train(config(tiny_cache, tmp_path / "x", precision="fp16"), progress=False)
+
+
+def test_distillation_pulls_towards_the_teacher_and_resumes_exactly(tiny_cache, tmp_path):
+    """With weight 0 the teacher changes nothing (bit for bit); with weight > 0 the run differs, and an
+    interrupted distillation run resumes to the uninterrupted one's weights."""
+    train(config(tiny_cache, tmp_path / "teacher", steps=3), progress=False)
+    teacher = str(tmp_path / "teacher" / "checkpoint.pt")
+    start = {"init_from": teacher, "distill_from": teacher, "distill_ensemble": "mirror+yaw2"}
+    plain = config(tiny_cache, tmp_path / "plain", init_from=teacher)
+    zero = config(tiny_cache, tmp_path / "zero", **start, distill_weight=0.0)
+    full = config(tiny_cache, tmp_path / "full", **start, distill_weight=5.0)
+    for cfg in (plain, zero, full):
+        train(cfg, progress=False)
+    assert_same_weights(load(tmp_path / "plain" / "checkpoint.pt"), load(tmp_path / "zero" / "checkpoint.pt"))
+    distilled = load(tmp_path / "full" / "checkpoint.pt")
+    assert not torch.equal(distilled["model"]["ikd.blocks.0.forward_out.weight"],
+                           load(tmp_path / "plain" / "checkpoint.pt")["model"]["ikd.blocks.0.forward_out.weight"])
+
+    def interrupt(step, loss):
+        if step == 4:
+            raise KeyboardInterrupt
+
+    part = config(tiny_cache, tmp_path / "part", **start, distill_weight=5.0)
+    with pytest.raises(TrainingInterrupted, match="checkpoint saved at step 4"):
+        train(part, progress=False, callback=interrupt)
+    train(part, progress=False)
+    assert_same_weights(distilled, load(tmp_path / "part" / "checkpoint.pt"))
+    with pytest.raises(ValueError, match="Unknown ensemble 'yaw-2'"):
+        train(config(tiny_cache, tmp_path / "bad", distill_from=teacher, distill_ensemble="yaw-2"), progress=False)
+
+
 # ----------------------------------------------------------------------------- config file and flags
 
 
@@ -310,6 +353,10 @@ def test_flags_alone(captured):
     assert (cfg.steps, cfg.network.width, cfg.seed, cfg.augment, cfg.val_fraction) == (12, 48, 7, False, 0.2)
     assert cfg.lr == TrainConfig.lr and cfg.network.decoder_blocks == NetworkConfig.decoder_blocks
     assert captured("--data", "c.npz", "--out", "run", "--paper-sizes").network == NetworkConfig.paper()
+    cfg = captured("--data", "c.npz", "--out", "run", "--precision", "bf16", "--distill-from", "t.pt",
+                   "--distill-weight", "0.5", "--distill-ensemble", "mirror")
+    assert (cfg.precision, cfg.distill_from, cfg.distill_weight, cfg.distill_ensemble) == ("bf16", "t.pt", 0.5,
+                                                                                          "mirror")
 
 
 def test_bad_config_files_are_one_line_errors(tmp_path):
@@ -333,6 +380,8 @@ def test_shipped_recipe_configs_parse():
 
     root = Path(__file__).resolve().parents[1] / "configs"
     cfgs = {n: TrainConfig.from_file(root / f"shipped_{n}.json", data="", out="") for n in ("ft1", "ft2")}
+    distill = TrainConfig.from_file(root / "shipped_ft3_distill.json", data="", out="")
+    assert (distill.precision, distill.distill_ensemble, distill.distill_weight) == ("bf16", "mirror+yaw4", 1.0)
     assert (cfgs["ft1"].loss.w_rot_local, cfgs["ft2"].loss.w_rot_local) == (2.0, 4.0)
     for cfg in cfgs.values():
         assert cfg.loss.w_pos_rnd == 1000.0 and cfg.effectors.eta == 4.0 and cfg.effectors.max_effectors == 16
