@@ -11,8 +11,11 @@ benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoin
 * ``network`` and ``refined`` throughput (poses/s) at batch 1, 16, 256, 1024, 4096, and
   ``solve_batch()`` at 256;
 * the same ``network``/``refined``/``solve`` rows with the network run by onnxruntime
-  (``IKSolver.load(runtime="onnx")``, :mod:`smplik.onnx_runtime`; keys prefixed ``onnx_``; the
-  refinement stays torch), when onnxruntime is installed: ``--onnx FILE`` (default: exported in memory);
+  (``IKSolver.load(runtime="onnx")``, :mod:`smplik.onnx_runtime`; keys prefixed ``onnx_``), when
+  onnxruntime is installed: ``--onnx FILE`` (default: exported in memory). As in the solver, calls of at
+  most 8 rows then run in the numba kernel (:mod:`smplik.network_numba`) when numba is installed, and
+  large batches as 128-row chunks over the threads; the one-pose latency rows prefixed ``onnx_session_``
+  run every call through the onnxruntime session instead (``small_batches=False``);
 * the refinement alone (:func:`smplik.refine.refine_output` on the network's output), ``"reference"``
   (torch) against ``"fast"`` (numba, :mod:`smplik.refine_fast`; when numba is installed) at batch 1 and
   1024, at 1 and 2 threads (``refinement`` in the JSON; ``refine_backend`` says which one the solver rows
@@ -44,7 +47,7 @@ from _common import save, time_call  # noqa: E402
 from smplik.benchmark import BenchmarkSet, OptimizationIK, PosePrior  # noqa: E402
 from smplik.effectors import Effector, EffectorBatch  # noqa: E402
 from smplik.kinematics import forward_kinematics  # noqa: E402
-from smplik.onnx_runtime import onnxruntime_available  # noqa: E402
+from smplik.onnx_runtime import CHUNK_ROWS, onnxruntime_available  # noqa: E402
 from smplik.paths import pose_cache  # noqa: E402
 from smplik.refine import NO_REFINEMENT, numba_available, refine_output, resolve_backend  # noqa: E402
 from smplik.rotations import axis_angle_to_matrix  # noqa: E402
@@ -109,6 +112,7 @@ def main() -> None:
     parser.add_argument("--batches", default=",".join(map(str, BATCHES)),
                         help="Comma-separated batch sizes of the throughput rows (256 and 1024 are always measured).")
     parser.add_argument("--note", default="", help="Free text saved with the results (e.g. how busy the machine was).")
+    parser.add_argument("--name", default="speed", help="Results file benchmarks/results/NAME.json (default speed).")
     args = parser.parse_args()
     batches = sorted({256, 1024, *(int(b) for b in args.batches.split(","))})
 
@@ -116,6 +120,8 @@ def main() -> None:
     solver = IKSolver.load(args.checkpoint, runtime="torch")
     onnx_solver = IKSolver.load(args.checkpoint, runtime="onnx", onnx_file=args.onnx) if onnxruntime_available() \
         else None
+    session_solver = IKSolver.load(args.checkpoint, runtime="onnx", onnx_file=args.onnx, small_batches=False) \
+        if onnx_solver is not None else None
     if onnx_solver is None:
         print("onnxruntime is not installed: no onnx_* rows (pip install 'smplik[fast]').")
 
@@ -148,6 +154,14 @@ def main() -> None:
             latency[f"{prefix}solve_network@{threads}"] = percentiles(time_call(
                 lambda sv=net_only: sv.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time,
                 warmup=20))
+            if prefix and session_solver is not None:
+                session = dataclasses.replace(session_solver, network=session_solver.network.with_threads(threads))
+                latency[f"onnx_session_network@{threads}"] = percentiles(time_call(
+                    lambda sv=session: sv.solve_tensors(eff1, betas1, gender1, refine=NO_REFINEMENT),
+                    min_time=args.min_time, warmup=20))
+                latency[f"onnx_session_solve_effectors@{threads}"] = percentiles(time_call(
+                    lambda sv=session: sv.solve(objects, betas=beta_np, gender=gender_name), min_time=args.min_time,
+                    warmup=20))
             if not prefix:
                 latency[f"solve_dicts@{threads}"] = percentiles(time_call(
                     lambda: solver.solve(dicts, betas=beta_np, gender=gender_name), min_time=args.min_time,
@@ -265,7 +279,7 @@ def main() -> None:
         print(f"{k:<28}{v['ms_per_pose']:>10.2f}")
     print("\nsummary:", {k: round(v, 3) for k, v in summary.items()})
     print("targets:", targets)
-    path = save("speed", {"checkpoint": solver.source, "step": solver.meta.get("step"),
+    path = save(args.name, {"checkpoint": solver.source, "step": solver.meta.get("step"),
                           "network": solver.meta.get("network"), "effectors_per_pose": N_EFFECTORS,
                           "refine": solver.refine.to_dict(), "refine_backend": refine_backend_used,
                           "latency": latency, "throughput": throughput, "refinement": refinement,
@@ -273,6 +287,9 @@ def main() -> None:
                           "optim_prior": prior_source, "summary": summary, "targets": targets,
                           "onnx": None if onnx_solver is None else {
                               "file": onnx_solver.network.source, "opset": onnx_solver.network.meta.get("opset"),
+                              "small_batch_kernel": type(onnx_solver.network.small).__name__
+                              if onnx_solver.network.small is not None else None,
+                              "chunk_rows": CHUNK_ROWS,
                               "onnxruntime": __import__("onnxruntime").__version__},
                           "note": args.note,
                           "load_average_at_start": load_at_start, "load_average_at_end": os.getloadavg()})
