@@ -245,21 +245,24 @@ class OnnxNetwork:
         if B < 2 * CHUNK_ROWS:
             return self._run_chunk(arrays)
         bounds = [*range(0, B, CHUNK_ROWS), B]
-        parts: list[list[np.ndarray] | None] = [None] * (len(bounds) - 1)
+        outs = [np.empty((B, *shape), np.float32) for shape in self._output_shapes]
 
         def run(lo: int, hi: int) -> None:
-            parts[lo // CHUNK_ROWS] = self._run_chunk([a[lo:hi] for a in arrays])
+            self._run_chunk([a[lo:hi] for a in arrays], [o[lo:hi] for o in outs])
 
         run_spread(run, bounds, self.threads)
-        return [np.concatenate(outs) for outs in zip(*parts, strict=True)]
+        return outs
 
-    def _run_chunk(self, arrays: Sequence[np.ndarray]) -> list[np.ndarray]:
-        """One session call, through this thread's input buffers bound for these shapes."""
+    def _run_chunk(self, arrays: Sequence[np.ndarray], into: Sequence[np.ndarray] | None = None
+                   ) -> list[np.ndarray]:
+        """One session call, through this thread's input buffers bound for these shapes; the outputs are
+        written into ``into`` (C-contiguous float32 arrays of the output shapes) when given, else new arrays."""
         shapes = tuple(a.shape for a in arrays)
         bound = getattr(self._local, "bound", None)
         if bound is None:
             self._local.bound = bound = {}
-        if shapes not in bound:
+        key = (shapes, into is not None)
+        if key not in bound:
             if len(bound) >= 4:  # a chunk, a remainder and a few small calls
                 bound.clear()
             buffers = [np.empty(tuple(shape), dtype) for shape, dtype in zip(shapes, _INPUT_DTYPES, strict=True)]
@@ -268,12 +271,22 @@ class OnnxNetwork:
                 binding.bind_cpu_input(name, buffer)
             for name in OUTPUT_NAMES:
                 binding.bind_output(name, "cpu")
-            bound[shapes] = (buffers, binding)
-        buffers, binding = bound[shapes]
+            bound[key] = (buffers, binding)
+        buffers, binding = bound[key]
         for buffer, a in zip(buffers, arrays, strict=True):
             np.copyto(buffer, a, casting="unsafe")
+        if into is None:
+            self.session.run_with_iobinding(binding)
+            return binding.copy_outputs_to_cpu()  # copies: the buffers are reused
+        for name, out in zip(OUTPUT_NAMES, into, strict=True):
+            binding.bind_output(name, "cpu", 0, np.float32, list(out.shape), out.ctypes.data)
         self.session.run_with_iobinding(binding)
-        return binding.copy_outputs_to_cpu()  # copies: the buffers are reused
+        return list(into)
+
+    @property
+    def _output_shapes(self) -> list[tuple[int, ...]]:
+        """Each output's shape after the batch axis (static in an exported graph)."""
+        return [tuple(int(d) for d in o.shape[1:]) for o in self.session.get_outputs()]
 
 
 def select_network(runtime: str, model: ProtoResIK, model_path: str | Path, onnx_file: str | Path | None = None, *,

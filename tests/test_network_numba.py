@@ -84,7 +84,8 @@ def test_solver_runs_small_calls_in_the_kernel_and_large_ones_in_onnxruntime(mon
     kernel, session = network_numba.NumbaNetwork.run_arrays, onnx_runtime.OnnxNetwork._run_chunk
     monkeypatch.setattr(network_numba.NumbaNetwork, "run_arrays",
                         lambda self, *a: seen.append("kernel") or kernel(self, *a))
-    monkeypatch.setattr(onnx_runtime.OnnxNetwork, "_run_chunk", lambda self, a: seen.append("onnx") or session(self, a))
+    monkeypatch.setattr(onnx_runtime.OnnxNetwork, "_run_chunk",
+                        lambda self, a, into=None: seen.append("onnx") or session(self, a, into))
     for B in (1, onnx_runtime.SMALL_ROWS, onnx_runtime.SMALL_ROWS + 1):
         eff, betas, gender = random_effectors(solver.bodies, B, 8, seed=B)
         seen.clear()

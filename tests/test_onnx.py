@@ -326,11 +326,11 @@ def test_large_batches_run_in_chunks_over_threads_with_the_same_answer(onnx_net,
     calls: list[tuple[int, str]] = []
     run_chunk = onnx_runtime.OnnxNetwork._run_chunk
 
-    def spy(self, chunk):
+    def spy(self, chunk, into=None):
         import threading
 
         calls.append((chunk[0].shape[0], threading.current_thread().name))
-        return run_chunk(self, chunk)
+        return run_chunk(self, chunk, into)
 
     monkeypatch.setattr(onnx_runtime.OnnxNetwork, "_run_chunk", spy)
     for net in (onnx_net, two):
