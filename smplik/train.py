@@ -92,6 +92,9 @@ class TrainConfig:
     """Weight of the distillation term (:func:`smplik.losses.distillation_loss`)."""
     distill_ensemble: str = "mirror+yaw4"
     """The teacher's ensemble (:meth:`smplik.ensemble.EnsembleConfig.parse`)."""
+    distill_refine: bool = False
+    """The teacher's answer also goes through the solver's effector refinement (the teacher file's
+    calibrated ``refine`` settings, else the default): the target is the teacher solver's pose."""
     network: NetworkConfig = field(default_factory=NetworkConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
@@ -338,16 +341,22 @@ def _load_teacher(cfg: TrainConfig) -> Callable[..., IKOutput] | None:
         return None
     from smplik.ensemble import EnsembleConfig, run_ensemble
     from smplik.onnx_runtime import select_network
+    from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, refine_output
 
     ensemble = EnsembleConfig.parse(cfg.distill_ensemble)
-    teacher, _ = load_model(cfg.distill_from)
+    teacher, meta = load_model(cfg.distill_from)
     teacher.requires_grad_(False)
+    refine = RefineConfig(iterations=0)
+    if cfg.distill_refine:
+        refine = DEFAULT_REFINEMENT if meta.get("refine") is None else \
+            RefineConfig.from_dict(meta["refine"], f"{cfg.distill_from}: key 'refine'")
     # onnxruntime runs the teacher (its K * B rows) about twice as fast when its graph lies beside it
     network = select_network("auto", teacher, cfg.distill_from, threads=torch.get_num_threads()) or teacher
 
     def answer(eff: Any, betas: torch.Tensor, gender: torch.Tensor) -> IKOutput:
         with torch.no_grad():
-            return run_ensemble(network, eff, betas, gender, teacher.rest_joints(betas, gender), ensemble)
+            J_rest = teacher.rest_joints(betas, gender)
+            return refine_output(run_ensemble(network, eff, betas, gender, J_rest, ensemble), J_rest, eff, refine)
 
     return answer
 

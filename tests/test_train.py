@@ -295,6 +295,10 @@ def test_distillation_pulls_towards_the_teacher_and_resumes_exactly(tiny_cache, 
         train(part, progress=False, callback=interrupt)
     train(part, progress=False)
     assert_same_weights(distilled, load(tmp_path / "part" / "checkpoint.pt"))
+    refined = config(tiny_cache, tmp_path / "refined", **start, distill_weight=5.0, distill_refine=True)
+    train(refined, progress=False)  # the teacher solver's pose as the target: another run again
+    assert not torch.equal(load(tmp_path / "refined" / "checkpoint.pt")["model"]["ikd.blocks.0.forward_out.weight"],
+                           distilled["model"]["ikd.blocks.0.forward_out.weight"])
     with pytest.raises(ValueError, match="Unknown ensemble 'yaw-2'"):
         train(config(tiny_cache, tmp_path / "bad", distill_from=teacher, distill_ensemble="yaw-2"), progress=False)
 
@@ -354,9 +358,9 @@ def test_flags_alone(captured):
     assert cfg.lr == TrainConfig.lr and cfg.network.decoder_blocks == NetworkConfig.decoder_blocks
     assert captured("--data", "c.npz", "--out", "run", "--paper-sizes").network == NetworkConfig.paper()
     cfg = captured("--data", "c.npz", "--out", "run", "--precision", "bf16", "--distill-from", "t.pt",
-                   "--distill-weight", "0.5", "--distill-ensemble", "mirror")
-    assert (cfg.precision, cfg.distill_from, cfg.distill_weight, cfg.distill_ensemble) == ("bf16", "t.pt", 0.5,
-                                                                                          "mirror")
+                   "--distill-weight", "0.5", "--distill-ensemble", "mirror", "--distill-refine")
+    assert (cfg.precision, cfg.distill_from, cfg.distill_weight, cfg.distill_ensemble, cfg.distill_refine) == (
+        "bf16", "t.pt", 0.5, "mirror", True)
 
 
 def test_bad_config_files_are_one_line_errors(tmp_path):

@@ -85,6 +85,9 @@ def train_command(
                                                          f"({_default('distill_weight')}).")] = None,
     distill_ensemble: Annotated[str | None, typer.Option(help="The teacher's ensemble, e.g. mirror+yaw4 "
                                                          f"({_default('distill_ensemble')}).")] = None,
+    distill_refine: Annotated[bool | None, typer.Option(
+        "--distill-refine/--no-distill-refine", help="The teacher's answer also goes through its solver "
+        f"refinement ({_default('distill_refine')}).")] = None,
     resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/checkpoint.pt if present.")] = True,
     threads: Annotated[int | None, typer.Option(min=1, help="torch intra-op threads (default: torch's; on a busy "
                                                 "machine 1 can be several times faster).")] = None,
@@ -105,7 +108,8 @@ def train_command(
              "lr_final_fraction": lr_final_fraction, "val_every": val_every, "ckpt_every": ckpt_every,
              "val_size": val_size, "val_fraction": val_fraction, "seed": seed, "augment": augment,
              "beta_noise": beta_noise, "model_dir": model_dir, "init_from": init_from, "precision": precision,
-             "distill_from": distill_from, "distill_weight": distill_weight, "distill_ensemble": distill_ensemble}
+             "distill_from": distill_from, "distill_weight": distill_weight, "distill_ensemble": distill_ensemble,
+             "distill_refine": distill_refine}
     top = {k: str(v) if isinstance(v, Path) else v for k, v in given.items() if v is not None}
     net = base.network
     if paper_sizes:
