@@ -13,7 +13,7 @@ benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoin
 * the same ``network``/``refined``/``solve`` rows with the network run by onnxruntime
   (``IKSolver.load(runtime="onnx")``, :mod:`smplik.onnx_runtime`; keys prefixed ``onnx_``), when
   onnxruntime is installed: ``--onnx FILE`` (default: exported in memory). As in the solver, calls of at
-  most 8 rows then run in the numba kernel (:mod:`smplik.network_numba`) when numba is installed, and
+  most 16 effector tokens then run in the numba kernel (:mod:`smplik.network_numba`) when numba is installed, and
   large batches as 128-row chunks over the threads; the one-pose latency rows prefixed ``onnx_session_``
   run every call through the onnxruntime session instead (``small_batches=False``);
 * the refinement alone (:func:`smplik.refine.refine_output` on the network's output), ``"reference"``

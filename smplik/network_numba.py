@@ -9,8 +9,10 @@ ONNX graph and agrees with the torch network within 1e-5 (tested). Batches of at
 :data:`CHUNK_ROWS` rows are split into chunks spread over threads (the kernel is ``nogil``).
 
 :class:`NumbaNetwork` has :class:`~smplik.onnx_runtime.OnnxNetwork`'s interface (``__call__``,
-``run_arrays``, ``threads``, ``with_threads``); the solver's ``runtime="auto"`` uses it for small batches
-next to onnxruntime (:func:`smplik.onnx_runtime.select_network`). The first call in a new installation
+``run_arrays``, ``threads``, ``with_threads``); the solver's onnxruntime network hands it the calls of at
+most :data:`smplik.onnx_runtime.SMALL_TOKENS` effector tokens, one pose of up to 16 effectors, where it takes
+about half the time of a session call (:func:`smplik.onnx_runtime.select_network`). Larger calls stay with
+onnxruntime's graph, which is faster per pose from a few poses on. The first call in a new installation
 compiles the kernel (cached on disk, as :mod:`smplik.refine_fast`'s).
 """
 
@@ -29,24 +31,16 @@ from smplik.threads import run_spread
 
 CHUNK_ROWS = 128
 """Batches of at least ``2 * CHUNK_ROWS`` rows run as chunks of this many rows spread over the threads."""
-
 _POS, _ROT = int(EffectorType.POSITION), int(EffectorType.ROTATION)
 _EPS = np.float32(1e-8)  # Gram-Schmidt's norm floor, as smplik.rotations.rot6d_to_matrix
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True)
 def _matmul(x, W):
-    """x (R, in) @ W (in, out) as row updates ``y[i] += x[i, k] W[k]`` (vectorised over ``out``): for the few
-    rows of a small batch this is as fast as BLAS and never starts BLAS's own threads."""
-    M = W.shape[1]
-    y = np.zeros((x.shape[0], M), np.float32)
-    for i in range(x.shape[0]):
-        for k in range(x.shape[1]):
-            a = x[i, k]
-            if a != 0:  # ReLU outputs: often zero
-                for c in range(M):
-                    y[i, c] += a * W[k, c]
-    return y
+    """x (R, in) @ W (in, out): BLAS ``sgemm`` (scipy's, through numba). At the sizes the solver calls this
+    kernel for (:data:`smplik.onnx_runtime.SMALL_TOKENS` effector tokens or fewer: at most 65,536 x 4
+    multiply-adds per product) OpenBLAS runs single-threaded, and 3x faster than a compiled loop."""
+    return np.dot(x, W)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -179,19 +173,22 @@ def forward_kernel(joint, kind, data, tolerance, mask, betas, gender, Ws, bs, en
                 J_rest[j, c] = v
         for j in range(J):
             # 6D -> rotation (ProtoRes eq. 14): columns b1, b2, b1 x b2
-            a = rot6d[i, 6 * j:6 * j + 6] + identity_6d[6 * j:6 * j + 6]
-            n1 = max(np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]), _EPS)
-            b1 = a[:3] / n1
-            d = b1[0] * a[3] + b1[1] * a[4] + b1[2] * a[5]
-            u = a[3:] - d * b1
-            n2 = max(np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]), _EPS)
-            b2 = u / n2
-            for c in range(3):
-                R_local[i, j, c, 0] = b1[c]
-                R_local[i, j, c, 1] = b2[c]
-            R_local[i, j, 0, 2] = b1[1] * b2[2] - b1[2] * b2[1]
-            R_local[i, j, 1, 2] = b1[2] * b2[0] - b1[0] * b2[2]
-            R_local[i, j, 2, 2] = b1[0] * b2[1] - b1[1] * b2[0]
+            o = 6 * j
+            a0, a1, a2 = rot6d[i, o] + identity_6d[o], rot6d[i, o + 1] + identity_6d[o + 1], \
+                rot6d[i, o + 2] + identity_6d[o + 2]
+            c0, c1, c2 = rot6d[i, o + 3] + identity_6d[o + 3], rot6d[i, o + 4] + identity_6d[o + 4], \
+                rot6d[i, o + 5] + identity_6d[o + 5]
+            n1 = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), _EPS)
+            x0, x1, x2 = a0 / n1, a1 / n1, a2 / n1
+            d = x0 * c0 + x1 * c1 + x2 * c2
+            u0, u1, u2 = c0 - d * x0, c1 - d * x1, c2 - d * x2
+            n2 = max(np.sqrt(u0 * u0 + u1 * u1 + u2 * u2), _EPS)
+            y0, y1, y2 = u0 / n2, u1 / n2, u2 / n2
+            R_local[i, j, 0, 0], R_local[i, j, 1, 0], R_local[i, j, 2, 0] = x0, x1, x2
+            R_local[i, j, 0, 1], R_local[i, j, 1, 1], R_local[i, j, 2, 1] = y0, y1, y2
+            R_local[i, j, 0, 2] = x1 * y2 - x2 * y1
+            R_local[i, j, 1, 2] = x2 * y0 - x0 * y2
+            R_local[i, j, 2, 2] = x0 * y1 - x1 * y0
         for c in range(3):
             transl[i, c] = draft[i, c] - J_rest[0, c] + centroid[i, c]
             for j in range(J):

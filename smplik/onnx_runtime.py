@@ -161,8 +161,9 @@ def export_onnx(model: ProtoResIK, out: str | Path, meta: Mapping[str, Any] | No
 
 CHUNK_ROWS = 128
 """Batches of at least ``2 * CHUNK_ROWS`` rows run as chunks of this many rows, one session call each."""
-SMALL_ROWS = 8
-"""Calls of at most this many rows run in the network's ``small`` kernel when it has one."""
+SMALL_TOKENS = 16
+"""Calls of at most this many effector tokens (rows x effectors: one pose of up to 16 effectors) run in the
+network's ``small`` kernel when it has one."""
 
 
 class OnnxNetwork:
@@ -176,14 +177,15 @@ class OnnxNetwork:
     large call (their activations stay in cache). Rows are independent, so the answer does not depend
     on ``threads`` (tested bit for bit).
 
-    Calls of at most :data:`SMALL_ROWS` rows run in ``small``, when given (:func:`select_network` gives
-    :class:`smplik.network_numba.NumbaNetwork` of the same weights when numba is installed): one compiled
-    kernel instead of ~170 graph operators, about half the time of a one-pose session call.
+    Calls of at most :data:`SMALL_TOKENS` effector tokens (B N) run in ``small``, when given
+    (:func:`select_network` gives :class:`smplik.network_numba.NumbaNetwork` of the same weights when numba
+    is installed): one compiled kernel instead of ~170 graph operators, about half the time of a one-pose
+    session call.
 
     Args:
         model: an ``.onnx`` file from :func:`export_onnx` or its bytes.
         threads: threads a large batch is spread over (1: everything in the caller's thread).
-        small: the network for calls of at most :data:`SMALL_ROWS` rows (None: the session runs every call).
+        small: the network for calls of at most :data:`SMALL_TOKENS` tokens (None: the session runs every call).
 
     Raises:
         OnnxUnavailableError: onnxruntime is missing.
@@ -240,7 +242,7 @@ class OnnxNetwork:
         """The graph on numpy inputs in :data:`INPUT_NAMES` order (any numeric dtype: cast into the bound
         buffers) -> the outputs in :data:`OUTPUT_NAMES` order, new float32 arrays."""
         B = arrays[0].shape[0] if arrays and arrays[0].ndim else 0
-        if self.small is not None and B <= SMALL_ROWS:
+        if self.small is not None and B * (arrays[0].shape[1] if arrays[0].ndim > 1 else 1) <= SMALL_TOKENS:
             return self.small.run_arrays(*arrays)
         if B < 2 * CHUNK_ROWS:
             return self._run_chunk(arrays)
@@ -294,7 +296,7 @@ def select_network(runtime: str, model: ProtoResIK, model_path: str | Path, onnx
                    ) -> OnnxNetwork | None:
     """The network backend a solver runs: None for the torch model, else an :class:`OnnxNetwork`.
 
-    ``small_batches``: with numba installed, calls of at most :data:`SMALL_ROWS` rows run in
+    ``small_batches``: with numba installed, calls of at most :data:`SMALL_TOKENS` effector tokens run in
     :class:`smplik.network_numba.NumbaNetwork` (same weights; tested equal within 1e-5) instead of the session.
 
     ``"torch"``: None. ``"onnx"``: ``onnx_file``, else ``model_path`` with the suffix ``.onnx`` if it exists,

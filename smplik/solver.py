@@ -218,8 +218,9 @@ class IKSolver:
                 ``onnx_file``/``PATH.onnx`` exists, as for the packaged model; else torch), ``"torch"`` or ``"onnx"``
                 (onnxruntime); see :func:`smplik.onnx_runtime.select_network`. ``onnx_threads``: onnxruntime threads.
             ensemble: test-time ensemble (e.g. ``EnsembleConfig(yaw=4, mirror=True)``; default: none).
-            small_batches: with onnxruntime and numba, calls of at most 8 rows run in the network's numba
-                kernel (:mod:`smplik.network_numba`; same weights, about half the time of a session call).
+            small_batches: with onnxruntime and numba, calls of at most 16 effector tokens (one pose of up to
+                16 effectors) run in the network's numba kernel (:mod:`smplik.network_numba`; same weights,
+                about half the time of a session call).
 
         Raises:
             FileNotFoundError: no such file (or no packaged model in this installation).

@@ -3,7 +3,7 @@
 The kernel is the network's function in float32, like the ONNX graph: it must agree with the torch network
 (the reference) within 1e-5 for every effector type, tolerance, padding, body and gender, for any batch (the
 chunks of a large batch spread over threads give the same answer bit for bit), and the solver must use it
-only for calls of at most SMALL_ROWS rows.
+only for calls of at most SMALL_TOKENS effector tokens (rows x effectors).
 """
 
 from __future__ import annotations
@@ -86,11 +86,12 @@ def test_solver_runs_small_calls_in_the_kernel_and_large_ones_in_onnxruntime(mon
                         lambda self, *a: seen.append("kernel") or kernel(self, *a))
     monkeypatch.setattr(onnx_runtime.OnnxNetwork, "_run_chunk",
                         lambda self, a, into=None: seen.append("onnx") or session(self, a, into))
-    for B in (1, onnx_runtime.SMALL_ROWS, onnx_runtime.SMALL_ROWS + 1):
-        eff, betas, gender = random_effectors(solver.bodies, B, 8, seed=B)
+    small = onnx_runtime.SMALL_TOKENS
+    for B, N in ((1, 8), (1, small), (1, small + 1), (2, small // 2), (3, small // 2)):
+        eff, betas, gender = random_effectors(solver.bodies, B, N, seed=B * 100 + N)
         seen.clear()
         fast = solver.solve_tensors(eff, betas, gender)
-        assert seen == (["kernel"] if B <= onnx_runtime.SMALL_ROWS else ["onnx"]), (B, seen)
+        assert seen == (["kernel"] if B * N <= small else ["onnx"]), (B, N, seen)
         seen.clear()
         ref = plain.solve_tensors(eff, betas, gender)
         assert seen == ["onnx"]
