@@ -386,6 +386,9 @@ def test_shipped_recipe_configs_parse():
     cfgs = {n: TrainConfig.from_file(root / f"shipped_{n}.json", data="", out="") for n in ("ft1", "ft2")}
     distill = TrainConfig.from_file(root / "shipped_ft3_distill.json", data="", out="")
     assert (distill.precision, distill.distill_ensemble, distill.distill_weight) == ("bf16", "mirror+yaw4", 1.0)
+    assert not distill.distill_refine
+    refined = TrainConfig.from_file(root / "shipped_ft4_distill_refine.json", data="", out="")
+    assert refined.distill_refine and refined.precision == "bf16" and refined.steps == 12000
     assert (cfgs["ft1"].loss.w_rot_local, cfgs["ft2"].loss.w_rot_local) == (2.0, 4.0)
     for cfg in cfgs.values():
         assert cfg.loss.w_pos_rnd == 1000.0 and cfg.effectors.eta == 4.0 and cfg.effectors.max_effectors == 16
