@@ -18,6 +18,7 @@ key                 exported model (``format: smplik-model``)       checkpoint (
 ``step``            optimizer steps trained                         same
 ``train_config`` /  the run's ``TrainConfig`` dict                  ``config`` (same dict)
 ``optimizer``, ``rng``, ``loss_ema``   --                           Adam state; RNG states as tensors
+``averaged_from``   inputs of :func:`average_models` (name, step)   --
 ==================  =============================================  ==================================
 
 A file written some other way is refused with a one-line :class:`CheckpointError` naming the
@@ -35,7 +36,7 @@ import pickle
 import re
 import warnings
 import zipfile
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ import torch
 from smplik.atomic import atomic_path
 from smplik.network import NetworkConfig, ProtoResIK
 
-__all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "export_model",
+__all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "average_models", "export_model",
            "load_checkpoint", "load_model", "read_model_file", "write_model_file"]
 
 MODEL_FORMAT = "smplik-model"
@@ -276,11 +277,10 @@ def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, 
             raise CheckpointError(f"{checkpoint}: key '{key}' is missing or not a dict.")
     if not all(isinstance(v, torch.Tensor) for v in state["model"].values()):
         raise CheckpointError(f"{checkpoint}: key 'model' must map names to tensors.")
-    weights = {k: (v.half() if half and v.is_floating_point() and not k.startswith(("J_", "identity")) else v)
-               for k, v in state["model"].items()}
-    slim = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "network": state["network"], "model": weights,
-            "body_fingerprint": state.get("body_fingerprint"), "metrics": state.get("metrics", {}),
-            "step": state.get("step", 0), "train_config": state.get("train_config", state.get("config", {}))}
+    weights = {k: (v.half() if half and _is_weight(k, v) else v) for k, v in state["model"].items()}
+    slim = _slim_state(state, weights)
+    if "averaged_from" in state:
+        slim["averaged_from"] = state["averaged_from"]
     for key in ("refine", "refine_calibration"):  # a calibrated model keeps its refinement settings
         if state.get(key) is not None:
             slim[key] = state[key]
@@ -288,6 +288,69 @@ def export_model(checkpoint: str | Path, out: str | Path, *, half: bool = True, 
         return write_model_file(out, slim)
     except TypeError as exc:
         raise CheckpointError(f"{checkpoint}: {exc}") from None
+
+
+def _slim_state(state: Mapping[str, Any], weights: Mapping[str, torch.Tensor]) -> dict[str, Any]:
+    """The exported-model dict of ``state`` (a checkpoint or model file) with ``weights`` as its state dict."""
+    return {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "network": state["network"], "model": dict(weights),
+            "body_fingerprint": state.get("body_fingerprint"), "metrics": state.get("metrics", {}),
+            "step": state.get("step", 0), "train_config": state.get("train_config", state.get("config", {}))}
+
+
+def _is_weight(key: str, value: torch.Tensor) -> bool:
+    """A trained floating-point weight (not the rest-skeleton buffers ``J_*`` / ``identity*``)."""
+    return value.is_floating_point() and not key.startswith(("J_", "identity"))
+
+
+def average_models(paths: Sequence[str | Path], out: str | Path, *, half: bool = True) -> Path:
+    """Uniform weight average of models fine-tuned from one start (a "model soup", Wortsman et al. 2022).
+
+    Every input (model file or checkpoint) must have the same network config, body fingerprint, weight names and
+    shapes, and identical rest-skeleton buffers. The weights are averaged in float32 and written like
+    :func:`export_model` (fp16 unless ``half=False``), with ``averaged_from`` (file names and steps). Refinement
+    settings are not carried over: calibrate the average anew (``smplik benchmark calibrate``).
+
+    Raises:
+        ValueError: fewer than two inputs. CheckpointError: an unreadable input or one that does not match the first
+            (named by file and key).
+    """
+    if len(paths) < 2:
+        raise ValueError(f"averaging needs at least two model files, got {len(paths)}.")
+    paths = [Path(p) for p in paths]
+    states = [read_model_file(p) for p in paths]
+    first, ref = paths[0], states[0]
+    for path, state in zip(paths, states, strict=True):
+        for key in ("network", "model"):
+            if not isinstance(state.get(key), dict):
+                raise CheckpointError(f"{path}: key '{key}' is missing or not a dict.")
+        _network_config(state, path)
+        if state["network"] != ref["network"]:
+            raise CheckpointError(f"{path}: key 'network' differs from {first}'s; only models of one architecture "
+                                  "can be averaged.")
+        if state.get("body_fingerprint") != ref.get("body_fingerprint"):
+            raise CheckpointError(f"{path}: key 'body_fingerprint' differs from {first}'s (other body models).")
+        if state["model"].keys() != ref["model"].keys():
+            extra = sorted(set(state["model"]) ^ set(ref["model"]))
+            raise CheckpointError(f"{path}: weight names differ from {first}'s (e.g. 'model.{extra[0]}').")
+        for key, value in state["model"].items():
+            base = ref["model"][key]
+            if not isinstance(value, torch.Tensor) or value.shape != base.shape:
+                raise CheckpointError(f"{path}: key 'model.{key}' is not a tensor of shape {tuple(base.shape)}.")
+            if not _is_weight(key, value) and not torch.equal(value.to(base.dtype), base):
+                raise CheckpointError(f"{path}: buffer 'model.{key}' differs from {first}'s (other body models).")
+    weights = {}
+    for key, base in ref["model"].items():
+        if _is_weight(key, base):
+            mean = torch.stack([s["model"][key].float() for s in states]).mean(0)
+            weights[key] = mean.half() if half else mean
+        else:
+            weights[key] = base
+    slim = _slim_state(ref, weights)
+    slim["step"] = max(int(s.get("step", 0) or 0) for s in states)
+    slim["metrics"] = {}
+    slim["averaged_from"] = [{"file": p.name, "step": int(s.get("step", 0) or 0)} for p, s in zip(paths, states,
+                                                                                               strict=True)]
+    return write_model_file(out, slim)
 
 
 def write_calibrated_model(source: str | Path, out: str | Path, refine: Mapping[str, Any],

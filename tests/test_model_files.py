@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from smplik.model_io import (
     FORMAT_VERSION,
     CheckpointError,
+    average_models,
     export_model,
     load_checkpoint,
     load_model,
@@ -254,3 +255,55 @@ def test_decompression_bomb_is_refused_before_reading(tmp_path, monkeypatch):
         zf.writestr("archive/data.pkl", b"\0" * (1 << 20))
     with pytest.raises(CheckpointError, match="bomb.pt: member 'archive/data.pkl' inflates"):
         read_model_file(bomb)
+
+
+def _tiny_file(tmp_path, bodies, name: str, seed: int, cfg: NetworkConfig = TINY, **extra) -> Path:
+    torch.manual_seed(seed)
+    model = ProtoResIK(cfg, bodies.J_template, bodies.J_dirs)
+    return write_model_file(tmp_path / name, {"format": "smplik-checkpoint", "version": FORMAT_VERSION,
+                                              "step": 10 * seed, "network": cfg.to_dict(),
+                                              "model": model.state_dict(), "body_fingerprint": "bodies", **extra})
+
+
+def test_average_models_is_the_mean_of_the_weights(tmp_path, bodies):
+    paths = [_tiny_file(tmp_path, bodies, f"m{seed}.pt", seed) for seed in (1, 2, 3)]
+    out = average_models(paths, tmp_path / "soup.pt", half=False)
+    soup, meta = load_model(out)
+    inputs = [load_model(p)[0].state_dict() for p in paths]
+    for key, value in soup.state_dict().items():
+        expected = torch.stack([s[key].float() for s in inputs]).mean(0)
+        assert torch.allclose(value, expected, atol=1e-7), key
+    weights = [k for k, v in inputs[0].items() if v.is_floating_point() and not k.startswith(("J_", "identity"))]
+    assert weights and all(not torch.equal(inputs[0][k], inputs[1][k]) for k in weights if inputs[0][k].std() > 0)
+    assert meta["step"] == 30 and [a["file"] for a in meta["averaged_from"]] == ["m1.pt", "m2.pt", "m3.pt"]
+    assert "refine" not in meta
+    assert export_model(out, tmp_path / "again.pt") and load_model(tmp_path / "again.pt")[1]["averaged_from"]
+
+
+def test_average_models_refuses_mismatches(tmp_path, bodies):
+    a = _tiny_file(tmp_path, bodies, "a.pt", 1)
+    wide = _tiny_file(tmp_path, bodies, "wide.pt", 2, replace(TINY, width=24))
+    other_body = _tiny_file(tmp_path, bodies, "body.pt", 3, body_fingerprint="other")
+    with pytest.raises(ValueError, match="at least two"):
+        average_models([a], tmp_path / "x.pt")
+    with pytest.raises(CheckpointError, match="wide.pt: key 'network' differs"):
+        average_models([a, wide], tmp_path / "x.pt")
+    with pytest.raises(CheckpointError, match="body.pt: key 'body_fingerprint' differs"):
+        average_models([a, other_body], tmp_path / "x.pt")
+    state = read_model_file(a)
+    state["model"]["J_template"] = state["model"]["J_template"] + 0.01
+    moved = write_model_file(tmp_path / "moved.pt", state)
+    with pytest.raises(CheckpointError, match="moved.pt: buffer 'model.J_template' differs"):
+        average_models([a, moved], tmp_path / "x.pt")
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_average_models_cli(tmp_path, bodies):
+    a, b = _tiny_file(tmp_path, bodies, "a.pt", 1), _tiny_file(tmp_path, bodies, "b.pt", 2)
+    result = cli("average-models", str(a), str(b), "--out", str(tmp_path / "soup.pt"))
+    assert result.exit_code == 0, result.output
+    assert read_model_file(tmp_path / "soup.pt")["format"] == "smplik-model"
+    wide = _tiny_file(tmp_path, bodies, "wide.pt", 3, replace(TINY, width=24))
+    result = cli("average-models", str(a), str(wide), "--out", str(tmp_path / "bad.pt"))
+    assert result.exit_code == 1 and "key 'network' differs" in result.output
+    assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "bad.pt").exists()

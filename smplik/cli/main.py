@@ -11,7 +11,7 @@ from smplik.cli.benchmark import app as benchmark_app
 from smplik.cli.body import body_app
 from smplik.cli.errors import run_guarded
 from smplik.cli.solve import solve_command
-from smplik.cli.train import export_command, train_command
+from smplik.cli.train import average_command, export_command, train_command
 from smplik.data.cli import app as data_app
 from workflows.cli import demo_cmd, scene_app
 from workflows.editor.cli import edit_cmd
@@ -24,6 +24,7 @@ app.add_typer(benchmark_app, name="benchmark")
 app.add_typer(scene_app, name="scene")
 app.command("train")(train_command)
 app.command("export-model")(export_command)
+app.command("average-models")(average_command)
 app.command("solve")(solve_command)
 app.command("invert-shape")(invert_shape)
 app.command("demo")(demo_cmd)

@@ -1,4 +1,4 @@
-"""``smplik train`` and ``smplik export-model``: CLI over :class:`smplik.train.TrainConfig`.
+"""``smplik train``, ``smplik export-model`` and ``smplik average-models``: CLI over :class:`smplik.train.TrainConfig`.
 
 Precedence: ``TrainConfig``'s defaults, then the ``--config`` file, then the flags actually given.
 Every option defaults to "unset" (None), so a flag overrides the file only when it is on the
@@ -137,6 +137,22 @@ def train_command(
         except (FileNotFoundError, CheckpointError, ValueError) as exc:
             raise _fail(str(exc)) from None
     typer.echo(json.dumps({"run": cfg.out, **metrics}, indent=2))
+
+
+def average_command(
+    models: Annotated[list[Path], typer.Argument(help="Two or more model files or checkpoints of one architecture, "
+                                                 "fine-tuned from the same start.")],
+    out: Annotated[Path, typer.Option("--out", help="Model file to write (the uniform average of the weights).")],
+    full_precision: Annotated[bool, typer.Option(help="Keep fp32 weights (default: fp16).")] = False,
+) -> None:
+    """Average the weights of models fine-tuned from one start (a model soup); calibrate the result anew."""
+    from smplik.model_io import CheckpointError, average_models
+
+    try:
+        average_models(models, out, half=not full_precision)
+    except (FileNotFoundError, CheckpointError, ValueError) as exc:
+        raise _fail(str(exc)) from None
+    typer.echo(f"wrote {out} (average of {len(models)} models)")
 
 
 def export_command(
