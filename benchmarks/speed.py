@@ -16,6 +16,8 @@ benchmarks/results/speed.json. Measured for the packaged model (or ``--checkpoin
   most 16 effector tokens then run in the numba kernel (:mod:`smplik.network_numba`) when numba is installed, and
   large batches as 128-row chunks over the threads; the one-pose latency rows prefixed ``onnx_session_``
   run every call through the onnxruntime session instead (``small_batches=False``);
+* ``onnx_intraop_network@2/bB`` (B >= 256): the same graph in a plain onnxruntime session with two intra-op
+  threads, called once on the whole batch: the comparison for the chunks;
 * the refinement alone (:func:`smplik.refine.refine_output` on the network's output), ``"reference"``
   (torch) against ``"fast"`` (numba, :mod:`smplik.refine_fast`; when numba is installed) at batch 1 and
   1024, at 1 and 2 threads (``refinement`` in the JSON; ``refine_backend`` says which one the solver rows
@@ -47,7 +49,7 @@ from _common import save, time_call  # noqa: E402
 from smplik.benchmark import BenchmarkSet, OptimizationIK, PosePrior  # noqa: E402
 from smplik.effectors import Effector, EffectorBatch  # noqa: E402
 from smplik.kinematics import forward_kinematics  # noqa: E402
-from smplik.onnx_runtime import CHUNK_ROWS, onnxruntime_available  # noqa: E402
+from smplik.onnx_runtime import CHUNK_ROWS, INPUT_NAMES, onnxruntime_available  # noqa: E402
 from smplik.paths import pose_cache  # noqa: E402
 from smplik.refine import NO_REFINEMENT, numba_available, refine_output, resolve_backend  # noqa: E402
 from smplik.rotations import axis_angle_to_matrix  # noqa: E402
@@ -92,6 +94,20 @@ def to_effectors(eff: EffectorBatch, row: int = 0) -> list[Effector]:
         else:
             out.append(Effector.look_at(j, d[:3], d[3:]))
     return out
+
+
+def intra_op_runner(model: bytes, threads: int, eff: EffectorBatch, betas: torch.Tensor, gender: torch.Tensor):
+    """A call of a plain onnxruntime session (``intra_op_num_threads=threads``) on the whole batch at once,
+    the comparison for :class:`~smplik.onnx_runtime.OnnxNetwork`'s chunks spread over Python threads."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.log_severity_level = 3
+    session = ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
+    feeds = dict(zip(INPUT_NAMES, (eff.joint.numpy(), eff.type.numpy(), eff.data.numpy(), eff.tolerance.numpy(),
+                                   eff.mask.numpy(), betas.numpy(), gender.numpy()), strict=True))
+    return lambda: session.run(None, feeds)
 
 
 def percentiles(times: list[float]) -> dict[str, float]:
@@ -179,6 +195,13 @@ def main() -> None:
                 med = statistics.median(times)
                 throughput[f"{prefix}{name}@{threads}/b{batch}"] = {"median_ms": med * 1e3,
                                                                      "poses_per_s": batch / med}
+        if onnx_solver is not None and threads > 1:  # the plain way: one call, onnxruntime's intra-op threads
+            for batch in (b for b in batches if b >= 2 * CHUNK_ROWS):
+                run = intra_op_runner(onnx_solver.network.model_bytes, threads, *example_inputs(solver, batch,
+                                                                                                 seed=batch)[:3])
+                med = statistics.median(time_call(run, min_time=args.min_time, warmup=2))
+                throughput[f"onnx_intraop_network@{threads}/b{batch}"] = {"median_ms": med * 1e3,
+                                                                          "poses_per_s": batch / med}
         eff, betas, gender, _, _ = example_inputs(solver, 256, seed=256)
         lists = [to_effectors(eff, r) for r in range(256)]
         b_np = betas.numpy().astype(np.float64)

@@ -218,6 +218,11 @@ class OnnxNetwork:
                                  f"inputs {', '.join(names)}); export one with `smplik export-model --onnx`.")
 
     @property
+    def model_bytes(self) -> bytes:
+        """The serialized graph this session runs."""
+        return self._model
+
+    @property
     def fingerprint(self) -> str | None:
         """The ``model_fingerprint`` of the weights it was exported from."""
         return self.meta.get("model_fingerprint")
