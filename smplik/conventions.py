@@ -68,6 +68,27 @@ def _mirror_map() -> tuple[int, ...]:
 LEFT_RIGHT: tuple[int, ...] = _mirror_map()
 """``LEFT_RIGHT[j]`` is the joint that mirrors joint ``j`` across the body's sagittal (x = 0) plane."""
 
+ZONES: dict[str, tuple[str, ...]] = {
+    "pelvis_hips": ("pelvis", "left_hip", "right_hip"),
+    "torso_head": ("spine1", "spine2", "spine3", "neck", "head"),
+    "left_arm": ("left_collar", "left_shoulder", "left_elbow", "left_wrist", "left_hand"),
+    "right_arm": ("right_collar", "right_shoulder", "right_elbow", "right_wrist", "right_hand"),
+    "left_leg": ("left_knee", "left_ankle", "left_foot"),
+    "right_leg": ("right_knee", "right_ankle", "right_foot"),
+}
+"""Joint zones (every SMPL joint is in exactly one): the benchmark's random sets and the training
+option ``limb_first`` place effectors by zone."""
+LIMB_ZONES: tuple[str, ...] = ("left_arm", "right_arm", "left_leg", "right_leg")
+"""The zones of the four limbs (animators pin hands and feet first)."""
+LIMB_CHAINS: dict[str, tuple[str, ...]] = {
+    "left_arm": ZONES["left_arm"],
+    "right_arm": ZONES["right_arm"],
+    "left_leg": ("left_hip", *ZONES["left_leg"]),
+    "right_leg": ("right_hip", *ZONES["right_leg"]),
+}
+"""Each limb's joints whose local rotations pose it relative to the torso (the hip's rotation poses
+the thigh); the training option ``part_swap`` exchanges these between frames."""
+
 
 class Gender(str, Enum):
     """SMPL body model gender; the value is the lowercase name used in files and on the CLI."""

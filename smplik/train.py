@@ -78,6 +78,9 @@ class TrainConfig:
     """Random rotation about the vertical axis and left/right mirroring."""
     beta_noise: float = 1.0
     """Std of the Gaussian added to dataset betas (or of betas when the source has none)."""
+    part_swap: float = 0.0
+    """Probability per limb and sample that the limb's local rotations come from another random
+    train frame (:class:`~smplik.data.sampler.PoseSampler`); 0: off (the paper's sampling)."""
     model_dir: str | None = None
     """Folder with real SMPL files (default: built-in model)."""
     init_from: str | None = None
@@ -450,7 +453,7 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
 
     per_rank = max(1, cfg.batch_size // world)
     sampler = PoseSampler(train_set, bodies, batch_size=per_rank, generator=gens["poses"], augment=cfg.augment,
-                          beta_noise=cfg.beta_noise)
+                          beta_noise=cfg.beta_noise, part_swap=cfg.part_swap)
     val_batch = val_eff = None
     if len(val_set):
         val_gen = torch.Generator().manual_seed(12345)

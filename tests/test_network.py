@@ -177,3 +177,31 @@ def test_bf16_autocast_runs_only_the_layers_in_low_precision(model, bodies):
     posed = (out.p_world[:, 1:] - out.p_world[:, parents[1:]]).norm(dim=-1)
     torch.testing.assert_close(posed, bone, atol=1e-5, rtol=0)
     assert 0 < float((out.p_world - ref.p_world).abs().max()) < 0.05  # bfloat16 layers: close, not equal
+
+
+def test_limb_first_layout(bodies):
+    """limb_first = 1: the first min(N, 4) effectors are positions, one on a joint of each limb zone, and
+    (joint, type) pairs stay unique; limb_first = 0 draws nothing extra (the paper's stream, bit for bit)."""
+    from smplik.conventions import JOINT_NAMES, LIMB_ZONES, ZONES
+
+    _, R_world, p_world, *_ = ground_truth(bodies, B=256)
+    for n in (3, 4, 9, 16):
+        eff = sample_effectors(p_world, R_world, EffectorSamplingConfig(limb_first=1.0),
+                               torch.Generator().manual_seed(n), num_effectors=n).effectors
+        for joints, kinds in zip(eff.joint.tolist(), eff.type.tolist(), strict=True):
+            pairs = list(zip(joints, kinds, strict=True))
+            assert len(set(pairs)) == n
+            for (j, t), zone in zip(pairs[:4], LIMB_ZONES, strict=False):  # N = 3: three zones
+                assert t == 0 and JOINT_NAMES[j] in ZONES[zone], (pairs, zone)
+        hits = {JOINT_NAMES[j] for j in eff.joint[:, 0].tolist()}
+        assert hits == set(ZONES["left_arm"])  # every joint of the zone is drawn
+    paper = sample_effectors(p_world, R_world, EffectorSamplingConfig(), torch.Generator().manual_seed(5), 9)
+    zero = sample_effectors(p_world, R_world, EffectorSamplingConfig(limb_first=0.0),
+                            torch.Generator().manual_seed(5), 9)
+    assert torch.equal(paper.effectors.joint, zero.effectors.joint)
+    assert torch.equal(paper.effectors.data, zero.effectors.data)
+    half = sample_effectors(p_world, R_world, EffectorSamplingConfig(limb_first=0.5), torch.Generator().manual_seed(6),
+                            8).effectors
+    layout = torch.stack([(half.type[:, k] == 0) & torch.isin(half.joint[:, k], torch.tensor(
+        [JOINT_NAMES.index(n) for n in ZONES[z]])) for k, z in enumerate(LIMB_ZONES)], 1).all(1)
+    assert 0.4 < layout.float().mean() < 0.65  # half the rows, plus the few the paper's sampling lays out so

@@ -190,3 +190,36 @@ def test_invalid_arguments() -> None:
         PoseSampler(random_dataset(), symmetric_body_models(), batch_size=0, generator=torch.Generator())
     with pytest.raises(ValueError, match="pose shape"):
         mirror_pose(torch.zeros(2, 23, 3), torch.zeros(2, 3))
+
+
+def test_part_swap_takes_whole_limbs_from_other_frames() -> None:
+    """part_swap = 1: every limb chain's local rotations are one other frame's; the torso keeps its
+    frame's; part_swap = 0 gives the default batches bit for bit; a bad probability is an error."""
+    from smplik.conventions import JOINT_INDEX, LIMB_CHAINS
+
+    ds, bm = random_dataset(N=32), symmetric_body_models()
+    table = axis_angle_to_matrix(ds.pose.float())  # (F, 24, 3, 3)
+    b = PoseSampler(ds, bm, batch_size=64, generator=torch.Generator().manual_seed(3), augment=False,
+                    part_swap=1.0).sample()
+
+    def frames_of(cols: list[int]) -> list[set[int]]:
+        """Per sample, the frames whose rotations on ``cols`` equal the sample's."""
+        eq = (b.R_local[:, None, cols] == table[None, :, cols]).flatten(2).all(-1)  # (B, F)
+        return [set(torch.nonzero(row)[:, 0].tolist()) for row in eq]
+
+    torso = [j for j in range(NUM_JOINTS) if all(j not in [JOINT_INDEX[n] for n in c] for c in LIMB_CHAINS.values())]
+    torso_frames = frames_of(torso)
+    assert all(len(f) == 1 for f in torso_frames)
+    moved = 0
+    for chain in LIMB_CHAINS.values():
+        limb_frames = frames_of([JOINT_INDEX[n] for n in chain])
+        assert all(len(f) == 1 for f in limb_frames)  # the whole chain from one frame
+        moved += sum(lf != tf for lf, tf in zip(limb_frames, torso_frames, strict=True))
+    assert moved > 0.8 * 4 * 64  # donors are random frames: almost always another one
+    _, p_world = forward_kinematics(b.R_local, b.J_rest, b.transl)
+    torch.testing.assert_close(b.p_world, p_world)
+    plain = PoseSampler(ds, bm, batch_size=16, generator=torch.Generator().manual_seed(4)).sample()
+    zero = PoseSampler(ds, bm, batch_size=16, generator=torch.Generator().manual_seed(4), part_swap=0.0).sample()
+    assert torch.equal(plain.R_local, zero.R_local) and torch.equal(plain.p_world, zero.p_world)
+    with pytest.raises(ValueError, match="part_swap must be a probability"):
+        PoseSampler(ds, bm, batch_size=4, generator=torch.Generator(), part_swap=1.5)

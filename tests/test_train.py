@@ -361,6 +361,9 @@ def test_flags_alone(captured):
                    "--distill-weight", "0.5", "--distill-ensemble", "mirror", "--distill-refine")
     assert (cfg.precision, cfg.distill_from, cfg.distill_weight, cfg.distill_ensemble, cfg.distill_refine) == (
         "bf16", "t.pt", 0.5, "mirror", True)
+    cfg = captured("--data", "c.npz", "--out", "run", "--part-swap", "0.25", "--limb-first", "0.5")
+    assert (cfg.part_swap, cfg.effectors.limb_first, cfg.effectors.eta) == (0.25, 0.5, TrainConfig(
+        data="", out="").effectors.eta)
 
 
 def test_bad_config_files_are_one_line_errors(tmp_path):

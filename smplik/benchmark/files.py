@@ -43,7 +43,7 @@ from torch import Tensor
 
 from smplik.atomic import atomic_path, write_npz_deterministic
 from smplik.body_model import BodyModelSet
-from smplik.conventions import JOINT_INDEX, NUM_BETAS, EffectorType, Gender
+from smplik.conventions import JOINT_INDEX, LIMB_ZONES, NUM_BETAS, ZONES, EffectorType, Gender
 from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.rotations import axis_angle_to_matrix
@@ -52,16 +52,6 @@ BENCHMARK_FORMAT = "smplik-benchmark"
 BENCHMARK_VERSION = 1
 MANIFEST = "manifest.json"
 
-ZONES: dict[str, tuple[str, ...]] = {
-    "pelvis_hips": ("pelvis", "left_hip", "right_hip"),
-    "torso_head": ("spine1", "spine2", "spine3", "neck", "head"),
-    "left_arm": ("left_collar", "left_shoulder", "left_elbow", "left_wrist", "left_hand"),
-    "right_arm": ("right_collar", "right_shoulder", "right_elbow", "right_wrist", "right_hand"),
-    "left_leg": ("left_knee", "left_ankle", "left_foot"),
-    "right_leg": ("right_knee", "right_ankle", "right_foot"),
-}
-"""Joint zones of the random sets (every SMPL joint is in exactly one)."""
-LIMB_ZONES = ("left_arm", "right_arm", "left_leg", "right_leg")
 RANDOM_COUNTS = tuple(range(6, 13))
 FIXED_SETS: dict[str, tuple[str, ...]] = {
     "fixed_5pt": ("spine3", "left_wrist", "right_wrist", "left_ankle", "right_ankle"),

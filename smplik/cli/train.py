@@ -17,6 +17,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from smplik.data.effector_sampling import EffectorSamplingConfig
 from smplik.network import NetworkConfig
 
 console = Console(stderr=True)
@@ -74,6 +75,12 @@ def train_command(
                                                  f"({_default('augment')}).")] = None,
     beta_noise: Annotated[float | None, typer.Option(help=f"Std of the beta noise ({_default('beta_noise')}).")
                           ] = None,
+    part_swap: Annotated[float | None, typer.Option(help="Probability per limb that its local rotations come from "
+                                                    f"another random frame ({_default('part_swap')}: off).")] = None,
+    limb_first: Annotated[float | None, typer.Option(help="Fraction of samples whose first four effectors are "
+                                                     "positions, one per limb ("
+                                                     f"{_default('limb_first', EffectorSamplingConfig)}: the paper's "
+                                                     "sampling).")] = None,
     model_dir: Annotated[Path | None, typer.Option(help="Folder with real SMPL files.")] = None,
     init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights (fine-tuning).")] = None,
     precision: Annotated[str | None, typer.Option(help="fp32, or bf16: the layers under autocast in bfloat16 "
@@ -107,7 +114,8 @@ def train_command(
     given = {"data": data, "out": out, "steps": steps, "batch_size": batch_size, "lr": lr,
              "lr_final_fraction": lr_final_fraction, "val_every": val_every, "ckpt_every": ckpt_every,
              "val_size": val_size, "val_fraction": val_fraction, "seed": seed, "augment": augment,
-             "beta_noise": beta_noise, "model_dir": model_dir, "init_from": init_from, "precision": precision,
+             "beta_noise": beta_noise, "part_swap": part_swap, "model_dir": model_dir, "init_from": init_from,
+             "precision": precision,
              "distill_from": distill_from, "distill_weight": distill_weight, "distill_ensemble": distill_ensemble,
              "distill_refine": distill_refine}
     top = {k: str(v) if isinstance(v, Path) else v for k, v in given.items() if v is not None}
@@ -118,7 +126,8 @@ def train_command(
                  "layers_per_block": layers_per_block, "embedding_dim": embedding_dim, "dropout": dropout,
                  "effector_slots": effector_slots}
     net = replace(net, **{k: v for k, v in net_given.items() if v is not None})
-    cfg = replace(base, **top, network=net)
+    effectors = base.effectors if limb_first is None else replace(base.effectors, limb_first=limb_first)
+    cfg = replace(base, **top, network=net, effectors=effectors)
     for key in ("data", "out"):
         if not getattr(cfg, key):
             raise _fail(f"--{key} is required (or '{key}' in the --config file).")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from smplik.conventions import EffectorType
+from smplik.conventions import JOINT_INDEX, LIMB_ZONES, ZONES, EffectorType
 from smplik.effectors import EffectorBatch
 from smplik.rotations import euler_to_matrix, matrix_to_rot6d
 
@@ -35,6 +35,11 @@ class EffectorSamplingConfig:
     """W_M: cap of the per-effector loss weight W = min(W_M, 1 / sigma)."""
     lookat_distance_std: float = 2.0
     """Std (metres) of the folded normal giving the look-at target distance (plus 0.1 m minimum)."""
+    limb_first: float = 0.0
+    """Fraction of samples whose first four effectors (all of them when N < 4) are position
+    effectors on a random joint of each limb zone (:data:`~smplik.conventions.LIMB_ZONES`: hands
+    and feet pinned first, as animators do and as the benchmark's random sets start); the rest
+    follow the paper's sampling. 0 is the paper's sampling (and draws no extra random numbers)."""
 
 
 def tolerance_loss_weight(tolerance: Tensor, cfg: EffectorSamplingConfig) -> Tensor:
@@ -43,6 +48,29 @@ def tolerance_loss_weight(tolerance: Tensor, cfg: EffectorSamplingConfig) -> Ten
     tolerance (...) -> (...)."""
     sigma = cfg.sigma_max * tolerance.pow(cfg.eta)
     return torch.clamp(1.0 / sigma.clamp_min(1e-12), max=cfg.weight_max)
+
+
+def _limb_first_layout(kind: Tensor, perms: Tensor, fraction: float,
+                       g: torch.Generator) -> tuple[Tensor, Tensor]:
+    """For a random ``fraction`` of rows, make the first (up to) four effectors positions on one random
+    joint of each limb zone: their kinds become POSITION and those joints move to the front of the
+    row's position permutation (the other joints keep their random order, so joints stay unique per
+    type). kind (B, N), perms (B, 3, J) -> the same shapes."""
+    B, N = kind.shape
+    J = perms.shape[-1]
+    chosen = torch.stack([torch.tensor([JOINT_INDEX[n] for n in ZONES[z]])[
+        torch.randint(len(ZONES[z]), (B,), generator=g)] for z in LIMB_ZONES], dim=1)  # (B, 4)
+    rows = torch.rand(B, generator=g) < fraction
+    first = min(N, len(LIMB_ZONES))
+    kind = kind.clone()
+    kind[rows, :first] = int(EffectorType.POSITION)
+    # Sort key of each joint in the position permutation: its rank there, after the chosen ones.
+    pos_perm = perms[:, int(EffectorType.POSITION)]
+    key = torch.empty_like(pos_perm).scatter_(1, pos_perm, torch.arange(J).expand(B, J) + first)
+    key.scatter_(1, chosen[:, :first], torch.arange(first).expand(B, first))
+    perms = perms.clone()
+    perms[:, int(EffectorType.POSITION)] = torch.where(rows[:, None], key.argsort(dim=-1), pos_perm)
+    return kind, perms
 
 
 @dataclass(frozen=True)
@@ -67,6 +95,8 @@ def sample_effectors(p_world: Tensor, R_world: Tensor, cfg: EffectorSamplingConf
     # Without replacement per type: a random permutation of joints per (sample, type); the i-th
     # effector of type t takes the next unused joint of that permutation.
     perms = torch.rand(B, 3, J, generator=g).argsort(dim=-1)
+    if cfg.limb_first > 0:
+        kind, perms = _limb_first_layout(kind, perms, cfg.limb_first, g)
     one_hot = torch.nn.functional.one_hot(kind, 3)
     rank = ((one_hot.cumsum(1) - 1) * one_hot).sum(-1)  # (B, N) index within its type
     joint = perms[torch.arange(B)[:, None], kind, rank]
