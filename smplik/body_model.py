@@ -215,6 +215,21 @@ def make_smplx_layer(arrays: dict[str, np.ndarray], num_betas: int = NUM_BETAS) 
         return smplx.SMPL(model_path="", data_struct=struct, num_betas=num_betas, **extra)
 
 
+
+FINGERPRINT_GRID = 1e-5
+"""Grid that fingerprints round body geometry to (metres for positions)."""
+_GRID_PHASE = (3 - 5 ** 0.5) / 2
+"""The grid's cells start at an irrational fraction of a step, so exact values such as 1/320 (a
+regressor weight of the built-in body) never sit on a cell boundary, where noise would flip them."""
+
+
+def grid_bytes(array: Any, grid: float = FINGERPRINT_GRID) -> bytes:
+    """``array`` as the int64 indices of its grid cells (``grid`` wide), as bytes: equal for arrays that
+    differ only by floating-point noise far below ``grid`` (the input of a fingerprint that holds
+    across machines)."""
+    values = np.floor(np.asarray(array, dtype=np.float64) / grid + _GRID_PHASE).astype(np.int64)
+    return np.ascontiguousarray(values).tobytes()
+
 @dataclass(frozen=True)
 class BodyModel:
     """One gender's SMPL model: precomputed linear rest joints plus the mesh arrays.
@@ -243,11 +258,14 @@ class BodyModel:
 
     @cached_property
     def fingerprint(self) -> str:
-        """Short hash of the geometry; keys caches so that a different model never reuses them."""
+        """Short hash of the geometry; keys caches so that a different model never reuses them.
+
+        The arrays are hashed on a grid of :data:`FINGERPRINT_GRID` (10 µm for positions), so the
+        built-in body, whose generation differs between CPUs and BLAS kernels by ~1e-12, has one
+        fingerprint everywhere, while any real change of the geometry gives another."""
         h = hashlib.sha1()
         for key in ("v_template", "shapedirs", "J_regressor"):
-            h.update(np.ascontiguousarray(self.arrays[key][..., : NUM_BETAS] if key == "shapedirs"
-                                          else self.arrays[key], dtype=np.float64).tobytes())
+            h.update(grid_bytes(self.arrays[key][..., : NUM_BETAS] if key == "shapedirs" else self.arrays[key]))
         return h.hexdigest()[:16]
 
     @property

@@ -59,6 +59,7 @@ import torch
 from torch import Tensor
 
 from smplik.atomic import write_bytes_atomic
+from smplik.body_model import grid_bytes
 from smplik.effectors import EffectorBatch
 from smplik.network import IKOutput, ProtoResIK
 from smplik.network_folded import FoldedProtoResIK
@@ -97,13 +98,21 @@ def _require(module: str, purpose: str) -> Any:
                                    f"{INSTALL_HINT}.") from None
 
 
+SKELETON_BUFFERS = ("J_template", "J_dirs")
+"""The network's buffers copied from the body models in use."""
+
+
 def model_fingerprint(model: ProtoResIK) -> str:
     """SHA-256 (first 16 hex digits) of the network config and every float32 weight and buffer,
-    rest skeletons included: equal only for the same weights on the same body models."""
+    rest skeletons included: equal only for the same weights on the same body models. The rest
+    skeletons (``J_template``, ``J_dirs``) are hashed on the body fingerprint's grid
+    (:func:`smplik.body_model.grid_bytes`), since the built-in body's joints differ between CPUs by
+    floating-point noise."""
     h = hashlib.sha256(json.dumps(model.cfg.to_dict(), sort_keys=True).encode())
     for name, value in sorted(model.state_dict().items()):
         h.update(name.encode())
-        h.update(np.ascontiguousarray(value.detach().cpu().numpy()).tobytes())
+        array = value.detach().cpu().numpy()
+        h.update(grid_bytes(array) if name in SKELETON_BUFFERS else np.ascontiguousarray(array).tobytes())
     return h.hexdigest()[:16]
 
 

@@ -63,3 +63,23 @@ def test_model_dir_serves_real_files_and_set_stacks_genders(tmp_path):
 def test_bad_betas_shape_is_named():
     with pytest.raises(ValueError, match="betas shape"):
         load_body_model("neutral").rest_joints(torch.zeros(3, 8))
+
+
+def test_fingerprint_holds_across_floating_point_noise():
+    """The built-in body is generated on the user's machine, and other CPUs and BLAS kernels give arrays
+    that differ by ~1e-12: the fingerprint (which model files and their .onnx graphs are checked
+    against) must not change with that noise, and must change with any real edit of the geometry."""
+    from smplik.body_model import BodyModel
+
+    model = load_body_model("neutral")
+    rng = np.random.default_rng(0)
+
+    def variant(scale: float, key: str = "v_template") -> BodyModel:
+        arrays = dict(model.arrays)
+        arrays[key] = arrays[key] + scale * rng.standard_normal(arrays[key].shape)
+        return BodyModel.from_arrays(arrays, model.gender, "variant")
+
+    assert variant(3e-12).fingerprint == variant(3e-12, "J_regressor").fingerprint == model.fingerprint
+    assert variant(3e-12, "shapedirs").fingerprint == model.fingerprint
+    assert variant(1e-4).fingerprint != model.fingerprint  # a tenth of a millimetre is another body
+    assert variant(1e-4, "shapedirs").fingerprint != model.fingerprint

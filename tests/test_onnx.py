@@ -387,3 +387,21 @@ def test_packaged_model_runs_its_shipped_onnx_file_by_default():
     assert solver.network is not None and Path(solver.network.source) == onnx_file
     assert solver.network.fingerprint == model_fingerprint(solver.model)
     assert IKSolver.load(runtime="torch").network is None
+
+
+def test_model_fingerprint_ignores_skeleton_noise_not_weights(torch_solver_plain):
+    """A model file and its .onnx graph match on a machine whose built-in skeleton differs by
+    floating-point noise (another CPU), but not once a weight or the skeleton really changes."""
+    model = copy.deepcopy(torch_solver_plain.model)
+    before = model_fingerprint(model)
+    with torch.no_grad():
+        model.J_template.add_(torch.randn_like(model.J_template) * 1e-12)
+        model.J_dirs.add_(torch.randn_like(model.J_dirs) * 1e-12)
+    assert model_fingerprint(model) == before
+    with torch.no_grad():
+        model.J_template[:, 15, 1] += 1e-3  # the head 1 mm higher
+    assert model_fingerprint(model) != before
+    other = copy.deepcopy(torch_solver_plain.model)
+    with torch.no_grad():
+        next(other.parameters()).view(-1)[0] += 1e-6
+    assert model_fingerprint(other) != before
