@@ -22,9 +22,22 @@ def shared_dir() -> Path:
     return paths.shared_dir() or paths.repo_root().parent / "shared"
 
 
+def cpu_model() -> str:
+    """The CPU's model name from /proc/cpuinfo (Linux), else :func:`platform.processor`: runs on
+    different CPUs of the same 2-core machine kind differ severalfold in speed."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
 def machine() -> dict[str, Any]:
     return {"cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(), "torch": torch.__version__,
-            "platform": platform.platform(), "processor": platform.processor()}
+            "platform": platform.platform(), "processor": cpu_model(),
+            "openblas_coretype": os.environ.get("OPENBLAS_CORETYPE")}
 
 
 def time_call(fn: Callable[[], Any], *, min_time: float = 0.5, warmup: int = 3) -> list[float]:
