@@ -15,6 +15,7 @@ samples of every set (a reduced run that shows the report quickly).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -67,13 +68,15 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     files = args.files or benchmark_files_dir(args.split, args.seed, args.samples_per_count)
     torch.set_num_threads(args.threads)
-    if not (files / MANIFEST).is_file():
+    bodies = BodyModelSet.load()
+    stale = args.files is None and (files / MANIFEST).is_file() and json.loads(
+        (files / MANIFEST).read_text(encoding="utf-8")).get("body_fingerprint") != bodies.fingerprint
+    if stale or not (files / MANIFEST).is_file():  # the default cache folder is remade for other body models
         make_benchmark(data, files, split=args.split, seed=args.seed, samples_per_count=args.samples_per_count)
     bench = load_benchmark(files)
     if args.max_samples is not None:
         bench = Benchmark(bench.manifest, tuple(s.head(args.max_samples) for s in bench.sets), bench.folder)
     dataset = load_cache(data)
-    bodies = BodyModelSet.load()
     names = [m.strip() for m in args.methods.split(",") if m.strip()]
     solver = IKSolver.load(args.checkpoint) if set(LEARNED_METHODS) & set(names) else None
     methods, settings = build_methods(names, bodies, solver=solver, train_pose=dataset.subset("train").pose,

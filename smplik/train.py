@@ -459,8 +459,9 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
         val_gen = torch.Generator().manual_seed(12345)
         val_batch = PoseSampler(val_set, bodies, batch_size=cfg.val_size, generator=val_gen, augment=False,
                                 beta_noise=cfg.beta_noise).sample()
+        # exact effectors in the paper's layout, whatever the run's sampling options: curves compare across runs
         val_eff = sample_effectors(val_batch.p_world, val_batch.R_world,
-                                   replace(cfg.effectors, sigma_max=0.0), val_gen).effectors
+                                   replace(cfg.effectors, sigma_max=0.0, limb_first=0.0), val_gen).effectors
     rows: list[str] = []
     if rank == 0:
         write_json_atomic(run / CONFIG, cfg.to_dict())

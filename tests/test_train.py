@@ -395,3 +395,17 @@ def test_shipped_recipe_configs_parse():
     assert (cfgs["ft1"].loss.w_rot_local, cfgs["ft2"].loss.w_rot_local) == (2.0, 4.0)
     for cfg in cfgs.values():
         assert cfg.loss.w_pos_rnd == 1000.0 and cfg.effectors.eta == 4.0 and cfg.effectors.max_effectors == 16
+
+
+def test_sampling_options_train_and_keep_validation_comparable(tiny_cache, tmp_path):
+    """limb_first and part_swap change what the run trains on, but not its validation effectors: with a
+    learning rate of 0 the logged validation metrics equal the paper-sampling run's, and the options
+    land in config.json."""
+    plain = config(tiny_cache, tmp_path / "plain", lr=0.0, steps=3, val_every=3, network=TINY)
+    options = replace(plain, out=str(tmp_path / "options"), part_swap=0.5,
+                      effectors=replace(plain.effectors, limb_first=1.0))
+    assert train(plain, progress=False) == train(options, progress=False)
+    saved = json.loads((tmp_path / "options" / "config.json").read_text())
+    assert saved["part_swap"] == 0.5 and saved["effectors"]["limb_first"] == 1.0
+    losses = [float(metric_rows(tmp_path / run)[-1].split(",")[1]) for run in ("plain", "options")]
+    assert losses[0] != losses[1]  # the training batches did differ
