@@ -392,6 +392,11 @@ def test_shipped_recipe_configs_parse():
     assert not distill.distill_refine
     refined = TrainConfig.from_file(root / "shipped_ft4_distill_refine.json", data="", out="")
     assert refined.distill_refine and refined.precision == "bf16" and refined.steps == 12000
+    limbs = {n: TrainConfig.from_file(root / f"shipped_{n}.json", data="", out="")
+             for n in ("ft6a_limbs", "ft6b_limbs_swap", "ft7_distill_limbs")}
+    assert [c.effectors.limb_first for c in limbs.values()] == [0.5, 0.5, 0.5]
+    assert [c.part_swap for c in limbs.values()] == [0.0, 0.25, 0.25]
+    assert limbs["ft7_distill_limbs"].distill_refine and limbs["ft7_distill_limbs"].steps == 14000
     assert (cfgs["ft1"].loss.w_rot_local, cfgs["ft2"].loss.w_rot_local) == (2.0, 4.0)
     for cfg in cfgs.values():
         assert cfg.loss.w_pos_rnd == 1000.0 and cfg.effectors.eta == 4.0 and cfg.effectors.max_effectors == 16
