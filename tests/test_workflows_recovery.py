@@ -83,7 +83,9 @@ def test_negative_search_steps_are_refused(synthetic_pose, oracle_solver):
         recover_effectors(oracle_solver(target.p_world), target, RecoveryConfig(search_refine_steps=-1))
 
 
-def test_final_pose_is_never_worse_than_the_search(synthetic_pose, oracle_solver):
+def test_final_pose_is_what_the_effectors_re_solve_to(synthetic_pose, oracle_solver):
+    """The result is the full-refinement solve of the recovered effectors (what re-solving a scene
+    gives), even when the search's cheap solve came closer, and its error is reported as it is."""
     class WorseWhenFullyRefined(oracle_solver):
         """The search's solves are the oracle's; the final full-refinement solve lands 0.5 m off."""
 
@@ -96,9 +98,9 @@ def test_final_pose_is_never_worse_than_the_search(synthetic_pose, oracle_solver
     target = TargetPose.from_pose(synthetic_pose(4))
     res = recover_effectors(WorseWhenFullyRefined(target.p_world), target, RecoveryConfig(max_effectors=4,
                                                                                           threshold=0.0))
-    assert res.final_error == pytest.approx(res.errors[-1])  # the searched pose, not the 0.5 m-off one
     off = np.linalg.norm(res.pose.joints - target.p_world.numpy(), axis=-1)
-    assert off.max() < 0.31 and off.mean() == pytest.approx(res.errors[-1], rel=1e-4)
+    assert off.min() > 0.8 and res.final_error == pytest.approx(off.mean(), rel=1e-4)  # 0.5 m on each axis
+    assert res.final_error > res.errors[-1]
 
 
 def test_worst_limb_criterion_weighs_a_limb_far_off():

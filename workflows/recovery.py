@@ -19,8 +19,10 @@ returned in character space (positions and look-at targets times s).
 
 Candidates are scored with a cheap solve (the network plus ``search_refine_steps`` refinement
 steps); the chosen set is then solved once more with the solver's full refinement for the final
-pose, which is kept only when it is at least as close as the best searched pose (otherwise the
-searched pose is the result): the final pose is never worse than the search's best.
+pose. That pose is the result even in the rare case where it is farther from the target than the
+search's cheap solve: it is the pose that the
+recovered effectors re-solve to, so a scene built from it does not jump at its first edit or
+``smplik scene solve``.
 
 Speed: candidate effector data are precomputed once as tensors; each step builds the packed
 ``(B, k + 1)`` batch by concatenation, with no per-candidate Python objects.
@@ -208,7 +210,6 @@ class _Search:
     errors: list[float]
     scores: list[float]
     best_eff: EffectorBatch | None = None
-    best_pose: Pose | None = None
     done: bool = False
 
 
@@ -281,7 +282,6 @@ def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: Recov
             b = sl.start + best
             st.best_eff = EffectorBatch(joint[b:b + 1], kind[b:b + 1], data[b:b + 1], eff.tolerance[b:b + 1],
                                         eff.mask[b:b + 1])
-            st.best_pose = output_to_pose(out, b, st.target.betas, st.target.gender)
             st.done = st.errors[-1] < cfg.threshold
         if progress is not None:
             progress(k + 1, steps)
@@ -289,11 +289,12 @@ def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: Recov
 
 
 def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) -> list[RecoveryResult]:
-    """Final solves with the solver's full refinement, batched per effector count; never worse than the search."""
+    """Final solves with the solver's full refinement, batched per effector count: the pose that re-solving
+    the recovered effectors gives (a scene's stored pose is what ``smplik scene solve`` reproduces)."""
     results: list[RecoveryResult | None] = [None] * len(states)
     by_count: dict[int, list[int]] = {}
     for i, st in enumerate(states):
-        assert st.best_eff is not None and st.best_pose is not None
+        assert st.best_eff is not None
         by_count.setdefault(len(st.chosen), []).append(i)
     for group in by_count.values():
         effs = [states[i].best_eff for i in group]
@@ -310,7 +311,5 @@ def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) ->
             joint_err = (final.p_world[row].float() - st.target.p_world.float()).norm(dim=-1)
             final_error = float(joint_err.mean()) * st.scale
             pose = output_to_pose(final, row, st.target.betas, st.target.gender)
-            if not float(recovery_score(joint_err, cfg.criterion)) * st.scale <= st.scores[-1]:
-                pose, final_error = st.best_pose, st.errors[-1]  # full refinement made it worse: keep the search's
             results[i] = RecoveryResult(effectors, tuple(st.errors), pose, st.scale, final_error)  # type: ignore[arg-type]
     return results  # type: ignore[return-value]
