@@ -250,7 +250,12 @@ class IKSolver:
                 RefineConfig.from_dict(meta["refine"], f"{path}: key 'refine'")
         bodies = BodyModelSet.load(model_dir)
         trained_on = meta.get("body_fingerprint")
-        if trained_on is not None and trained_on != bodies.fingerprint:
+        # The network depends on the bodies only through their rest skeletons, which the file holds:
+        # a file whose fingerprint predates the grid hashing (or another CPU's noise) but whose skeletons
+        # match those in use (within a micrometre) was trained on these bodies.
+        same_skeletons = bool(torch.allclose(model.J_template, bodies.J_template, rtol=0, atol=1e-6)
+                              and torch.allclose(model.J_dirs, bodies.J_dirs, rtol=0, atol=1e-6))
+        if trained_on is not None and trained_on != bodies.fingerprint and not same_skeletons:
             warnings.warn(f"{path} was trained on body models with fingerprint {trained_on}, but the body models "
                           f"in use ({bodies.models[0].source}, ...) have fingerprint {bodies.fingerprint}; the "
                           "solver uses the current skeletons, so accuracy may be lower.", stacklevel=2)

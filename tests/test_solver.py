@@ -79,12 +79,22 @@ def test_default_model_is_the_packaged_file(monkeypatch, tmp_path, model_path, s
 
 
 def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):
+    """A file trained on other body models (another fingerprint and other rest skeletons) warns; one whose
+    fingerprint differs but whose skeletons are those in use (a file from before the grid hashing) does not."""
+    import warnings
+
     state = torch.load(model_path, weights_only=True)
     state["body_fingerprint"] = "0123456789abcdef"
+    same = tmp_path / "same_skeletons.pt"
+    torch.save(state, same)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        IKSolver.load(same, runtime="torch")
+    state["model"]["J_template"] = state["model"]["J_template"] + 0.01  # 1 cm: other bodies
     other = tmp_path / "other.pt"
     torch.save(state, other)
     with pytest.warns(UserWarning, match="fingerprint 0123456789abcdef"):
-        IKSolver.load(other)
+        IKSolver.load(other, runtime="torch")
 
 
 # ----------------------------------------------------------------------------- validation
