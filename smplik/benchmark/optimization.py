@@ -4,8 +4,9 @@
 ``J(beta, gender)``, on the same effector losses plus a pose prior: a diagonal Gaussian over the 6D
 local rotations of joints 1..23 fitted to the train split (:class:`PosePrior`); the root is free.
 Initialised at the rest pose, root rotation and translation by a Kabsch fit
-(:func:`smplik.metrics.rigid_align`) of the rest joints to the position effectors; a fixed
-iteration count.
+(:func:`smplik.metrics.rigid_align`) of the rest joints to the position effectors, or at a given pose
+(:meth:`OptimizationIK.solve` with ``init``: the edit benchmark starts from the pose being edited); a
+fixed iteration count.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from torch import Tensor
 
 from smplik.body_model import BodyModelSet
 from smplik.conventions import NUM_JOINTS, EffectorType
+from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.metrics import rigid_align
 from smplik.rotations import axis_angle_to_matrix, matrix_to_rot6d, rot6d_to_matrix
@@ -67,15 +69,24 @@ class OptimizationIK:
     """Defaults (iterations, lr, sigmas, prior weight) were chosen on validation-split benchmark files."""
 
     def __call__(self, bset: BenchmarkSet) -> Prediction:
-        eff = bset.effectors
-        S = len(bset)
-        J_rest = self.bodies.rest_joints(bset.betas, bset.gender)
+        return self.solve(bset.effectors, bset.betas, bset.gender)
+
+    def solve(self, eff: EffectorBatch, betas: Tensor, gender: Tensor, *, init: Prediction | None = None
+              ) -> Prediction:
+        """Optimize S poses for ``eff`` (S rows), betas (S, 10), gender (S,) long; ``init``: the starting
+        poses (local rotations (S, 24, 3, 3), transl (S, 3)), else the rest pose fitted to the positions."""
+        S = eff.joint.shape[0]
+        J_rest = self.bodies.rest_joints(betas, gender)
         rows = torch.arange(S)[:, None]
         w_pos, target = position_targets(eff)
-        R0 = rigid_align(J_rest[rows, eff.joint], target, w_pos, scale=False).R
-        x = matrix_to_rot6d(torch.eye(3)).expand(S, NUM_JOINTS, 6).clone()
-        x[:, 0] = matrix_to_rot6d(R0)
-        transl = rest_transl_to_centroid(eff, J_rest, R0).clone()
+        if init is None:
+            R0 = rigid_align(J_rest[rows, eff.joint], target, w_pos, scale=False).R
+            x = matrix_to_rot6d(torch.eye(3)).expand(S, NUM_JOINTS, 6).clone()
+            x[:, 0] = matrix_to_rot6d(R0)
+            transl = rest_transl_to_centroid(eff, J_rest, R0).clone()
+        else:
+            x = matrix_to_rot6d(init.R_local.float()).clone()
+            transl = init.transl.float().clone()
         x.requires_grad_(True)
         transl.requires_grad_(True)
         w_rot = (eff.mask & (eff.type == int(EffectorType.ROTATION))).float()

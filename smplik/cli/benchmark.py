@@ -173,3 +173,51 @@ def calibrate_command(
             write_json_atomic(results, {"refine": cal.refine.to_dict(), **record})
         say(f"chosen: alpha {cal.alpha:.1f}, sigma_prior {cal.refine.sigma_prior:.2f}")
         say(f"wrote {out}")
+
+
+@app.command("edits")
+def edits_command(
+    out: Annotated[Path, typer.Option("--out", help="Results JSON (the figure is written beside it as .png).")],
+    data: Annotated[Path | None, typer.Option(help="Pose cache (`smplik data build`; default: $SMPLIK_POSE_CACHE, "
+                                                   "else the cache folder's cmu30.npz).")] = None,
+    split: Annotated[str, typer.Option(help="Split whose clips give the edits.")] = "test",
+    clips: Annotated[Path | None, typer.Option(help="Also a folder of held-out BVH clips.")] = None,
+    max_pairs: Annotated[int, typer.Option("--max-pairs", min=1, help="At most this many edit pairs "
+                                           "(a seeded draw).")] = 150,
+    seed: Annotated[int, typer.Option(help="Seed of that draw.")] = 0,
+    methods: Annotated[str | None, typer.Option(help="Comma-separated methods (default: all).")] = None,
+    checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
+    optim_iterations: Annotated[int, typer.Option(min=1, help="Adam steps of the optim method.")] = 200,
+    threads: Annotated[int, typer.Option(min=1, help="torch intra-op threads.")] = 2,
+) -> None:
+    """Single-limb edits from real motion: drag a wrist or ankle of a recovered frame to where the person moved
+    it, solve with each method, compare with the real frame (docs/editing.md)."""
+    import torch
+
+    from smplik.atomic import write_json_atomic
+    from smplik.cli.errors import say, user_errors
+    from smplik.paths import pose_cache
+    from smplik.solver import IKSolver
+    from workflows.edit_benchmark import METHODS, EditBenchmarkConfig, edit_benchmark, save_figure
+
+    torch.set_num_threads(threads)
+    chosen = tuple(m.strip() for m in (methods or ",".join(METHODS)).split(",") if m.strip())
+    unknown = [m for m in chosen if m not in METHODS]
+    if unknown or not chosen:
+        raise typer.BadParameter(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}.",
+                                 param_hint="--methods")
+    if out.suffix != ".json":
+        raise typer.BadParameter(f"must end in .json, got {out}.", param_hint="--out")
+    with user_errors():
+        cache = data or pose_cache()
+        if not cache.is_file():
+            raise FileNotFoundError(f"no pose cache at {cache}: build one with `smplik data build` and pass --data.")
+        solver = IKSolver.load(checkpoint)
+        results = edit_benchmark(cache, solver, split=split, clips_folder=clips, methods=chosen,
+                                 cfg=EditBenchmarkConfig(max_pairs=max_pairs, seed=seed,
+                                                         optim_iterations=optim_iterations),
+                                 progress=say)
+        write_json_atomic(out, results)
+        figure = save_figure(results, out.with_suffix(".png"))
+    say(f"wrote {out}")
+    say(f"wrote {figure}")

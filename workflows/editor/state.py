@@ -7,6 +7,10 @@ and pushes the previous :class:`Snapshot` on the undo stack. Consecutive edits w
 *gesture key* (one gizmo drag, one slider being moved) merge into one undo step until
 :meth:`EditorState.end_gesture`.
 
+A drag of an effector relaxes the effectors on its chain that it makes stale and re-poses only that chain
+(:mod:`workflows.edits`); :meth:`EditorState.conflicts` reports which effectors are not met and which
+others they contradict.
+
 Spaces are those of :mod:`workflows.scene`: effectors and everything drawn are in character space
 (the SMPL body scaled by ``scale`` about the world origin); poses are in SMPL space.
 """
@@ -26,6 +30,7 @@ from smplik.effectors import Effector
 from smplik.pose import Pose
 from smplik.refine import RefineConfig
 from workflows.editor.skinning import ShapedBody, Skinner
+from workflows.edits import ConflictReport, conflict_report, relax_stale, solve_drag
 from workflows.scene import Scene, SceneCharacter, load_scene, save_scene, solve_character
 
 EFFECTOR_TYPES: tuple[str, ...] = tuple(t.name.lower() for t in EffectorType)
@@ -106,10 +111,11 @@ class EditorState:
         path: where :meth:`save` writes by default (the scene file).
         refine: solve with the solver's effector refinement (False: the network alone).
         max_history: undo steps kept.
+        relax_on_drag: see :attr:`relax_on_drag`.
     """
 
     def __init__(self, scene: Scene, solver: Any, *, path: str | Path | None = None, refine: bool = True,
-                 max_history: int = 500) -> None:
+                 max_history: int = 500, relax_on_drag: bool = True) -> None:
         if not scene.characters:
             raise EditorError("The scene has no character to edit.")
         self._solver = solver
@@ -128,6 +134,14 @@ class EditorState:
         self._shaped: dict[int, tuple[Gender, ShapedBody]] = {}
         self._views: dict[int, tuple[SceneCharacter, CharacterView]] = {}
         self._customs: dict[tuple[Any, ...], Any] = {}
+        self.relax_on_drag = relax_on_drag
+        """A drag relaxes the effectors it makes stale and moves only the dragged chain
+        (:mod:`workflows.edits`); False: every effector kept as it is and the whole body re-solved."""
+        self.relaxed: tuple[str, ...] = ()
+        """Labels of the effectors the last drag relaxed (tolerance raised to
+        :data:`workflows.edits.RELAXED_TOLERANCE`); shown by the editor."""
+        self._drag_base: Pose | None = None
+        self._reports: dict[int, tuple[SceneCharacter, ConflictReport]] = {}
 
     @classmethod
     def open(cls, path: str | Path, solver: Any, **kwargs: Any) -> EditorState:
@@ -181,6 +195,18 @@ class EditorState:
         view = self._compute_view(i, c)
         self._views[i] = (c, view)
         return view
+
+    def conflicts(self, index: int | None = None) -> ConflictReport:
+        """The conflict report of a character (:func:`workflows.edits.conflict_report`: per effector its
+        residual and the effectors it contradicts); cached until that character changes."""
+        i = self.active if index is None else self._check_character(index)
+        c = self.scene.characters[i]
+        cached = self._reports.get(i)
+        if cached is not None and cached[0] is c:
+            return cached[1]
+        report = conflict_report(c, self._current_solver())
+        self._reports[i] = (c, report)
+        return report
 
     # ------------------------------------------------------------------------- selection
 
@@ -239,7 +265,10 @@ class EditorState:
         """Move an effector: ``position`` (3,) for position effectors and look-at targets,
         ``rotation`` (3, 3) ``R_world_joint`` for rotation effectors (character space).
 
-        Consecutive moves of the same effector are one undo step until :meth:`end_gesture`.
+        Consecutive moves of the same effector are one undo step until :meth:`end_gesture`. With
+        :attr:`relax_on_drag` (the default) the first move of a drag raises the tolerance of the effectors it
+        makes stale (:func:`workflows.edits.relax_stale`, listed in :attr:`relaxed`) and every move re-solves
+        the dragged chain on the pose the drag started from (:func:`workflows.edits.solve_drag`).
         """
         k = self._check_effector(index)
         c = self.character()
@@ -261,7 +290,14 @@ class EditorState:
             raise
         except ValueError as exc:
             raise EditorError(str(exc)) from None
-        self._edit(self._with_effector(c, k, new), selected=k, gesture=("move", self.active, k))
+        gesture = ("move", self.active, k)
+        moved = self._with_effector(c, k, new)
+        if gesture != self._gesture or not self._undo:  # a new drag: relax what it makes stale, remember the pose
+            effectors, relaxed = relax_stale(moved.effectors, k) if self.relax_on_drag else (moved.effectors, ())
+            moved = dataclasses.replace(moved, effectors=effectors)
+            self._drag_base = c.pose
+            self.relaxed = tuple(f"{i}: {effectors[i].joint_name} {effectors[i].type.name.lower()}" for i in relaxed)
+        self._edit(moved, selected=k, gesture=gesture, moved=k)
 
     def set_tolerance(self, tolerance: float, index: int | None = None) -> None:
         """Set an effector's tolerance in [0, 1] (default: the selected effector)."""
@@ -448,10 +484,13 @@ class EditorState:
     def _current_solver(self) -> Any:
         return self._solver if self.refine else self._solver_raw
 
-    def _solve(self, c: SceneCharacter) -> SceneCharacter:
-        """Re-solve from the effectors; without effectors keep the pose's rotations on the new body."""
+    def _solve(self, c: SceneCharacter, moved: int | None = None) -> SceneCharacter:
+        """Re-solve from the effectors; without effectors keep the pose's rotations on the new body. ``moved``:
+        the effector being dragged (:func:`workflows.edits.solve_drag` from the pose at the drag's start)."""
         if c.effectors:
             try:
+                if moved is not None and self.relax_on_drag:
+                    return solve_drag(c, self._current_solver(), moved, self._drag_base)
                 return solve_character(c, self._current_solver())
             except ValueError as exc:
                 raise EditorError(f"{c.name}: {exc}") from None
@@ -466,9 +505,10 @@ class EditorState:
         self._redo.clear()
 
     def _edit(self, character: SceneCharacter, *, selected: int | None | str = "keep",
-              gesture: Hashable | None = None) -> None:
-        """Replace the active character (re-solved) and record the undo step."""
-        solved = self._solve(character)
+              gesture: Hashable | None = None, moved: int | None = None) -> None:
+        """Replace the active character (re-solved; ``moved``: the effector a drag moves) and record the undo
+        step."""
+        solved = self._solve(character, moved)
         if gesture is None or gesture != self._gesture or not self._undo:
             self._push()
         self._gesture = gesture

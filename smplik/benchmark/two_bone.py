@@ -1,0 +1,96 @@
+"""Analytic two-bone IK: what an animator's rig gives for a dragged hand or foot.
+
+The algorithm of Unity Animation Rigging's ``TwoBoneIK`` (``AnimationRuntimeUtils.SolveTwoBoneIK`` without a
+hint) and of a Blender IK constraint of chain length 2: for the chain root ``a`` (shoulder / hip), middle
+``b`` (elbow / knee) and tip ``c`` (wrist / ankle) and a target ``t``,
+
+1. bend the middle joint about the chain's current bend axis ``(b - a) x (c - b)`` until the distance
+   ``|c - a|`` equals ``|t - a|`` (law of cosines; clamped to the straight or fully folded limb);
+2. turn the root joint by the shortest rotation taking ``c - a`` onto ``t - a``.
+
+Every other local rotation is kept, so the tip's local rotation (the hand's orientation relative to the
+forearm) follows the forearm. Targets beyond reach give the straight limb pointing at them.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from smplik.conventions import PARENTS
+from smplik.kinematics import forward_kinematics
+from smplik.rotations import axis_angle_to_matrix
+
+_EPS = 1e-9
+
+
+def _rotate_about(axis: Tensor, angle: Tensor) -> Tensor:
+    """Rotation matrices (B, 3, 3) of ``angle`` (B,) about unit ``axis`` (B, 3)."""
+    return axis_angle_to_matrix(axis * angle[:, None])
+
+
+def shortest_rotation(u: Tensor, v: Tensor) -> Tensor:
+    """The rotation (B, 3, 3) of least angle taking direction ``u`` (B, 3) onto ``v`` (B, 3).
+
+    Opposite directions turn by pi about an axis perpendicular to ``u``.
+    """
+    u = u / u.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    v = v / v.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    axis = torch.cross(u, v, dim=-1)
+    sin = axis.norm(dim=-1)
+    cos = (u * v).sum(-1)
+    # perpendicular fallback axis for (anti)parallel vectors
+    other = torch.where(u[:, :1].abs() < 0.9, torch.tensor([1.0, 0.0, 0.0], dtype=u.dtype),
+                        torch.tensor([0.0, 1.0, 0.0], dtype=u.dtype))
+    fallback = torch.cross(u, other, dim=-1)
+    axis = torch.where(sin[:, None] > 1e-9, axis / sin.clamp_min(_EPS)[:, None],
+                       fallback / fallback.norm(dim=-1, keepdim=True))
+    return _rotate_about(axis, torch.atan2(sin, cos))
+
+
+def _triangle_angle(opposite: Tensor, side1: Tensor, side2: Tensor) -> Tensor:
+    """Interior angle between sides 1 and 2 of a triangle whose third side is ``opposite`` (clamped)."""
+    cos = (side1.square() + side2.square() - opposite.square()) / (2 * side1 * side2).clamp_min(_EPS)
+    return torch.acos(cos.clamp(-1.0, 1.0))
+
+
+def two_bone_ik(R_local: Tensor, transl: Tensor, J_rest: Tensor, tip: Tensor, target: Tensor,
+                parents: tuple[int, ...] = PARENTS) -> Tensor:
+    """Pose each tip's two-bone chain (grandparent, parent, tip) so that the tip reaches its target.
+
+    Args:
+        R_local: (B, J, 3, 3) local rotations of the starting poses; transl: (B, 3); J_rest: (B, J, 3).
+        tip: (B,) long, the dragged joint (its parent and grandparent are the chain).
+        target: (B, 3) world targets.
+
+    Returns: (B, J, 3, 3) local rotations (only the chain's middle and root joints change).
+    """
+    B = R_local.shape[0]
+    rows = torch.arange(B)
+    par = torch.tensor(parents)
+    mid = par[tip]
+    root = par[mid]
+    R_local = R_local.clone()
+    R_world, p = forward_kinematics(R_local, J_rest, transl, parents)
+    a, b, c = p[rows, root], p[rows, mid], p[rows, tip]
+    ab, bc = (b - a).norm(dim=-1), (c - b).norm(dim=-1)
+    bend_old = _triangle_angle((c - a).norm(dim=-1), ab, bc)
+    reach = (target - a).norm(dim=-1).clamp(max=ab + bc)
+    bend_new = _triangle_angle(reach, ab, bc)
+    axis = torch.cross(b - a, c - b, dim=-1)
+    straight = axis.norm(dim=-1) < 1e-6 * (ab * bc).clamp_min(_EPS)
+    if straight.any():  # a straight limb bends about an axis perpendicular to it and to the target
+        alt = torch.cross(b - a, target - a, dim=-1)
+        alt = torch.where(alt.norm(dim=-1, keepdim=True) > 1e-9, alt,
+                          torch.cross(b - a, torch.tensor([0.0, 0.0, 1.0], dtype=a.dtype).expand_as(a), dim=-1))
+        axis = torch.where(straight[:, None], alt, axis)
+    axis = axis / axis.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    # a positive turn about (b - a) x (c - b) folds the limb further: the interior angle shrinks by it
+    delta_mid = _rotate_about(axis, bend_old - bend_new)
+    R_par_mid = R_world[rows, root]  # the middle joint's parent is the chain root
+    R_local[rows, mid] = R_par_mid.transpose(-1, -2) @ delta_mid @ R_world[rows, mid]
+    R_world, p = forward_kinematics(R_local, J_rest, transl, parents)
+    delta_root = shortest_rotation(p[rows, tip] - a, target - a)
+    grand = par[root]
+    R_local[rows, root] = R_world[rows, grand].transpose(-1, -2) @ delta_root @ R_world[rows, root]
+    return R_local

@@ -1,0 +1,327 @@
+"""Edits that do not fight the user: stale effectors on a dragged chain, and the conflict report.
+
+Effectors recovered from an estimate (:mod:`workflows.recovery`) are exact and several may sit on one limb
+(a wrist position plus the elbow's and shoulder's rotations). Once the user drags one of them, the others
+contradict it: the elbow rotation still asks for the old forearm direction, so the solver meets all of
+them as well as it can by bending everything else (the torso tips, the head drops).
+
+**Relaxing the dragged chain.** When an effector is moved, the effectors that its move makes stale
+(:func:`stale_effectors`) get the tolerance :data:`RELAXED_TOLERANCE`: they stay in the scene as loose
+hints (the network still reads them, the refinement weighs them about 1 %), so the limb keeps its style
+while the dragged effector is met. The rule follows the kinematic chain within the moved joint's limb
+(:data:`~smplik.conventions.LIMB_CHAINS`; the spine-neck-head chain for torso joints):
+
+* a moved **position** on joint ``j`` makes stale the other position effectors of the chain (the elbow's
+  position, the hand's) and the rotation and look-at effectors of ``j``'s ancestors in the chain (the
+  collar's, shoulder's and elbow's rotations fix where ``j`` can be);
+* a moved **rotation** or **look-at** on ``j`` makes stale the position effectors of ``j``'s descendants
+  in the chain (they move with it) and ``j``'s own effector of the other orientation type.
+
+Effectors outside the chain, and ``j``'s own orientation when its position moves (a wrist keeps its hand's
+orientation), are kept: they hold the rest of the body. The benchmark behind this choice is
+``benchmarks/edit_benchmark.py`` (``docs/editing.md``).
+
+**Conflict report** (:func:`conflict_report`): per effector, its residual after the solve, what its tolerance
+allows, and the effectors it contradicts: those whose removal (one batched leave-one-out solve) brings its
+residual within the allowance or halves it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from smplik.conventions import JOINT_INDEX, JOINT_NAMES, LIMB_CHAINS, PARENTS, EffectorType
+from smplik.effectors import Effector
+from smplik.pose import Pose
+
+RELAXED_TOLERANCE = 1.0
+"""Tolerance given to the effectors an edit makes stale (1: a loose hint; see the module docstring)."""
+HOLD_PRIOR = 100.0
+"""How much harder than the solver's own prior the refinement of a drag holds the joints outside the dragged
+chain at their previous rotations (:func:`solve_edit`)."""
+TORSO_CHAIN: tuple[str, ...] = ("spine1", "spine2", "spine3", "neck", "head")
+"""The chain of torso joints (the pelvis, the root, is in no chain)."""
+POSITION_ALLOWANCE_MM = 10.0
+"""Residual of an exact position effector that counts as met."""
+ANGLE_ALLOWANCE_DEG = 5.0
+"""Residual of an exact rotation or look-at effector that counts as met."""
+_SIGMA_MAX, _ETA = 0.1, 13.0  # the training sampler's noise at tolerance t: sigma_M t^eta (m or rad)
+
+
+def chain_of(joint: int) -> tuple[int, ...]:
+    """The joints of ``joint``'s limb chain (:data:`~smplik.conventions.LIMB_CHAINS`, or :data:`TORSO_CHAIN`);
+    empty for the pelvis."""
+    name = JOINT_NAMES[joint]
+    for chain in (*LIMB_CHAINS.values(), TORSO_CHAIN):
+        if name in chain:
+            return tuple(JOINT_INDEX[n] for n in chain)
+    return ()
+
+
+def _is_ancestor(a: int, j: int) -> bool:
+    """``a`` is a strict ancestor of ``j``."""
+    j = PARENTS[j]
+    while j >= 0:
+        if j == a:
+            return True
+        j = PARENTS[j]
+    return False
+
+
+def stale_effectors(effectors: Sequence[Effector], moved: int) -> tuple[int, ...]:
+    """Indices of the effectors that moving ``effectors[moved]`` makes stale (module docstring rule)."""
+    if not 0 <= moved < len(effectors):
+        raise IndexError(f"No effector {moved}: there are {len(effectors)}.")
+    m = effectors[moved]
+    chain = set(chain_of(m.joint))
+    out = []
+    for i, e in enumerate(effectors):
+        if i == moved or e.joint not in chain:
+            continue
+        if m.type == EffectorType.POSITION:
+            stale = (e.type == EffectorType.POSITION and e.joint != m.joint) or (
+                e.type != EffectorType.POSITION and _is_ancestor(e.joint, m.joint))
+        else:
+            stale = (e.type == EffectorType.POSITION and _is_ancestor(m.joint, e.joint)) or (
+                e.joint == m.joint and e.type not in (EffectorType.POSITION, m.type))
+        if stale:
+            out.append(i)
+    return tuple(out)
+
+
+def relax_stale(effectors: Sequence[Effector], moved: int, *,
+                tolerance: float | None = RELAXED_TOLERANCE) -> tuple[tuple[Effector, ...], tuple[int, ...]]:
+    """The effectors with those made stale by moving ``effectors[moved]`` relaxed, and their indices.
+
+    ``tolerance``: the relaxed effectors' tolerance (never lowered); None drops them instead (the returned
+    indices are then those of the input list).
+    """
+    stale = stale_effectors(effectors, moved)
+    if tolerance is None:
+        return tuple(e for i, e in enumerate(effectors) if i not in stale), stale
+    changed = tuple(i for i in stale if effectors[i].tolerance < tolerance)
+    out = tuple(dataclasses.replace(e, tolerance=float(tolerance)) if i in changed else e
+                for i, e in enumerate(effectors))
+    return out, changed
+
+
+def drag_effector(effectors: Sequence[Effector], new: Effector, *,
+                  tolerance: float | None = RELAXED_TOLERANCE) -> tuple[tuple[Effector, ...], int, tuple[int, ...]]:
+    """A user's drag of ``new``'s joint: replace the effector of the same joint and type (else append ``new``)
+    and relax the effectors it makes stale.
+
+    Returns: (effectors, index of ``new``, relaxed indices); with ``tolerance=None`` stale effectors are
+    dropped and the indices refer to the returned list for ``new`` and to the input list for the dropped.
+    """
+    effectors = tuple(effectors)
+    k = next((i for i, e in enumerate(effectors) if e.joint == new.joint and e.type == new.type), None)
+    if k is None:
+        effectors, k = effectors + (new,), len(effectors)
+    else:
+        effectors = effectors[:k] + (new,) + effectors[k + 1:]
+    out, relaxed = relax_stale(effectors, k, tolerance=tolerance)
+    if tolerance is None:
+        k -= sum(1 for i in relaxed if i < k)
+    return out, k, relaxed
+
+
+# ----------------------------------------------------------------------------- solving a drag
+
+
+def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
+               moved_joints: Sequence[int]) -> list[Pose]:
+    """Solve B drags (SMPL space) so that only the dragged chain takes the network's new answer.
+
+    Per row: the network solves the (relaxed) effectors; its local rotations of the moved joint's chain
+    (:func:`chain_of`) are put on the ``previous`` pose (every other local rotation and the translation
+    kept), and the solver's refinement (:mod:`smplik.refine`, anchored to that pose) meets the effectors.
+    The rest of the body stays where the user left it unless an effector asks otherwise; the limb takes the
+    pose the network finds natural for the new target. A moved joint in no chain (the pelvis) solves as
+    :meth:`~smplik.solver.IKSolver.solve_batch` does.
+
+    Args:
+        solver: an :class:`smplik.solver.IKSolver`.
+        effector_lists: B effector lists (SMPL space, after the drag).
+        previous: B poses before the drag (same betas and gender as the rows are solved with).
+        moved_joints: B joint indices, the dragged effectors' joints.
+    """
+    import torch
+
+    from smplik.effectors import EffectorBatch, pack_effectors
+    from smplik.kinematics import forward_kinematics
+    from smplik.network import IKOutput
+    from smplik.refine import NO_REFINEMENT, refine_output
+    from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+
+    B = len(effector_lists)
+    if not len(previous) == len(moved_joints) == B:
+        raise ValueError(f"{B} effector lists, {len(previous)} previous poses, {len(moved_joints)} moved joints.")
+    eff = pack_effectors([list(e) for e in effector_lists])
+    betas = torch.from_numpy(np.stack([np.asarray(p.betas, np.float32) for p in previous]))
+    gender = torch.tensor([p.gender.index for p in previous])
+    with torch.inference_mode():
+        net = solver.solve_tensors(eff, betas, gender, refine=NO_REFINEMENT)
+        aa_prev = torch.from_numpy(np.stack([np.concatenate([p.global_orient[None], p.body_pose])
+                                             for p in previous])).float()
+        transl_prev = torch.from_numpy(np.stack([np.asarray(p.transl) for p in previous])).float()
+        chain = torch.zeros(B, len(PARENTS), dtype=torch.bool)
+        for b, j in enumerate(moved_joints):
+            joints = chain_of(int(j))
+            chain[b, list(joints) if joints else slice(None)] = True
+        keep_all = chain.all(-1)
+        R_local = torch.where(chain[..., None, None], net.R_local.float(), axis_angle_to_matrix(aa_prev))
+        transl = torch.where(keep_all[:, None], net.transl.float(), transl_prev)
+        J_rest = solver.model.rest_joints(betas, gender)
+        R_world, p_world = forward_kinematics(R_local, J_rest, transl)
+        aa = np.zeros((B, len(PARENTS), 3))
+        transl_out, joints_out = np.zeros((B, 3)), np.zeros((B, len(PARENTS), 3))
+        base = solver.refine.joint_prior_array(len(PARENTS))
+        for key in torch.unique(chain, dim=0):  # one refinement per chain: its own per-joint prior
+            rows = torch.nonzero((chain == key).all(-1))[:, 0]
+            prior = np.where(key.numpy(), base, base * HOLD_PRIOR)
+            cfg = dataclasses.replace(solver.refine, joint_prior=tuple(prior.tolist()))
+            sub = EffectorBatch(*(getattr(eff, f)[rows] for f in ("joint", "type", "data", "tolerance", "mask")))
+            start = IKOutput(R_local[rows], R_world[rows], p_world[rows], net.draft[rows], transl[rows])
+            out = refine_output(start, J_rest[rows], sub, cfg)
+            aa[rows.numpy()] = matrix_to_axis_angle(out.R_local.double()).numpy()
+            transl_out[rows.numpy()] = out.transl.double().numpy()
+            joints_out[rows.numpy()] = out.p_world.double().numpy()
+    return [Pose(aa[b, 0], aa[b, 1:], transl_out[b], np.asarray(p.betas, np.float64), p.gender, joints_out[b])
+            for b, p in enumerate(previous)]
+
+
+def solve_drag(character: Any, solver: Any, moved: int, previous: Pose | None = None) -> Any:
+    """Re-solve a scene character after a drag of its effector ``moved`` (:func:`solve_edit`, character
+    space handled as :func:`workflows.scene.solve_character` does); ``previous``: the pose before the drag
+    (default: the character's stored pose; without one, a plain :func:`~workflows.scene.solve_character`)."""
+    from workflows.scene import scale_effector, solve_character
+
+    previous = character.pose if previous is None else previous
+    if previous is None or not character.effectors:
+        return solve_character(character, solver)
+    previous = dataclasses.replace(previous, betas=np.asarray(character.betas, np.float64), gender=character.gender,
+                                   joints=None)
+    effectors = [scale_effector(e, 1.0 / character.scale) for e in character.effectors]
+    pose = solve_edit(solver, [effectors], [previous], [character.effectors[moved].joint])[0]
+    return dataclasses.replace(character, pose=pose)
+
+
+# ----------------------------------------------------------------------------- conflict report
+
+
+def allowance(effector: Effector) -> float:
+    """The residual (mm or degrees) that counts as meeting ``effector``: :data:`POSITION_ALLOWANCE_MM` /
+    :data:`ANGLE_ALLOWANCE_DEG` plus three times the training sampler's noise at its tolerance."""
+    noise = _SIGMA_MAX * float(effector.tolerance) ** _ETA
+    if effector.type == EffectorType.POSITION:
+        return POSITION_ALLOWANCE_MM + 3000.0 * noise
+    return ANGLE_ALLOWANCE_DEG + 3.0 * float(np.degrees(noise))
+
+
+@dataclass(frozen=True)
+class EffectorConflict:
+    """One effector's line of the conflict report.
+
+    Attributes:
+        index: the effector's index in its character's list.
+        effector: the effector (character space).
+        residual: how far the solved pose is from it (mm for positions, degrees otherwise).
+        allowed: the residual its tolerance allows (:func:`allowance`).
+        conflicts_with: indices of the effectors it contradicts (empty when it is met or nothing explains it).
+    """
+
+    index: int
+    effector: Effector
+    residual: float
+    allowed: float
+    conflicts_with: tuple[int, ...] = ()
+
+    @property
+    def unit(self) -> str:
+        return "mm" if self.effector.type == EffectorType.POSITION else "deg"
+
+    @property
+    def met(self) -> bool:
+        return self.residual <= self.allowed
+
+    def label(self) -> str:
+        return f"{self.index}: {self.effector.joint_name} {self.effector.type.name.lower()}"
+
+
+@dataclass(frozen=True)
+class ConflictReport:
+    """Per effector of one character, its residual and the effectors it contradicts."""
+
+    character: str
+    entries: tuple[EffectorConflict, ...]
+
+    @property
+    def conflicts(self) -> tuple[EffectorConflict, ...]:
+        """The entries whose residual exceeds their allowance."""
+        return tuple(e for e in self.entries if not e.met)
+
+    def lines(self) -> list[str]:
+        """Human-readable lines: a summary, then one line per effector."""
+        bad = self.conflicts
+        head = (f"{self.character}: all {len(self.entries)} effectors met" if not bad else
+                f"{self.character}: {len(bad)} of {len(self.entries)} effectors not met")
+        out = [head]
+        for e in self.entries:
+            line = (f"  {e.label()} (tolerance {e.effector.tolerance:g}): {e.residual:.1f} {e.unit}"
+                    f" (allowed {e.allowed:.1f})")
+            if not e.met:
+                others = ", ".join(self.entries[j].label() for j in e.conflicts_with)
+                line += f"  CONFLICT with {others}" if others else "  NOT MET (unreachable?)"
+            out.append(line)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"character": self.character, "effectors": [
+            {"index": e.index, "joint": e.effector.joint_name, "type": e.effector.type.name.lower(),
+             "tolerance": e.effector.tolerance, "residual": e.residual, "unit": e.unit, "allowed": e.allowed,
+             "met": e.met, "conflicts_with": list(e.conflicts_with)} for e in self.entries]}
+
+
+def conflict_report(character: Any, solver: Any) -> ConflictReport:
+    """The conflict report of a solved scene character (:class:`workflows.scene.SceneCharacter` with a pose).
+
+    Residuals are those of the character's stored pose, in character space (positions scaled by
+    ``scale``). For every effector that is not met, one batched solve of the effector lists that each
+    leave one other effector out finds the effectors it contradicts.
+
+    Args:
+        character: the solved character (``effectors``, ``pose``, ``betas``, ``gender``, ``scale``, ``name``).
+        solver: an :class:`smplik.solver.IKSolver` (its ``solve_batch`` and ``bodies``).
+    """
+    from smplik.solver import effector_residuals
+    from workflows.scene import scale_effector
+
+    effectors = list(character.effectors)
+    if not effectors or character.pose is None:
+        return ConflictReport(character.name, ())
+    scale = float(character.scale)
+    smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
+
+    def residuals(pose: Any) -> list[float]:
+        return [r.value * (scale if r.effector.type == EffectorType.POSITION else 1.0)
+                for r in effector_residuals(pose, smpl, solver.bodies)]
+
+    values = residuals(character.pose)
+    allowed = [allowance(e) for e in effectors]
+    bad = [k for k, (r, a) in enumerate(zip(values, allowed, strict=True)) if r > a]
+    partners: dict[int, tuple[int, ...]] = {}
+    if bad and len(effectors) > 1:
+        lists = [smpl[:j] + smpl[j + 1:] for j in range(len(smpl))]
+        poses = solver.solve_batch(lists, betas=character.betas, gender=character.gender)
+        without = [residuals(p) for p in poses]  # without[j][k]: effector k's residual with j left out
+        for k in bad:
+            partners[k] = tuple(j for j in range(len(effectors)) if j != k and (
+                without[j][k] <= allowed[k] or without[j][k] <= 0.5 * values[k]))
+    entries = tuple(EffectorConflict(k, e, values[k], allowed[k], partners.get(k, ()))
+                    for k, e in enumerate(effectors))
+    return ConflictReport(character.name, entries)
