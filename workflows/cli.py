@@ -130,7 +130,9 @@ def solve_cmd(
     out: Annotated[Path | None, typer.Option("--out", help="Output scene (default: overwrite SCENE).")] = None,
     checkpoint: Checkpoint = None,
 ) -> None:
-    """Re-solve every character from its (edited) effectors and shape."""
+    """Re-solve every character from its (edited) effectors and shape; print each effector's residual and the
+    conflict report (the effectors not met and those they contradict)."""
+    from workflows.edits import conflict_report
     from workflows.scene import load_scene, save_scene, solve_scene
 
     with user_errors():
@@ -141,6 +143,9 @@ def solve_cmd(
         for before, after in zip(loaded.characters, solved.characters, strict=True):
             for line in character_residuals(before, after, solver):
                 say(line)
+            if after.effectors:  # which effectors are not met, and which others they contradict
+                for line in conflict_report(after, solver).lines():
+                    say(line)
     say(f"wrote {path}")
 
 
@@ -207,5 +212,7 @@ def demo_cmd(
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: effectors {[f'{e.joint_name}:{e.type.name.lower()}' for e in r.recovery.effectors]}"
                       f"; error after each (mm): {errs}; final pose {r.recovery.final_error * 1000:.0f} mm")
+    for line in outputs.edit_lines:
+        say(line)
     for path in outputs.all_files:
         say(f"wrote {path}")

@@ -8,7 +8,8 @@
 3. ``character/``: the same people retargeted onto the custom character through SMPL-SI: scene,
    previews (custom skeleton beside its SMPL approximation), recovery plots, one BVH per person.
 4. ``character/scene_edited.json``: a user edit (the first person's right wrist raised by 25 cm
-   as a position effector) re-solved with :func:`workflows.scene.solve_scene`, and its preview.
+   as a position effector), solved as the editor solves a drag (:mod:`workflows.edits`), and its preview;
+   :attr:`DemoOutputs.edit_lines` give its figures.
 """
 
 from __future__ import annotations
@@ -20,7 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from smplik.benchmark.edits import TORSO_JOINTS
+from smplik.conventions import JOINT_INDEX
 from smplik.effectors import Effector
+from smplik.rotations import geodesic_distance
 from workflows.pipeline import EstimateOutputs, from_estimate
 from workflows.recovery import RecoveryConfig
 
@@ -37,6 +41,9 @@ class DemoOutputs:
     character: EstimateOutputs
     edited_scene: Path
     edited_preview: Path | None
+    edit_lines: tuple[str, ...] = ()
+    """The edit's figures: the wrist's distance to its target, what was relaxed, the torso's turn, the
+    conflict report."""
 
     @property
     def all_files(self) -> tuple[Path, ...]:
@@ -58,17 +65,35 @@ def write_examples(folder: str | Path, *, people_in_photo: bool = True) -> tuple
 
 
 def edit_scene(scene_path: Path, out_path: Path, solver: Any) -> Path:
-    """Raise the first character's right wrist by :data:`EDIT_RAISE_M` and re-solve the scene."""
-    from workflows.scene import character_joints, load_scene, save_scene, solve_scene
+    """Raise the first character's right wrist by :data:`EDIT_RAISE_M` as the editor's drag does
+    (:mod:`workflows.edits`: the stale effectors of the arm relaxed, only the arm re-posed) and save the scene."""
+    return _edit(scene_path, out_path, solver)[0]
+
+
+def _edit(scene_path: Path, out_path: Path, solver: Any) -> tuple[Path, list[str]]:
+    """:func:`edit_scene` plus the edit's figures (lines for the demo's printout)."""
+    from workflows.edits import conflict_report, relax_stale, solve_drag
+    from workflows.recovery import TargetPose
+    from workflows.scene import character_joints, load_scene, save_scene
 
     scene = load_scene(scene_path)
     first = scene.characters[0]
     wrist = character_joints(first)[Effector.position(EDIT_JOINT, (0, 0, 0)).joint]
     target = Effector.position(EDIT_JOINT, wrist + np.array([0.0, EDIT_RAISE_M, 0.0]))
     kept = tuple(e for e in first.effectors if not (e.joint == target.joint and e.type == target.type))
-    edited = dataclasses.replace(first, effectors=kept + (target,))
-    scene = dataclasses.replace(scene, characters=(edited,) + scene.characters[1:])
-    return save_scene(solve_scene(scene, solver, only=[edited.name]), out_path)
+    effectors, relaxed = relax_stale(kept + (target,), len(kept))
+    edited = solve_drag(dataclasses.replace(first, effectors=effectors), solver, len(kept))
+    path = save_scene(dataclasses.replace(scene, characters=(edited,) + scene.characters[1:]), out_path)
+    R_before = TargetPose.from_pose(dataclasses.replace(first.pose, joints=None)).R_world.double()
+    R_after = TargetPose.from_pose(dataclasses.replace(edited.pose, joints=None)).R_world.double()
+    turn = {n: float(np.degrees(geodesic_distance(R_before[JOINT_INDEX[n]], R_after[JOINT_INDEX[n]])))
+            for n in TORSO_JOINTS}
+    off = 1000.0 * float(np.linalg.norm(character_joints(edited)[target.joint] - target.value))
+    lines = [f"edit: {first.name}'s {EDIT_JOINT} raised {EDIT_RAISE_M * 100:.0f} cm; {EDIT_JOINT} {off:.1f} mm off "
+             f"its target; relaxed (tolerance raised): "
+             f"{', '.join(f'{effectors[i].joint_name} {effectors[i].type.name.lower()}' for i in relaxed) or 'none'}",
+             "edit: torso turn (deg) " + ", ".join(f"{n} {v:.1f}" for n, v in turn.items())]
+    return path, lines + conflict_report(edited, solver).lines()
 
 
 def run_demo(out_dir: str | Path, solver: Any = None, *, config: RecoveryConfig | None = None,
@@ -88,7 +113,7 @@ def run_demo(out_dir: str | Path, solver: Any = None, *, config: RecoveryConfig 
                          previews=previews)
     character = from_estimate(npz, out_dir / "character", solver, format="romp", character_path=bvh,
                               rig="mixamo", config=config, image_path=photo, previews=previews)
-    edited = edit_scene(character.scene, out_dir / "character" / "scene_edited.json", solver)
+    edited, edit_lines = _edit(character.scene, out_dir / "character" / "scene_edited.json", solver)
     edited_png = None
     if previews:
         from smplik.render import save_png
@@ -97,4 +122,4 @@ def run_demo(out_dir: str | Path, solver: Any = None, *, config: RecoveryConfig 
 
         edited_png = save_png(render_scene(load_scene(edited), image=load_image(photo)),
                               out_dir / "character" / "scene_edited.png")
-    return DemoOutputs((npz, photo, bvh), smpl, character, edited, edited_png)
+    return DemoOutputs((npz, photo, bvh), smpl, character, edited, edited_png, tuple(edit_lines))

@@ -50,6 +50,10 @@ POSITION_ALLOWANCE_MM = 10.0
 """Residual of an exact position effector that counts as met."""
 ANGLE_ALLOWANCE_DEG = 5.0
 """Residual of an exact rotation or look-at effector that counts as met."""
+STRAIN_MM = 100.0
+"""An exact position effector the network alone misses by more than this is *forced* (see :func:`strain_limit`)."""
+STRAIN_DEG = 30.0
+"""The same for rotation and look-at effectors (degrees)."""
 _SIGMA_MAX, _ETA = 0.1, 13.0  # the training sampler's noise at tolerance t: sigma_M t^eta (m or rad)
 
 
@@ -223,6 +227,13 @@ def allowance(effector: Effector) -> float:
     return ANGLE_ALLOWANCE_DEG + 3.0 * float(np.degrees(noise))
 
 
+def strain_limit(effector: Effector) -> float:
+    """The network-alone residual (mm or degrees) beyond which an effector is *forced*: the refinement meets
+    it only by bending the pose far from what the network makes of all the effectors together."""
+    scale = 1.0 + 10.0 * float(effector.tolerance)
+    return scale * (STRAIN_MM if effector.type == EffectorType.POSITION else STRAIN_DEG)
+
+
 @dataclass(frozen=True)
 class EffectorConflict:
     """One effector's line of the conflict report.
@@ -232,13 +243,16 @@ class EffectorConflict:
         effector: the effector (character space).
         residual: how far the solved pose is from it (mm for positions, degrees otherwise).
         allowed: the residual its tolerance allows (:func:`allowance`).
-        conflicts_with: indices of the effectors it contradicts (empty when it is met or nothing explains it).
+        network_residual: how far the network's pose alone (no refinement) is from it.
+        conflicts_with: indices of the effectors it contradicts: leaving one of them out brings it within
+            its allowance or halves its residual (the network's residual for a forced effector).
     """
 
     index: int
     effector: Effector
     residual: float
     allowed: float
+    network_residual: float
     conflicts_with: tuple[int, ...] = ()
 
     @property
@@ -248,6 +262,15 @@ class EffectorConflict:
     @property
     def met(self) -> bool:
         return self.residual <= self.allowed
+
+    @property
+    def forced(self) -> bool:
+        """Met only by the refinement bending the pose far from the network's answer (:func:`strain_limit`)."""
+        return self.met and self.network_residual > strain_limit(self.effector)
+
+    @property
+    def in_conflict(self) -> bool:
+        return not self.met or self.forced
 
     def label(self) -> str:
         return f"{self.index}: {self.effector.joint_name} {self.effector.type.name.lower()}"
@@ -262,21 +285,23 @@ class ConflictReport:
 
     @property
     def conflicts(self) -> tuple[EffectorConflict, ...]:
-        """The entries whose residual exceeds their allowance."""
-        return tuple(e for e in self.entries if not e.met)
+        """The entries not met or forced."""
+        return tuple(e for e in self.entries if e.in_conflict)
 
     def lines(self) -> list[str]:
         """Human-readable lines: a summary, then one line per effector."""
         bad = self.conflicts
-        head = (f"{self.character}: all {len(self.entries)} effectors met" if not bad else
-                f"{self.character}: {len(bad)} of {len(self.entries)} effectors not met")
+        head = (f"{self.character}: no conflicting effectors ({len(self.entries)} met)" if not bad else
+                f"{self.character}: {len(bad)} of {len(self.entries)} effectors in conflict (not met, or met only "
+                "by bending the pose far from the network's answer)")
         out = [head]
         for e in self.entries:
-            line = (f"  {e.label()} (tolerance {e.effector.tolerance:g}): {e.residual:.1f} {e.unit}"
-                    f" (allowed {e.allowed:.1f})")
-            if not e.met:
+            line = (f"  {e.label()} (tolerance {e.effector.tolerance:g}): {e.residual:.1f} {e.unit} "
+                    f"(allowed {e.allowed:.1f}; network alone {e.network_residual:.1f})")
+            if e.in_conflict:
                 others = ", ".join(self.entries[j].label() for j in e.conflicts_with)
-                line += f"  CONFLICT with {others}" if others else "  NOT MET (unreachable?)"
+                what = "NOT MET" if not e.met else "FORCED"
+                line += f"  {what}, contradicts {others}" if others else f"  {what}"
             out.append(line)
         return out
 
@@ -284,20 +309,23 @@ class ConflictReport:
         return {"character": self.character, "effectors": [
             {"index": e.index, "joint": e.effector.joint_name, "type": e.effector.type.name.lower(),
              "tolerance": e.effector.tolerance, "residual": e.residual, "unit": e.unit, "allowed": e.allowed,
-             "met": e.met, "conflicts_with": list(e.conflicts_with)} for e in self.entries]}
+             "network_residual": e.network_residual, "met": e.met, "forced": e.forced,
+             "conflicts_with": list(e.conflicts_with)} for e in self.entries]}
 
 
 def conflict_report(character: Any, solver: Any) -> ConflictReport:
     """The conflict report of a solved scene character (:class:`workflows.scene.SceneCharacter` with a pose).
 
     Residuals are those of the character's stored pose, in character space (positions scaled by
-    ``scale``). For every effector that is not met, one batched solve of the effector lists that each
-    leave one other effector out finds the effectors it contradicts.
+    ``scale``); network residuals those of the network's pose alone for the same effectors. For every
+    effector in conflict (not met, or forced: :attr:`EffectorConflict.forced`), batched solves of the effector
+    lists that each leave one other effector out find the effectors it contradicts.
 
     Args:
         character: the solved character (``effectors``, ``pose``, ``betas``, ``gender``, ``scale``, ``name``).
-        solver: an :class:`smplik.solver.IKSolver` (its ``solve_batch`` and ``bodies``).
+        solver: an :class:`smplik.solver.IKSolver` (its ``solve_batch``, ``refine`` and ``bodies``).
     """
+    from smplik.refine import NO_REFINEMENT
     from smplik.solver import effector_residuals
     from workflows.scene import scale_effector
 
@@ -306,22 +334,32 @@ def conflict_report(character: Any, solver: Any) -> ConflictReport:
         return ConflictReport(character.name, ())
     scale = float(character.scale)
     smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
+    network = dataclasses.replace(solver, refine=NO_REFINEMENT)
 
     def residuals(pose: Any) -> list[float]:
         return [r.value * (scale if r.effector.type == EffectorType.POSITION else 1.0)
                 for r in effector_residuals(pose, smpl, solver.bodies)]
 
+    def solve(which: Any, lists: list[list[Effector]]) -> list[list[float]]:
+        return [residuals(p) for p in which.solve_batch(lists, betas=character.betas, gender=character.gender)]
+
     values = residuals(character.pose)
+    net_values = solve(network, [smpl])[0]
     allowed = [allowance(e) for e in effectors]
-    bad = [k for k, (r, a) in enumerate(zip(values, allowed, strict=True)) if r > a]
-    partners: dict[int, tuple[int, ...]] = {}
+    entries = [EffectorConflict(k, e, values[k], allowed[k], net_values[k]) for k, e in enumerate(effectors)]
+    bad = [e for e in entries if e.in_conflict]
     if bad and len(effectors) > 1:
         lists = [smpl[:j] + smpl[j + 1:] for j in range(len(smpl))]
-        poses = solver.solve_batch(lists, betas=character.betas, gender=character.gender)
-        without = [residuals(p) for p in poses]  # without[j][k]: effector k's residual with j left out
-        for k in bad:
-            partners[k] = tuple(j for j in range(len(effectors)) if j != k and (
-                without[j][k] <= allowed[k] or without[j][k] <= 0.5 * values[k]))
-    entries = tuple(EffectorConflict(k, e, values[k], allowed[k], partners.get(k, ()))
-                    for k, e in enumerate(effectors))
-    return ConflictReport(character.name, entries)
+        full = solve(solver, lists) if any(not e.met for e in bad) else None
+        net = solve(network, lists) if any(e.forced for e in bad) else None
+        for e in bad:
+            k = e.index
+            if not e.met:
+                assert full is not None
+                partners = [j for j in range(len(effectors)) if j != k and (
+                    full[j][k] <= allowed[k] or full[j][k] <= 0.5 * values[k])]
+            else:
+                assert net is not None
+                partners = [j for j in range(len(effectors)) if j != k and net[j][k] <= 0.5 * net_values[k]]
+            entries[k] = dataclasses.replace(e, conflicts_with=tuple(partners))
+    return ConflictReport(character.name, tuple(entries))

@@ -1,0 +1,165 @@
+"""The edit benchmark's pair selection and metrics on hand-made sequences, and the two-bone IK baseline."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from smplik.benchmark.edits import (
+    EditPairConfig,
+    JointRanges,
+    align_to_pelvis,
+    edit_metrics,
+    find_edit_pairs,
+    pelvis_relative,
+)
+from smplik.benchmark.two_bone import two_bone_ik
+from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
+from smplik.kinematics import forward_kinematics
+from smplik.rotations import axis_angle_to_matrix
+
+FPS = 30.0
+
+
+def _yaw(angle: torch.Tensor) -> torch.Tensor:
+    """(T,) radians about +y -> (T, 3, 3)."""
+    return axis_angle_to_matrix(torch.stack([torch.zeros_like(angle), angle, torch.zeros_like(angle)], -1))
+
+
+def _sequence(moves: dict[str, float], T: int = 60, start: int = 10, end: int = 40) -> tuple[torch.Tensor,
+                                                                                                  torch.Tensor]:
+    """World joints (T, 24, 3) and pelvis rotations (T, 3, 3): a body walking and turning while the named
+    joints move linearly by the given distances (metres, pelvis frame) between frames ``start`` and ``end``."""
+    g = torch.Generator().manual_seed(0)
+    rest = torch.randn(NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.3
+    rest[0] = 0
+    s = ((torch.arange(T, dtype=torch.float64) - start) / (end - start)).clamp(0, 1)
+    local = rest.expand(T, -1, -1).clone()
+    for name, dist in moves.items():
+        local[:, JOINT_INDEX[name], 0] += dist * s
+    R = _yaw(torch.linspace(0, 1.5, T, dtype=torch.float64))  # the whole body turns ...
+    transl = torch.stack([torch.linspace(0, 2, T), torch.zeros(T), torch.zeros(T)], -1).double()  # ... and walks
+    return local @ R.transpose(-1, -2) + transl[:, None], R
+
+
+def test_a_single_wrist_move_is_found_relative_to_the_pelvis():
+    p, R = _sequence({"right_wrist": 0.30})
+    rel = pelvis_relative(p, R)
+    pairs = find_edit_pairs(rel, FPS)
+    assert pairs and all(q.end == "right_wrist" for q in pairs)
+    first = pairs[0]
+    assert first.t0 == 0 and 40 <= first.t1 <= 45  # a partner where the wrist moved farthest (0.3 m, >= 1.33 s)
+    assert first.move_m == pytest.approx(0.30, abs=1e-9)
+    for q in pairs:
+        assert 9 <= q.t1 - q.t0 <= 45 and q.move_m >= 0.15  # 0.3-1.5 s at 30 fps, >= 15 cm
+    starts = [q.t0 for q in pairs]
+    assert all(b - a >= 6 for a, b in zip(starts, starts[1:], strict=False))  # min_gap 0.2 s
+
+
+@pytest.mark.parametrize("moves", [
+    {"right_wrist": 0.30, "head": 0.10},          # the head moved too (>= 5 cm whenever the wrist moved 15)
+    {"right_wrist": 0.30, "left_ankle": 0.10},     # another limb end moved along
+    {"right_wrist": 0.30, "left_wrist": 0.30},     # two limbs moved
+    {"right_wrist": 0.12},                         # too small a move
+])
+def test_moves_that_are_not_single_limb_edits_are_refused(moves):
+    p, R = _sequence(moves)
+    assert find_edit_pairs(pelvis_relative(p, R), FPS) == []
+
+
+def test_pair_time_window_is_respected():
+    p, R = _sequence({"left_ankle": 0.30}, T=120, start=10, end=100)  # 0.3 m over 3 s: 15 cm takes 1.5 s
+    pairs = find_edit_pairs(pelvis_relative(p, R), FPS, EditPairConfig(max_dt=1.0))
+    assert pairs == []
+    pairs = find_edit_pairs(pelvis_relative(p, R), FPS, EditPairConfig(max_dt=1.5))
+    assert pairs and all(q.t1 - q.t0 == 45 and q.end == "left_ankle" for q in pairs)
+
+
+def test_align_to_pelvis_moves_the_skeleton_rigidly():
+    g = torch.Generator().manual_seed(1)
+    R_local = axis_angle_to_matrix(torch.randn(2, NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.4)
+    J = torch.randn(NUM_JOINTS, 3, generator=g, dtype=torch.float64)
+    R_w, p_w = forward_kinematics(R_local, J, torch.randn(2, 3, generator=g, dtype=torch.float64))
+    R_a, p_a = align_to_pelvis(R_w[1], p_w[1], R_w[0, 0], p_w[0, 0])
+    assert torch.allclose(R_a[0], R_w[0, 0]) and torch.allclose(p_a[0], p_w[0, 0])
+    d = torch.cdist(p_a, p_a) - torch.cdist(p_w[1], p_w[1])
+    assert d.abs().max() < 1e-12
+
+
+def test_edit_metrics_known_answers():
+    P = 1
+    g = torch.Generator().manual_seed(2)
+    p_true = torch.randn(P, NUM_JOINTS, 3, generator=g, dtype=torch.float64)
+    p_pred = p_true.clone()
+    p_pred[0, JOINT_INDEX["left_hip"], 0] += 0.024  # 24 mm off, outside the right arm
+    eye = torch.eye(3, dtype=torch.float64).expand(P, NUM_JOINTS, 3, 3).clone()
+    R_pred = eye.clone()
+    R_pred[0, JOINT_INDEX["spine2"]] = _yaw(torch.tensor([math.radians(30.0)], dtype=torch.float64))[0]
+    R_true = eye.clone()
+    R_true[0, JOINT_INDEX["spine2"]] = _yaw(torch.tensor([math.radians(5.0)], dtype=torch.float64))[0]
+    ranges = JointRanges(torch.full((NUM_JOINTS, 3), -1.0, dtype=torch.float64),
+                         torch.full((NUM_JOINTS, 3), 1.0, dtype=torch.float64))
+    aa_pred = torch.zeros(P, NUM_JOINTS, 3, dtype=torch.float64)
+    aa_pred[0, JOINT_INDEX["right_elbow"], 2] = 1.5  # outside [-1, 1] + 5 degrees
+    aa_pred[0, JOINT_INDEX["left_elbow"], 2] = 1.05  # inside the margin
+    target = p_pred[0, JOINT_INDEX["right_wrist"]] + torch.tensor([0.003, 0.0, 0.0], dtype=torch.float64)
+    m = edit_metrics(p_pred=p_pred, R_world_pred=R_pred, aa_local_pred=aa_pred, p_true=p_true, R_world_true=R_true,
+                     aa_local_true=torch.zeros_like(aa_pred), R_world_before=eye,
+                     aa_local_before=torch.zeros_like(aa_pred), R_world_start=eye, ends=["right_wrist"],
+                     targets=target[None], ranges=ranges)
+    assert float(m.mpjpe_mm[0]) == pytest.approx(1.0)
+    assert float(m.collateral_mm[0]) == pytest.approx(24.0 / (NUM_JOINTS - 5))  # right arm: 5 joints
+    assert float(m.limb_mm[0]) == pytest.approx(0.0)
+    assert float(m.reach_mm[0]) == pytest.approx(3.0)
+    assert int(m.out_of_range[0]) == 1
+    assert int(m.torso_turned[0]) == 1 and float(m.torso_excess_deg[0]) == pytest.approx(25.0)
+    assert int(m.contortions[0]) == 2
+    # the same turn in the real motion is no contortion; a joint the starting pose already had out is not counted
+    before = aa_pred.clone()
+    m2 = edit_metrics(p_pred=p_pred, R_world_pred=R_pred, aa_local_pred=aa_pred, p_true=p_true, R_world_true=R_pred,
+                      aa_local_true=torch.zeros_like(aa_pred), R_world_before=eye, aa_local_before=before,
+                      R_world_start=eye, ends=["right_wrist"], targets=target[None], ranges=ranges)
+    assert int(m2.contortions[0]) == 0
+
+
+def test_joint_ranges_fit_and_outside():
+    pose = torch.zeros(3, NUM_JOINTS, 3)
+    pose[1, 5, 0] = 0.5
+    pose[2, 5, 0] = -0.2
+    r = JointRanges.fit(pose)
+    assert float(r.hi[5, 0]) == pytest.approx(0.5) and float(r.lo[5, 0]) == pytest.approx(-0.2)
+    probe = torch.zeros(2, NUM_JOINTS, 3)
+    probe[0, 5, 0] = 0.5 + math.radians(6)
+    probe[1, 5, 0] = 0.5 + math.radians(4)
+    out = r.outside(probe)
+    assert bool(out[0, 5]) and not bool(out[1, 5]) and int(out.sum()) == 1
+    with pytest.raises(ValueError, match="shape"):
+        JointRanges.fit(torch.zeros(0, NUM_JOINTS, 3))
+
+
+def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
+    g = torch.Generator().manual_seed(3)
+    B = 4
+    J = bodies.rest_joints(torch.zeros(B, 10), torch.zeros(B, dtype=torch.long)).double()
+    R = axis_angle_to_matrix(torch.randn(B, NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.3)
+    t = torch.zeros(B, 3, dtype=torch.float64)
+    tip = torch.tensor([JOINT_INDEX[n] for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle")])
+    _, p = forward_kinematics(R, J, t)
+    rows = torch.arange(B)
+    par = torch.tensor(PARENTS)
+    root = p[rows, par[par[tip]]]
+    target = root + 0.85 * (p[rows, tip] - root) + 0.03  # closer to the root: reachable
+    R2 = two_bone_ik(R, t, J, tip, target)
+    _, p2 = forward_kinematics(R2, J, t)
+    assert (p2[rows, tip] - target).norm(dim=-1).max() < 1e-6
+    changed = (R2 - R).abs().amax((-1, -2)) > 1e-12
+    for b in range(B):
+        assert set(torch.nonzero(changed[b])[:, 0].tolist()) <= {int(par[tip[b]]), int(par[par[tip[b]]])}
+    # beyond reach: the straight limb points at the target
+    far = p[rows, par[par[tip]]] + torch.tensor([0.0, 0.0, 3.0], dtype=torch.float64)
+    _, p3 = forward_kinematics(two_bone_ik(R, t, J, tip, far), J, t)
+    root = p3[rows, par[par[tip]]]
+    u = (p3[rows, tip] - root) / (p3[rows, tip] - root).norm(dim=-1, keepdim=True)
+    assert torch.allclose(u, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(B, 3), atol=1e-6)

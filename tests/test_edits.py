@@ -1,0 +1,156 @@
+"""Drags that do not fight the user (workflows.edits): the stale-effector rule, the conflict report, and a
+drag on a recovered-style scene that must not contort the torso."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from smplik.conventions import JOINT_INDEX, NUM_BETAS, Gender
+from smplik.effectors import Effector
+from smplik.pose import Pose
+from smplik.rotations import geodesic_distance
+from workflows.editor.state import EditorState
+from workflows.edits import RELAXED_TOLERANCE, conflict_report, drag_effector, relax_stale, stale_effectors
+from workflows.recovery import TargetPose
+from workflows.scene import Scene, SceneCharacter, solve_character
+
+TORSO = [JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3", "neck", "head")]
+
+
+@pytest.fixture(scope="module")
+def solver():
+    from smplik.solver import IKSolver
+
+    return IKSolver.load()  # the shipped model
+
+
+def _eff(joint: str, kind: str) -> Effector:
+    if kind == "position":
+        return Effector.position(joint, (0.1, 1.0, 0.0))
+    if kind == "rotation":
+        return Effector.rotation(joint, np.eye(3))
+    return Effector.look_at(joint, (0.0, 1.5, 1.0), (0.0, 0.0, 1.0))
+
+
+def test_stale_effectors_follow_the_chain():
+    effs = [_eff("left_wrist", "position"), _eff("left_elbow", "rotation"), _eff("left_shoulder", "rotation"),
+            _eff("left_hand", "position"), _eff("left_elbow", "position"), _eff("left_wrist", "rotation"),
+            _eff("spine3", "rotation"), _eff("right_wrist", "position"), _eff("left_collar", "rotation"),
+            _eff("head", "look_at"), _eff("head", "rotation")]
+    # a moved wrist position: the arm's other positions and the rotations of its ancestors in the arm
+    assert stale_effectors(effs, 0) == (1, 2, 3, 4, 8)
+    # a moved elbow rotation: the positions below it in the arm
+    assert stale_effectors(effs, 1) == (0, 3)
+    # a moved look-at on the head: the head's own rotation
+    assert stale_effectors(effs, 9) == (10,)
+    relaxed, idx = relax_stale(effs, 0)
+    assert idx == (1, 2, 3, 4, 8)
+    assert [e.tolerance for e in relaxed] == [RELAXED_TOLERANCE if i in idx else 0.0 for i in range(len(effs))]
+    dropped, idx = relax_stale(effs, 0, tolerance=None)
+    assert len(dropped) == len(effs) - 5 and dropped[0] is effs[0]
+
+
+def test_drag_effector_replaces_or_appends():
+    effs = (_eff("left_elbow", "rotation"), _eff("left_wrist", "position"), _eff("pelvis", "position"))
+    new = Effector.position("left_wrist", (0.3, 1.4, 0.0))
+    out, k, relaxed = drag_effector(effs, new)
+    assert k == 1 and out[1] is new and relaxed == (0,) and out[0].tolerance == RELAXED_TOLERANCE
+    out, k, relaxed = drag_effector(effs, Effector.position("right_wrist", (0.3, 1.4, 0.0)))
+    assert k == 3 and len(out) == 4 and relaxed == ()
+    out, k, relaxed = drag_effector(effs, new, tolerance=None)
+    assert [e.joint_name for e in out] == ["left_wrist", "pelvis"] and k == 0 and relaxed == (0,)
+
+
+def _arms_down_pose() -> Pose:
+    body = np.zeros((23, 3))
+    body[JOINT_INDEX["left_shoulder"] - 1] = (0.0, 0.0, -1.2)   # arms down along the body
+    body[JOINT_INDEX["right_shoulder"] - 1] = (0.0, 0.0, 1.2)
+    body[JOINT_INDEX["left_elbow"] - 1] = (0.0, -0.4, 0.0)
+    body[JOINT_INDEX["right_elbow"] - 1] = (0.0, 0.4, 0.0)
+    return Pose(np.zeros(3), body, np.zeros(3), np.zeros(NUM_BETAS), Gender.NEUTRAL)
+
+
+def _recovered_style_character(solver) -> SceneCharacter:
+    """Exact effectors of a standing pose, as recovery leaves them: one arm has its wrist free but its elbow
+    rotation pinned (the issue's scene: left_elbow rotation + a new left_wrist handle)."""
+    fk = TargetPose.from_pose(_arms_down_pose())
+    p, R = fk.p_world.double().numpy(), fk.R_world.double().numpy()
+    effs = (Effector.position("left_hip", p[JOINT_INDEX["left_hip"]]),
+            Effector.rotation("left_elbow", R[JOINT_INDEX["left_elbow"]]),
+            Effector.rotation("left_knee", R[JOINT_INDEX["left_knee"]]),
+            Effector.position("right_ankle", p[JOINT_INDEX["right_ankle"]]),
+            Effector.rotation("pelvis", R[0]),
+            Effector.position("right_wrist", p[JOINT_INDEX["right_wrist"]]),
+            Effector.position("head", p[JOINT_INDEX["head"]]))
+    return solve_character(SceneCharacter("person", Gender.NEUTRAL, np.zeros(NUM_BETAS), effectors=effs), solver)
+
+
+def _torso_turn_deg(before: SceneCharacter, after: SceneCharacter) -> np.ndarray:
+    R0 = TargetPose.from_pose(dataclasses.replace(before.pose, joints=None)).R_world
+    R1 = TargetPose.from_pose(dataclasses.replace(after.pose, joints=None)).R_world
+    return np.degrees(geodesic_distance(R0[TORSO].double(), R1[TORSO].double()).numpy())
+
+
+def test_a_raised_wrist_does_not_contort_the_torso(solver):
+    """The issue's edit: a new left-wrist handle dragged up 40 cm on a scene whose left elbow rotation is
+    pinned. The torso and head must stay within a few degrees, the wrist must reach its target, and the
+    editor must say which effector it relaxed."""
+    character = _recovered_style_character(solver)
+    state = EditorState(Scene((character,)), solver)
+    k = state.add_effector("left_wrist", "position")
+    start = state.view().joints[JOINT_INDEX["left_wrist"]].copy()
+    for dy in np.linspace(0.1, 0.4, 4):  # one drag gesture
+        state.move_effector(k, position=start + np.array([0.0, dy, 0.0]))
+    state.end_gesture()
+    after = state.character()
+    assert state.relaxed == ("1: left_elbow rotation",)
+    assert after.effectors[1].tolerance == RELAXED_TOLERANCE and after.effectors[0].tolerance == 0.0
+    turn = _torso_turn_deg(character, after)
+    assert turn.max() < 8.0, turn
+    reach = np.linalg.norm(state.view().joints[JOINT_INDEX["left_wrist"]] - (start + [0.0, 0.4, 0.0]))
+    assert reach < 0.01
+    # the raised wrist is far above the old one: the arm moved, the rest of the body did not
+    right = JOINT_INDEX["right_wrist"]
+    before_joints = TargetPose.from_pose(dataclasses.replace(character.pose, joints=None)).p_world.numpy()
+    assert np.linalg.norm(state.view().joints[right] - before_joints[right]) < 0.02
+    # one undo step restores the pose and the exact elbow effector
+    assert state.undo() and state.undo()
+    assert state.character().effectors[1].tolerance == 0.0
+
+
+def test_conflict_report_names_the_contradicting_effectors(solver):
+    character = _recovered_style_character(solver)
+    report = conflict_report(character, solver)
+    assert len(report.entries) == len(character.effectors)
+    assert report.conflicts == ()  # effectors of one pose agree
+    assert "no conflicting effectors" in report.lines()[0]
+    # a wrist target 45 cm above the pose while the elbow rotation stays exact: they contradict each other
+    wrist = TargetPose.from_pose(dataclasses.replace(character.pose, joints=None)).p_world.numpy()[
+        JOINT_INDEX["left_wrist"]]
+    edited = dataclasses.replace(character, effectors=character.effectors + (
+        Effector.position("left_wrist", wrist + [0.0, 0.45, 0.0]),))
+    edited = solve_character(edited, solver)
+    report = conflict_report(edited, solver)
+    by_label = {e.label(): e for e in report.entries}
+    wrist_entry = by_label["7: left_wrist position"]
+    elbow_entry = by_label["1: left_elbow rotation"]
+    assert wrist_entry.in_conflict and elbow_entry.in_conflict
+    assert 1 in wrist_entry.conflicts_with and 7 in elbow_entry.conflicts_with
+    assert wrist_entry.unit == "mm" and elbow_entry.unit == "deg"
+    text = "\n".join(report.lines())
+    assert "left_elbow rotation" in text and ("NOT MET" in text or "FORCED" in text)
+    d = report.to_dict()
+    assert d["effectors"][7]["conflicts_with"] and d["effectors"][7]["joint"] == "left_wrist"
+    # relaxing the stale elbow: the wrist is met, and only the relaxed elbow still disagrees with it
+    relaxed, _ = relax_stale(edited.effectors, 7)
+    fixed = solve_character(dataclasses.replace(edited, effectors=relaxed), solver)
+    entries = conflict_report(fixed, solver).entries
+    assert entries[7].met and set(entries[7].conflicts_with) <= {1}
+
+
+def test_conflict_report_without_pose_is_empty(solver):
+    c = SceneCharacter("x", Gender.NEUTRAL, np.zeros(NUM_BETAS))
+    assert conflict_report(c, solver).entries == ()
