@@ -154,3 +154,14 @@ def test_conflict_report_names_the_contradicting_effectors(solver):
 def test_conflict_report_without_pose_is_empty(solver):
     c = SceneCharacter("x", Gender.NEUTRAL, np.zeros(NUM_BETAS))
     assert conflict_report(c, solver).entries == ()
+
+
+def test_editor_drag_summary_lists_relaxed_and_conflicts(solver):
+    state = EditorState(Scene((_recovered_style_character(solver),)), solver)
+    k = state.add_effector("left_wrist", "position")
+    start = state.view().joints[JOINT_INDEX["left_wrist"]].copy()
+    state.move_effector(k, position=start + np.array([0.0, 0.4, 0.0]))
+    state.end_gesture()
+    text = state.drag_summary()
+    assert "Relaxed (tolerance raised): 1: left_elbow rotation" in text
+    assert state.conflicts() is state.conflicts()  # cached until the character changes

@@ -296,6 +296,7 @@ class EditorApp:
         with self._lock:
             self.state.end_gesture()
             self.refresh()
+            self._set_status(self.state.drag_summary())  # what the drag relaxed, which effectors conflict
 
     def _rebuild_gizmos(self) -> None:
         for g in self._gizmos:

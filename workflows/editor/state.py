@@ -208,6 +208,22 @@ class EditorState:
         self._reports[i] = (c, report)
         return report
 
+    def drag_summary(self) -> str:
+        """Markdown for the editor's status line after a drag: what it relaxed and the effectors in conflict
+        (residual, what is allowed, which effectors they contradict)."""
+        parts = []
+        if self.relaxed:
+            parts.append("Relaxed (tolerance raised): " + ", ".join(self.relaxed) + ".")
+        report = self.conflicts()
+        if not report.conflicts:
+            parts.append("No conflicting effectors.")
+        for e in report.conflicts:
+            others = ", ".join(report.entries[j].label() for j in e.conflicts_with) or "-"
+            what = "not met" if not e.met else "forced"
+            parts.append(f"**{e.label()}** {what}: {e.residual:.1f} {e.unit} (allowed {e.allowed:.1f}; network "
+                         f"alone {e.network_residual:.1f}); contradicts {others}")
+        return "  \n".join(parts)
+
     # ------------------------------------------------------------------------- selection
 
     def select_character(self, index: int) -> None:
