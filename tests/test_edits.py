@@ -7,8 +7,9 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
-from smplik.conventions import JOINT_INDEX, NUM_BETAS, Gender
+from smplik.conventions import JOINT_INDEX, NUM_BETAS, PARENTS, Gender
 from smplik.effectors import Effector
 from smplik.pose import Pose
 from smplik.rotations import geodesic_distance
@@ -165,3 +166,24 @@ def test_editor_drag_summary_lists_relaxed_and_conflicts(solver):
     text = state.drag_summary()
     assert "Relaxed (tolerance raised): 1: left_elbow rotation" in text
     assert state.conflicts() is state.conflicts()  # cached until the character changes
+
+
+def test_hinge_twist_moves_to_the_parent_and_keeps_the_joints(bodies):
+    from smplik.kinematics import forward_kinematics
+    from smplik.rotations import axis_angle_to_matrix, matrix_to_quaternion
+    from workflows.edits import hinge_twist_to_parent
+
+    g = torch.Generator().manual_seed(4)
+    R = axis_angle_to_matrix(torch.randn(3, 24, 3, generator=g, dtype=torch.float64) * 0.5)
+    J = bodies.rest_joints(torch.zeros(3, NUM_BETAS), torch.zeros(3, dtype=torch.long)).double()
+    elbow, knee = JOINT_INDEX["left_elbow"], JOINT_INDEX["right_knee"]
+    R2 = hinge_twist_to_parent(R, J, [elbow, knee])
+    Rw, p = forward_kinematics(R, J)
+    Rw2, p2 = forward_kinematics(R2, J)
+    assert (p2 - p).abs().max() < 1e-9  # every joint stays
+    assert (Rw2[:, elbow] - Rw[:, elbow]).abs().max() < 1e-9 and (Rw2[:, knee] - Rw[:, knee]).abs().max() < 1e-9
+    for j in (elbow, knee):  # no turn left about the parent bone
+        a = J[:, j] - J[:, PARENTS[j]]
+        q = matrix_to_quaternion(R2[:, j])
+        assert ((q[:, 1:] * a).sum(-1)).abs().max() < 1e-9
+    assert not torch.allclose(R2[:, elbow], R[:, elbow])  # there was a twist to move

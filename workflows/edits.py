@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
+from torch import Tensor
 
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, LIMB_CHAINS, PARENTS, EffectorType
 from smplik.effectors import Effector
@@ -137,13 +139,50 @@ def drag_effector(effectors: Sequence[Effector], new: Effector, *,
 # ----------------------------------------------------------------------------- solving a drag
 
 
+HINGE_JOINTS: tuple[str, ...] = ("left_knee", "right_knee", "left_elbow", "right_elbow")
+"""Joints that take no twist about their parent's bone: the training motion never turns a knee about the
+thigh or an elbow about the upper arm (CMU: under 4 degrees); that turn belongs to the hip or shoulder."""
+
+
+def hinge_twist_to_parent(R_local: Tensor, J_rest: Tensor, joints: Sequence[int]) -> Tensor:
+    """Move each listed joint's rotation about its parent's bone axis into the parent.
+
+    ``R_local[j] = T R'`` with ``T`` the twist about the bone ``a = J_rest[j] - J_rest[parent]`` (swing-twist
+    decomposition by projecting the quaternion onto ``a``); the result has ``R_local[j] = R'`` and
+    ``R_local[parent] = R_local[parent] T``. World rotations of ``j`` and its subtree and every joint position
+    are unchanged (``T`` keeps the bone ``a``); only the parent's turn about its own bone changes.
+
+    R_local (B, 24, 3, 3), J_rest (B, 24, 3) -> (B, 24, 3, 3). Joints whose parent is also listed are not
+    supported (not needed for knees and elbows).
+    """
+    from smplik.rotations import matrix_to_quaternion, quaternion_to_matrix
+
+    R_local = R_local.clone()
+    for j in joints:
+        par = PARENTS[j]
+        a = J_rest[:, j] - J_rest[:, par]
+        a = a / a.norm(dim=-1, keepdim=True).clamp_min(1e-12)  # (B, 3)
+        q = matrix_to_quaternion(R_local[:, j])  # (B, 4) w, x, y, z
+        twist = torch.cat([q[:, :1], (q[:, 1:] * a).sum(-1, keepdim=True) * a], -1)
+        norm = twist.norm(dim=-1, keepdim=True)
+        twist = torch.where(norm > 1e-9, twist / norm.clamp_min(1e-12), torch.tensor([1.0, 0.0, 0.0, 0.0],
+                                                                                     dtype=q.dtype))
+        T = quaternion_to_matrix(twist)
+        R_local[:, j] = T.transpose(-1, -2) @ R_local[:, j]
+        R_local[:, par] = R_local[:, par] @ T
+    return R_local
+
+
 def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
                moved_joints: Sequence[int]) -> list[Pose]:
     """Solve B drags (SMPL space) so that only the dragged chain takes the network's new answer.
 
     Per row: the network solves the (relaxed) effectors; its local rotations of the moved joint's chain
-    (:func:`chain_of`) are put on the ``previous`` pose (every other local rotation and the translation
-    kept), and the solver's refinement (:mod:`smplik.refine`, anchored to that pose) meets the effectors.
+    (:func:`chain_of`) above the moved joint are put on the ``previous`` pose (every other local rotation, the
+    moved joint's own and its subtree's included, and the translation kept), and the solver's refinement
+    (:mod:`smplik.refine`, anchored to that pose, the joints outside the chain held :data:`HOLD_PRIOR` times
+    harder) meets the effectors; a knee's or elbow's turn about its parent bone then moves to the hip or shoulder
+    (:func:`hinge_twist_to_parent`: same joint positions, no hinge twist the training motion never shows).
     The rest of the body stays where the user left it unless an effector asks otherwise; the limb takes the
     pose the network finds natural for the new target. A moved joint in no chain (the pelvis) solves as
     :meth:`~smplik.solver.IKSolver.solve_batch` does.
@@ -154,7 +193,6 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
         previous: B poses before the drag (same betas and gender as the rows are solved with).
         moved_joints: B joint indices, the dragged effectors' joints.
     """
-    import torch
 
     from smplik.effectors import EffectorBatch, pack_effectors
     from smplik.kinematics import forward_kinematics
@@ -178,7 +216,11 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
             joints = chain_of(int(j))
             chain[b, list(joints) if joints else slice(None)] = True
         keep_all = chain.all(-1)
-        R_local = torch.where(chain[..., None, None], net.R_local.float(), axis_angle_to_matrix(aa_prev))
+        take = chain.clone()  # the network's rotations: the chain above the moved joint
+        for b, j in enumerate(moved_joints):
+            if not keep_all[b]:  # the moved joint and its subtree keep their local rotations (a hand its wrist's)
+                take[b, [k for k in range(len(PARENTS)) if k == j or _is_ancestor(int(j), k)]] = False
+        R_local = torch.where(take[..., None, None], net.R_local.float(), axis_angle_to_matrix(aa_prev))
         transl = torch.where(keep_all[:, None], net.transl.float(), transl_prev)
         J_rest = solver.model.rest_joints(betas, gender)
         R_world, p_world = forward_kinematics(R_local, J_rest, transl)
@@ -192,7 +234,9 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
             sub = EffectorBatch(*(getattr(eff, f)[rows] for f in ("joint", "type", "data", "tolerance", "mask")))
             start = IKOutput(R_local[rows], R_world[rows], p_world[rows], net.draft[rows], transl[rows])
             out = refine_output(start, J_rest[rows], sub, cfg)
-            aa[rows.numpy()] = matrix_to_axis_angle(out.R_local.double()).numpy()
+            hinges = [j for j in (JOINT_INDEX[n] for n in HINGE_JOINTS) if bool(key[j])]
+            R_out = hinge_twist_to_parent(out.R_local.double(), J_rest[rows].double(), hinges)
+            aa[rows.numpy()] = matrix_to_axis_angle(R_out).numpy()
             transl_out[rows.numpy()] = out.transl.double().numpy()
             joints_out[rows.numpy()] = out.p_world.double().numpy()
     return [Pose(aa[b, 0], aa[b, 1:], transl_out[b], np.asarray(p.betas, np.float64), p.gender, joints_out[b])
