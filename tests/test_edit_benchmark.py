@@ -163,3 +163,59 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
     root = p3[rows, par[par[tip]]]
     u = (p3[rows, tip] - root) / (p3[rows, tip] - root).norm(dim=-1, keepdim=True)
     assert torch.allclose(u, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(B, 3), atol=1e-6)
+
+
+def test_cli_edits_refuses_bad_input_in_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+
+    missing = tmp_path / "nope.npz"
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--data", str(missing), "--out", str(tmp_path / "r.json")])
+    assert res.exit_code == 1 and "nope.npz" in res.output and "Traceback" not in res.output
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--data", str(missing), "--out", str(tmp_path / "r.json"),
+                                   "--methods", "smplik,magic"])
+    assert res.exit_code != 0 and "magic" in res.output
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_benchmark_on_a_cache_without_edits_says_so(tiny_cache, tmp_path):
+    """The synthetic clips of the tiny cache move every limb at once: no single-limb edit, a clear error."""
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--data", str(tiny_cache), "--split", "train",
+                                   "--out", str(tmp_path / "r.json"), "--methods", "two_bone"])
+    assert res.exit_code == 1, res.output
+    assert "single-limb edit pairs" in res.output and "Traceback" not in res.output
+
+
+def test_run_edit_benchmark_on_a_hand_made_clip():
+    """A clip whose only motion is the right elbow bending 90 degrees: every pair is a right-wrist edit, the
+    drag meets its target, and the results document is JSON."""
+    import json
+
+    import numpy as np
+
+    from smplik.solver import IKSolver
+    from workflows.edit_benchmark import EditBenchmarkConfig, EditClip, run_edit_benchmark
+
+    T = 40
+    pose = torch.zeros(T, NUM_JOINTS, 3)
+    pose[:, JOINT_INDEX["left_shoulder"], 2] = -1.2  # arms down
+    pose[:, JOINT_INDEX["right_shoulder"], 2] = 1.2
+    bend = torch.linspace(0, 1, T).sub(5 / T).clamp(0, 1) * (math.pi / 2)
+    pose[:, JOINT_INDEX["right_elbow"], 1] = bend
+    clip = EditClip("hand_made", "x", FPS, pose, torch.zeros(T, 3))
+    solver = IKSolver.load()
+    ranges = JointRanges.fit(pose.double())
+    doc = run_edit_benchmark([clip], solver, ranges, methods=("smplik", "two_bone"),
+                             cfg=EditBenchmarkConfig(max_pairs=2))
+    json.dumps(doc)
+    assert doc["counts"]["right_wrist"] == len(doc["pairs"]) >= 1
+    for name in ("smplik", "two_bone"):
+        s = doc["methods"][name]
+        assert s["pairs"] == len(doc["pairs"]) and np.isfinite(s["mpjpe_mm"])
+        assert s["reach_mm_median"] < 10.0
+    assert doc["methods"]["two_bone"]["reach_mm_median"] < 1e-3
