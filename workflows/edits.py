@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -69,14 +70,15 @@ def chain_of(joint: int) -> tuple[int, ...]:
     return ()
 
 
+@cache
+def _ancestors(j: int) -> frozenset[int]:
+    """The strict ancestors of joint ``j``."""
+    return frozenset() if PARENTS[j] < 0 else _ancestors(PARENTS[j]) | {PARENTS[j]}
+
+
 def _is_ancestor(a: int, j: int) -> bool:
     """``a`` is a strict ancestor of ``j``."""
-    j = PARENTS[j]
-    while j >= 0:
-        if j == a:
-            return True
-        j = PARENTS[j]
-    return False
+    return a in _ancestors(j)
 
 
 def stale_effectors(effectors: Sequence[Effector], moved: int) -> tuple[int, ...]:
