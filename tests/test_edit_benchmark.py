@@ -219,3 +219,20 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
         assert s["pairs"] == len(doc["pairs"]) and np.isfinite(s["mpjpe_mm"])
         assert s["reach_mm_median"] < 10.0
     assert doc["methods"]["two_bone"]["reach_mm_median"] < 1e-3
+
+
+def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
+    """``--clips DIR``: BVH clips of a folder (here two CMU test clips copied), retargeted and resampled."""
+    import shutil
+
+    from smplik.body_model import BodyModelSet
+    from workflows.edit_benchmark import EDIT_FPS, EditBenchmarkConfig, clips_from_folder, select_pairs
+
+    for name in ("02_05.bvh", "02_06.bvh"):
+        shutil.copy(shared_data.cmu(name), tmp_path / name)
+    clips = clips_from_folder(tmp_path)
+    assert [c.name for c in clips] == ["02_05.bvh", "02_06.bvh"] and all(c.subject == "02" for c in clips)
+    assert all(c.fps == EDIT_FPS and c.pose.shape[1:] == (NUM_JOINTS, 3) for c in clips)
+    J = BodyModelSet.load().rest_joints(torch.zeros(10), torch.tensor(0))
+    pairs = select_pairs(clips, J, EditBenchmarkConfig())
+    assert pairs and all(p.end == "right_wrist" for p in pairs)  # the test split's right-hand edits of 02_05/06
