@@ -3,6 +3,9 @@
 ``PYTHONPATH=. python docs/make_editor_screenshot.py [--out docs/editor_scene.png]`` runs the demo
 into a temporary folder (``workflows.demo.run_demo``), opens ``character/scene.json`` in the editor
 on a free loopback port and screenshots it with Debian's Chromium (``/usr/bin/chromium``).
+
+``--drag`` (docs/editor_drag.png): the demo's SMPL scene instead, after a drag of a new left-wrist handle
+50 cm up (the case of docs/editing.md); the status line shows what the drag relaxed and the conflict report.
 """
 
 from __future__ import annotations
@@ -28,13 +31,19 @@ def main() -> None:
     from workflows.editor.state import EditorState
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "editor_scene.png")
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--drag", action="store_true", help="Screenshot a wrist drag on the SMPL scene.")
     args = parser.parse_args()
+    if args.out is None:
+        args.out = ROOT / "docs" / ("editor_drag.png" if args.drag else "editor_scene.png")
     torch.set_num_threads(1)
     solver = IKSolver.load()
     with tempfile.TemporaryDirectory() as tmp:
         run_demo(Path(tmp), solver)
-        app = EditorApp(EditorState.open(Path(tmp) / "character" / "scene.json", solver), port=0)
+        scene = Path(tmp) / ("smpl" if args.drag else "character") / "scene.json"
+        app = EditorApp(EditorState.open(scene, solver), port=0)
+        if args.drag:
+            drag_left_wrist(app)
         try:
             with sync_playwright() as pw:
                 browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, timeout=60_000)
@@ -53,6 +62,20 @@ def main() -> None:
         finally:
             app.stop()
     print(f"wrote {args.out}")
+
+
+def drag_left_wrist(app, raise_m: float = 0.5) -> None:  # noqa: ANN001 - EditorApp
+    """Add a left-wrist position handle and drag it up by ``raise_m`` in ten steps (one gesture)."""
+    import numpy as np
+
+    state = app.state
+    k = state.add_effector("left_wrist", "position")
+    start = state.view().joints[state.character().effectors[k].joint].copy()
+    for dy in np.linspace(raise_m / 10, raise_m, 10):
+        state.move_effector(k, position=start + np.array([0.0, dy, 0.0]))
+    state.end_gesture()
+    app.refresh()
+    app._set_status(state.drag_summary())
 
 
 if __name__ == "__main__":
