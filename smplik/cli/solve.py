@@ -92,8 +92,8 @@ def solve_command(
                                                     "betas, gender, joints).")],
     betas: Annotated[str | None, typer.Option(help="Up to 10 shape values, e.g. '1,0,-0.5' (overrides the "
                                                    "file's betas).")] = None,
-    gender: Annotated[Gender | None, typer.Option(case_sensitive=False, help="Body gender (overrides the file; "
-                                                                             "default neutral).")] = None,
+    gender: Annotated[Gender | None, typer.Option(case_sensitive=False, help="Body gender (overrides the file's) "
+                                                                             "(default: neutral).")] = None,
     checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                    "(default: $SMPLIK_MODEL_DIR, else the built-in model).")] = None,
