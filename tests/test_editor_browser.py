@@ -115,8 +115,12 @@ def test_editor_in_headless_chromium(editor, tmp_path):
             assert 0.05 <= shown <= 1.5
             wait_for(lambda: abs(state.character().betas[0] - shown) < 1e-6, f"beta 0 = {shown} on the server")
             assert np.allclose(state.character().pose.betas[0], shown)
-            time.sleep(0.5)
-            png = page.screenshot()
+
+            def shot_with_body():
+                shot = page.screenshot()
+                return shot if body_pixels(shot) > 5000 else None
+
+            png = wait_for(shot_with_body, "the body after the slider drag")  # polled: no fixed pause
             (tmp_path / "editor.png").write_bytes(png)
             if os.environ.get("SMPLIK_EDITOR_SCREENSHOT"):
                 Path(os.environ["SMPLIK_EDITOR_SCREENSHOT"]).write_bytes(png)

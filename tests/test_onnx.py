@@ -129,8 +129,8 @@ def torch_solver_plain():
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     """The shipped model exported by ``smplik export-model --onnx`` (the CLI in process)."""
-    pytest.importorskip("onnxruntime")
-    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime", reason="onnxruntime is not installed (pip install -e '.[fast]')")
+    pytest.importorskip("onnx", reason="onnx is not installed (pip install -e '.[fast]')")
     if not SHIPPED.is_file():
         pytest.skip("shipped model smplik/checkpoints/smplik_cmu.pt absent")
     from smplik.cli.main import app

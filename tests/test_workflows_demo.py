@@ -47,4 +47,4 @@ def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
         photo = load_image(out.examples[1])
         assert np.abs(img[:, :640].astype(int) - photo.astype(int)).max() > 50
     else:
-        pytest.skip("no OpenGL backend: previews not rendered")
+        pytest.skip("no OpenGL backend for offscreen rendering: install EGL (apt-get install libegl1) or OSMesa")

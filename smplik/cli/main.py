@@ -28,7 +28,7 @@ NoArgsIsHelpError = next(c for c in UsageError.__subclasses__() if c.__name__ ==
 
 COMMANDS: dict[str, tuple[str, str]] = {
     # name: ("module:attribute" (a typer command function or a typer.Typer group), one-line help)
-    "demo": ("workflows.cli:demo_cmd", "The whole chain on built-in material: estimator file -> scene, character, BVH."),
+    "demo": ("workflows.cli:demo_cmd", "The whole chain on built-in material: estimator file -> scenes, BVH."),
     "solve": ("smplik.cli.solve:solve_command", "Solve an SMPL pose for the effectors in a JSON file."),
     "scene": ("workflows.cli:scene_app", "Editable scenes: from estimator outputs, re-solve, render, export."),
     "edit": ("workflows.editor.cli:edit_cmd", "Edit a scene in the browser (needs the edit extra: viser)."),
@@ -36,7 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "body": ("smplik.cli.body:body_app", "Body models: export, inspect and render."),
     "data": ("smplik.data.cli:app", "Motion data: build pose caches from BVH/AMASS, preview retargeting."),
     "train": ("smplik.cli.train:train_command", "Train SMPL-IK on a pose cache (resumable; torchrun for DDP)."),
-    "export-model": ("smplik.cli.models:export_command", "Compact inference model and/or ONNX graph from a checkpoint."),
+    "export-model": ("smplik.cli.models:export_command", "Compact inference model and/or ONNX graph of a checkpoint."),
     "average-models": ("smplik.cli.models:average_command", "Average models fine-tuned from one start (model soup)."),
     "benchmark": ("smplik.cli.benchmark:app", "Randomized-effector IK benchmark: make files, run methods, calibrate."),
 }
