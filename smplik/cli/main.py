@@ -124,7 +124,7 @@ class SmplikGroup(TyperGroup):
 
     def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
              standalone_mode: bool = True, **extra: Any) -> Any:
-        code = run_command_tree(super().main, args=args, prog_name=prog_name or "smplik", complete_var=complete_var,
+        code = run_command_tree(super().main, args=args, prog_name="smplik", complete_var=complete_var,
                                 **extra)
         if standalone_mode:
             sys.exit(code)
