@@ -122,3 +122,12 @@ def test_readme_quick_start_runs(tmp_path, monkeypatch):
     res = CliRunner().invoke(app, ["solve", "effectors.json", "--out", "solved.json"])
     assert res.exit_code == 0, res.output
     assert json.loads((tmp_path / "solved.json").read_text())["gender"] == "female"
+
+
+def test_ci_runs_the_readme_test_command():
+    """`.ci/run` runs exactly the README's test command (set-up command 2)."""
+    readme_bash = "\n".join(code_blocks(README.read_text(), "bash"))
+    command = next(line.strip() for line in readme_bash.splitlines()
+                   if line.startswith("pip install") and "pytest" in line)
+    ci = (REPO / ".ci" / "run").read_text()
+    assert any(line.strip() == command for line in ci.splitlines()), command
