@@ -18,15 +18,14 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from smplik.data.effector_sampling import EffectorSamplingConfig
-from smplik.network import NetworkConfig
+from smplik.configs import EffectorSamplingConfig, NetworkConfig
 
 console = Console(stderr=True)
 
 
 def _default(name: str, cls: type | None = None) -> str:
     """The dataclass default of field ``name`` (of TrainConfig, or ``cls``), for the help text."""
-    from smplik.train import TrainConfig
+    from smplik.configs import TrainConfig
 
     value = {f.name: f.default for f in fields(cls or TrainConfig)}[name]
     return f"default {value}"
@@ -103,8 +102,9 @@ def train_command(
     """Train SMPL-IK (ProtoRes) on a pose cache; resumable; works under torchrun (gloo)."""
     import torch
 
+    from smplik.configs import TrainConfig
     from smplik.model_io import CheckpointError
-    from smplik.train import TrainConfig, TrainingInterrupted, train
+    from smplik.train import TrainingInterrupted, train
 
     if threads:
         torch.set_num_threads(threads)
