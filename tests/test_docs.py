@@ -94,9 +94,19 @@ def test_relative_links_point_to_files(page):
     for link in links:
         if re.match(r"^[a-z]+:", link) or link.startswith("#"):
             continue
-        target = (page.parent / link.split("#", 1)[0]).resolve()
+        path, _, anchor = link.partition("#")
+        target = (page.parent / path).resolve() if path else page
         assert target.exists(), f"{page.name}: link {link} -> {target} does not exist"
         assert REPO in target.parents or target == REPO, f"{page.name}: link {link} leaves the repository"
+        if anchor and target.suffix == ".md":
+            assert anchor in heading_anchors(target), f"{page.name}: link {link}: no such heading in {target.name}"
+
+
+def heading_anchors(page: Path) -> set[str]:
+    """GitHub's anchors of the page's headings (lower case, punctuation dropped, spaces as hyphens)."""
+    text = re.sub(r"^```.*?^```", "", page.read_text(), flags=re.S | re.M)
+    headings = re.findall(r"^#+ (.+)$", text, flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in headings}
 
 
 def test_docs_name_no_files_outside_the_repository():
