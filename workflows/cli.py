@@ -20,7 +20,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.cli.errors import fail, say, user_errors
-from smplik.data.bvh import DEFAULT_MAX_JOINTS
+from smplik.limits import DEFAULT_MAX_JOINTS
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)

@@ -32,6 +32,7 @@ from typing import Literal
 
 import numpy as np
 
+from smplik import limits
 from smplik.atomic import write_text_atomic
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
@@ -291,8 +292,8 @@ def _parse_hierarchy(tk: _Tokens, max_joints: int):
     return names, parents, offsets_np, channels, end_parents, end_np
 
 
-DEFAULT_MAX_JOINTS = 10_000
-"""Joint cap of :func:`read_bvh` (real rigs have < 500; raise it with ``max_joints``)."""
+DEFAULT_MAX_JOINTS = limits.DEFAULT_MAX_JOINTS
+"""Joint cap of :func:`read_bvh` (:data:`smplik.limits.DEFAULT_MAX_JOINTS`)."""
 
 MIN_FRAME_TIME_S = 1e-6
 """Smallest accepted ``Frame Time`` (1 MHz); smaller or denormal values are refused."""
