@@ -58,11 +58,11 @@ def test_listing_matches_the_commands():
         assert load_command(name).name == name
 
 
-@pytest.mark.parametrize("args", [["--help"], ["scene", "export", "--help"], ["solve", "--help"]])
-def test_help_imports_no_torch(args):
+@pytest.mark.parametrize("args", [["--help"], ["scene", "export", "--help"], ["solve", "--help"], ["train", "--help"]])
+def test_help_imports_no_torch_nor_numpy(args):
     code = ("import sys; from smplik.cli.main import app\n"
             "try:\n    app(args=sys.argv[1:], prog_name='smplik')\nexcept SystemExit:\n    pass\n"
-            "print('torch' in sys.modules, file=sys.stderr)")
+            "print('torch' in sys.modules or 'numpy' in sys.modules, file=sys.stderr)")
     res = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0 and res.stderr.strip().splitlines()[-1] == "False", res.stderr[-2000:]
 
