@@ -23,7 +23,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.conventions import Gender
-from smplik.data.bvh import DEFAULT_MAX_JOINTS
+from smplik.limits import DEFAULT_MAX_JOINTS
 
 app = typer.Typer(help="SMPL-SI: custom skeleton -> SMPL shape (beta) and scale.", no_args_is_help=True,
                   pretty_exceptions_enable=False)

@@ -21,7 +21,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from smplik.data.bvh import DEFAULT_MAX_JOINTS
+from smplik.limits import DEFAULT_MAX_JOINTS
 from smplik.units import UNIT_NAMES, parse_units
 
 RestSource = Literal["frame0", "offsets"]

@@ -2,33 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor
 
+from smplik.configs import LossConfig
 from smplik.conventions import NUM_JOINTS, EffectorType
 from smplik.effectors import EffectorBatch
 from smplik.network import IKOutput
 from smplik.rotations import geodesic_distance
-
-
-@dataclass(frozen=True)
-class LossConfig:
-    """Weights of the total loss (Algorithm 1):
-    ``w_pos_rnd / J (L_gpd_rnd + L_ikd_rnd) + w_pos_det (L_gpd_det + L_ikd_det)
-    + (w_lookat L_lat + w_rot_global L_glob_rnd + w_rot_local L_loc_det) / J``."""
-
-    w_pos_rnd: float = 100.0
-    """W_pos: weight of the tolerance-weighted position-effector terms."""
-    w_pos_det: float = 1.0
-    """Weight of the all-joint position terms (sum of squared errors in m^2)."""
-    w_rot_local: float = 1.0
-    """Weight of the all-joint local geodesic term (sum over joints, radians)."""
-    w_rot_global: float = 1.0
-    """Weight of the tolerance-weighted global geodesic term on rotation effectors."""
-    w_lookat: float = 1.0
-    """Weight of the look-at angle term."""
 
 
 def lookat_angle(target: Tensor, direction: Tensor, p_joint: Tensor, R_joint: Tensor) -> Tensor:

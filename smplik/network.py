@@ -16,11 +16,12 @@ Pipeline (ProtoRes section 2 and App. A; SMPL-IK section 3):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
+from smplik.configs import NetworkConfig
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, EffectorType
 from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
@@ -28,35 +29,6 @@ from smplik.rotations import rot6d_to_matrix
 
 NUM_GENDERS = 3
 _IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """ProtoRes sizes. Defaults are a small CPU model; :meth:`paper` gives the published sizes."""
-
-    width: int = 128
-    """d: width of every fully connected layer (paper: 1024)."""
-    encoder_blocks: int = 3
-    """R: residual blocks in the encoder (paper: 3)."""
-    decoder_blocks: int = 3
-    """Residual blocks in each of GPD and IKD (paper: 3)."""
-    layers_per_block: int = 2
-    """L: fully connected layers per block (paper: 3)."""
-    embedding_dim: int = 32
-    """Size of the joint-id and effector-type embeddings (paper: 32)."""
-    dropout: float = 0.0
-    """Dropout after each hidden layer (paper: 0.01)."""
-    effector_slots: bool = False
-    """Extension: also feed both decoders the effectors scattered into per-joint slots (by joint id,
-    duplicates averaged; permutation and translation invariant), so a narrow model can read exact
-    effector values. False is the paper's architecture."""
-
-    @classmethod
-    def paper(cls) -> NetworkConfig:
-        return cls(width=1024, encoder_blocks=3, decoder_blocks=3, layers_per_block=3, embedding_dim=32, dropout=0.01)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

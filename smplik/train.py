@@ -17,16 +17,14 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import json
 import os
 import random
 import signal
 import threading
 import time
-import typing
 import warnings
-from collections.abc import Callable, Iterator, Mapping
-from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
+from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +34,9 @@ import torch.distributed as dist
 
 from smplik.atomic import atomic_path, write_json_atomic, write_text_atomic
 from smplik.body_model import BodyModelSet
-from smplik.data.effector_sampling import EffectorSamplingConfig, sample_effectors
-from smplik.losses import LossConfig, distillation_loss, protores_loss
+from smplik.configs import TrainConfig
+from smplik.data.effector_sampling import sample_effectors
+from smplik.losses import distillation_loss, protores_loss
 from smplik.metrics import local_geodesic, mpjpe, pa_mpjpe
 from smplik.model_io import CHECKPOINT_FORMAT, FORMAT_VERSION, load_checkpoint, load_model, write_model_file
 from smplik.network import IKOutput, NetworkConfig, ProtoResIK
@@ -46,117 +45,6 @@ CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
 METRICS = "metrics.csv"
 METRIC_COLUMNS = ("step", "loss", "mpjpe_mm", "pa_mpjpe_mm", "geodesic_rad", "samples_per_s")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """One training run."""
-
-    data: str
-    """Dataset cache written by ``smplik data build``."""
-    out: str
-    """Run folder: checkpoint, config, metrics.csv, loss_curve.png."""
-    steps: int = 20_000
-    """Optimizer steps in total (across resumes)."""
-    batch_size: int = 512
-    """Global batch size (split across torchrun processes)."""
-    lr: float = 1e-3
-    """Adam learning rate (paper: 2e-4 at batch 2048 on GPU; larger here for short CPU runs)."""
-    lr_final_fraction: float = 0.05
-    """Cosine decay from lr to lr * this fraction over ``steps``."""
-    val_every: int = 500
-    """Validate (and log) every this many steps."""
-    ckpt_every: int = 500
-    """Write the checkpoint every this many steps (and at the end or on Ctrl-C)."""
-    val_size: int = 2048
-    """Validation poses (fixed set, fixed effectors)."""
-    val_fraction: float = 0.0
-    """For a cache without validation frames: hold out this fraction of the train clips (seeded by
-    ``seed``) for validation. 0: train on all clips and skip validation (with a notice)."""
-    seed: int = 0
-    augment: bool = True
-    """Random rotation about the vertical axis and left/right mirroring."""
-    beta_noise: float = 1.0
-    """Std of the Gaussian added to dataset betas (or of betas when the source has none)."""
-    part_swap: float = 0.0
-    """Probability per limb and sample that the limb's local rotations come from another random
-    train frame (:class:`~smplik.data.sampler.PoseSampler`); 0: off (the paper's sampling)."""
-    model_dir: str | None = None
-    """Folder with real SMPL files (default: built-in model)."""
-    init_from: str | None = None
-    """Start a new run from this model's weights (a checkpoint or exported model; same network sizes)."""
-    precision: str = "fp32"
-    """"fp32", or "bf16": the network's layers run under CPU/CUDA autocast in bfloat16 (Intel AMX and
-    recent GPUs run these several times faster); rotations, FK and the loss stay float32."""
-    distill_from: str | None = None
-    """Teacher model file: the loss also pulls the network towards the teacher's test-time ensemble
-    answer (``distill_ensemble``) on the same noisy effectors (self-distillation of the ensemble)."""
-    distill_weight: float = 1.0
-    """Weight of the distillation term (:func:`smplik.losses.distillation_loss`)."""
-    distill_ensemble: str = "mirror+yaw4"
-    """The teacher's ensemble (:meth:`smplik.ensemble.EnsembleConfig.parse`)."""
-    distill_refine: bool = False
-    """The teacher's answer also goes through the solver's effector refinement (the teacher file's
-    calibrated ``refine`` settings, else the default): the target is the teacher solver's pose."""
-    network: NetworkConfig = field(default_factory=NetworkConfig)
-    loss: LossConfig = field(default_factory=LossConfig)
-    effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str = "config") -> TrainConfig:
-        """Build from a (possibly partial) dict such as ``config.json``; unknown keys and values of
-        the wrong type raise ``ValueError`` naming ``source`` and the key (``network.width``)."""
-        return _dataclass_from_dict(cls, d, source, "")
-
-    @classmethod
-    def from_file(cls, path: str | Path, **required: str) -> TrainConfig:
-        """Read a JSON config file (partial: missing fields keep their defaults).
-
-        ``required`` fills ``data``/``out`` when the file lacks them (e.g. ``data="", out=""``).
-        """
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"Config file not found: {path}")
-        try:
-            obj = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-            raise ValueError(f"{path}: not valid JSON ({type(exc).__name__}: {exc}).") from None
-        if not isinstance(obj, dict):
-            raise ValueError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
-        return cls.from_dict({**required, **obj}, str(path))
-
-
-def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
-    """A (nested, frozen) config dataclass from a dict, strictly: every key known, every value typed."""
-    where = prefix.rstrip(".") or "the top level"
-    if not isinstance(d, Mapping):
-        raise ValueError(f"{source}: '{where}' must be an object, got {type(d).__name__}.")
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in fields(cls)]
-    unknown = [k for k in d if k not in names]
-    if unknown:
-        raise ValueError(f"{source}: unknown key '{prefix}{unknown[0]}'; expected one of: {', '.join(names)}.")
-    kwargs = {}
-    for key, value in d.items():
-        typ = hints[key]
-        if is_dataclass(typ):
-            kwargs[key] = _dataclass_from_dict(typ, value, source, f"{prefix}{key}.")
-            continue
-        allowed = typing.get_args(typ) or (typ,)
-        ok = any((t is type(None) and value is None) or (t is bool and type(value) is bool)
-                 or (t is int and type(value) is int) or (t is float and type(value) in (int, float))
-                 or (t is str and type(value) is str) for t in allowed)
-        if not ok:
-            expected = " or ".join("null" if t is type(None) else t.__name__ for t in allowed)
-            raise ValueError(f"{source}: key '{prefix}{key}' must be {expected}, got {value!r:.60}.")
-        kwargs[key] = float(value) if float in allowed and type(value) is int else value
-    required = [f.name for f in fields(cls) if f.name not in kwargs and f.default is f.default_factory is MISSING]
-    if required:
-        raise ValueError(f"{source}: missing key '{prefix}{required[0]}'.")
-    return cls(**kwargs)
 
 
 class TrainingInterrupted(KeyboardInterrupt):

@@ -6,7 +6,12 @@ Test modules never import each other; what several of them need lives here as a 
 
 from __future__ import annotations
 
-import json
+import os
+
+# Headless rendering for every test, set before anything imports pyrender/PyOpenGL (the CLI does the same).
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import json  # noqa: E402
 from dataclasses import dataclass
 from pathlib import Path
 

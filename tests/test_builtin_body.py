@@ -371,7 +371,7 @@ def smpl_fk(joints_rest: np.ndarray, aa: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("gender", GENDERS)
 def test_smplx_loads_written_file(tmp_path, gender: Gender) -> None:
-    smplx = pytest.importorskip("smplx")
+    smplx = pytest.importorskip("smplx", reason="smplx is not installed (pip install -e .)")
     path = builtin_model_path(gender, tmp_path)
     arrays = dict(np.load(path))
     layer = smplx.SMPL(

@@ -233,7 +233,8 @@ def test_rig_without_preset_maps_by_name_and_topology(files, tmp_path):
 SHARED_DATA = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-@pytest.mark.skipif(not (SHARED_DATA / "cmu" / "01_01.bvh").is_file(), reason=f"{SHARED_DATA}/cmu not present")
+@pytest.mark.skipif(not (SHARED_DATA / "cmu" / "01_01.bvh").is_file(),
+                    reason=f"the CMU data folder {SHARED_DATA}/cmu is absent")
 def test_shared_cmu_and_makehuman_map_by_name_without_a_preset():
     """The CMU skeleton renamed to another scheme (no preset fits) maps to the same joints as the cmu preset."""
     from shape_inversion.rigs import detect_rig, load_preset

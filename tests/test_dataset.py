@@ -264,7 +264,7 @@ def test_load_cache_validation(amass_dir: Path, split_file: Path, tmp_path: Path
 
 def test_build_from_cmu_bvh(tmp_path: Path, shared_data) -> None:
     """Two real CMU clips: the rest frame 0 is dropped, 120 -> 30 fps, no betas or gender."""
-    pytest.importorskip("smplik.data.retarget")
+    pytest.importorskip("smplik.data.retarget", reason="smplik.data.retarget is not importable")
     cmu_dir = shared_data.cmu("09_06.bvh").parent
     import shutil
 

@@ -341,7 +341,7 @@ def test_stale_temp_files_of_dead_writers_are_removed_on_the_next_write(tmp_path
 def test_deterministic_npz_bytes_depend_only_on_the_arrays(tmp_path):
     arrays = {"b": np.arange(5.0), "a": np.array("neutral"), "c": np.eye(3, dtype=np.float32)[::2]}
     one = write_npz_deterministic(tmp_path / "one.npz", arrays).read_bytes()
-    time.sleep(1.1)
+    time.sleep(1.1)  # not a timing assumption: a later clock must not change the bytes (zip entry times)
     two = write_npz_deterministic(tmp_path / "two.npz", dict(reversed(arrays.items()))).read_bytes()
     assert one == two
     with np.load(tmp_path / "one.npz") as data:
@@ -440,7 +440,8 @@ def _can_render() -> bool:
     return True
 
 
-needs_gl = pytest.mark.skipif(not _can_render(), reason="no OpenGL backend (set PYOPENGL_PLATFORM=egl)")
+needs_gl = pytest.mark.skipif(not _can_render(), reason="no OpenGL backend for offscreen rendering: install EGL "
+                              "(apt-get install libegl1) or OSMesa")
 
 
 @needs_gl

@@ -272,7 +272,7 @@ def test_docs_schema_file_is_current():
 
 
 def test_schema_validates_example_when_jsonschema_is_installed():
-    jsonschema = pytest.importorskip("jsonschema")
+    jsonschema = pytest.importorskip("jsonschema", reason="jsonschema is not installed (pip install -e '.[dev]')")
     doc = {"format": "smplik-effectors", "version": 1, "betas": [0.0] * 10, "gender": "female",
            "effectors": EFFECTOR_DICTS}
     jsonschema.validate(doc, json_schema())

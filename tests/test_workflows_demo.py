@@ -38,6 +38,16 @@ def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
         assert read_bvh(bvh).num_frames == 1
     edited = load_scene(out.edited_scene).characters[0]
     assert edited.effectors[-1].joint_name == "right_wrist"
+    # the printout names every file once, says what it is, and ends with what to open first
+    from workflows.cli import demo_report
+
+    lines = demo_report(out)
+    for path in out.all_files:
+        described = [line for line in lines if line.startswith(f"  {path}  ")]
+        assert len(described) == 1 and len(described[0]) > len(f"  {path}  ") + 5, path
+    assert lines[-1].startswith("open first: ")
+    first = lines[-1].removeprefix("open first: ").split(" ")[0]
+    assert first in {str(p) for p in out.all_files} and (not previews or first.endswith("scene.png"))
     if previews:
         from workflows.previews import load_image
 
@@ -47,4 +57,4 @@ def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
         photo = load_image(out.examples[1])
         assert np.abs(img[:, :640].astype(int) - photo.astype(int)).max() > 50
     else:
-        pytest.skip("no OpenGL backend: previews not rendered")
+        pytest.skip("no OpenGL backend for offscreen rendering: install EGL (apt-get install libegl1) or OSMesa")

@@ -70,7 +70,7 @@ def test_errors_are_one_line_with_a_non_zero_exit(tmp_path, cli):
 @pytest.mark.parametrize("fmt", ["phalp", "gvhmr"])
 def test_preview_shows_ghost_labels_and_overlay(tmp_path, cli, fmt):
     if not _can_render():
-        pytest.skip("no OpenGL backend: previews not rendered")
+        pytest.skip("no OpenGL backend for offscreen rendering: install EGL (apt-get install libegl1) or OSMesa")
     from workflows.examples_gen import write_background
     from workflows.previews import load_image
 

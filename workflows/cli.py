@@ -20,7 +20,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.cli.errors import fail, say, user_errors
-from smplik.data.bvh import DEFAULT_MAX_JOINTS
+from smplik.limits import DEFAULT_MAX_JOINTS
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)
@@ -208,11 +208,46 @@ def demo_cmd(
     solver = _solver(checkpoint)
     with user_errors():
         outputs = run_demo(out, solver)
-    for r in outputs.smpl.results + outputs.character.results:
-        errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
-        say(f"{r.name}: effectors {[f'{e.joint_name}:{e.type.name.lower()}' for e in r.recovery.effectors]}"
-                      f"; error after each (mm): {errs}; final pose {r.recovery.final_error * 1000:.0f} mm")
-    for line in outputs.edit_lines:
+    for line in demo_report(outputs):
         say(line)
-    for path in outputs.all_files:
-        say(f"wrote {path}")
+
+
+def demo_report(outputs) -> list[str]:  # noqa: ANN001 - workflows.demo.DemoOutputs
+    """The demo's printout: each run's people and files, what each file is, and what to open first."""
+    from workflows.demo import EDIT_JOINT, EDIT_RAISE_M
+
+    def people(results) -> list[str]:  # noqa: ANN001
+        lines = []
+        for r in results:
+            errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
+            names = ", ".join(f"{e.joint_name}:{e.type.name.lower()}" for e in r.recovery.effectors)
+            lines.append(f"  {r.name}: {len(r.recovery.effectors)} effectors ({names}); mean joint error after "
+                         f"each (mm): {errs}; final pose {r.recovery.final_error * 1000:.0f} mm")
+        return lines
+
+    def files(run) -> list[str]:  # noqa: ANN001 - EstimateOutputs
+        what = {run.scene: "the editable scene (effectors, shapes, solved poses)"}
+        what |= {p: "preview: the people over the photo, front and side views" if p.name == "scene.png"
+                 else "preview: the custom character beside its SMPL body" for p in run.previews}
+        what |= {p: "plot: joint error against the number of recovered effectors" for p in run.plots}
+        what |= {p: "the posed custom character (its own skeleton)" for p in run.bvh}
+        return [f"  {p}  {text}" for p, text in what.items()]
+
+    smpl, character = outputs.smpl, outputs.character
+    npz, photo, bvh = outputs.examples
+    lines = ["generated inputs:",
+             f"  {npz}  a ROMP-style estimator output of two people",
+             f"  {photo}  the photo they were estimated from",
+             f"  {bvh}  a Mixamo-named custom character (BVH, centimetres)",
+             f"1. estimator output -> SMPL scene ({smpl.scene.parent}):", *people(smpl.results), *files(smpl),
+             f"2. the same people on the custom character through SMPL-SI ({character.scene.parent}):",
+             *people(character.results), *files(character),
+             f"3. an edit ({character.results[0].name}'s {EDIT_JOINT} raised {EDIT_RAISE_M * 100:.0f} cm), "
+             "re-solved as a drag:", *(f"  {line}" for line in outputs.edit_lines),
+             f"  {outputs.edited_scene}  the edited scene"]
+    if outputs.edited_preview is not None:
+        lines.append(f"  {outputs.edited_preview}  its preview")
+    first = next((p for p in smpl.previews if p.name == "scene.png"), smpl.scene)
+    lines += [f"open first: {first} (the solved people over the photo); then edit a scene in the browser with "
+              f"`smplik edit {character.scene}` or export it with `smplik scene export {smpl.scene} --out exported`"]
+    return lines

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 
 from smplik.cli.errors import say, user_errors
 from smplik.cli.options import parse_betas, parse_ensemble
 from smplik.conventions import EffectorType, Gender
+
+if TYPE_CHECKING:
+    import numpy as np
 
 app = typer.Typer(pretty_exceptions_enable=False)
 
@@ -25,6 +27,8 @@ def effector_markers(effectors: Any, joints: np.ndarray, *, axis_length: float =
       farther than ``max_distance`` from the joint are drawn at ``max_distance`` along the ray (smaller,
       paler sphere) so that the body stays large in the picture.
     """
+    import numpy as np
+
     from smplik.render import Segment, Sphere
 
     spheres, segments = [], []
@@ -51,6 +55,7 @@ def effector_markers(effectors: Any, joints: np.ndarray, *, axis_length: float =
 def render_solution(pose: Any, effectors: Any, bodies: Any, path: Path, *, width: int = 960, height: int = 720) -> None:
     """Front and side views (one common scale) of the solved body with the effector markers drawn over
     it, as one PNG."""
+    import numpy as np
     import torch
 
     from smplik.render import MeshItem, fit_views, hstack_images, render, save_png
@@ -92,8 +97,8 @@ def solve_command(
                                                     "betas, gender, joints).")],
     betas: Annotated[str | None, typer.Option(help="Up to 10 shape values, e.g. '1,0,-0.5' (overrides the "
                                                    "file's betas).")] = None,
-    gender: Annotated[Gender | None, typer.Option(case_sensitive=False, help="Body gender (overrides the file; "
-                                                                             "default neutral).")] = None,
+    gender: Annotated[Gender | None, typer.Option(case_sensitive=False, help="Body gender (overrides the file's) "
+                                                                             "(default: neutral).")] = None,
     checkpoint: Annotated[Path | None, typer.Option(help="Model file (default: the packaged model).")] = None,
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                    "(default: $SMPLIK_MODEL_DIR, else the built-in model).")] = None,
@@ -107,6 +112,8 @@ def solve_command(
 ) -> None:
     """Solve an SMPL pose for the effectors in a JSON file; print each effector's residual."""
     from dataclasses import replace
+
+    import numpy as np
 
     from smplik.effector_schema import load_effector_file
     from smplik.refine import RefineConfig

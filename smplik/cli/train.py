@@ -1,4 +1,5 @@
-"""``smplik train``, ``smplik export-model`` and ``smplik average-models``: CLI over :class:`smplik.train.TrainConfig`.
+"""``smplik train``: CLI over :class:`smplik.train.TrainConfig` (``export-model`` and ``average-models``:
+:mod:`smplik.cli.models`).
 
 Precedence: ``TrainConfig``'s defaults, then the ``--config`` file, then the flags actually given.
 Every option defaults to "unset" (None), so a flag overrides the file only when it is on the
@@ -17,15 +18,14 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from smplik.data.effector_sampling import EffectorSamplingConfig
-from smplik.network import NetworkConfig
+from smplik.configs import EffectorSamplingConfig, NetworkConfig
 
 console = Console(stderr=True)
 
 
 def _default(name: str, cls: type | None = None) -> str:
     """The dataclass default of field ``name`` (of TrainConfig, or ``cls``), for the help text."""
-    from smplik.train import TrainConfig
+    from smplik.configs import TrainConfig
 
     value = {f.name: f.default for f in fields(cls or TrainConfig)}[name]
     return f"default {value}"
@@ -62,7 +62,7 @@ def train_command(
                                               "(size flags still override).")] = False,
     effector_slots: Annotated[bool | None, typer.Option(
         "--effector-slots/--no-effector-slots", help="Also feed the decoders per-joint effector slots (extension; "
-        f"off = the paper's architecture; {_default('effector_slots', NetworkConfig)}).")] = None,
+        f"off = the paper's architecture) ({_default('effector_slots', NetworkConfig)}).")] = None,
     val_every: Annotated[int | None, typer.Option(help=f"Validate every N steps ({_default('val_every')}).")] = None,
     ckpt_every: Annotated[int | None, typer.Option(help=f"Checkpoint every N steps ({_default('ckpt_every')}).")
                           ] = None,
@@ -102,8 +102,9 @@ def train_command(
     """Train SMPL-IK (ProtoRes) on a pose cache; resumable; works under torchrun (gloo)."""
     import torch
 
+    from smplik.configs import TrainConfig
     from smplik.model_io import CheckpointError
-    from smplik.train import TrainConfig, TrainingInterrupted, train
+    from smplik.train import TrainingInterrupted, train
 
     if threads:
         torch.set_num_threads(threads)
@@ -146,56 +147,3 @@ def train_command(
         except (FileNotFoundError, CheckpointError, ValueError) as exc:
             raise _fail(str(exc)) from None
     typer.echo(json.dumps({"run": cfg.out, **metrics}, indent=2))
-
-
-def average_command(
-    models: Annotated[list[Path], typer.Argument(help="Two or more model files or checkpoints of one architecture, "
-                                                 "fine-tuned from the same start.")],
-    out: Annotated[Path, typer.Option("--out", help="Model file to write (the uniform average of the weights).")],
-    full_precision: Annotated[bool, typer.Option(help="Keep fp32 weights (default: fp16).")] = False,
-) -> None:
-    """Average the weights of models fine-tuned from one start (a model soup); calibrate the result anew."""
-    from smplik.model_io import CheckpointError, average_models
-
-    try:
-        average_models(models, out, half=not full_precision)
-    except (FileNotFoundError, CheckpointError, ValueError) as exc:
-        raise _fail(str(exc)) from None
-    typer.echo(f"wrote {out} (average of {len(models)} models)")
-
-
-def export_command(
-    checkpoint: Annotated[Path, typer.Argument(help="Training checkpoint (RUN_DIR/checkpoint.pt) or model file.")],
-    out: Annotated[Path | None, typer.Option(
-        "--out", help="Compact model file for `smplik solve --checkpoint`.")] = None,
-    full_precision: Annotated[bool, typer.Option(help="Keep fp32 weights (default: fp16).")] = False,
-    onnx: Annotated[Path | None, typer.Option("--onnx", help="Also (or only) write the network + FK as ONNX "
-                                              "(opset 15, dynamic batch and effector count; needs smplik[fast]). "
-                                              "With --out it is exported from that file's weights.")] = None,
-    legacy: Annotated[bool, typer.Option("--legacy", help="Read an older smplik file whose metadata holds numpy "
-                                         "values (still the restricted loader: runs no code) and write it in "
-                                         "the current format.")] = False,
-) -> None:
-    """Write a compact inference model (fp16 weights by default) from a checkpoint (converts old files),
-    and/or its ONNX graph."""
-    from smplik.model_io import CheckpointError, export_model
-
-    if out is None and onnx is None:
-        raise _fail("nothing to write; give --out FILE.pt and/or --onnx FILE.onnx.", code=2)
-    if out is not None:
-        try:
-            export_model(checkpoint, out, half=not full_precision, legacy=legacy)
-        except (FileNotFoundError, CheckpointError) as exc:
-            raise _fail(str(exc)) from None
-        typer.echo(f"wrote {out}")
-    if onnx is not None:
-        from smplik.onnx_runtime import OnnxUnavailableError, export_onnx
-        from smplik.solver import IKSolver
-
-        try:
-            solver = IKSolver.load(out or checkpoint, runtime="torch")
-            export_onnx(solver.model, onnx, meta={"source": solver.source, "step": solver.meta.get("step"),
-                                                  "body_fingerprint": solver.bodies.fingerprint})
-        except (FileNotFoundError, ValueError, OnnxUnavailableError) as exc:
-            raise _fail(str(exc)) from None
-        typer.echo(f"wrote {onnx}")

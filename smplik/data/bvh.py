@@ -31,8 +31,8 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from smplik import limits
 from smplik.atomic import write_text_atomic
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
@@ -126,12 +126,16 @@ def euler_channels_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:
     shape = angles_deg.shape[:-1]
     if not order:
         return np.broadcast_to(np.eye(3), shape + (3, 3)).copy()
+    from scipy.spatial.transform import Rotation  # imported here: the CLI's --help imports this module
+
     flat = angles_deg.reshape(-1, len(order))
     return Rotation.from_euler(order.upper(), flat, degrees=True).as_matrix().reshape(shape + (3, 3))
 
 
 def matrix_to_euler_channels(R: np.ndarray, order: str) -> np.ndarray:
     """Inverse of :func:`euler_channels_to_matrix` for a full 3-axis order. (..., 3, 3) -> (..., 3) degrees."""
+    from scipy.spatial.transform import Rotation
+
     shape = R.shape[:-2]
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler(order.upper(), degrees=True).reshape(shape + (3,))
 
@@ -288,8 +292,8 @@ def _parse_hierarchy(tk: _Tokens, max_joints: int):
     return names, parents, offsets_np, channels, end_parents, end_np
 
 
-DEFAULT_MAX_JOINTS = 10_000
-"""Joint cap of :func:`read_bvh` (real rigs have < 500; raise it with ``max_joints``)."""
+DEFAULT_MAX_JOINTS = limits.DEFAULT_MAX_JOINTS
+"""Joint cap of :func:`read_bvh` (:data:`smplik.limits.DEFAULT_MAX_JOINTS`)."""
 
 MIN_FRAME_TIME_S = 1e-6
 """Smallest accepted ``Frame Time`` (1 MHz); smaller or denormal values are refused."""

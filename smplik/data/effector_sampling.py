@@ -12,34 +12,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from smplik.configs import EffectorSamplingConfig
 from smplik.conventions import JOINT_INDEX, LIMB_ZONES, ZONES, EffectorType
 from smplik.effectors import EffectorBatch
 from smplik.rotations import euler_to_matrix, matrix_to_rot6d
 
 __all__ = ["EffectorSamplingConfig", "SampledEffectors", "sample_effectors", "tolerance_loss_weight"]
-
-
-@dataclass(frozen=True)
-class EffectorSamplingConfig:
-    """Randomised effector sampling of ProtoRes Algorithm 1 / App. B (defaults = the paper's)."""
-
-    min_effectors: int = 3
-    """Smallest effector count per batch (N ~ U{min..max}, one N per batch)."""
-    max_effectors: int = 16
-    """Largest effector count per batch."""
-    sigma_max: float = 0.1
-    """sigma_M: noise std at tolerance 1 (metres for positions, radians for rotations)."""
-    eta: float = 13.0
-    """Tolerance-to-noise exponent: sigma = sigma_M * tolerance**eta."""
-    weight_max: float = 1000.0
-    """W_M: cap of the per-effector loss weight W = min(W_M, 1 / sigma)."""
-    lookat_distance_std: float = 2.0
-    """Std (metres) of the folded normal giving the look-at target distance (plus 0.1 m minimum)."""
-    limb_first: float = 0.0
-    """Fraction of samples whose first four effectors (all of them when N < 4) are position
-    effectors on a random joint of each limb zone (:data:`~smplik.conventions.LIMB_ZONES`: hands
-    and feet pinned first, as animators do and as the benchmark's random sets start); the rest
-    follow the paper's sampling. 0 is the paper's sampling (and draws no extra random numbers)."""
 
 
 def tolerance_loss_weight(tolerance: Tensor, cfg: EffectorSamplingConfig) -> Tensor:

@@ -22,7 +22,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.cli.errors import fail
-from smplik.data.bvh import DEFAULT_MAX_JOINTS
+from smplik.limits import DEFAULT_MAX_JOINTS
 
 app = typer.Typer(help="Interactive pose editor.")
 console = Console(stderr=True)

@@ -1,0 +1,197 @@
+"""The configuration dataclasses of training and of the network, in one torch-free module.
+
+Each component imports its config from here (``smplik.network.NetworkConfig``,
+``smplik.losses.LossConfig``, ``smplik.data.effector_sampling.EffectorSamplingConfig``,
+``smplik.train.TrainConfig`` are these classes), so that ``smplik train --help`` can show their
+defaults without importing torch.
+"""
+
+from __future__ import annotations
+
+import json
+import typing
+from collections.abc import Mapping
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """ProtoRes sizes. Defaults are a small CPU model; :meth:`paper` gives the published sizes."""
+
+    width: int = 128
+    """d: width of every fully connected layer (paper: 1024)."""
+    encoder_blocks: int = 3
+    """R: residual blocks in the encoder (paper: 3)."""
+    decoder_blocks: int = 3
+    """Residual blocks in each of GPD and IKD (paper: 3)."""
+    layers_per_block: int = 2
+    """L: fully connected layers per block (paper: 3)."""
+    embedding_dim: int = 32
+    """Size of the joint-id and effector-type embeddings (paper: 32)."""
+    dropout: float = 0.0
+    """Dropout after each hidden layer (paper: 0.01)."""
+    effector_slots: bool = False
+    """Extension: also feed both decoders the effectors scattered into per-joint slots (by joint id,
+    duplicates averaged; permutation and translation invariant), so a narrow model can read exact
+    effector values. False is the paper's architecture."""
+
+    @classmethod
+    def paper(cls) -> NetworkConfig:
+        return cls(width=1024, encoder_blocks=3, decoder_blocks=3, layers_per_block=3, embedding_dim=32, dropout=0.01)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Weights of the total loss (Algorithm 1):
+    ``w_pos_rnd / J (L_gpd_rnd + L_ikd_rnd) + w_pos_det (L_gpd_det + L_ikd_det)
+    + (w_lookat L_lat + w_rot_global L_glob_rnd + w_rot_local L_loc_det) / J``."""
+
+    w_pos_rnd: float = 100.0
+    """W_pos: weight of the tolerance-weighted position-effector terms."""
+    w_pos_det: float = 1.0
+    """Weight of the all-joint position terms (sum of squared errors in m^2)."""
+    w_rot_local: float = 1.0
+    """Weight of the all-joint local geodesic term (sum over joints, radians)."""
+    w_rot_global: float = 1.0
+    """Weight of the tolerance-weighted global geodesic term on rotation effectors."""
+    w_lookat: float = 1.0
+    """Weight of the look-at angle term."""
+
+
+@dataclass(frozen=True)
+class EffectorSamplingConfig:
+    """Randomised effector sampling of ProtoRes Algorithm 1 / App. B (defaults = the paper's)."""
+
+    min_effectors: int = 3
+    """Smallest effector count per batch (N ~ U{min..max}, one N per batch)."""
+    max_effectors: int = 16
+    """Largest effector count per batch."""
+    sigma_max: float = 0.1
+    """sigma_M: noise std at tolerance 1 (metres for positions, radians for rotations)."""
+    eta: float = 13.0
+    """Tolerance-to-noise exponent: sigma = sigma_M * tolerance**eta."""
+    weight_max: float = 1000.0
+    """W_M: cap of the per-effector loss weight W = min(W_M, 1 / sigma)."""
+    lookat_distance_std: float = 2.0
+    """Std (metres) of the folded normal giving the look-at target distance (plus 0.1 m minimum)."""
+    limb_first: float = 0.0
+    """Fraction of samples whose first four effectors (all of them when N < 4) are position
+    effectors on a random joint of each limb zone (:data:`~smplik.conventions.LIMB_ZONES`: hands
+    and feet pinned first, as animators do and as the benchmark's random sets start); the rest
+    follow the paper's sampling. 0 is the paper's sampling (and draws no extra random numbers)."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run."""
+
+    data: str
+    """Dataset cache written by ``smplik data build``."""
+    out: str
+    """Run folder: checkpoint, config, metrics.csv, loss_curve.png."""
+    steps: int = 20_000
+    """Optimizer steps in total (across resumes)."""
+    batch_size: int = 512
+    """Global batch size (split across torchrun processes)."""
+    lr: float = 1e-3
+    """Adam learning rate (paper: 2e-4 at batch 2048 on GPU; larger here for short CPU runs)."""
+    lr_final_fraction: float = 0.05
+    """Cosine decay from lr to lr * this fraction over ``steps``."""
+    val_every: int = 500
+    """Validate (and log) every this many steps."""
+    ckpt_every: int = 500
+    """Write the checkpoint every this many steps (and at the end or on Ctrl-C)."""
+    val_size: int = 2048
+    """Validation poses (fixed set, fixed effectors)."""
+    val_fraction: float = 0.0
+    """For a cache without validation frames: hold out this fraction of the train clips (seeded by
+    ``seed``) for validation. 0: train on all clips and skip validation (with a notice)."""
+    seed: int = 0
+    augment: bool = True
+    """Random rotation about the vertical axis and left/right mirroring."""
+    beta_noise: float = 1.0
+    """Std of the Gaussian added to dataset betas (or of betas when the source has none)."""
+    part_swap: float = 0.0
+    """Probability per limb and sample that the limb's local rotations come from another random
+    train frame (:class:`~smplik.data.sampler.PoseSampler`); 0: off (the paper's sampling)."""
+    model_dir: str | None = None
+    """Folder with real SMPL files (default: built-in model)."""
+    init_from: str | None = None
+    """Start a new run from this model's weights (a checkpoint or exported model; same network sizes)."""
+    precision: str = "fp32"
+    """"fp32", or "bf16": the network's layers run under CPU/CUDA autocast in bfloat16 (Intel AMX and
+    recent GPUs run these several times faster); rotations, FK and the loss stay float32."""
+    distill_from: str | None = None
+    """Teacher model file: the loss also pulls the network towards the teacher's test-time ensemble
+    answer (``distill_ensemble``) on the same noisy effectors (self-distillation of the ensemble)."""
+    distill_weight: float = 1.0
+    """Weight of the distillation term (:func:`smplik.losses.distillation_loss`)."""
+    distill_ensemble: str = "mirror+yaw4"
+    """The teacher's ensemble (:meth:`smplik.ensemble.EnsembleConfig.parse`)."""
+    distill_refine: bool = False
+    """The teacher's answer also goes through the solver's effector refinement (the teacher file's
+    calibrated ``refine`` settings, else the default): the target is the teacher solver's pose."""
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "config") -> TrainConfig:
+        """Build from a (possibly partial) dict such as ``config.json``; unknown keys and values of
+        the wrong type raise ``ValueError`` naming ``source`` and the key (``network.width``)."""
+        return _dataclass_from_dict(cls, d, source, "")
+
+    @classmethod
+    def from_file(cls, path: str | Path, **required: str) -> TrainConfig:
+        """Read a JSON config file (partial: missing fields keep their defaults).
+
+        ``required`` fills ``data``/``out`` when the file lacks them (e.g. ``data="", out=""``).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"Config file not found: {path}")
+        try:
+            obj = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+            raise ValueError(f"{path}: not valid JSON ({type(exc).__name__}: {exc}).") from None
+        if not isinstance(obj, dict):
+            raise ValueError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
+        return cls.from_dict({**required, **obj}, str(path))
+
+
+def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
+    """A (nested, frozen) config dataclass from a dict, strictly: every key known, every value typed."""
+    where = prefix.rstrip(".") or "the top level"
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{source}: '{where}' must be an object, got {type(d).__name__}.")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in fields(cls)]
+    unknown = [k for k in d if k not in names]
+    if unknown:
+        raise ValueError(f"{source}: unknown key '{prefix}{unknown[0]}'; expected one of: {', '.join(names)}.")
+    kwargs = {}
+    for key, value in d.items():
+        typ = hints[key]
+        if is_dataclass(typ):
+            kwargs[key] = _dataclass_from_dict(typ, value, source, f"{prefix}{key}.")
+            continue
+        allowed = typing.get_args(typ) or (typ,)
+        ok = any((t is type(None) and value is None) or (t is bool and type(value) is bool)
+                 or (t is int and type(value) is int) or (t is float and type(value) in (int, float))
+                 or (t is str and type(value) is str) for t in allowed)
+        if not ok:
+            expected = " or ".join("null" if t is type(None) else t.__name__ for t in allowed)
+            raise ValueError(f"{source}: key '{prefix}{key}' must be {expected}, got {value!r:.60}.")
+        kwargs[key] = float(value) if float in allowed and type(value) is int else value
+    required = [f.name for f in fields(cls) if f.name not in kwargs and f.default is f.default_factory is MISSING]
+    if required:
+        raise ValueError(f"{source}: missing key '{prefix}{required[0]}'.")
+    return cls(**kwargs)
