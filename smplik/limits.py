@@ -17,7 +17,7 @@ limit                       environment variable              default
 :data:`TEXT_BYTES`          ``SMPLIK_MAX_TEXT_BYTES``         256 MiB: another text file (BVH)
 :data:`IMAGE_PIXELS`        ``SMPLIK_MAX_IMAGE_PIXELS``       64 * 10**6 pixels (8000 x 8000)
 :data:`BVH_FRAMES`          ``SMPLIK_MAX_BVH_FRAMES``         10**6 frames (2.3 h at 120 fps)
-:data:`PICKLE_OBJECTS`      ``SMPLIK_MAX_PICKLE_OBJECTS``     10**6 objects, shared references counted
+:data:`PICKLE_OBJECTS`      ``SMPLIK_MAX_PICKLE_OBJECTS``     10**7 objects, shared references counted
                                                               as often as they are reachable (a DAG
                                                               counts as the tree it expands to)
 ==========================  ================================  ============================================
@@ -85,7 +85,7 @@ JSON_BYTES = Limit("bytes (JSON file)", "SMPLIK_MAX_JSON_BYTES", 32 << 20)
 TEXT_BYTES = Limit("bytes (text file)", "SMPLIK_MAX_TEXT_BYTES", 256 << 20)
 IMAGE_PIXELS = Limit("pixels", "SMPLIK_MAX_IMAGE_PIXELS", 64_000_000)
 BVH_FRAMES = Limit("frames", "SMPLIK_MAX_BVH_FRAMES", 1_000_000)
-PICKLE_OBJECTS = Limit("objects (shared references counted each time)", "SMPLIK_MAX_PICKLE_OBJECTS", 1_000_000)
+PICKLE_OBJECTS = Limit("objects (shared references counted each time)", "SMPLIK_MAX_PICKLE_OBJECTS", 10_000_000)
 
 
 def check_array(shape: Iterable[Any], itemsize: int, source: str) -> int:

@@ -151,7 +151,7 @@ def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[s
 def _network_config(state: Mapping[str, Any], path: Path) -> NetworkConfig:
     try:
         return NetworkConfig(**state["network"])
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: key 'network' is not a network config ({exc}).") from None
 
 

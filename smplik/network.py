@@ -16,6 +16,7 @@ Pipeline (ProtoRes section 2 and App. A; SMPL-IK section 3):
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import asdict, dataclass
 
 import torch
@@ -28,6 +29,12 @@ from smplik.rotations import rot6d_to_matrix
 
 NUM_GENDERS = 3
 _IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+NETWORK_RANGES = {"width": (1, 8192), "encoder_blocks": (1, 32), "decoder_blocks": (1, 32),
+                  "layers_per_block": (1, 16), "embedding_dim": (1, 1024)}
+"""Accepted range of each size (the paper's model: width 1024, 3 blocks of 3 layers, embeddings 32); a model
+file's config is checked against them before any layer is allocated."""
 
 
 @dataclass(frozen=True)
@@ -50,6 +57,16 @@ class NetworkConfig:
     """Extension: also feed both decoders the effectors scattered into per-joint slots (by joint id,
     duplicates averaged; permutation and translation invariant), so a narrow model can read exact
     effector values. False is the paper's architecture."""
+
+    def __post_init__(self) -> None:
+        for name, (low, high) in NETWORK_RANGES.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
+                raise ValueError(f"NetworkConfig.{name} must be an integer in [{low}, {high}], got {value!r:.40}.")
+        if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
+            raise ValueError(f"NetworkConfig.dropout must be a number in [0, 1), got {self.dropout!r:.40}.")
+        if not isinstance(self.effector_slots, bool):
+            raise ValueError(f"NetworkConfig.effector_slots must be true or false, got {self.effector_slots!r:.40}.")
 
     @classmethod
     def paper(cls) -> NetworkConfig:

@@ -53,6 +53,127 @@ class UnsafePickleError(pickle.UnpicklingError, ValueError):
     """The pickle asks for a global or a call outside the allowed set (the message names it)."""
 
 
+MAX_DEPTH = 200
+"""Deepest nesting of containers a pickle may hold (real files nest a few levels)."""
+
+
+def check_object_graph(obj: Any, source: str = "pickle") -> None:
+    """Refuse an unpickled object whose containers expand to more than :data:`smplik.limits.PICKLE_OBJECTS`
+    objects, counting a shared reference each time it is reachable (a DAG of shared lists, a few KB on disk,
+    counts as the tree that ``repr``, ``np.asarray`` or a JSON dump would walk), nest deeper than
+    :data:`MAX_DEPTH`, or hold a reference cycle. Runs in time linear in the distinct objects (sizes are
+    memoised), never expanding anything.
+
+    Raises:
+        UnsafePickleError: naming ``source`` and the limit (and its environment variable).
+    """
+    from smplik.limits import PICKLE_OBJECTS
+
+    limit = PICKLE_OBJECTS.value
+    size: dict[int, int] = {}
+    keep: list[Any] = []  # ids stay valid while the objects are referenced
+    stack: list[tuple[Any, bool, int]] = [(obj, False, 0)]
+    on_path: set[int] = set()
+    while stack:
+        node, done, depth = stack.pop()
+        key = id(node)
+        children = _children(node)
+        if children is None:
+            continue
+        if done:
+            on_path.discard(key)
+            total = 1 + sum(size.get(id(c), 1) for c in children)
+            size[key] = total
+            if total > limit:
+                raise UnsafePickleError(f"{source}: its objects expand to more than {limit} (shared references "
+                                        f"counted each time; set {PICKLE_OBJECTS.env} to raise the limit if the file "
+                                        "is genuine).")
+            continue
+        if key in size:
+            continue
+        if key in on_path:
+            raise UnsafePickleError(f"{source}: its objects form a reference cycle.")
+        if depth > MAX_DEPTH:
+            raise UnsafePickleError(f"{source}: containers nested deeper than {MAX_DEPTH} levels.")
+        on_path.add(key)
+        keep.append(node)
+        stack.append((node, True, depth))
+        stack.extend((c, False, depth + 1) for c in children if id(c) not in size)
+
+
+def _children(node: Any) -> list[Any] | None:
+    """The objects a container refers to (None for a leaf: numbers, strings, numeric arrays)."""
+    if isinstance(node, dict):
+        return [*node.keys(), *node.values()]
+    if isinstance(node, (list, tuple, set, frozenset)):
+        return list(node)
+    if isinstance(node, np.ndarray):
+        return list(node.ravel()) if node.dtype.hasobject else None
+    if isinstance(node, ChumpyStub) or (hasattr(node, "__dict__") and not isinstance(node, type)):
+        return list(vars(node).values())
+    return None
+
+
+def sparse_to_dense(matrix: Any, source: str) -> np.ndarray:
+    """A ``scipy.sparse`` csr/csc/coo matrix read from a pickle, as a dense float64 array.
+
+    A pickle sets the matrix's index arrays directly (scipy checks nothing), and scipy's C code reads
+    memory at whatever index they hold: an index of 1e9 or -5 crashes the process or corrupts memory.
+    So every array is checked here first (1-D integers, ``indptr`` starting at 0, non-decreasing, ending
+    at ``nnz``; every index within the shape; finite data) and the dense matrix is built with numpy,
+    its size checked by :func:`smplik.limits.check_array`.
+
+    Raises:
+        ValueError: naming ``source`` and the array at fault.
+    """
+    from smplik.limits import check_array
+
+    kind = type(matrix).__name__[:3]
+    state = vars(matrix)
+    shape = state.get("_shape", state.get("shape"))
+    if not (isinstance(shape, tuple) and len(shape) == 2 and all(type(n) is int and n >= 0 for n in shape)):
+        raise ValueError(f"{source}: a sparse matrix with shape {shape!r:.60}.")
+    check_array(shape, 8, source)
+    rows, cols = shape
+
+    def array(name: str, integer: bool) -> np.ndarray:
+        value = state.get(name)
+        kinds, noun = ("iu", "integers") if integer else ("iufb", "numbers")
+        if not isinstance(value, np.ndarray) or value.ndim != 1 or value.dtype.kind not in kinds:
+            raise ValueError(f"{source}: sparse '{name}' must be a 1-D array of {noun}.")
+        return value
+
+    data = array("data", False).astype(np.float64)
+    if not np.isfinite(data).all():
+        raise ValueError(f"{source}: sparse 'data' contains NaN or inf.")
+    if kind in ("csr", "csc"):
+        indices, indptr = array("indices", True).astype(np.int64), array("indptr", True).astype(np.int64)
+        major, minor = (rows, cols) if kind == "csr" else (cols, rows)
+        if len(indptr) != major + 1 or indptr[0] != 0 or (np.diff(indptr) < 0).any():
+            raise ValueError(f"{source}: sparse 'indptr' is not {major + 1} non-decreasing offsets from 0.")
+        if indptr[-1] != len(indices) or len(indices) != len(data):
+            raise ValueError(f"{source}: sparse 'indptr' ends at {indptr[-1]} but there are {len(indices)} indices "
+                             f"and {len(data)} values.")
+        if len(indices) and (indices.min() < 0 or indices.max() >= minor):
+            raise ValueError(f"{source}: sparse 'indices' outside [0, {minor - 1}].")
+        major_index = np.repeat(np.arange(major), np.diff(indptr))
+        r, c = (major_index, indices) if kind == "csr" else (indices, major_index)
+    elif kind == "coo":
+        coords = state.get("coords")
+        if isinstance(coords, tuple) and len(coords) == 2:
+            state = {**state, "row": coords[0], "col": coords[1]}
+        r, c = (array(n, True).astype(np.int64) for n in ("row", "col")) if "row" in state else (None, None)
+        if r is None or len(r) != len(data) or len(c) != len(data):
+            raise ValueError(f"{source}: sparse 'row'/'col' do not match its {len(data)} values.")
+        if len(data) and (r.min() < 0 or r.max() >= rows or c.min() < 0 or c.max() >= cols):
+            raise ValueError(f"{source}: sparse row/column indices outside its shape {shape}.")
+    else:
+        raise ValueError(f"{source}: unsupported sparse matrix type {type(matrix).__name__}.")
+    dense = np.zeros(shape, np.float64)
+    np.add.at(dense, (r, c), data)
+    return dense
+
+
 class ChumpyStub:
     """Stands in for any chumpy object while unpickling; only its ``x`` array is kept."""
 
@@ -251,6 +372,12 @@ class RestrictedUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc
         _check_call(klass, tuple(args))
         super()._instantiate(klass, args)
 
+    def load(self) -> Any:
+        """The unpickled object, refused by :func:`check_object_graph` when it expands too far."""
+        obj = super().load()
+        check_object_graph(obj)
+        return obj
+
 
 def loads_restricted(data: bytes, *, encoding: str = "ASCII") -> Any:
     """Unpickle ``data`` with :class:`RestrictedUnpickler` (``encoding="latin1"`` for Python 2 pickles)."""
@@ -337,9 +464,11 @@ def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
         raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc}).") from exc
     try:
         try:
-            return _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
+            obj = _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
         except UnicodeDecodeError:  # Python 2 pickles of numpy arrays need latin1
-            return RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+            obj = RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+        check_object_graph(obj, str(path))
+        return obj
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None
     except _READ_ERRORS as exc:
