@@ -14,7 +14,7 @@ limit                       environment variable              default
 :data:`ARRAY_BYTES`         ``SMPLIK_MAX_ARRAY_BYTES``        1 GiB: one array (npz/npy member, tensor)
 :data:`ARRAY_ELEMENTS`      ``SMPLIK_MAX_ARRAY_ELEMENTS``     2*10**8 elements of one array
 :data:`JSON_BYTES`          ``SMPLIK_MAX_JSON_BYTES``         32 MiB: a JSON file (effectors, scene, joints)
-:data:`TEXT_BYTES`          ``SMPLIK_MAX_TEXT_BYTES``         256 MiB: another text file (BVH)
+:data:`TEXT_BYTES`          ``SMPLIK_MAX_TEXT_BYTES``         128 MiB: another text file (BVH)
 :data:`IMAGE_PIXELS`        ``SMPLIK_MAX_IMAGE_PIXELS``       64 * 10**6 pixels (8000 x 8000)
 :data:`BVH_FRAMES`          ``SMPLIK_MAX_BVH_FRAMES``         10**6 frames (2.3 h at 120 fps)
 :data:`PICKLE_OBJECTS`      ``SMPLIK_MAX_PICKLE_OBJECTS``     10**7 objects, shared references counted
@@ -35,7 +35,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["ARRAY_BYTES", "ARRAY_ELEMENTS", "BVH_FRAMES", "IMAGE_PIXELS", "INPUT_BYTES", "JSON_BYTES", "PICKLE_OBJECTS",
-           "TEXT_BYTES", "Limit", "LimitError", "check_array", "read_bounded"]
+           "TEXT_BYTES", "Limit", "LimitError", "check_array", "check_npz", "check_tensors",
+           "read_bounded"]
 
 _SUFFIX = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
@@ -82,7 +83,7 @@ INPUT_BYTES = Limit("bytes (all arrays of the input)", "SMPLIK_MAX_INPUT_BYTES",
 ARRAY_BYTES = Limit("bytes (one array)", "SMPLIK_MAX_ARRAY_BYTES", 1 << 30)
 ARRAY_ELEMENTS = Limit("elements (one array)", "SMPLIK_MAX_ARRAY_ELEMENTS", 200_000_000)
 JSON_BYTES = Limit("bytes (JSON file)", "SMPLIK_MAX_JSON_BYTES", 32 << 20)
-TEXT_BYTES = Limit("bytes (text file)", "SMPLIK_MAX_TEXT_BYTES", 256 << 20)
+TEXT_BYTES = Limit("bytes (text file)", "SMPLIK_MAX_TEXT_BYTES", 128 << 20)
 IMAGE_PIXELS = Limit("pixels", "SMPLIK_MAX_IMAGE_PIXELS", 64_000_000)
 BVH_FRAMES = Limit("frames", "SMPLIK_MAX_BVH_FRAMES", 1_000_000)
 PICKLE_OBJECTS = Limit("objects (shared references counted each time)", "SMPLIK_MAX_PICKLE_OBJECTS", 10_000_000)
@@ -117,3 +118,80 @@ def read_bounded(path: str | Path, limit: Limit = TEXT_BYTES) -> bytes:
         raise LimitError(f"{path}: more than {cap} {limit.what} (set {limit.env} to raise the limit if the file is "
                          "genuine).")
     return data
+
+
+def check_npz(path: str | Path) -> dict[str, tuple[tuple[int, ...], Any]]:
+    """Check an ``.npz`` before anything in it is decompressed beyond its ``.npy`` headers: the zip
+    directory's uncompressed sizes together within :data:`INPUT_BYTES`, and each member's declared shape
+    and dtype within :func:`check_array` and consistent with the member's size (a header that declares
+    more than its member holds, or a compressed member that inflates beyond its declared size, is refused).
+
+    Returns:
+        member name (without ``.npy``) -> (shape, dtype) as declared.
+
+    Raises:
+        LimitError: over a limit. ValueError: not a readable ``.npz`` (the message names the file).
+    """
+    import zipfile
+    import zlib
+
+    import numpy as np
+
+    path = Path(path)
+    out: dict[str, tuple[tuple[int, ...], Any]] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = [i for i in zf.infolist() if i.filename.endswith(".npy")]
+            INPUT_BYTES.check(sum(i.file_size for i in infos), f"{path} (uncompressed members)")
+            for info in infos:
+                name = info.filename[:-4]
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(fh, max_header_size=10000)
+                    header_bytes = fh.tell()
+                if dtype.hasobject:
+                    out[name] = (tuple(shape), dtype)
+                    continue
+                size = check_array(tuple(shape), dtype.itemsize, f"{path}: array '{name}'")
+                if size != info.file_size - header_bytes:
+                    raise ValueError(f"{path}: array '{name}' declares shape {tuple(shape)} ({size} bytes) but its "
+                                     f"member holds {info.file_size - header_bytes} bytes of data.")
+                out[name] = (tuple(shape), dtype)
+    except LimitError:
+        raise
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable .npz ({' '.join(str(exc).split())[:200]}).") from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, KeyError, TypeError, IndexError,
+            OverflowError, MemoryError, SyntaxError, UnicodeDecodeError, NotImplementedError, zlib.error) as exc:
+        raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:200]}).") from None
+    return out
+
+
+def check_tensors(obj: Any, source: str, *, max_depth: int = 50) -> None:
+    """Check every tensor in a loaded ``.pt`` structure (dicts, lists, tuples) before it is used: each
+    tensor's *logical* size (shape x element size, what ``.numpy()``, ``.contiguous()`` or arithmetic
+    allocate; a stride-0 view of one stored number counts as its full shape) within :func:`check_array`,
+    and all of them together within :data:`INPUT_BYTES`.
+
+    Raises:
+        LimitError: naming ``source``, the key path and the limit's environment variable.
+    """
+    total = 0
+    stack: list[tuple[Any, str, int]] = [(obj, "", 0)]
+    while stack:
+        node, where, depth = stack.pop()
+        if depth > max_depth:
+            raise LimitError(f"{source}: nested deeper than {max_depth} levels.")
+        if hasattr(node, "untyped_storage") and hasattr(node, "element_size"):  # a torch.Tensor
+            total += check_array(tuple(int(n) for n in node.shape), int(node.element_size()),
+                                 f"{source}: tensor {where or '(root)'}")
+        elif isinstance(node, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in node.items())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(node))
+    INPUT_BYTES.check(total, f"{source} (all tensors)")

@@ -43,10 +43,6 @@ import numpy as np
 
 TRUST_HINT = ("Only if you trust the file's source, pass --trust-pickle (trust_pickle=True) to load it with "
               "plain joblib/pickle, which can run arbitrary code.")
-MAX_ARRAY_BYTES = 1 << 30
-"""Largest array (bytes) a pickle or ``.npz`` may declare: 1 GiB."""
-MAX_NPZ_BYTES = 2 << 30
-"""Largest total uncompressed size of an ``.npz`` (bytes, from its zip directory): 2 GiB."""
 
 
 class UnsafePickleError(pickle.UnpicklingError, ValueError):
@@ -274,6 +270,16 @@ def _declared_bytes(shape: Any, itemsize: int) -> int:
     return count * max(int(itemsize), 1)
 
 
+def _check_declared(shape: tuple, itemsize: int) -> None:
+    """A declared array within :func:`smplik.limits.check_array`'s limits, as an :class:`UnsafePickleError`."""
+    from smplik.limits import LimitError, check_array
+
+    try:
+        check_array(shape, itemsize, "an array in a pickle")
+    except LimitError as exc:
+        raise UnsafePickleError(f"Refusing {exc}") from None
+
+
 def _check_call(func: Any, args: Any, kwargs: Any = None) -> None:
     """Refuse a call from the pickle stream that could allocate from a number (see the module docstring)."""
     if kwargs:
@@ -317,9 +323,7 @@ def _check_array_state(inst: np.ndarray, state: Any) -> None:
     if not isinstance(dtype, np.dtype):
         raise UnsafePickleError("Refusing an array state without a dtype in a pickle.")
     size = _declared_bytes(shape, dtype.itemsize)
-    if size > MAX_ARRAY_BYTES:
-        raise UnsafePickleError(f"Refusing an array of shape {shape} ({size} bytes) in a pickle; the limit is "
-                                f"{MAX_ARRAY_BYTES} bytes.")
+    _check_declared(shape, dtype.itemsize)
     count = size // max(dtype.itemsize, 1)
     if dtype.hasobject:
         if not isinstance(data, list) or len(data) != count:
@@ -415,10 +419,8 @@ def _joblib_unpickler_class() -> type:
                                         f"arrays are allowed. {TRUST_HINT}")
             if not isinstance(wrapper.dtype, np.dtype):
                 raise UnsafePickleError("Refusing a joblib array without a dtype.")
-            size = _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
-            if size > MAX_ARRAY_BYTES:
-                raise UnsafePickleError(f"Refusing a joblib array of shape {wrapper.shape} ({size} bytes); the limit "
-                                        f"is {MAX_ARRAY_BYTES} bytes.")
+            _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
+            _check_declared(tuple(wrapper.shape), wrapper.dtype.itemsize)
             if wrapper.dtype.hasobject:  # a nested pickle stream: read it with the same restrictions
                 self.stack.append(RestrictedUnpickler(self.file_handle).load())
             else:
@@ -475,51 +477,48 @@ def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
         raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {str(exc)[:200]}).") from None
 
 
-def read_npz(path: str | Path, *, allow_objects: bool = True, max_bytes: int = MAX_NPZ_BYTES) -> dict[str, Any]:
+def read_npz(path: str | Path, *, allow_objects: bool = True) -> dict[str, Any]:
     """Read every array of an ``.npz`` with bounded memory.
 
-    Before anything is decompressed, the zip directory's uncompressed sizes are checked against
-    ``max_bytes`` (a zip bomb is refused), and each member's ``.npy`` header against its own size and
-    :data:`MAX_ARRAY_BYTES`. Object arrays (e.g. ROMP's ``results`` dict, saved with
-    ``np.savez(results=dict)``) are unpickled by :class:`RestrictedUnpickler`, never by plain pickle,
-    and refused with ``allow_objects=False``; 0-d object arrays are unwrapped to the object they hold.
+    Before anything is decompressed, :func:`smplik.limits.check_npz` checks the zip directory's
+    uncompressed sizes and each member's ``.npy`` header against the input budget (a zip bomb, a header
+    declaring (10**9, 3), a member holding less than its header declares: refused). Object arrays (e.g.
+    ROMP's ``results`` dict, saved with ``np.savez(results=dict)``) are unpickled by
+    :class:`RestrictedUnpickler`, never by plain pickle, and refused with ``allow_objects=False``; 0-d
+    object arrays are unwrapped to the object they hold.
 
     Raises:
         UnsafePickleError: a refused global in an object array.
-        ValueError: missing, corrupt or oversized file (named).
+        ValueError: missing, corrupt or oversized file (named; :class:`smplik.limits.LimitError` names the
+            limit's environment variable).
     """
+    import zlib
+
+    from smplik.limits import check_npz
+
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"File not found: {path}")
+    declared = check_npz(path)
     out: dict[str, Any] = {}
     try:
         with zipfile.ZipFile(path) as zf:
-            infos = [i for i in zf.infolist() if i.filename.endswith(".npy")]
-            total = sum(i.file_size for i in infos)
-            if total > max_bytes:
-                raise ValueError(f"{path}: its arrays hold {total} bytes uncompressed; the limit is {max_bytes}.")
-            for info in infos:
-                with zf.open(info) as fh:
-                    version = np.lib.format.read_magic(fh)
-                    header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                              else np.lib.format.read_array_header_2_0)
-                    shape, _, dtype = header(fh, max_header_size=10000)
-                    name = info.filename[:-4]
+            for name, (_, dtype) in declared.items():
+                with zf.open(name + ".npy") as fh:
                     if dtype.hasobject:
                         if not allow_objects:
                             raise ValueError(f"{path}: array '{name}' holds Python objects (a pickle); "
                                              "only plain numeric arrays are allowed here.")
+                        version = np.lib.format.read_magic(fh)
+                        header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                  else np.lib.format.read_array_header_2_0)
+                        header(fh, max_header_size=10000)
                         value = RestrictedUnpickler(io.BytesIO(fh.read()), encoding="latin1").load()
                         if isinstance(value, np.ndarray) and value.shape == () and value.dtype.hasobject:
                             value = value.item()
                         out[name] = value
                         continue
-                    size = _declared_bytes(tuple(shape), dtype.itemsize)
-                    if size > min(info.file_size, MAX_ARRAY_BYTES):
-                        raise ValueError(f"{path}: array '{name}' declares shape {shape} ({size} bytes) but its "
-                                         f"member holds {info.file_size} bytes.")
-                with zf.open(info) as fh:
-                    out[name] = np.lib.format.read_array(io.BytesIO(fh.read()), allow_pickle=False)
+                    out[name] = np.lib.format.read_array(fh, allow_pickle=False)
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None
     except ValueError as exc:
@@ -528,7 +527,6 @@ def read_npz(path: str | Path, *, allow_objects: bool = True, max_bytes: int = M
         raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, pickle.UnpicklingError, EOFError, KeyError,
             TypeError, IndexError, AttributeError, OverflowError, MemoryError, RecursionError, SyntaxError,
-            UnicodeDecodeError, NotImplementedError) as exc:
+            UnicodeDecodeError, NotImplementedError, zlib.error) as exc:
         raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
     return out
-

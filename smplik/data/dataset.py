@@ -544,6 +544,9 @@ def load_cache(path: str | Path) -> PoseDataset:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"Pose cache not found: {path}")
+    from smplik.limits import check_npz
+
+    check_npz(path)  # declared sizes within the input budget before anything is decompressed
     try:
         npz = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
