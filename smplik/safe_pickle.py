@@ -469,7 +469,7 @@ def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
             obj = _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
         except UnicodeDecodeError:  # Python 2 pickles of numpy arrays need latin1
             obj = RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
-        check_object_graph(obj, str(path))
+        check_object_graph(obj)
         return obj
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None

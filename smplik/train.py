@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import json
 import os
 import random
 import signal
@@ -120,10 +119,9 @@ class TrainConfig:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"Config file not found: {path}")
-        try:
-            obj = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-            raise ValueError(f"{path}: not valid JSON ({type(exc).__name__}: {exc}).") from None
+        from smplik.validation import read_json
+
+        obj = read_json(path, ValueError, what="config file")  # bounded read (smplik.limits.JSON_BYTES)
         if not isinstance(obj, dict):
             raise ValueError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
         return cls.from_dict({**required, **obj}, str(path))
