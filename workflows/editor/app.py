@@ -14,6 +14,8 @@ and look-at targets, rotate for rotation effectors) and ``/rays/{k}`` look-at ra
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import threading
 import time
@@ -70,7 +72,8 @@ class EditorApp:
                  export_dir: str | Path | None = None, write_dirs: tuple[str | Path, ...] = ()) -> None:
         self.state = state
         self.access = AccessGuard()
-        with guarded_serve(self.access) as guarded:
+        # viser prints its address without the token: drop that banner (smplik edit prints :attr:`url`)
+        with guarded_serve(self.access) as guarded, contextlib.redirect_stdout(io.StringIO()):
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
         if not guarded:  # a viser that starts its server another way: never run without the check
             self.server.stop()
