@@ -672,7 +672,9 @@ def crafted_cases(valid: dict[str, Any], work: Path) -> list[Case]:
 
     d = folder()
     Image.new("L", (13000, 13000)).save(d / "huge.png")
-    (d / "scene.json").write_text(json.dumps(valid["scene"]))
+    # with a camera, so that render draws the image behind the characters
+    camera = {"focal_px": None, "image_size": None, "default_fov_deg": 60.0, "principal_px": None, "focal_rule": "fov"}
+    (d / "scene.json").write_text(json.dumps({**valid["scene"], "camera": camera}))
     cases.append(Case("image_bomb", ["scene", "render", str(d / "scene.json"), "--image", str(d / "huge.png"),
                                      "--out", str(d / "r.png")], "scene render --image 13000^2", output=d / "r.png"))
     cases.append(Case("image_bomb", ["scene", "from-estimate", str(valid["romp"]), "--image", str(d / "huge.png"),

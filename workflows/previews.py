@@ -11,6 +11,7 @@ Headless machines need ``PYOPENGL_PLATFORM=egl`` (or ``osmesa``) set before the 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -248,8 +249,10 @@ def load_image(path: str | Path) -> np.ndarray:
 
     from smplik.limits import IMAGE_PIXELS
 
-    with Image.open(path) as header:  # reads the header only
-        width, height = header.size
+    with warnings.catch_warnings():  # PIL warns over 89 Mpx (several stderr lines); the limit below decides
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        with Image.open(path) as header:  # reads the header only
+            width, height = header.size
     IMAGE_PIXELS.check(width * height, f"{path} ({width} x {height} image)")
     img = matplotlib.image.imread(str(path))
     if img.dtype != np.uint8:
