@@ -47,6 +47,12 @@ METRICS = "metrics.csv"
 METRIC_COLUMNS = ("step", "loss", "mpjpe_mm", "pa_mpjpe_mm", "geodesic_rad", "samples_per_s")
 
 
+TRAIN_RANGES = {"steps": (0, 10**9), "batch_size": (1, 1 << 20), "lr": (0.0, 10.0), "lr_final_fraction": (0.0, 1.0),
+                "val_every": (1, 10**9), "ckpt_every": (1, 10**9), "val_size": (0, 10**7), "val_fraction": (0.0, 0.99),
+                "beta_noise": (0.0, 100.0), "part_swap": (0.0, 1.0), "distill_weight": (0.0, 1e6)}
+"""Accepted range of each number of a training config (a config file's or a checkpoint's)."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """One training run."""
@@ -101,6 +107,12 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
 
+    def __post_init__(self) -> None:
+        for name, (low, high) in TRAIN_RANGES.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+                raise ValueError(f"TrainConfig.{name} must be a number in [{low:g}, {high:g}], got {value!r:.40}.")
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -154,7 +166,10 @@ def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
     required = [f.name for f in fields(cls) if f.name not in kwargs and f.default is f.default_factory is MISSING]
     if required:
         raise ValueError(f"{source}: missing key '{prefix}{required[0]}'.")
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:  # a value out of its documented range (the config's __post_init__)
+        raise ValueError(f"{source}: {exc}") from None
 
 
 class TrainingInterrupted(KeyboardInterrupt):

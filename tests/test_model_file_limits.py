@@ -156,3 +156,17 @@ def test_config_numbers_from_a_model_file_are_bounded(tmp_path):
     write_model_file(tmp_path / "w.pt", state)
     with pytest.raises(CheckpointError, match=r"w\.pt: key 'network'.*width must be an integer"):
         IKSolver.load(tmp_path / "w.pt")
+
+
+def test_train_config_numbers_are_bounded(tmp_path):
+    from smplik.train import TrainConfig
+
+    for bad in (dict(steps=10**18), dict(batch_size=0), dict(lr=float("nan")), dict(val_every=0), dict(steps=True)):
+        with pytest.raises(ValueError, match="TrainConfig"):
+            TrainConfig(data="", out="", **bad)
+    (tmp_path / "cfg.json").write_text(json.dumps({"steps": 10**18}))
+    with pytest.raises(ValueError, match=r"cfg\.json: TrainConfig\.steps must be a number in \[0, 1e\+09\]"):
+        TrainConfig.from_file(tmp_path / "cfg.json", data="", out="")
+    (tmp_path / "cfg.json").write_text(json.dumps({"network": {"width": 10**9}}))
+    with pytest.raises(ValueError, match=r"cfg\.json: NetworkConfig\.width"):
+        TrainConfig.from_file(tmp_path / "cfg.json", data="", out="")
