@@ -11,7 +11,17 @@ model files (``smplik solve --checkpoint``), estimator files (``smplik scene fro
 from :mod:`workflows.examples_gen`), skeletons: BVH, joints JSON and GLB (``smplik invert-shape``), and
 output paths (``smplik body export --out``).
 
-    PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 300 --workers 2
+First, once each, the crafted cases of issue #28 (:func:`crafted_cases`): SMPL model files whose sparse
+``J_regressor`` holds out-of-range or negative indices (csr, csc, coo), pickle DAGs of shared references
+(2**28 objects once expanded), stride-0 ``.pt`` tensors (GVHMR, plain, model file), model configs asking
+for 10**9 refinement steps or a 10**9-wide network, npz bombs through ``data build --amass``, benchmark
+files and estimator files, mutated benchmark manifests, BVH files declaring 10**7 frames, a 13000 x 13000
+``--image``, 300 MB JSON files and ``/dev/zero``, corrupt zips; and the editor (:func:`editor_cases`):
+``smplik edit`` with raw WebSocket clients from foreign and null origins and with missing or wrong tokens
+(a client that gets in counts as ``payload_run``). Outputs that a run may replace hold a sentinel first:
+a failed run must leave it, a successful one must write a complete file (else ``corrupted_output``).
+
+    PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 240 --workers 2
 
 writes ``benchmarks/results/fuzz_campaign.json`` (counts per reader and examples of each failure).
 """
@@ -44,7 +54,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "fuzz_campaign.json"
 MEMORY_CAP = 2 << 30
-OUTCOMES = ("accepted", "clean_error", "unclear_error", "traceback", "hang", "crash", "payload_run")
+OUTCOMES = ("accepted", "clean_error", "unclear_error", "traceback", "hang", "crash", "payload_run",
+            "corrupted_output")
+SENTINEL = b"smplik-fuzz: the previous output, which a failed run must leave in place\n"
 
 # ----------------------------------------------------------------------------- mutations
 
@@ -269,6 +281,9 @@ class Case:
     args: list[str]
     note: str
     marker: Path | None = None
+    output: Path | None = None
+    """An output file the run may replace: it holds a sentinel before the run; after a failed run it must
+    still hold it, after a successful one it must be a complete file (else ``corrupted_output``)."""
 
 
 def _limit() -> None:
@@ -278,6 +293,9 @@ def _limit() -> None:
 
 def run_case(case: Case, timeout: float, env: dict[str, str]) -> dict[str, Any]:
     """Run the CLI on one case; classify the outcome (module docstring)."""
+    if case.output is not None:
+        case.output.parent.mkdir(parents=True, exist_ok=True)
+        case.output.write_bytes(SENTINEL)
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         proc = subprocess.Popen([sys.executable, "-m", "smplik.cli", *case.args], stdout=out, stderr=err,
                                 env=env, cwd=ROOT, preexec_fn=_limit)
@@ -300,6 +318,8 @@ def run_case(case: Case, timeout: float, env: dict[str, str]) -> dict[str, Any]:
     peak_mb = rusage.ru_maxrss / 1024 if rusage else 0.0
     if case.marker is not None and case.marker.exists():
         outcome = "payload_run"
+    elif case.output is not None and not hung and not _output_intact(case.output, rc == 0):
+        outcome = "corrupted_output"
     elif hung:
         outcome = "hang"
     elif "Traceback (most recent call last)" in stderr:
@@ -314,6 +334,25 @@ def run_case(case: Case, timeout: float, env: dict[str, str]) -> dict[str, Any]:
     lines = [line for line in stderr.splitlines() if line.strip()]
     return {"reader": case.reader, "outcome": outcome, "rc": rc, "peak_mb": round(peak_mb, 1), "note": case.note,
             "last_line": lines[-1][:300] if lines else ""}
+
+
+def _output_intact(path: Path, succeeded: bool) -> bool:
+    """A failed run left the sentinel in place; a successful one wrote a complete file of its kind."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return False
+    if not succeeded:
+        return data == SENTINEL
+    try:
+        if path.suffix == ".json":
+            json.loads(data)
+        elif path.suffix == ".npz":
+            with np.load(io.BytesIO(data)) as npz:
+                [npz[k] for k in npz.files]
+        return data != SENTINEL
+    except (ValueError, OSError, EOFError):
+        return False
 
 
 # ----------------------------------------------------------------------------- case generators per reader
@@ -336,13 +375,15 @@ def case_makers(valid: dict[str, Any], work: Path) -> dict[str, Callable[[random
         d = new_dir(n)
         doc, note = mutate_json(valid["effectors"], rng)
         (d / "eff.json").write_text(json.dumps(doc))
-        return Case("effector_json", ["solve", str(d / "eff.json"), "--out", str(d / "pose.json")], note)
+        return Case("effector_json", ["solve", str(d / "eff.json"), "--out", str(d / "pose.json")], note,
+                    output=d / "pose.json")
 
     def scene_case(rng: random.Random, n: int) -> Case:
         d = new_dir(n)
         doc, note = mutate_json(valid["scene"], rng)
         (d / "scene.json").write_text(json.dumps(doc))
-        return Case("scene_json", ["scene", "solve", str(d / "scene.json"), "--out", str(d / "out.json")], note)
+        return Case("scene_json", ["scene", "solve", str(d / "scene.json"), "--out", str(d / "out.json")], note,
+                    output=d / "out.json")
 
     def smpl_case(rng: random.Random, n: int) -> Case:
         d = new_dir(n)
@@ -377,7 +418,7 @@ def case_makers(valid: dict[str, Any], work: Path) -> dict[str, Callable[[random
             data, note = mutate_bytes(pt_bytes, rng)
             (d / "model.pt").write_bytes(data)
         return Case("pt_model_file", ["solve", str(effectors_file), "--checkpoint", str(d / "model.pt"), "--out",
-                                      str(d / "pose.json")], note, marker)
+                                      str(d / "pose.json")], note, marker, output=d / "pose.json")
 
     def estimator_case(rng: random.Random, n: int) -> Case:
         d = new_dir(n)
@@ -445,14 +486,331 @@ def case_makers(valid: dict[str, Any], work: Path) -> dict[str, Callable[[random
             "output_path": output_case}
 
 
+# ----------------------------------------------------------------------------- crafted cases (each run once)
+
+
+def _dag(depth: int = 28) -> list:
+    """Lists sharing references: a few hundred bytes pickled, 2**depth objects once expanded."""
+    node: list = []
+    for _ in range(depth):
+        node = [node, node]
+    return node
+
+
+def _sparse_model(arrays: dict[str, np.ndarray], layout: str, index: int, where: str) -> dict[str, Any]:
+    """SMPL arrays whose J_regressor is a ``layout`` sparse matrix with ``index`` written into ``where``."""
+    import scipy.sparse
+
+    m = {"csr": scipy.sparse.csr_matrix, "csc": scipy.sparse.csc_matrix, "coo": scipy.sparse.coo_matrix}[layout](
+        arrays["J_regressor"])
+    state = dict(vars(m))
+    if layout == "coo":
+        coords = state.pop("coords", None) or (m.row, m.col)
+        state["row"], state["col"] = coords[0].astype(np.int64), coords[1].astype(np.int64)
+    arr = state[where].astype(np.int64)
+    arr[min(3, len(arr) - 1)] = index
+    state[where] = arr
+    bad = object.__new__(type(m))
+    bad.__dict__.update(state)
+    return {**arrays, "J_regressor": bad}
+
+
+def _benchmark_files(work: Path) -> Path:
+    """A small valid benchmark folder (``smplik benchmark make`` on AMASS-layout clips), made once."""
+    from smplik.benchmark import make_benchmark
+    from smplik.data.dataset import build_cache, find_sources
+
+    folder = work / "bench_src"
+    if (folder / "files" / "manifest.json").is_file():
+        return folder / "files"
+    clips = folder / "clips"
+    clips.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    names = [f"clip{c}" for c in range(4)]
+    for name in names:  # AMASS's layout (poses, trans, betas, gender, mocap_framerate), as smplik.data.amass reads
+        t = np.linspace(0, 2 * np.pi, 30)[:, None]
+        poses = rng.normal(0, 0.25, 72) + rng.normal(0, 0.3, 72) * np.sin(t + rng.uniform(0, 6, 72))
+        poses[:, :3] = [np.pi / 2, 0, 0]
+        np.savez(clips / f"{name}.npz", poses=poses, trans=np.zeros((30, 3)), betas=rng.normal(0, 1, 10),
+                 gender="neutral", mocap_framerate=30.0)
+    split = {"train": {"files": [f"{n}.npz" for n in names[:2]]}, "validation": {"files": [f"{names[2]}.npz"]},
+             "test": {"files": [f"{names[3]}.npz"]}}
+    (clips / "split.json").write_text(json.dumps(split))
+    build_cache(find_sources(clips, "amass"), fps=30, split=clips / "split.json", out=folder / "cache.npz")
+    make_benchmark(folder / "cache.npz", folder / "files", split="test", seed=0, samples_per_count=3)
+    return folder / "files"
+
+
+MANIFEST_MUTATIONS: dict[str, Callable[[dict], Any]] = {
+    "sha256_missing": lambda m: m["sets"][0].pop("sha256"), "name_missing": lambda m: m["sets"][0].pop("name"),
+    "file_bool": lambda m: m["sets"][0].__setitem__("file", True),
+    "file_list": lambda m: m["sets"][0].__setitem__("file", [1]),
+    "file_traversal": lambda m: m["sets"][0].__setitem__("file", "../../x.npz"),
+    "sets_int": lambda m: m.__setitem__("sets", 3), "set_str": lambda m: m["sets"].__setitem__(0, "x"),
+    "source_missing": lambda m: m.pop("source"), "source_data_int": lambda m: m["source"].__setitem__("data", 1),
+    "version_list": lambda m: m.__setitem__("version", [1]), "root_list": lambda m: m.clear(),
+}
+
+
+def crafted_cases(valid: dict[str, Any], work: Path) -> list[Case]:
+    """The external campaign's findings as inputs: sparse-index model files, pickle DAGs, stride-0 tensors, every
+    bomb (npz, BVH frames, image pixels, JSON size, /dev/zero), corrupt zips, mutated benchmark files."""
+    import torch
+
+
+    root = work / "crafted"
+    root.mkdir()
+    cases: list[Case] = []
+    effectors_file = work / "valid_effectors.json"
+    n = iter(range(10**6))
+
+    def folder() -> Path:
+        d = root / f"c{next(n):03d}"
+        d.mkdir()
+        return d
+
+    # SMPL model files: sparse J_regressor index arrays out of range (a SIGSEGV before)
+    for layout, where in (("csr", "indices"), ("csc", "indices"), ("csr", "indptr"), ("coo", "row"), ("coo", "col")):
+        for index in (10**9, -5):
+            d = folder()
+            arrays = _sparse_model(valid["smpl_arrays"], layout, index, where)
+            (d / "SMPL_NEUTRAL.pkl").write_bytes(pickle.dumps(arrays, protocol=2))
+            cases.append(Case("sparse_model_file", ["body", "info", "--model-dir", str(d)],
+                              f"{layout}.{where}={index}"))
+    d = folder()
+    (d / "SMPL_NEUTRAL.pkl").write_bytes(pickle.dumps(_sparse_model(valid["smpl_arrays"], "csr", 10**9, "indices")))
+    cases.append(Case("sparse_model_file", ["solve", str(effectors_file), "--model-dir", str(d), "--out",
+                                            str(d / "pose.json")], "solve:csr.indices=1e9", output=d / "pose.json"))
+    # pickle DAGs (2**28 objects once expanded)
+    d = folder()
+    (d / "results.pkl").write_bytes(pickle.dumps({"pred_thetas": _dag(), "pred_betas": _dag()}))
+    cases.append(Case("pickle_dag", ["scene", "from-estimate", str(d / "results.pkl"), "--out", str(d / "out"),
+                                     "--no-previews"], "estimator:dag28"))
+    d = folder()
+    (d / "SMPL_NEUTRAL.pkl").write_bytes(pickle.dumps({**valid["smpl_arrays"], "v_template": _dag()}))
+    cases.append(Case("pickle_dag", ["body", "info", "--model-dir", str(d)], "smpl_pkl:dag28"))
+    d = folder()
+    np.savez(d / "results.npz", results=_object_array(_dag()))
+    cases.append(Case("pickle_dag", ["scene", "from-estimate", str(d / "results.npz"), "--out", str(d / "out"),
+                                     "--no-previews"], "npz_object:dag28"))
+    # stride-0 tensors (8 GB once made contiguous)
+    view = torch.zeros(1).expand(10**9, 8)
+    d = folder()
+    incam = {"body_pose": view, "global_orient": torch.zeros(1, 3), "transl": torch.zeros(1, 3),
+             "betas": torch.zeros(1, 10)}
+    torch.save({"smpl_params_incam": incam, "smpl_params_global": {"body_pose": view}, "K_fullimg": torch.eye(3)[None]},
+               d / "hmr4d_results.pt")
+    cases.append(Case("stride0_tensor", ["scene", "from-estimate", str(d / "hmr4d_results.pt"), "--out", str(d / "o"),
+                                         "--no-previews"], "gvhmr.pt"))
+    d = folder()
+    torch.save({"global_orient": view, "body_pose": torch.zeros(1, 69)}, d / "params.pt")
+    cases.append(Case("stride0_tensor", ["scene", "from-estimate", str(d / "params.pt"), "--out", str(d / "o"),
+                                         "--no-previews"], "plain.pt"))
+    from smplik.model_io import read_model_file
+
+    d = folder()
+    state = read_model_file(valid["pt"])
+    torch.save({**state, "metrics": {"x": view}}, d / "model.pt")
+    cases.append(Case("stride0_tensor", ["solve", str(effectors_file), "--checkpoint", str(d / "model.pt"), "--out",
+                                         str(d / "pose.json")], "model.pt", output=d / "pose.json"))
+    d = folder()
+    torch.save({**state, "refine": {"iterations": 10**9}}, d / "model.pt")
+    cases.append(Case("model_config", ["solve", str(effectors_file), "--checkpoint", str(d / "model.pt"), "--out",
+                                       str(d / "pose.json")], "refine.iterations=1e9", output=d / "pose.json"))
+    d = folder()
+    torch.save({**state, "network": {**state["network"], "width": 10**9}}, d / "model.pt")
+    cases.append(Case("model_config", ["solve", str(effectors_file), "--checkpoint", str(d / "model.pt"), "--out",
+                                       str(d / "pose.json")], "network.width=1e9", output=d / "pose.json"))
+    # npz bombs: a member inflating to 2.4 GB from a few MB, through every npz reader
+    bomb = _zip_bomb(work / "bomb.npz")
+    d = folder()
+    (d / "amass").mkdir()
+    shutil.copy(bomb, d / "amass" / "clip_poses.npz")
+    cases.append(Case("npz_bomb", ["data", "build", "--amass", str(d / "amass"), "--split-by-subject", "0", "--out",
+                                   str(d / "cache.npz")], "data build --amass", output=d / "cache.npz"))
+    bench = _benchmark_files(work)
+    d = folder()
+    shutil.copytree(bench, d / "files")
+    manifest = json.loads((d / "files" / "manifest.json").read_text())
+    shutil.copy(bomb, d / "files" / manifest["sets"][0]["file"])
+    import hashlib
+
+    manifest["sets"][0]["sha256"] = hashlib.sha256(bomb.read_bytes()).hexdigest()  # past the SHA check
+    (d / "files" / "manifest.json").write_text(json.dumps(manifest))
+    cases.append(Case("npz_bomb", ["benchmark", "run", "--files", str(d / "files"), "--methods", "rest", "--out",
+                                   str(d / "r.json")], "benchmark set file", output=d / "r.json"))
+    d = folder()
+    shutil.copy(bomb, d / "results.npz")
+    cases.append(Case("npz_bomb", ["scene", "from-estimate", str(d / "results.npz"), "--out", str(d / "o"),
+                                   "--no-previews"], "estimator npz"))
+    # mutated benchmark files (KeyError 'sha256', PosixPath / bool, unhashable, not subscriptable ... before)
+    for name, mutate in MANIFEST_MUTATIONS.items():
+        d = folder()
+        shutil.copytree(bench, d / "files")
+        m = json.loads((d / "files" / "manifest.json").read_text())
+        mutate(m)
+        (d / "files" / "manifest.json").write_text(json.dumps(m))
+        cases.append(Case("benchmark_files", ["benchmark", "run", "--files", str(d / "files"), "--methods", "rest",
+                                              "--out", str(d / "r.json")], f"manifest:{name}", output=d / "r.json"))
+    # BVH declaring 10**7 frames: with the frame lines (60 MB) and with the header alone
+    head = ("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Xrotation Yrotation Zrotation\n"
+            "End Site\n{\nOFFSET 0 1 0\n}\n}\n")
+    d = folder()
+    with open(d / "big.bvh", "w") as fh:
+        fh.write(head + "MOTION\nFrames: 10000000\nFrame Time: 0.0083333\n")
+        line = "0 0 0\n" * 10_000
+        for _ in range(1000):
+            fh.write(line)
+    cases.append(Case("bvh_bomb", ["invert-shape", str(d / "big.bvh"), "--out", str(d / "s.json")], "10^7 frames",
+                      output=d / "s.json"))
+    d = folder()
+    (d / "head.bvh").write_text(head + "MOTION\nFrames: 10000000\nFrame Time: 0.0083333\n0 0 0\n")
+    cases.append(Case("bvh_bomb", ["invert-shape", str(d / "head.bvh"), "--out", str(d / "s.json")],
+                      "10^7 frames declared", output=d / "s.json"))
+    # a 13000 x 13000 image (164 KB as PNG, 1.9 GiB decoded as floats)
+    from PIL import Image
+
+    d = folder()
+    Image.new("L", (13000, 13000)).save(d / "huge.png")
+    # with a camera, so that render draws the image behind the characters
+    camera = {"focal_px": None, "image_size": None, "default_fov_deg": 60.0, "principal_px": None, "focal_rule": "fov"}
+    (d / "scene.json").write_text(json.dumps({**valid["scene"], "camera": camera}))
+    cases.append(Case("image_bomb", ["scene", "render", str(d / "scene.json"), "--image", str(d / "huge.png"),
+                                     "--out", str(d / "r.png")], "scene render --image 13000^2", output=d / "r.png"))
+    cases.append(Case("image_bomb", ["scene", "from-estimate", str(valid["romp"]), "--image", str(d / "huge.png"),
+                                     "--out", str(d / "fe")], "from-estimate --image 13000^2"))
+    # JSON of 300 MB (effectors, joints) and /dev/zero
+    d = folder()
+    big = json.dumps(valid["effectors"])[:-1] + ', "pad": [' + "0," * (150 << 20) + "0]}"
+    (d / "eff.json").write_text(big)
+    cases.append(Case("json_bomb", ["solve", str(d / "eff.json"), "--out", str(d / "pose.json")], "effectors 300 MB",
+                      output=d / "pose.json"))
+    joints = json.dumps(valid["joints_json"])[:-1] + ', "pad": [' + "0," * (150 << 20) + "0]}"
+    (d / "joints.json").write_text(joints)
+    cases.append(Case("json_bomb", ["invert-shape", str(d / "joints.json"), "--out", str(d / "s.json")],
+                      "joints 300 MB", output=d / "s.json"))
+    for args in (["solve", "/dev/zero"], ["scene", "solve", "/dev/zero"]):
+        d = folder()
+        cases.append(Case("json_bomb", [*args, "--out", str(d / "o.json")], " ".join(args), output=d / "o.json"))
+    # corrupt zips: a deflated model file with damaged data, a truncated estimator npz
+    import zipfile
+
+    d = folder()
+    with zipfile.ZipFile(valid["pt"]) as src, zipfile.ZipFile(d / "deflated.pt", "w", zipfile.ZIP_DEFLATED) as dst:
+        for info in src.infolist():
+            dst.writestr(info.filename, src.read(info.filename))
+    data = bytearray((d / "deflated.pt").read_bytes())
+    data[len(data) // 2: len(data) // 2 + 256] = bytes(range(256))
+    (d / "corrupt.pt").write_bytes(data)
+    cases.append(Case("corrupt_zip", ["solve", str(effectors_file), "--checkpoint", str(d / "corrupt.pt"), "--out",
+                                      str(d / "pose.json")], "deflated model, damaged", output=d / "pose.json"))
+    romp = bytearray(Path(valid["romp"]).read_bytes())
+    romp[len(romp) // 3: len(romp) // 3 + 64] = bytes(64)
+    (d / "results.npz").write_bytes(romp)
+    cases.append(Case("corrupt_zip", ["scene", "from-estimate", str(d / "results.npz"), "--out", str(d / "o"),
+                                      "--no-previews"], "romp npz, damaged"))
+    return cases
+
+
+def _object_array(obj: Any) -> np.ndarray:
+    out = np.empty((), dtype=object)
+    out[()] = obj
+    return out
+
+
+# ----------------------------------------------------------------------------- the editor from foreign origins
+
+
+EDITOR_ATTEMPTS = {  # name: (origin, token?) -- {own} is the editor's own origin
+    "origin_evil": ("http://evil.example.com", True), "origin_null": ("null", True), "origin_missing": (None, True),
+    "origin_other_port": ("http://127.0.0.1:{other}", True), "origin_https": ("https://127.0.0.1:{port}", True),
+    "token_missing": ("{own}", False), "token_wrong": ("{own}", "wrong"), "own_page_with_token": ("{own}", True),
+}
+
+
+def editor_cases(valid: dict[str, Any], work: Path, timeout: float, env: dict[str, str]) -> list[dict[str, Any]]:
+    """``smplik edit`` on a scene, then raw WebSocket clients (what any page or local program can send) with
+    foreign and null origins and missing/wrong tokens: each must be refused (a foreign client that gets in
+    is a ``payload_run``: it could press Save); the editor's own origin with the token must get in; the scene
+    file must be unchanged afterwards (``corrupted_output`` otherwise)."""
+    import asyncio
+    import re
+
+    import viser
+    import websockets.asyncio.client as ws_client
+    from websockets.exceptions import InvalidStatus
+
+    d = work / "editor"
+    d.mkdir()
+    scene = d / "scene.json"
+    scene.write_text(json.dumps(valid["scene"]))
+    before = scene.read_bytes()
+    proc = subprocess.Popen([sys.executable, "-m", "smplik.cli", "edit", str(scene), "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT,
+                            preexec_fn=_limit)
+    results = []
+    url = None
+    deadline = time.monotonic() + timeout
+    lines: list[str] = []
+    while url is None and time.monotonic() < deadline and proc.poll() is None:
+        line = proc.stdout.readline()
+        lines.append(line)
+        m = re.search(r"smplik editor: (http://127\.0\.0\.1:(\d+)/\?token=([\w-]+))", line)
+        if m:
+            url, port, token = m.group(1), int(m.group(2)), m.group(3)
+    try:
+        if url is None:
+            outcome = "hang" if proc.poll() is None else "crash"
+            return [{"reader": "editor_origin", "outcome": outcome, "rc": proc.returncode, "peak_mb": 0.0,
+                     "note": "start", "last_line": "".join(lines)[-300:]}]
+
+        async def attempt(origin: str | None, token_value: Any) -> str:
+            query = f"?token={token if token_value is True else token_value}" if token_value else ""
+            headers = {} if origin is None else {"Origin": origin.format(own=f"http://127.0.0.1:{port}", port=port,
+                                                                         other=port + 1)}
+            try:
+                async with ws_client.connect(f"ws://127.0.0.1:{port}/{query}", additional_headers=headers,
+                                             subprotocols=[f"viser-v{viser.__version__}"], origin=None,
+                                             open_timeout=30) as ws:
+                    await asyncio.wait_for(ws.recv(), 30)
+                    return "open"
+            except InvalidStatus as exc:
+                return f"refused {exc.response.status_code}"
+
+        for name, (origin, token_value) in EDITOR_ATTEMPTS.items():
+            got = asyncio.run(attempt(origin, token_value))
+            own = name == "own_page_with_token"
+            if own:
+                outcome = "accepted" if got == "open" else "unclear_error"
+            else:
+                outcome = "payload_run" if got == "open" else "clean_error" if got == "refused 403" else "unclear_error"
+            results.append({"reader": "editor_origin", "outcome": outcome, "rc": 0, "peak_mb": 0.0, "note": name,
+                            "last_line": got})
+    finally:
+        proc.terminate()
+        try:
+            _, status, rusage = os.wait4(proc.pid, 0)
+        except ChildProcessError:
+            rusage = None
+        peak = rusage.ru_maxrss / 1024 if rusage else 0.0
+        for r in results:
+            r["peak_mb"] = round(peak, 1)
+    if scene.read_bytes() != before:
+        results.append({"reader": "editor_origin", "outcome": "corrupted_output", "rc": 0, "peak_mb": 0.0,
+                        "note": "scene file changed", "last_line": ""})
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seconds", type=float, default=300.0, help="Campaign wall-clock budget (default 300).")
-    parser.add_argument("--timeout", type=float, default=60.0, help="Per-run timeout in seconds (hang).")
+    parser.add_argument("--seconds", type=float, default=240.0,
+                        help="Wall-clock budget of the random mutations (default 240), after the crafted cases.")
+    parser.add_argument("--timeout", type=float, default=120.0, help="Per-run timeout in seconds (hang).")
     parser.add_argument("--workers", type=int, default=2, help="Parallel CLI runs.")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS)
-    parser.add_argument("--readers", default="", help="Comma-separated subset of readers (default: all).")
+    parser.add_argument("--readers", default="", help="Comma-separated subset of random readers (default: all).")
+    parser.add_argument("--no-crafted", action="store_true", help="Skip the crafted cases and the editor.")
     args = parser.parse_args()
 
     work = Path(tempfile.mkdtemp(prefix="smplik-fuzz-"))
@@ -461,20 +819,35 @@ def main() -> None:
            "SMPLIK_CACHE_DIR": os.environ.get("SMPLIK_CACHE_DIR", str(work / "cache"))}
     env.pop("SMPLIK_MODEL_DIR", None)
     os.environ["SMPLIK_CACHE_DIR"] = env["SMPLIK_CACHE_DIR"]
+    start = time.monotonic()
+    results: list[dict[str, Any]] = []
+    lock = threading.Lock()
+
+    def record(res: dict[str, Any]) -> None:
+        with lock:
+            results.append(res)
+            print(f"[{time.monotonic() - start:6.0f}s] {res['reader']:<22} {res['outcome']:<13} "
+                  f"{res['note'][:40]:<40} {res['last_line'][:90]}", flush=True)
+
     try:
         valid = make_valid_inputs(work / "valid")
         makers = case_makers(valid, work)
+        if not args.no_crafted:
+            for res in editor_cases(valid, work, args.timeout, env):
+                record(res)
+            crafted = crafted_cases(valid, work)
+            with ThreadPoolExecutor(args.workers) as pool:
+                for res in pool.map(lambda c: run_case(c, args.timeout, env), crafted):
+                    record(res)
         if args.readers:
             makers = {k: v for k, v in makers.items() if k in args.readers.split(",")}
         rng = random.Random(args.seed)
-        start = time.monotonic()
-        lock = threading.Lock()
+        random_start = time.monotonic()
         counter = iter(range(10**9))
         order = sorted(makers)
-        results: list[dict[str, Any]] = []
 
         def worker(slot: int) -> None:
-            while time.monotonic() - start < args.seconds:
+            while time.monotonic() - random_start < args.seconds:
                 with lock:
                     n = next(counter)
                     reader = order[n % len(order)]
@@ -484,11 +857,7 @@ def main() -> None:
                 except Exception as exc:  # noqa: BLE001 - a mutation the generator itself cannot write
                     print(f"skipped a {reader} case: {type(exc).__name__}: {exc}", flush=True)
                     continue
-                res = run_case(case, args.timeout, env)
-                with lock:
-                    results.append(res)
-                    print(f"[{time.monotonic() - start:6.0f}s] {res['reader']:<22} {res['outcome']:<13} "
-                          f"{res['note'][:40]:<40} {res['last_line'][:90]}", flush=True)
+                record(run_case(case, args.timeout, env))
 
         with ThreadPoolExecutor(args.workers) as pool:
             list(pool.map(worker, range(args.workers)))
@@ -509,12 +878,13 @@ def main() -> None:
             if len(ex) < 5:
                 ex.append({"note": res["note"], "last_line": res["last_line"]})
     totals = {o: sum(s[o] for s in summary.values()) for o in ("runs", *OUTCOMES)}
+    peak = max((s["peak_mb"] for s in summary.values()), default=0.0)
     report = {"seconds": args.seconds, "timeout_s": args.timeout, "memory_cap_bytes": MEMORY_CAP, "seed": args.seed,
-              "totals": totals, "peak_mb": max((s["peak_mb"] for s in summary.values()), default=0.0),
-              "readers": summary}
+              "wall_s": round(time.monotonic() - start, 1), "totals": totals, "peak_mb": peak,
+              "peak_rss_within_2gb": peak <= 2048, "readers": summary}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")
-    print(json.dumps(totals))
+    print(json.dumps(totals), f"peak RSS {peak:.0f} MB")
     print(f"wrote {args.out}")
 
 

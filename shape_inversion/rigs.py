@@ -99,10 +99,9 @@ def load_preset(name: str) -> RigMap:
 def load_map_file(path: str | Path) -> RigMap:
     """Load a user map file (see the module docstring for the layout)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise RigError(f"Cannot read rig map file {path}: {exc}") from exc
+    from smplik.validation import read_json
+
+    data = read_json(path, RigError, what="rig map file")  # bounded read (smplik.limits.JSON_BYTES)
     return rig_from_dict(data, str(path))
 
 

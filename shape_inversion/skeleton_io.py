@@ -26,7 +26,6 @@ sign, along which the head is farthest from the ankles.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -163,10 +162,9 @@ def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_M
     where = "<object>"
     if not isinstance(source, Mapping):
         where = str(source)
-        try:
-            source = json.loads(Path(source).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-            raise SkeletonError(f"Cannot read joint JSON {where}: {type(exc).__name__}: {str(exc)[:120]}") from None
+        from smplik.validation import read_json
+
+        source = read_json(source, SkeletonError, what="joint JSON")  # bounded read (smplik.limits.JSON_BYTES)
     joints = source.get("joints") if isinstance(source, Mapping) else None
     if not isinstance(joints, Mapping) or not joints:
         raise SkeletonError(f"{where}: expected a 'joints' object of name -> [x, y, z].")

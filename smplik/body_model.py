@@ -38,7 +38,7 @@ from torch import Tensor
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, PARENTS, Gender
 from smplik.kinematics import forward_kinematics
 from smplik.rotations import axis_angle_to_matrix
-from smplik.safe_pickle import MAX_ARRAY_BYTES, ChumpyStub, RestrictedUnpickler, UnsafePickleError, read_npz
+from smplik.safe_pickle import ChumpyStub, RestrictedUnpickler, UnsafePickleError, read_npz, sparse_to_dense
 from smplik.validation import check_betas
 
 MODEL_DIR_ENV = "SMPLIK_MODEL_DIR"
@@ -64,14 +64,11 @@ def _to_array(value: Any, key: str, path: Path) -> np.ndarray:
             raise ModelFileError(f"{path}: key '{key}' is a chumpy object holding no plain array ('x'); re-save "
                                  "the model as .npz.")
         return arr
-    if hasattr(value, "toarray") and hasattr(value, "shape"):  # scipy.sparse: check the dense size first
-        shape = tuple(int(n) for n in value.shape)
-        if len(shape) != 2 or shape[0] * shape[1] * 8 > MAX_ARRAY_BYTES:
-            raise ModelFileError(f"{path}: key '{key}' is a sparse matrix of shape {shape}, too large to expand.")
+    if type(value).__module__.startswith("scipy.sparse"):  # index arrays checked before anything reads them
         try:
-            return np.asarray(value.toarray())
-        except (ValueError, TypeError, IndexError, AttributeError) as exc:
-            raise ModelFileError(f"{path}: key '{key}' is a malformed sparse matrix ({exc}).") from None
+            return sparse_to_dense(value, f"{path}: key '{key}'")
+        except ValueError as exc:
+            raise ModelFileError(str(exc)) from None
     try:
         arr = np.asarray(value)
     except (ValueError, TypeError) as exc:
@@ -159,7 +156,13 @@ def _validate_layout(a: dict[str, np.ndarray], path: Path | str) -> None:
     if np.abs(a["v_template"]).max() > 100.0:
         raise ModelFileError(f"{path}: key 'v_template' has coordinates up to {np.abs(a['v_template']).max():.3g} m; "
                              "an SMPL body fits in a few metres.")
+    for key, bound in (("shapedirs", 10.0), ("posedirs", 10.0), ("J_regressor", 10.0), ("weights", 10.0)):
+        if a[key].size and np.abs(a[key]).max() > bound:
+            raise ModelFileError(f"{path}: key '{key}' has values up to {np.abs(a[key]).max():.3g}; SMPL's stay within "
+                                 f"+-{bound:g}.")
     faces = a["f"]
+    if not np.isfinite(faces.astype(np.float64)).all():
+        raise ModelFileError(f"{path}: key 'f' contains NaN or inf.")
     if not np.issubdtype(faces.dtype, np.integer) and not np.array_equal(faces, np.round(faces)):
         raise ModelFileError(f"{path}: key 'f' holds non-integer vertex indices.")
     if faces.min() < 0 or faces.max() >= V:
@@ -172,6 +175,8 @@ def _validate_layout(a: dict[str, np.ndarray], path: Path | str) -> None:
     kintree = a["kintree_table"]
     if not np.isfinite(kintree.astype(np.float64)).all():
         raise ModelFileError(f"{path}: key 'kintree_table' contains NaN or inf.")
+    if tuple(int(j) for j in kintree[1]) != tuple(range(NUM_JOINTS)):
+        raise ModelFileError(f"{path}: key 'kintree_table' row 1 must list the joints 0..{NUM_JOINTS - 1} in order.")
     parents = kintree[0].astype(np.int64)
     parents = np.where((parents > NUM_JOINTS) | (parents < 0), -1, parents)
     if tuple(int(p) for p in parents) != PARENTS:

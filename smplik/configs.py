@@ -8,12 +8,23 @@ defaults without importing torch.
 
 from __future__ import annotations
 
-import json
+import numbers
 import typing
 from collections.abc import Mapping
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
+
+
+NETWORK_RANGES = {"width": (1, 8192), "encoder_blocks": (1, 32), "decoder_blocks": (1, 32),
+                  "layers_per_block": (1, 16), "embedding_dim": (1, 1024)}
+"""Accepted range of each size (the paper's model: width 1024, 3 blocks of 3 layers, embeddings 32); a model
+file's config is checked against them before any layer is allocated."""
+
+TRAIN_RANGES = {"steps": (0, 10**9), "batch_size": (1, 1 << 20), "lr": (0.0, 10.0), "lr_final_fraction": (0.0, 1.0),
+                "val_every": (1, 10**9), "ckpt_every": (1, 10**9), "val_size": (0, 10**7), "val_fraction": (0.0, 0.99),
+                "beta_noise": (0.0, 100.0), "part_swap": (0.0, 1.0), "distill_weight": (0.0, 1e6)}
+"""Accepted range of each number of a training config (a config file's or a checkpoint's)."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +47,16 @@ class NetworkConfig:
     """Extension: also feed both decoders the effectors scattered into per-joint slots (by joint id,
     duplicates averaged; permutation and translation invariant), so a narrow model can read exact
     effector values. False is the paper's architecture."""
+
+    def __post_init__(self) -> None:
+        for name, (low, high) in NETWORK_RANGES.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
+                raise ValueError(f"NetworkConfig.{name} must be an integer in [{low}, {high}], got {value!r:.40}.")
+        if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
+            raise ValueError(f"NetworkConfig.dropout must be a number in [0, 1), got {self.dropout!r:.40}.")
+        if not isinstance(self.effector_slots, bool):
+            raise ValueError(f"NetworkConfig.effector_slots must be true or false, got {self.effector_slots!r:.40}.")
 
     @classmethod
     def paper(cls) -> NetworkConfig:
@@ -140,6 +161,12 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
 
+    def __post_init__(self) -> None:
+        for name, (low, high) in TRAIN_RANGES.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+                raise ValueError(f"TrainConfig.{name} must be a number in [{low:g}, {high:g}], got {value!r:.40}.")
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -158,10 +185,9 @@ class TrainConfig:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"Config file not found: {path}")
-        try:
-            obj = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-            raise ValueError(f"{path}: not valid JSON ({type(exc).__name__}: {exc}).") from None
+        from smplik.validation import read_json
+
+        obj = read_json(path, ValueError, what="config file")  # bounded read (smplik.limits.JSON_BYTES)
         if not isinstance(obj, dict):
             raise ValueError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
         return cls.from_dict({**required, **obj}, str(path))
@@ -194,4 +220,7 @@ def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
     required = [f.name for f in fields(cls) if f.name not in kwargs and f.default is f.default_factory is MISSING]
     if required:
         raise ValueError(f"{source}: missing key '{prefix}{required[0]}'.")
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:  # a value out of its documented range (the config's __post_init__)
+        raise ValueError(f"{source}: {exc}") from None

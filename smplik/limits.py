@@ -1,8 +1,203 @@
-"""Size limits of the readers that the command line also shows as option defaults (no heavy imports:
-``--help`` reads them)."""
+"""Resource limits of inputs: one budget, checked before anything sized by a number in a file is allocated.
+
+A file can declare any size: an ``.npy`` header says shape ``(10**9, 3)``, a zip member says it
+inflates to 4 GiB, a ``.pt`` tensor is a stride-0 view that expands to 8 GB, a BVH says
+``Frames: 10000000``, a PNG header says 13000 x 13000, a pickle of a few KB shares references so
+that it expands to 2**28 objects. Every reader checks such numbers against the limits below *before*
+allocating, and raises :class:`LimitError` (a ``ValueError``: the CLI prints it as one ``error:``
+line, exit 1) naming the input, the amount, the limit and the environment variable that raises it.
+
+==========================  ================================  ============================================
+limit                       environment variable              default
+==========================  ================================  ============================================
+:data:`INPUT_BYTES`         ``SMPLIK_MAX_INPUT_BYTES``        2 GiB: all arrays of one input file together
+:data:`ARRAY_BYTES`         ``SMPLIK_MAX_ARRAY_BYTES``        1 GiB: one array (npz/npy member, tensor)
+:data:`ARRAY_ELEMENTS`      ``SMPLIK_MAX_ARRAY_ELEMENTS``     2*10**8 elements of one array
+:data:`JSON_BYTES`          ``SMPLIK_MAX_JSON_BYTES``         32 MiB: a JSON file (effectors, scene, joints)
+:data:`TEXT_BYTES`          ``SMPLIK_MAX_TEXT_BYTES``         128 MiB: another text file (BVH)
+:data:`IMAGE_PIXELS`        ``SMPLIK_MAX_IMAGE_PIXELS``       64 * 10**6 pixels (8000 x 8000)
+:data:`BVH_FRAMES`          ``SMPLIK_MAX_BVH_FRAMES``         10**6 frames (2.3 h at 120 fps)
+:data:`PICKLE_OBJECTS`      ``SMPLIK_MAX_PICKLE_OBJECTS``     10**7 objects, shared references counted
+                                                              as often as they are reachable (a DAG
+                                                              counts as the tree it expands to)
+==========================  ================================  ============================================
+
+Values are integers, optionally with a ``K``/``M``/``G`` suffix (powers of 1024): ``SMPLIK_MAX_INPUT_BYTES=8G``.
+The defaults keep any one input under 2 GB, which fits a 24 GB machine with room to spare.
+"""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ARRAY_BYTES", "ARRAY_ELEMENTS", "BVH_FRAMES", "IMAGE_PIXELS", "INPUT_BYTES", "JSON_BYTES", "PICKLE_OBJECTS",
+           "TEXT_BYTES", "Limit", "LimitError", "check_array", "check_npz", "check_tensors",
+           "read_bounded"]
+
+_SUFFIX = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+class LimitError(ValueError):
+    """An input declares more than a resource limit allows (the message names the limit's variable)."""
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One resource limit: ``default``, overridden by the environment variable ``env``."""
+
+    what: str
+    """What is counted, for messages ("bytes", "pixels", ...)."""
+    env: str
+    """Environment variable that overrides the default."""
+    default: int
+
+    @property
+    def value(self) -> int:
+        """The limit in force (the environment variable, read at each check, else the default)."""
+        raw = os.environ.get(self.env, "").strip()
+        if not raw:
+            return self.default
+        scale = _SUFFIX.get(raw[-1].upper(), 1)
+        digits = raw[:-1] if scale > 1 else raw
+        try:
+            value = int(float(digits) * scale)
+        except ValueError:
+            raise LimitError(f"{self.env}={raw!r} is not a number (e.g. {self.default} or 4G).") from None
+        if value < 0:
+            raise LimitError(f"{self.env}={raw!r} must be >= 0.")
+        return value
+
+    def check(self, amount: int, source: str) -> None:
+        """Raise :class:`LimitError` when ``amount`` (declared by ``source``) is over the limit."""
+        limit = self.value
+        if amount > limit:
+            raise LimitError(f"{source}: {amount} {self.what} is over the limit of {limit} {self.what} (set "
+                             f"{self.env} to raise it if the input is genuine).")
+
+
+INPUT_BYTES = Limit("bytes (all arrays of the input)", "SMPLIK_MAX_INPUT_BYTES", 2 << 30)
+ARRAY_BYTES = Limit("bytes (one array)", "SMPLIK_MAX_ARRAY_BYTES", 1 << 30)
+ARRAY_ELEMENTS = Limit("elements (one array)", "SMPLIK_MAX_ARRAY_ELEMENTS", 200_000_000)
+JSON_BYTES = Limit("bytes (JSON file)", "SMPLIK_MAX_JSON_BYTES", 32 << 20)
+TEXT_BYTES = Limit("bytes (text file)", "SMPLIK_MAX_TEXT_BYTES", 128 << 20)
+IMAGE_PIXELS = Limit("pixels", "SMPLIK_MAX_IMAGE_PIXELS", 64_000_000)
+BVH_FRAMES = Limit("frames", "SMPLIK_MAX_BVH_FRAMES", 1_000_000)
+PICKLE_OBJECTS = Limit("objects (shared references counted each time)", "SMPLIK_MAX_PICKLE_OBJECTS", 10_000_000)
+
+
+def check_array(shape: Iterable[Any], itemsize: int, source: str) -> int:
+    """Check a declared array (``shape`` of non-negative ints, ``itemsize`` bytes per element) against
+    :data:`ARRAY_ELEMENTS` and :data:`ARRAY_BYTES` before it is allocated; returns its size in bytes."""
+    count = 1
+    dims = tuple(shape)
+    for n in dims:
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise LimitError(f"{source}: an array of shape {dims!r:.80} (sizes must be non-negative integers).")
+        count *= n
+    ARRAY_ELEMENTS.check(count, f"{source} (shape {dims})")
+    size = count * max(int(itemsize), 1)
+    ARRAY_BYTES.check(size, f"{source} (shape {dims})")
+    return size
+
+
+def read_bounded(path: str | Path, limit: Limit = TEXT_BYTES) -> bytes:
+    """The bytes of ``path``, reading at most ``limit`` + 1 of them (so ``/dev/zero``, a FIFO fed forever or
+    a file that grows while read cannot exhaust memory); :class:`LimitError` when there are more.
+
+    Raises:
+        OSError: the file cannot be opened or read (the caller names it).
+    """
+    cap = limit.value
+    with open(path, "rb") as fh:
+        data = fh.read(cap + 1)
+    if len(data) > cap:
+        raise LimitError(f"{path}: more than {cap} {limit.what} (set {limit.env} to raise the limit if the file is "
+                         "genuine).")
+    return data
+
+
+def check_npz(path: str | Path) -> dict[str, tuple[tuple[int, ...], Any]]:
+    """Check an ``.npz`` before anything in it is decompressed beyond its ``.npy`` headers: the zip
+    directory's uncompressed sizes together within :data:`INPUT_BYTES`, and each member's declared shape
+    and dtype within :func:`check_array` and consistent with the member's size (a header that declares
+    more than its member holds, or a compressed member that inflates beyond its declared size, is refused).
+
+    Returns:
+        member name (without ``.npy``) -> (shape, dtype) as declared.
+
+    Raises:
+        LimitError: over a limit. ValueError: not a readable ``.npz`` (the message names the file).
+    """
+    import zipfile
+    import zlib
+
+    import numpy as np
+
+    path = Path(path)
+    out: dict[str, tuple[tuple[int, ...], Any]] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = [i for i in zf.infolist() if i.filename.endswith(".npy")]
+            INPUT_BYTES.check(sum(i.file_size for i in infos), f"{path} (uncompressed members)")
+            for info in infos:
+                name = info.filename[:-4]
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(fh, max_header_size=10000)
+                    header_bytes = fh.tell()
+                if dtype.hasobject:
+                    out[name] = (tuple(shape), dtype)
+                    continue
+                size = check_array(tuple(shape), dtype.itemsize, f"{path}: array '{name}'")
+                if size != info.file_size - header_bytes:
+                    raise ValueError(f"{path}: array '{name}' declares shape {tuple(shape)} ({size} bytes) but its "
+                                     f"member holds {info.file_size - header_bytes} bytes of data.")
+                out[name] = (tuple(shape), dtype)
+    except LimitError:
+        raise
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable .npz ({' '.join(str(exc).split())[:200]}).") from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, KeyError, TypeError, IndexError,
+            OverflowError, MemoryError, SyntaxError, UnicodeDecodeError, NotImplementedError, zlib.error) as exc:
+        raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:200]}).") from None
+    return out
+
+
+def check_tensors(obj: Any, source: str, *, max_depth: int = 50) -> None:
+    """Check every tensor in a loaded ``.pt`` structure (dicts, lists, tuples) before it is used: each
+    tensor's *logical* size (shape x element size, what ``.numpy()``, ``.contiguous()`` or arithmetic
+    allocate; a stride-0 view of one stored number counts as its full shape) within :func:`check_array`,
+    and all of them together within :data:`INPUT_BYTES`.
+
+    Raises:
+        LimitError: naming ``source``, the key path and the limit's environment variable.
+    """
+    total = 0
+    stack: list[tuple[Any, str, int]] = [(obj, "", 0)]
+    while stack:
+        node, where, depth = stack.pop()
+        if depth > max_depth:
+            raise LimitError(f"{source}: nested deeper than {max_depth} levels.")
+        if hasattr(node, "untyped_storage") and hasattr(node, "element_size"):  # a torch.Tensor
+            total += check_array(tuple(int(n) for n in node.shape), int(node.element_size()),
+                                 f"{source}: tensor {where or '(root)'}")
+        elif isinstance(node, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in node.items())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(node))
+    INPUT_BYTES.check(total, f"{source} (all tensors)")
+
+
 DEFAULT_MAX_JOINTS = 10_000
 """Joint cap of the skeleton readers (:func:`smplik.data.bvh.read_bvh`, glTF and joints JSON; real rigs
-have < 500; raise it with ``max_joints`` / ``--max-joints``)."""
+have < 500; raise it with ``max_joints`` / ``--max-joints``). The command line shows it as an option
+default, so this module imports nothing heavy."""

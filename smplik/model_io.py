@@ -44,6 +44,7 @@ import numpy as np
 import torch
 
 from smplik.atomic import atomic_path
+from smplik.limits import check_tensors
 from smplik.network import NetworkConfig, ProtoResIK
 
 __all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "average_models", "export_model",
@@ -151,7 +152,7 @@ def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[s
 def _network_config(state: Mapping[str, Any], path: Path) -> NetworkConfig:
     try:
         return NetworkConfig(**state["network"])
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: key 'network' is not a network config ({exc}).") from None
 
 
@@ -236,7 +237,7 @@ def _safe_load(path: Path, *, legacy: bool) -> Any:
     try:
         with warnings.catch_warnings(), torch.serialization.safe_globals(extra):
             warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
-            return torch.load(path, map_location="cpu", weights_only=True)
+            state = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         found = _UNSAFE_GLOBAL.search(str(exc))
         named = f" (it names {found.group(1)})" if found else ""
@@ -250,6 +251,8 @@ def _safe_load(path: Path, *, legacy: bool) -> Any:
     except Exception as exc:  # torch raises RuntimeError, EOFError, ... for corrupt files
         raise CheckpointError(f"{path}: not a readable smplik model ({type(exc).__name__}: "
                               f"{_first_line(exc)}).") from None
+    check_tensors(state, str(path))  # a stride-0 view expands to its full shape in any use
+    return state
 
 
 def _read_legacy(path: Path) -> dict[str, Any]:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from smplik.configs import NetworkConfig
+from smplik.configs import NETWORK_RANGES, NetworkConfig  # noqa: F401 - re-exported
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, EffectorType
 from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics

@@ -36,6 +36,7 @@ sparsity), which :func:`refine_output` runs by default where it can.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields
@@ -52,6 +53,12 @@ from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
 from smplik.rotations import axis_angle_to_matrix, rot6d_to_matrix, skew_matrix
+
+MAX_REFINE_ITERATIONS = 100
+"""Most Levenberg-Marquardt steps a config (a model file's included) may ask for; 3 is the default."""
+REFINE_RANGES = {"sigma_pos": (0.0, 100.0), "sigma_rot": (0.0, 100.0), "sigma_lookat": (0.0, 100.0),
+                 "sigma_prior": (0.0, 100.0), "damping": (0.0, 1e9), "tolerance_eta": (0.0, 100.0)}
+"""Accepted range of each float setting (sigmas > 0): a model file's saved config is checked against them."""
 
 
 @dataclass(frozen=True)
@@ -80,17 +87,23 @@ class RefineConfig:
     calibrated values (``smplik benchmark calibrate``) are its solver's default."""
 
     def __post_init__(self) -> None:
-        if self.iterations < 0:
-            raise ValueError(f"RefineConfig.iterations must be >= 0, got {self.iterations}.")
-        for name in ("sigma_pos", "sigma_rot", "sigma_lookat", "sigma_prior"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"RefineConfig.{name} must be > 0, got {getattr(self, name)}.")
-        if self.damping < 0:
-            raise ValueError(f"RefineConfig.damping must be >= 0, got {self.damping}.")
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, numbers.Integral) \
+                or not 0 <= self.iterations <= MAX_REFINE_ITERATIONS:
+            raise ValueError(f"RefineConfig.iterations must be an integer in [0, {MAX_REFINE_ITERATIONS}], got "
+                             f"{self.iterations!r:.40}.")
+        for name, (low, high) in REFINE_RANGES.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high \
+                    or (name != "damping" and not value > 0):
+                raise ValueError(f"RefineConfig.{name} must be a number in {'[' if name == 'damping' else '('}{low:g}, "
+                                 f"{high:g}], got {value!r:.40}.")
+        if self.joint_prior is not None and (not isinstance(self.joint_prior, (list, tuple))
+                                             or len(self.joint_prior) > 1024):
+            raise ValueError("RefineConfig.joint_prior must be a list of at most 1024 numbers.")
         if self.joint_prior is not None:
             values = tuple(self.joint_prior)
             if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                                     and v > 0 for v in values):
+                                     and 0 < v <= 1e6 for v in values):
                 raise ValueError("RefineConfig.joint_prior must be a list of finite numbers > 0 (one per joint), "
                                  f"got {str(self.joint_prior)[:80]}.")
             object.__setattr__(self, "joint_prior", tuple(float(v) for v in values))

@@ -43,14 +43,131 @@ import numpy as np
 
 TRUST_HINT = ("Only if you trust the file's source, pass --trust-pickle (trust_pickle=True) to load it with "
               "plain joblib/pickle, which can run arbitrary code.")
-MAX_ARRAY_BYTES = 1 << 30
-"""Largest array (bytes) a pickle or ``.npz`` may declare: 1 GiB."""
-MAX_NPZ_BYTES = 2 << 30
-"""Largest total uncompressed size of an ``.npz`` (bytes, from its zip directory): 2 GiB."""
 
 
 class UnsafePickleError(pickle.UnpicklingError, ValueError):
     """The pickle asks for a global or a call outside the allowed set (the message names it)."""
+
+
+MAX_DEPTH = 200
+"""Deepest nesting of containers a pickle may hold (real files nest a few levels)."""
+
+
+def check_object_graph(obj: Any, source: str = "pickle") -> None:
+    """Refuse an unpickled object whose containers expand to more than :data:`smplik.limits.PICKLE_OBJECTS`
+    objects, counting a shared reference each time it is reachable (a DAG of shared lists, a few KB on disk,
+    counts as the tree that ``repr``, ``np.asarray`` or a JSON dump would walk), nest deeper than
+    :data:`MAX_DEPTH`, or hold a reference cycle. Runs in time linear in the distinct objects (sizes are
+    memoised), never expanding anything.
+
+    Raises:
+        UnsafePickleError: naming ``source`` and the limit (and its environment variable).
+    """
+    from smplik.limits import PICKLE_OBJECTS
+
+    limit = PICKLE_OBJECTS.value
+    size: dict[int, int] = {}
+    keep: list[Any] = []  # ids stay valid while the objects are referenced
+    stack: list[tuple[Any, bool, int]] = [(obj, False, 0)]
+    on_path: set[int] = set()
+    while stack:
+        node, done, depth = stack.pop()
+        key = id(node)
+        children = _children(node)
+        if children is None:
+            continue
+        if done:
+            on_path.discard(key)
+            total = 1 + sum(size.get(id(c), 1) for c in children)
+            size[key] = total
+            if total > limit:
+                raise UnsafePickleError(f"{source}: its objects expand to more than {limit} (shared references "
+                                        f"counted each time; set {PICKLE_OBJECTS.env} to raise the limit if the file "
+                                        "is genuine).")
+            continue
+        if key in size:
+            continue
+        if key in on_path:
+            raise UnsafePickleError(f"{source}: its objects form a reference cycle.")
+        if depth > MAX_DEPTH:
+            raise UnsafePickleError(f"{source}: containers nested deeper than {MAX_DEPTH} levels.")
+        on_path.add(key)
+        keep.append(node)
+        stack.append((node, True, depth))
+        stack.extend((c, False, depth + 1) for c in children if id(c) not in size)
+
+
+def _children(node: Any) -> list[Any] | None:
+    """The objects a container refers to (None for a leaf: numbers, strings, numeric arrays)."""
+    if isinstance(node, dict):
+        return [*node.keys(), *node.values()]
+    if isinstance(node, (list, tuple, set, frozenset)):
+        return list(node)
+    if isinstance(node, np.ndarray):
+        return list(node.ravel()) if node.dtype.hasobject else None
+    if isinstance(node, ChumpyStub) or (hasattr(node, "__dict__") and not isinstance(node, type)):
+        return list(vars(node).values())
+    return None
+
+
+def sparse_to_dense(matrix: Any, source: str) -> np.ndarray:
+    """A ``scipy.sparse`` csr/csc/coo matrix read from a pickle, as a dense float64 array.
+
+    A pickle sets the matrix's index arrays directly (scipy checks nothing), and scipy's C code reads
+    memory at whatever index they hold: an index of 1e9 or -5 crashes the process or corrupts memory.
+    So every array is checked here first (1-D integers, ``indptr`` starting at 0, non-decreasing, ending
+    at ``nnz``; every index within the shape; finite data) and the dense matrix is built with numpy,
+    its size checked by :func:`smplik.limits.check_array`.
+
+    Raises:
+        ValueError: naming ``source`` and the array at fault.
+    """
+    from smplik.limits import check_array
+
+    kind = type(matrix).__name__[:3]
+    state = vars(matrix)
+    shape = state.get("_shape", state.get("shape"))
+    if not (isinstance(shape, tuple) and len(shape) == 2 and all(type(n) is int and n >= 0 for n in shape)):
+        raise ValueError(f"{source}: a sparse matrix with shape {shape!r:.60}.")
+    check_array(shape, 8, source)
+    rows, cols = shape
+
+    def array(name: str, integer: bool) -> np.ndarray:
+        value = state.get(name)
+        kinds, noun = ("iu", "integers") if integer else ("iufb", "numbers")
+        if not isinstance(value, np.ndarray) or value.ndim != 1 or value.dtype.kind not in kinds:
+            raise ValueError(f"{source}: sparse '{name}' must be a 1-D array of {noun}.")
+        return value
+
+    data = array("data", False).astype(np.float64)
+    if not np.isfinite(data).all():
+        raise ValueError(f"{source}: sparse 'data' contains NaN or inf.")
+    if kind in ("csr", "csc"):
+        indices, indptr = array("indices", True).astype(np.int64), array("indptr", True).astype(np.int64)
+        major, minor = (rows, cols) if kind == "csr" else (cols, rows)
+        if len(indptr) != major + 1 or indptr[0] != 0 or (np.diff(indptr) < 0).any():
+            raise ValueError(f"{source}: sparse 'indptr' is not {major + 1} non-decreasing offsets from 0.")
+        if indptr[-1] != len(indices) or len(indices) != len(data):
+            raise ValueError(f"{source}: sparse 'indptr' ends at {indptr[-1]} but there are {len(indices)} indices "
+                             f"and {len(data)} values.")
+        if len(indices) and (indices.min() < 0 or indices.max() >= minor):
+            raise ValueError(f"{source}: sparse 'indices' outside [0, {minor - 1}].")
+        major_index = np.repeat(np.arange(major), np.diff(indptr))
+        r, c = (major_index, indices) if kind == "csr" else (indices, major_index)
+    elif kind == "coo":
+        coords = state.get("coords")
+        if isinstance(coords, tuple) and len(coords) == 2:
+            state = {**state, "row": coords[0], "col": coords[1]}
+        r, c = (array(n, True).astype(np.int64) for n in ("row", "col")) if "row" in state else (None, None)
+        if r is None or len(r) != len(data) or len(c) != len(data):
+            raise ValueError(f"{source}: sparse 'row'/'col' do not match its {len(data)} values.")
+        if len(data) and (r.min() < 0 or r.max() >= rows or c.min() < 0 or c.max() >= cols):
+            raise ValueError(f"{source}: sparse row/column indices outside its shape {shape}.")
+    else:
+        raise ValueError(f"{source}: unsupported sparse matrix type {type(matrix).__name__}.")
+    dense = np.zeros(shape, np.float64)
+    np.add.at(dense, (r, c), data)
+    return dense
 
 
 class ChumpyStub:
@@ -153,6 +270,16 @@ def _declared_bytes(shape: Any, itemsize: int) -> int:
     return count * max(int(itemsize), 1)
 
 
+def _check_declared(shape: tuple, itemsize: int) -> None:
+    """A declared array within :func:`smplik.limits.check_array`'s limits, as an :class:`UnsafePickleError`."""
+    from smplik.limits import LimitError, check_array
+
+    try:
+        check_array(shape, itemsize, "an array in a pickle")
+    except LimitError as exc:
+        raise UnsafePickleError(f"Refusing {exc}") from None
+
+
 def _check_call(func: Any, args: Any, kwargs: Any = None) -> None:
     """Refuse a call from the pickle stream that could allocate from a number (see the module docstring)."""
     if kwargs:
@@ -196,9 +323,7 @@ def _check_array_state(inst: np.ndarray, state: Any) -> None:
     if not isinstance(dtype, np.dtype):
         raise UnsafePickleError("Refusing an array state without a dtype in a pickle.")
     size = _declared_bytes(shape, dtype.itemsize)
-    if size > MAX_ARRAY_BYTES:
-        raise UnsafePickleError(f"Refusing an array of shape {shape} ({size} bytes) in a pickle; the limit is "
-                                f"{MAX_ARRAY_BYTES} bytes.")
+    _check_declared(shape, dtype.itemsize)
     count = size // max(dtype.itemsize, 1)
     if dtype.hasobject:
         if not isinstance(data, list) or len(data) != count:
@@ -251,6 +376,12 @@ class RestrictedUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc
         _check_call(klass, tuple(args))
         super()._instantiate(klass, args)
 
+    def load(self) -> Any:
+        """The unpickled object, refused by :func:`check_object_graph` when it expands too far."""
+        obj = super().load()
+        check_object_graph(obj)
+        return obj
+
 
 def loads_restricted(data: bytes, *, encoding: str = "ASCII") -> Any:
     """Unpickle ``data`` with :class:`RestrictedUnpickler` (``encoding="latin1"`` for Python 2 pickles)."""
@@ -288,10 +419,8 @@ def _joblib_unpickler_class() -> type:
                                         f"arrays are allowed. {TRUST_HINT}")
             if not isinstance(wrapper.dtype, np.dtype):
                 raise UnsafePickleError("Refusing a joblib array without a dtype.")
-            size = _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
-            if size > MAX_ARRAY_BYTES:
-                raise UnsafePickleError(f"Refusing a joblib array of shape {wrapper.shape} ({size} bytes); the limit "
-                                        f"is {MAX_ARRAY_BYTES} bytes.")
+            _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
+            _check_declared(tuple(wrapper.shape), wrapper.dtype.itemsize)
             if wrapper.dtype.hasobject:  # a nested pickle stream: read it with the same restrictions
                 self.stack.append(RestrictedUnpickler(self.file_handle).load())
             else:
@@ -337,60 +466,59 @@ def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
         raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc}).") from exc
     try:
         try:
-            return _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
+            obj = _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
         except UnicodeDecodeError:  # Python 2 pickles of numpy arrays need latin1
-            return RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+            obj = RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+        check_object_graph(obj)
+        return obj
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None
     except _READ_ERRORS as exc:
         raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {str(exc)[:200]}).") from None
 
 
-def read_npz(path: str | Path, *, allow_objects: bool = True, max_bytes: int = MAX_NPZ_BYTES) -> dict[str, Any]:
+def read_npz(path: str | Path, *, allow_objects: bool = True) -> dict[str, Any]:
     """Read every array of an ``.npz`` with bounded memory.
 
-    Before anything is decompressed, the zip directory's uncompressed sizes are checked against
-    ``max_bytes`` (a zip bomb is refused), and each member's ``.npy`` header against its own size and
-    :data:`MAX_ARRAY_BYTES`. Object arrays (e.g. ROMP's ``results`` dict, saved with
-    ``np.savez(results=dict)``) are unpickled by :class:`RestrictedUnpickler`, never by plain pickle,
-    and refused with ``allow_objects=False``; 0-d object arrays are unwrapped to the object they hold.
+    Before anything is decompressed, :func:`smplik.limits.check_npz` checks the zip directory's
+    uncompressed sizes and each member's ``.npy`` header against the input budget (a zip bomb, a header
+    declaring (10**9, 3), a member holding less than its header declares: refused). Object arrays (e.g.
+    ROMP's ``results`` dict, saved with ``np.savez(results=dict)``) are unpickled by
+    :class:`RestrictedUnpickler`, never by plain pickle, and refused with ``allow_objects=False``; 0-d
+    object arrays are unwrapped to the object they hold.
 
     Raises:
         UnsafePickleError: a refused global in an object array.
-        ValueError: missing, corrupt or oversized file (named).
+        ValueError: missing, corrupt or oversized file (named; :class:`smplik.limits.LimitError` names the
+            limit's environment variable).
     """
+    import zlib
+
+    from smplik.limits import check_npz
+
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"File not found: {path}")
+    declared = check_npz(path)
     out: dict[str, Any] = {}
     try:
         with zipfile.ZipFile(path) as zf:
-            infos = [i for i in zf.infolist() if i.filename.endswith(".npy")]
-            total = sum(i.file_size for i in infos)
-            if total > max_bytes:
-                raise ValueError(f"{path}: its arrays hold {total} bytes uncompressed; the limit is {max_bytes}.")
-            for info in infos:
-                with zf.open(info) as fh:
-                    version = np.lib.format.read_magic(fh)
-                    header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                              else np.lib.format.read_array_header_2_0)
-                    shape, _, dtype = header(fh, max_header_size=10000)
-                    name = info.filename[:-4]
+            for name, (_, dtype) in declared.items():
+                with zf.open(name + ".npy") as fh:
                     if dtype.hasobject:
                         if not allow_objects:
                             raise ValueError(f"{path}: array '{name}' holds Python objects (a pickle); "
                                              "only plain numeric arrays are allowed here.")
+                        version = np.lib.format.read_magic(fh)
+                        header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                  else np.lib.format.read_array_header_2_0)
+                        header(fh, max_header_size=10000)
                         value = RestrictedUnpickler(io.BytesIO(fh.read()), encoding="latin1").load()
                         if isinstance(value, np.ndarray) and value.shape == () and value.dtype.hasobject:
                             value = value.item()
                         out[name] = value
                         continue
-                    size = _declared_bytes(tuple(shape), dtype.itemsize)
-                    if size > min(info.file_size, MAX_ARRAY_BYTES):
-                        raise ValueError(f"{path}: array '{name}' declares shape {shape} ({size} bytes) but its "
-                                         f"member holds {info.file_size} bytes.")
-                with zf.open(info) as fh:
-                    out[name] = np.lib.format.read_array(io.BytesIO(fh.read()), allow_pickle=False)
+                    out[name] = np.lib.format.read_array(fh, allow_pickle=False)
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None
     except ValueError as exc:
@@ -399,7 +527,6 @@ def read_npz(path: str | Path, *, allow_objects: bool = True, max_bytes: int = M
         raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, pickle.UnpicklingError, EOFError, KeyError,
             TypeError, IndexError, AttributeError, OverflowError, MemoryError, RecursionError, SyntaxError,
-            UnicodeDecodeError, NotImplementedError) as exc:
+            UnicodeDecodeError, NotImplementedError, zlib.error) as exc:
         raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
     return out
-

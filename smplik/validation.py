@@ -25,7 +25,6 @@ MAX_ABS_BETA = 20.0
 """Largest accepted |beta_i|."""
 MIN_SCALE, MAX_SCALE = 1e-3, 1e3
 """Accepted range of a character's scale factor."""
-MAX_JSON_BYTES = 256 * 1024 * 1024
 """Largest JSON input file read (bytes)."""
 
 
@@ -111,12 +110,15 @@ def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: st
               loads: Callable[[str], Any] = json.loads) -> Any:
     """Read a JSON file with one-line errors (``error``) naming the file: missing, unreadable, too big,
     not UTF-8, invalid JSON or nested too deeply."""
+    from smplik.limits import JSON_BYTES, LimitError, read_bounded
+
     path = Path(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_JSON_BYTES:
-            raise error(f"{path}: {what} is {size} bytes; the limit is {MAX_JSON_BYTES}.")
-        text = path.read_text(encoding="utf-8")
+        if path.is_dir():
+            raise IsADirectoryError(path)
+        text = read_bounded(path, JSON_BYTES).decode("utf-8")
+    except LimitError as exc:
+        raise error(f"{what[0].upper()}{what[1:]} {exc}") from None
     except FileNotFoundError:
         raise error(f"{what[0].upper()}{what[1:]} not found: {path}") from None
     except IsADirectoryError:

@@ -284,3 +284,69 @@ def test_optimization_runs_after_inference_mode_fk(bench, bodies):
     prior = PosePrior(torch.tensor([1.0, 0, 0, 0, 1.0, 0]).repeat(24, 1), torch.full((24, 6), 0.3))
     pred = OptimizationIK(bodies, prior, iterations=2)(bench.sets[0].head(2))
     assert pred.R_local.shape == (2, 24, 3, 3)
+
+
+MANIFEST_MUTATIONS = [  # (what the external campaign found: KeyError 'sha256'/'name', PosixPath / bool, ...)
+    ("sha256 missing", lambda m: m["sets"][0].pop("sha256")),
+    ("name missing", lambda m: m["sets"][0].pop("name")),
+    ("file a bool", lambda m: m["sets"][0].__setitem__("file", True)),
+    ("file a list (unhashable)", lambda m: m["sets"][0].__setitem__("file", [1])),
+    ("file outside the folder", lambda m: m["sets"][0].__setitem__("file", "../x.npz")),
+    ("sets a number (not subscriptable)", lambda m: m.__setitem__("sets", 3)),
+    ("a set a string", lambda m: m["sets"].__setitem__(0, "x")),
+    ("source missing", lambda m: m.pop("source")),
+    ("source data a number", lambda m: m["source"].__setitem__("data", 1)),
+    ("seed a float", lambda m: m.__setitem__("seed", 1.5)),
+    ("manifest a list", lambda m: m.clear() or m.__setitem__("format", ["smplik-benchmark"])),
+]
+ARRAY_MUTATIONS = [
+    ("eff_joint", lambda a: a + 99), ("eff_joint", lambda a: a.astype(np.float32)), ("eff_type", lambda a: -a - 1),
+    ("joints", lambda a: a[:, :5]), ("R_local", lambda a: a * np.nan), ("frame", lambda a: a[:-1]),
+    ("betas", lambda a: np.zeros((len(a), 3))), ("gender", lambda a: a + 5),
+]
+
+
+@pytest.mark.parametrize("what,mutate", MANIFEST_MUTATIONS, ids=[m[0] for m in MANIFEST_MUTATIONS])
+def test_a_malformed_manifest_is_one_clean_error(tmp_path, files, what, mutate):
+    import shutil
+
+    out = tmp_path / "f"
+    shutil.copytree(files, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    mutate(manifest)
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError) as info:
+        load_benchmark(out)
+    assert "manifest.json" in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("key,mutate", ARRAY_MUTATIONS, ids=[f"{k}{i}" for i, (k, _) in enumerate(ARRAY_MUTATIONS)])
+def test_a_malformed_set_file_is_one_clean_error(tmp_path, files, key, mutate):
+    import shutil
+
+    out = tmp_path / "f"
+    shutil.copytree(files, out)
+    with np.load(out / "fixed_5pt.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays[key] = mutate(arrays[key])
+    np.savez(out / "fixed_5pt.npz", **arrays)
+    with pytest.raises(ValueError, match=f"fixed_5pt.npz: array '{key}'"):
+        load_benchmark(out, verify=False)
+
+
+def test_cli_run_on_a_mutated_manifest_prints_one_error_line(tmp_path, files):
+    import shutil
+    import subprocess
+    import sys
+
+    out = tmp_path / "f"
+    shutil.copytree(files, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["sets"][0]["file"] = False
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    proc = subprocess.run([sys.executable, "-m", "smplik.cli", "benchmark", "run", "--files", str(out), "--methods",
+                           "rest", "--out", str(tmp_path / "r.json")], capture_output=True, text=True, timeout=300,
+                          env={**__import__("os").environ, "COLUMNS": "60"})
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and "sets[0].file" in lines[0], proc.stderr

@@ -109,7 +109,7 @@ def test_split_file_errors(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match=match):
             load_split(path)
     path.write_text("{not json")
-    with pytest.raises(ValueError, match="not valid JSON"):
+    with pytest.raises(ValueError, match="invalid JSON"):
         load_split(path)
     with pytest.raises(FileNotFoundError):
         load_split(tmp_path / "missing.json")

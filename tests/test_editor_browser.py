@@ -165,7 +165,7 @@ def test_edit_command_serves_the_page_and_prints_the_url(tmp_path):
         while url is None and time.monotonic() < deadline and proc.poll() is None:
             line = proc.stdout.readline()
             lines.append(line)
-            m = re.search(r"smplik editor: (http://127\.0\.0\.1:\d+)", line)
+            m = re.search(r"smplik editor: (http://127\.0\.0\.1:\d+/\?token=[\w-]+)", line)
             url = m.group(1) if m else None
         assert url, "".join(lines)
         assert "new.json does not exist" in "".join(lines).replace("\n", "")
@@ -184,7 +184,7 @@ def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkey
     import workflows.editor.cli as cli
 
     class FakeApp:  # no server: the command's own logic only
-        def __init__(self, state, *, host, port):
+        def __init__(self, state, *, host, port, write_dirs=()):
             self.port, self.url, self.stopped = port, f"http://127.0.0.1:{port}", False
 
         def stop(self):

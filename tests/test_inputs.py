@@ -230,7 +230,7 @@ def test_malformed_smpl_arrays_are_refused_by_key(tmp_path, edit, message):
         read_model_arrays(path)
 
 
-def test_corrupt_npz_and_declared_sizes_are_checked_before_reading(tmp_path):
+def test_corrupt_npz_and_declared_sizes_are_checked_before_reading(tmp_path, monkeypatch):
     path = tmp_path / "SMPL_NEUTRAL.npz"
     path.write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(ModelFileError, match="cannot read SMPL model: not a readable .npz"):
@@ -240,13 +240,19 @@ def test_corrupt_npz_and_declared_sizes_are_checked_before_reading(tmp_path):
     np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": (10**9,)})
     with zipfile.ZipFile(path, "w") as zf:
         zf.writestr("v_template.npy", buf.getvalue() + b"\0" * 64)
-    with pytest.raises(ValueError, match=r"declares shape \(1000000000,\)"):
+    with pytest.raises(ValueError, match=r"shape \(1000000000,\)\): 1000000000 elements .* SMPLIK_MAX_ARRAY_ELEMENTS"):
+        read_npz(path)
+    monkeypatch.setenv("SMPLIK_MAX_ARRAY_ELEMENTS", "2000000000")
+    monkeypatch.setenv("SMPLIK_MAX_ARRAY_BYTES", "16G")
+    with pytest.raises(ValueError, match=r"declares shape \(1000000000,\)"):  # within the limits: still a liar
         read_npz(path)
     # a zip bomb: small on disk, large uncompressed (the zip directory says so)
     write_npz_deterministic(path, {"big": np.zeros(4_000_000)})
     assert path.stat().st_size < 200_000
-    with pytest.raises(ValueError, match="32000128 bytes uncompressed; the limit is 1000000"):
-        read_npz(path, max_bytes=1_000_000)
+    monkeypatch.setenv("SMPLIK_MAX_INPUT_BYTES", "1000000")
+    with pytest.raises(ValueError, match=r"32000128 bytes \(all arrays of the input\) is over the limit of 1000000 .*"
+                                         "SMPLIK_MAX_INPUT_BYTES"):
+        read_npz(path)
 
 
 # ----------------------------------------------------------------------------- 11.5 restricted unpickler

@@ -106,7 +106,7 @@ def test_preset_validation_and_errors(tmp_path):
         load_preset("nope")
     bad = tmp_path / "rig.json"
     bad.write_text("{not json")
-    with pytest.raises(RetargetError, match="rig.json: cannot read JSON"):
+    with pytest.raises(RetargetError, match="rig.json: invalid JSON"):
         load_preset(bad)
     model = load_body_model("neutral")
     betas, R_local, transl = random_smpl_motion(T=2)

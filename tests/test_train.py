@@ -444,7 +444,7 @@ def test_bad_config_files_are_one_line_errors(tmp_path):
     from smplik.cli.main import app
 
     for text, message in [('{"width": 256}', "unknown key 'width'"), ('{"network": {"widht": 1}}', "network.widht"),
-                          ('{"steps": "777"}', "key 'steps' must be int"), ("{nope", "not valid JSON")]:
+                          ('{"steps": "777"}', "key 'steps' must be int"), ("{nope", "invalid JSON")]:
         path = tmp_path / "cfg.json"
         path.write_text(text)
         res = CliRunner().invoke(app, ["train", "--config", str(path), "--data", "c.npz", "--out", "r"])

@@ -11,6 +11,7 @@ Headless machines need ``PYOPENGL_PLATFORM=egl`` (or ``osmesa``) set before the 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -241,9 +242,18 @@ def plot_recovery_errors(errors_m: Sequence[float], path: str | Path, *, title: 
 
 
 def load_image(path: str | Path) -> np.ndarray:
-    """An image file as RGB uint8 (H, W, 3)."""
+    """An image file as RGB uint8 (H, W, 3); its pixel count (from the header, before decoding) within
+    :data:`smplik.limits.IMAGE_PIXELS`."""
     import matplotlib.image
+    from PIL import Image
 
+    from smplik.limits import IMAGE_PIXELS
+
+    with warnings.catch_warnings():  # PIL warns over 89 Mpx (several stderr lines); the limit below decides
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        with Image.open(path) as header:  # reads the header only
+            width, height = header.size
+    IMAGE_PIXELS.check(width * height, f"{path} ({width} x {height} image)")
     img = matplotlib.image.imread(str(path))
     if img.dtype != np.uint8:
         img = (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)

@@ -66,7 +66,8 @@ def set_names() -> list[str]:
 
 
 def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 # ----------------------------------------------------------------------------- making the files
@@ -228,35 +229,113 @@ class Benchmark:
     folder: str
 
 
+class BenchmarkFileError(ValueError):
+    """A benchmark folder's manifest or one of its files is malformed (the message names file and key)."""
+
+
+_SET_ARRAYS = {  # key: (shape after S, integer?, value range or None)
+    "eff_joint": (("N",), True, (0, 23)), "eff_type": (("N",), True, (0, len(EffectorType) - 1)),
+    "eff_data": (("N", 6), False, None), "eff_tolerance": (("N",), False, (0.0, 1.0)),
+    "R_local": ((24, 3, 3), False, (-1.0001, 1.0001)), "transl": ((3,), False, (-1e3, 1e3)),
+    "betas": ((NUM_BETAS,), False, (-1e3, 1e3)), "gender": ((), True, (0, len(Gender) - 1)),
+    "joints": ((24, 3), False, (-1e3, 1e3)), "frame": ((), True, (0, 2**62)),
+}
+
+
+def _manifest_entry(entry: Any, i: int, mpath: Path) -> tuple[str, str, str, str]:
+    """(file, sha256, name, kind) of ``sets[i]``, each a string; the file a plain name in the folder."""
+    if not isinstance(entry, dict):
+        raise BenchmarkFileError(f"{mpath}: sets[{i}] is {type(entry).__name__}, not an object.")
+    values = []
+    for key in ("file", "sha256", "name", "kind"):
+        value = entry.get(key)
+        if not isinstance(value, str) or not value or len(value) > 200:
+            raise BenchmarkFileError(f"{mpath}: sets[{i}].{key} is missing or not a short string.")
+        values.append(value)
+    if Path(values[0]).name != values[0] or values[0] in (".", "..") or not values[0].endswith(".npz"):
+        raise BenchmarkFileError(f"{mpath}: sets[{i}].file must be the name of an .npz file in the folder, got "
+                                 f"{values[0]!r:.80}.")
+    return values[0], values[1], values[2], values[3]
+
+
+def _set_arrays(path: Path) -> dict[str, np.ndarray]:
+    """A set file's arrays, bounded (:func:`smplik.safe_pickle.read_npz`) and checked: keys, shapes, dtypes, ranges."""
+    from smplik.safe_pickle import read_npz
+
+    try:
+        a = read_npz(path, allow_objects=False)
+    except ValueError as exc:
+        raise BenchmarkFileError(str(exc)) from None
+    S = N = None
+    for key, (tail, integer, bounds) in _SET_ARRAYS.items():
+        if key not in a:
+            raise BenchmarkFileError(f"{path}: missing array '{key}'.")
+        arr = a[key]
+        if not isinstance(arr, np.ndarray) or arr.dtype.kind not in ("iu" if integer else "iuf") or arr.ndim < 1:
+            raise BenchmarkFileError(f"{path}: array '{key}' must hold {'integers' if integer else 'numbers'}, got "
+                                     f"{getattr(arr, 'dtype', type(arr).__name__)}.")
+        S = arr.shape[0] if S is None else S
+        if key == "eff_joint" and arr.ndim == 2:
+            N = arr.shape[1]
+        expected = (S, *(N if d == "N" else d for d in tail))
+        if arr.shape != expected or N is None or N < 1:
+            raise BenchmarkFileError(f"{path}: array '{key}' has shape {arr.shape}; expected {expected} (S samples, "
+                                     "N effectors).")
+        if not integer and not np.isfinite(arr).all():
+            raise BenchmarkFileError(f"{path}: array '{key}' contains NaN or inf.")
+        if bounds is not None and arr.size and (arr.min() < bounds[0] or arr.max() > bounds[1]):
+            raise BenchmarkFileError(f"{path}: array '{key}' has values outside [{bounds[0]}, {bounds[1]}].")
+    return a
+
+
 def load_benchmark(folder: str | Path, *, verify: bool = True) -> Benchmark:
     """Read a benchmark folder. ``verify`` checks each file's SHA-256 against the manifest.
 
+    Every manifest field and array is checked before use (keys, types, shapes, ranges; sizes bounded by
+    :mod:`smplik.limits`), so a malformed folder gives one :class:`BenchmarkFileError` naming file and key.
+
     Raises:
-        FileNotFoundError: no manifest. ValueError: another format or version, a modified file.
+        FileNotFoundError: no manifest. ValueError: another format or version, a modified or malformed file.
     """
+    from smplik.validation import read_json
+
     folder = Path(folder)
     mpath = folder / MANIFEST
     if not mpath.is_file():
         raise FileNotFoundError(f"No {MANIFEST} in {folder}; create the files with `smplik benchmark make`.")
-    manifest = json.loads(mpath.read_text())
-    if manifest.get("format") != BENCHMARK_FORMAT:
-        raise ValueError(f"{mpath}: not an smplik benchmark manifest.")
+    manifest = read_json(mpath, BenchmarkFileError, what="benchmark manifest")
+    if not isinstance(manifest, dict) or manifest.get("format") != BENCHMARK_FORMAT:
+        raise BenchmarkFileError(f"{mpath}: not an smplik benchmark manifest.")
     if manifest.get("version") != BENCHMARK_VERSION:
-        raise ValueError(f"{mpath}: benchmark version {manifest.get('version')}, this smplik reads "
-                         f"{BENCHMARK_VERSION}; re-create the files with `smplik benchmark make`.")
+        raise BenchmarkFileError(f"{mpath}: benchmark version {str(manifest.get('version'))[:20]}, this smplik reads "
+                                 f"{BENCHMARK_VERSION}; re-create the files with `smplik benchmark make`.")
+    source = manifest.get("source")
+    if not (isinstance(source, dict) and isinstance(source.get("data"), str) and isinstance(source.get("split"), str)
+            and type(source.get("frames_in_split")) is int):
+        raise BenchmarkFileError(f"{mpath}: 'source' must hold 'data' and 'split' (strings) and 'frames_in_split' "
+                                 "(an integer).")
+    for key in ("seed", "samples_per_count"):
+        if type(manifest.get(key)) is not int:
+            raise BenchmarkFileError(f"{mpath}: '{key}' is missing or not an integer.")
+    if manifest.get("body_fingerprint") is not None and not isinstance(manifest["body_fingerprint"], str):
+        raise BenchmarkFileError(f"{mpath}: 'body_fingerprint' must be a string.")
+    entries = manifest.get("sets")
+    if not isinstance(entries, list) or not entries:
+        raise BenchmarkFileError(f"{mpath}: 'sets' must be a non-empty list.")
     sets = []
-    for entry in manifest["sets"]:
-        path = folder / entry["file"]
-        if verify and _sha256(path) != entry["sha256"]:
-            raise ValueError(f"{path}: content differs from the manifest's SHA-256 (modified file?).")
-        with np.load(path, allow_pickle=False) as npz:
-            a = {k: torch.from_numpy(npz[k]) for k in npz.files}
+    for i, entry in enumerate(entries):
+        file, sha256, name, kind = _manifest_entry(entry, i, mpath)
+        path = folder / file
+        if not path.is_file():
+            raise BenchmarkFileError(f"{mpath}: sets[{i}].file {file} does not exist in {folder}.")
+        if verify and _sha256(path) != sha256:
+            raise BenchmarkFileError(f"{path}: content differs from the manifest's SHA-256 (modified file?).")
+        a = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in _set_arrays(path).items()}
         S, N = a["eff_joint"].shape
         eff = EffectorBatch(a["eff_joint"].long(), a["eff_type"].long(), a["eff_data"].float(),
                             a["eff_tolerance"].float(), torch.ones(S, N, dtype=torch.bool))
-        sets.append(BenchmarkSet(entry["name"], entry["kind"], N, a["R_local"].float(), a["transl"].float(),
-                                 a["betas"].float(), a["gender"].long(), a["joints"].float(), eff,
-                                 a["frame"].long()))
+        sets.append(BenchmarkSet(name, kind, N, a["R_local"].float(), a["transl"].float(), a["betas"].float(),
+                                 a["gender"].long(), a["joints"].float(), eff, a["frame"].long()))
     return Benchmark(manifest, tuple(sets), str(folder))
 
 

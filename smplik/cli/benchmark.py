@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from smplik.cli.errors import fail
 from smplik.cli.options import parse_ensemble
 
 app = typer.Typer(help="Randomized-effector IK benchmark: make the files, run methods on them.",
@@ -33,8 +34,7 @@ def make_command(
         manifest = make_benchmark(data, out, split=split, seed=seed, samples_per_count=samples_per_count,
                                   model_dir=model_dir)
     except (FileNotFoundError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(1) from None
+        fail(exc)
     console.print(f"wrote {manifest}")
 
 
@@ -79,8 +79,7 @@ def run_command(
     try:
         bench = load_benchmark(files)
     except (FileNotFoundError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(1) from None
+        fail(exc)
     bodies = BodyModelSet.load(model_dir)
     cache = data or Path(bench.manifest["source"]["data"])
     dataset = None
@@ -90,8 +89,7 @@ def run_command(
         try:
             dataset = load_cache(cache)
         except (FileNotFoundError, ValueError) as exc:
-            console.print(f"[red]error:[/red] {exc}", highlight=False)
-            raise typer.Exit(1) from None
+            fail(exc)
     solver = None
     if set(LEARNED_METHODS) & set(chosen):
         from smplik.solver import IKSolver
@@ -99,16 +97,14 @@ def run_command(
         try:
             solver = IKSolver.load(checkpoint, model_dir=model_dir)
         except (FileNotFoundError, ValueError) as exc:
-            console.print(f"[red]error:[/red] {exc}", highlight=False)
-            raise typer.Exit(1) from None
+            fail(exc)
     try:
         subjects = None if dataset is None else sample_subjects(bench, dataset)
         runners, settings = build_methods(chosen, bodies, solver=solver, optim_iterations=optim_iterations,
                                           nn_samples=nn_samples, ensemble=ensemble_cfg,
                                           train_pose=None if dataset is None else dataset.subset("train").pose)
     except ValueError as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(1) from None
+        fail(exc)
     if dataset is not None:
         settings["train_data"] = str(cache)
 
@@ -119,8 +115,7 @@ def run_command(
     try:
         results = run_benchmark(bench, runners, bodies, settings=settings, subjects=subjects, progress=report)
     except ValueError as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(1) from None
+        fail(exc)
     save_results(out, results)
     table = results_markdown(results)
     if markdown is not None:

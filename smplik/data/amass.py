@@ -188,6 +188,9 @@ def read_amass(path: str | Path, *, rest_pelvis: RestPelvis = None, fps: float |
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"AMASS file not found: {path}")
+    from smplik.limits import check_npz
+
+    check_npz(path)  # declared sizes within the input budget before anything is decompressed
     try:
         npz_file = np.load(path, allow_pickle=False)
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:

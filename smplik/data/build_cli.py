@@ -106,8 +106,9 @@ def build(
                                           skip_unassigned=skip_unassigned, progress=advance)
         except (ValueError, FileNotFoundError) as exc:
             progress.stop()
-            console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-            raise typer.Exit(1) from None
+            from smplik.cli.errors import fail
+
+            fail(exc)
 
     console.print(f"split: {escape(how)}", highlight=False)
     total = sum(summary.frames.values())

@@ -34,6 +34,7 @@ import numpy as np
 
 from smplik import limits
 from smplik.atomic import write_text_atomic
+from smplik.limits import BVH_FRAMES, TEXT_BYTES, check_array, read_bounded
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
@@ -331,7 +332,7 @@ def read_bvh(path: str | Path, *, position_mode: PositionMode = "auto", max_join
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = read_bounded(path, TEXT_BYTES).decode("utf-8", errors="replace")
     except OSError as exc:
         raise BVHError(f"{path}: cannot read BVH file: {exc.strerror or exc}") from exc
     return parse_bvh(text, name=str(path), position_mode=position_mode, max_joints=max_joints)
@@ -342,6 +343,8 @@ def parse_bvh(text: str, name: str = "<string>", *, position_mode: PositionMode 
     """Parse BVH text; ``name`` is used in error messages. See :func:`read_bvh`."""
     if position_mode not in ("auto", "replace", "add"):
         raise BVHError(f"{name}: unknown position_mode {position_mode!r}; expected auto, replace or add")
+    # every frame is a line: bound the line count before splitting (the hierarchy takes < 8 lines a joint)
+    BVH_FRAMES.check(max(0, text.count("\n") - 8 * max_joints - 100), f"{name} (lines of the MOTION section)")
     lines = text.splitlines()
     # Hierarchy: tokenise line by line up to the MOTION keyword.
     tokens: list[tuple[str, int]] = []
@@ -364,6 +367,7 @@ def parse_bvh(text: str, name: str = "<string>", *, position_mode: PositionMode 
 
     values, frame_time = _parse_motion(lines, motion_line, sum(len(c) for c in channels), name)
     J, T = len(names), values.shape[0]
+    check_array((T, J, 3, 3), 8, f"{name}: {T} frames of {J} joints (rotations)")
     if position_mode == "auto":
         position_mode = position_channel_mode(offsets_np, channels, values[0], parents) if T else "replace"
     local_t = np.broadcast_to(offsets_np, (T, J, 3)).copy()
@@ -418,6 +422,14 @@ def _header_value(lines: list[str], i: int, key: str, name: str) -> tuple[str, i
     return line[len(key):].strip(), i + 1
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
 def _parse_motion(lines: list[str], motion_line: int, num_channels: int, name: str) -> tuple[np.ndarray, float]:
     after = lines[motion_line].split()[1:]
     if after:  # "MOTION Frames: 10" on one line: keep the rest
@@ -429,6 +441,8 @@ def _parse_motion(lines: list[str], motion_line: int, num_channels: int, name: s
         raise BVHError(f"{name}: line {i}: 'Frames:' must be an integer, found {raw!r}") from None
     if num_frames < 0:
         raise BVHError(f"{name}: line {i}: negative frame count {num_frames}")
+    BVH_FRAMES.check(num_frames, f"{name}: line {i}: 'Frames: {num_frames}'")
+    check_array((num_frames, num_channels), 8, f"{name}: {num_frames} frames of {num_channels} channels")
     raw, i = _header_value(lines, i, "Frame Time:", name)
     try:
         frame_time = float(raw)
@@ -438,27 +452,25 @@ def _parse_motion(lines: list[str], motion_line: int, num_channels: int, name: s
         raise BVHError(f"{name}: line {i}: 'Frame Time:' must be a finite number of seconds >= {MIN_FRAME_TIME_S:g}, "
                        f"found {raw!r}")
     data_start = i
-    rows = [(k, ln.split()) for k, ln in enumerate(lines[data_start:], start=data_start + 1) if ln.strip()]
+    rows = [k for k, ln in enumerate(lines[data_start:], start=data_start + 1) if ln.strip()]  # line numbers
     if len(rows) < num_frames:
-        last = rows[-1][0] if rows else data_start
+        last = rows[-1] if rows else data_start
         raise BVHError(f"{name}: truncated file: 'Frames: {num_frames}' but only {len(rows)} frame lines "
                        f"(file ends after line {last})")
     if len(rows) > num_frames:
-        raise BVHError(f"{name}: line {rows[num_frames][0]}: {len(rows)} frame lines but 'Frames: {num_frames}'")
-    for f, (line_no, row) in enumerate(rows):
+        raise BVHError(f"{name}: line {rows[num_frames]}: {len(rows)} frame lines but 'Frames: {num_frames}'")
+    values = np.empty((num_frames, num_channels))  # one line split at a time: memory is the array's
+    for f, line_no in enumerate(rows):
+        row = lines[line_no - 1].split()
         if len(row) != num_channels:
             raise BVHError(f"{name}: line {line_no}: frame {f} has {len(row)} values, the hierarchy declares "
                            f"{num_channels} channels" + (" (truncated file?)" if f == len(rows) - 1 else ""))
-    try:
-        values = np.array([v for _, row in rows for v in row], dtype=np.float64).reshape(num_frames, num_channels)
-    except ValueError:
-        for f, (line_no, row) in enumerate(rows):
-            for v in row:
-                try:
-                    float(v)
-                except ValueError:
-                    raise BVHError(f"{name}: line {line_no}: frame {f}: {v!r} is not a number") from None
-        raise
+        try:
+            values[f] = np.array(row, dtype=np.float64) if num_channels else values[f]
+        except ValueError:
+            bad = next(v for v in row if not _is_number(v))
+            raise BVHError(f"{name}: line {line_no}: frame {f}: {bad!r} is not a number") from None
+    rows = [(line_no, None) for line_no in rows]
     if not np.isfinite(values).all():
         f = int(np.nonzero(~np.isfinite(values).all(axis=1))[0][0])
         raise BVHError(f"{name}: line {rows[f][0]}: frame {f} holds a non-finite value")

@@ -234,10 +234,9 @@ def load_split(path: str | Path) -> SplitSpec:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"Split file not found: {path}")
-    try:
-        obj = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}).") from None
+    from smplik.validation import read_json
+
+    obj = read_json(path, ValueError, what="split file")  # bounded read (smplik.limits.JSON_BYTES)
     return parse_split(obj, str(path))
 
 
@@ -544,6 +543,9 @@ def load_cache(path: str | Path) -> PoseDataset:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"Pose cache not found: {path}")
+    from smplik.limits import check_npz
+
+    check_npz(path)  # declared sizes within the input budget before anything is decompressed
     try:
         npz = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:

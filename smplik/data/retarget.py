@@ -44,7 +44,6 @@ reached through unmapped joints), both mapped.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -172,10 +171,9 @@ def load_preset(preset: str | Path | dict[str, Any] | RetargetPreset) -> Retarge
         if not path.is_file():
             names = ", ".join(preset_names())
             raise RetargetError(f"Unknown retarget preset {str(preset)!r}; built-in presets: {names}, or a JSON path.")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise RetargetError(f"retarget preset {path}: cannot read JSON: {exc}") from exc
+    from smplik.validation import read_json
+
+    data = read_json(path, RetargetError, what="retarget preset")  # bounded read (smplik.limits.JSON_BYTES)
     return RetargetPreset.from_dict(data, origin=str(path))
 
 

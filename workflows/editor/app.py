@@ -14,6 +14,9 @@ and look-at targets, rotate for rotation effectors) and ``/rays/{k}`` look-at ra
 
 from __future__ import annotations
 
+import contextlib
+import io
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -25,8 +28,10 @@ import viser
 from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_NAMES, NUM_BETAS, EffectorType, Gender
+from workflows.editor.access import TOKEN_PARAM, AccessGuard, guarded_serve
 from workflows.editor.state import BETA_RANGE, EFFECTOR_TYPES, EditorError, EditorState
 
+log = logging.getLogger(__name__)
 PALETTE = ((158, 178, 219), (219, 178, 140), (158, 214, 163), (219, 158, 189), (204, 204, 148), (153, 204, 214))
 GIZMO_SCALE = 0.18
 NO_EFFECTOR = "(none)"
@@ -51,16 +56,34 @@ def matrix_to_wxyz(R: np.ndarray) -> np.ndarray:
 class EditorApp:
     """A viser server showing and editing ``state``.
 
+    Only a browser that opened :attr:`url` (which carries a random per-run token) can connect, and only
+    from the editor's own origin (:mod:`workflows.editor.access`); viser's share-URL request (a public
+    tunnel) is refused; Save and Export write only inside ``write_dirs``.
+
     Args:
         state: the editor model.
         host, port: where to listen (port 0: any free port; see :attr:`port`).
         export_dir: default folder of Export (default: ``export/`` next to the scene file).
+        write_dirs: folders Save and Export may write in (default: the scene file's folder, or the
+            working directory for a scene without a file), sub-folders included.
     """
 
     def __init__(self, state: EditorState, *, host: str = "127.0.0.1", port: int = 8080,
-                 export_dir: str | Path | None = None) -> None:
+                 export_dir: str | Path | None = None, write_dirs: tuple[str | Path, ...] = ()) -> None:
         self.state = state
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.access = AccessGuard()
+        # viser prints its address without the token: drop that banner (smplik edit prints :attr:`url`)
+        with guarded_serve(self.access) as guarded, contextlib.redirect_stdout(io.StringIO()):
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        if not guarded:  # a viser that starts its server another way: never run without the check
+            self.server.stop()
+            raise EditorError(f"viser {viser.__version__} does not start its server through "
+                              "websockets.asyncio.server.serve; the editor cannot check who connects "
+                              "(install viser>=1.1,<2).")
+        self.server.request_share_url = self._refuse_share_url  # type: ignore[method-assign]
+        self.server.gui.configure_theme(show_share_button=False)
+        base = state.path.parent if state.path is not None else Path.cwd()
+        self.write_dirs = tuple(Path(d).expanduser().resolve() for d in (write_dirs or (base,)))
         self._lock = threading.RLock()
         self._pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._pending_lock = threading.Lock()
@@ -87,9 +110,24 @@ class EditorApp:
 
     @property
     def url(self) -> str:
+        """The address to open, with this run's token (the only way in)."""
         host = self.server.get_host()
-        shown = "127.0.0.1" if host in ("0.0.0.0", "", "::") else host
-        return f"http://{shown}:{self.port}"
+        shown = "127.0.0.1" if host in ("0.0.0.0", "", "::") else f"[{host}]" if ":" in host else host
+        return f"http://{shown}:{self.port}/?{TOKEN_PARAM}={self.access.token}"
+
+    def _refuse_share_url(self, verbose: bool = True) -> None:
+        """viser's share-URL request (a public tunnel to this editor through share.viser.studio): refused."""
+        log.warning("smplik editor: refused a share-URL request (a public tunnel to the editor).")
+        self._set_status("**error:** share URLs (a public tunnel to this editor) are disabled.")
+
+    def _writable(self, path: Path, what: str) -> Path:
+        """``path`` resolved, if it lies in one of :attr:`write_dirs`; else an :class:`EditorError`."""
+        resolved = path.expanduser().resolve()
+        if not any(resolved == d or resolved.is_relative_to(d) for d in self.write_dirs):
+            allowed = ", ".join(str(d) for d in self.write_dirs)
+            raise EditorError(f"{what}: {path} is outside the folders the editor may write in ({allowed}); "
+                              "name another with smplik edit --output-dir.")
+        return resolved
 
     def stop(self) -> None:
         self.server.stop()
@@ -223,13 +261,13 @@ class EditorApp:
 
     def save(self) -> Path:
         """Save to the File field's path (the Save button)."""
-        path = self.state.save(Path(self.path_text.value).expanduser())
+        path = self.state.save(self._writable(Path(self.path_text.value), "Save"))
         self._set_status(f"Saved {path} at {time.strftime('%H:%M:%S')}.")
         return path
 
     def export(self) -> list[Path]:
         """Export into the Export folder field's path (the Export button)."""
-        self.last_exported = self.state.export(Path(self.export_text.value).expanduser())
+        self.last_exported = self.state.export(self._writable(Path(self.export_text.value), "Export"))
         self._set_status("Exported " + ", ".join(p.name for p in self.last_exported) + ".")
         return self.last_exported
 

@@ -57,6 +57,9 @@ def edit_cmd(
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    output_dir: Annotated[list[Path] | None, typer.Option(
+        "--output-dir", help="A folder Save and Export may also write in (repeatable; default: only the scene's "
+                             "folder).")] = None,
 ) -> None:
     """Edit a scene in the browser: drag effectors, shape sliders, recovery, undo/redo, Save, Export."""
     import dataclasses
@@ -111,13 +114,14 @@ def edit_cmd(
     threadpool_limits(1)
     try:
         state = EditorState(loaded, solver, path=path)
-        editor = EditorApp(state, host=host, port=port)
+        write_dirs = (path.resolve().parent, *(output_dir or ()))
+        editor = EditorApp(state, host=host, port=port, write_dirs=write_dirs)
     except (EditorError, OSError) as exc:
         fail(exc)
     if not is_loopback(host):
         console.print(f"[yellow]warning:[/yellow] listening on {host}: anyone who can reach this machine on port "
                       f"{editor.port} can edit the scene and save files.", highlight=False, soft_wrap=True)
-    typer.echo(f"smplik editor: {editor.url}  (Ctrl+C to stop)")
+    typer.echo(f"smplik editor: {editor.url}  (open this URL: its token is the only way in; Ctrl+C to stop)")
     try:
         while True:
             time.sleep(1.0)

@@ -90,6 +90,9 @@ def _load_torch(path: Path) -> Any:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise EstimateFormatError(f"{path}: not a readable tensor file (torch.load with weights_only=True: "
                                   f"{first[:200]}).") from None
+    from smplik.limits import check_tensors
+
+    check_tensors(data, str(path))  # before .numpy(): a stride-0 view expands to its full shape
     return _to_numpy(data)
 
 
