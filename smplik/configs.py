@@ -15,7 +15,6 @@ from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
-
 NETWORK_RANGES = {"width": (1, 8192), "encoder_blocks": (1, 32), "decoder_blocks": (1, 32),
                   "layers_per_block": (1, 16), "embedding_dim": (1, 1024)}
 """Accepted range of each size (the paper's model: width 1024, 3 blocks of 3 layers, embeddings 32); a model
