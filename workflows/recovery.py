@@ -3,9 +3,22 @@
 Greedy: start from no effector; at each step try every remaining candidate ``(joint, type)`` added
 to the current set, all candidates in **one** batched solve (row ``b`` = current set + candidate
 ``b``); keep the candidate whose solved pose has the lowest mean per-joint L2 error to the target
-in character space; stop at ``max_effectors``, once the error is below ``threshold``, or when no
-remaining candidate lowers the error (with a learned solver an extra effector can make the pose
-slightly worse; such an effector is not kept), so the errors strictly decrease.
+in character space; stop at ``max_effectors`` or once the error is below ``threshold``.
+
+The search never gives up above the threshold while effectors remain. A learned solver can sit in a
+local minimum where every single extra effector makes the pose worse (on a real GVHMR squat, spine1 and
+neck positions at 96 mm, every third effector above 100 mm, while the 6-point set reaches 20 mm), so:
+
+1. **pairs**: when no single candidate lowers the error, every pair of remaining candidates is tried
+   (one batched solve) and the best pair is kept if it lowers the error (its first member's error is
+   the one it had as a single);
+2. **force**: if no pair helps either, the least harmful single is added and the search goes on;
+3. **restart**: a path that is full (``max_effectors``, at least 6) but still above the threshold is
+   set aside and the search starts again, once, from the dense :data:`RESTART_SET` (all its prefixes
+   scored in one round), continuing by the same rules; the path that ends closer is kept.
+
+So the result holds ``max_effectors`` effectors unless the threshold was reached. ``errors`` decrease
+strictly along a path except after a forced step and along the restart set's prefixes.
 
 Candidates: the 24 joints x {position, rotation}, plus (``include_look_at``) a look-at on the head
 whose target is ``look_at_distance`` metres along the head's forward axis (+z in its frame).
@@ -31,7 +44,7 @@ Speed: candidate effector data are precomputed once as tensors; each step builds
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol
 
 import numpy as np
@@ -59,6 +72,10 @@ LIMB_ZONES: dict[str, tuple[str, ...]] = {
 """The body's limbs, for the ``"joints+worst_limb"`` criterion and the benchmark's per-limb errors."""
 
 Criterion = Literal["joints", "joints+worst_limb"]
+
+RESTART_SET = ("pelvis", "neck", "left_wrist", "right_wrist", "left_ankle", "right_ankle")
+"""Where a stuck search restarts (position effectors, this order): the 6-point set of the IK benchmark
+(DESIGN.md section 5), a dense set that pins every limb; truncated to ``max_effectors``."""
 
 
 def limb_errors(joint_err: Tensor) -> Tensor:
@@ -198,31 +215,130 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
     return recover_many(solver, [target], cfg, scales=[scale])[0]
 
 
+SearchMode = Literal["single", "pair", "seed", "force"]
+
+
 @dataclass
 class _Search:
-    """One target's greedy state inside :func:`recover_many`."""
+    """One target's search state inside :func:`recover_many` (candidate indices into ``cand``)."""
 
     target: TargetPose
     scale: float
     cand: tuple[Tensor, Tensor, Tensor]
-    remaining: Tensor
-    chosen: list[int]
-    errors: list[float]
-    scores: list[float]
-    best_eff: EffectorBatch | None = None
+    chosen: list[int] = field(default_factory=list)
+    errors: list[float] = field(default_factory=list)
+    scores: list[float] = field(default_factory=list)
+    mode: SearchMode = "single"
+    singles: dict[int, tuple[float, float]] = field(default_factory=dict)
+    """The last single step's (error, score) per candidate: a kept pair's first member reports its own."""
+    restarted: bool = False
+    stuck_path: tuple[list[int], list[float], list[float]] | None = None
+    """The first (full) path, set aside at the restart (kept if the restart ends no closer)."""
     done: bool = False
+
+
+def _trial_sets(st: _Search, cfg: RecoveryConfig) -> list[Tensor]:
+    """The candidate sets to score for ``st`` this round: a list of (B, width) long tensors of candidate indices."""
+    n = st.cand[0].shape[0]
+    chosen = torch.tensor(st.chosen, dtype=torch.long)
+    taken = torch.zeros(n, dtype=torch.bool)
+    taken[chosen] = True
+    rest = torch.nonzero(~taken)[:, 0]
+    if st.mode == "seed":
+        seed = torch.tensor([JOINT_INDEX[name] for name in RESTART_SET[:cfg.max_effectors]])  # position rows
+        return [seed[:m][None] for m in range(1, seed.shape[0] + 1)]
+    if st.mode == "pair":
+        pairs = torch.combinations(rest, 2)
+        return [torch.cat([chosen.expand(pairs.shape[0], len(st.chosen)), pairs], 1)]
+    return [torch.cat([chosen.expand(rest.shape[0], len(st.chosen)), rest[:, None]], 1)]
+
+
+def _score_sets(solver: TensorSolver, states: Sequence[_Search], sets: Sequence[Tensor], cfg: RecoveryConfig,
+                refine: RefineConfig) -> list[tuple[Tensor, Tensor]]:
+    """Solve every trial set (``sets[i]`` belongs to ``states[i]``), one batched call per set width.
+
+    Returns per entry ``(score (B,), mean joint error (B,))`` in character space.
+    """
+    out: list[tuple[Tensor, Tensor] | None] = [None] * len(sets)
+    widths = sorted({int(s.shape[1]) for s in sets})
+    for width in widths:
+        group = [i for i, s in enumerate(sets) if s.shape[1] == width]
+        parts = [[states[i].cand[f][sets[i]] for f in range(3)] for i in group]
+        joint, kind, data = (torch.cat([p[f] for p in parts]) for f in range(3))
+        sizes = [sets[i].shape[0] for i in group]
+        betas = torch.cat([states[i].target.betas.float().reshape(1, NUM_BETAS).expand(n, NUM_BETAS)
+                           for i, n in zip(group, sizes, strict=True)])
+        gender = torch.cat([torch.full((n,), states[i].target.gender.index) for i, n in zip(group, sizes, strict=True)])
+        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
+                            torch.ones(joint.shape, dtype=torch.bool))
+        solved = solver.solve_tensors(eff, betas, gender, refine=refine)
+        start = 0
+        for i, n in zip(group, sizes, strict=True):
+            st = states[i]
+            joint_err = (solved.p_world[start:start + n].float() - st.target.p_world.float()).norm(dim=-1)
+            start += n
+            out[i] = (recovery_score(joint_err, cfg.criterion) * st.scale, joint_err.mean(-1) * st.scale)
+    return out  # type: ignore[return-value]
+
+
+def _restart(st: _Search) -> None:
+    """Keep the current path aside and search again from :data:`RESTART_SET` (once per target)."""
+    st.stuck_path = (list(st.chosen), list(st.errors), list(st.scores))
+    st.chosen, st.errors, st.scores, st.singles = [], [], [], {}
+    st.restarted, st.mode = True, "seed"
+
+
+def _advance(st: _Search, sets: list[Tensor], scored: list[tuple[Tensor, Tensor]], cfg: RecoveryConfig) -> None:
+    """Apply one round's scores to ``st`` (see the module docstring for the rules)."""
+    if st.mode == "seed":  # every prefix of the restart set was scored
+        st.chosen = [int(c) for c in sets[-1][0]]
+        st.errors = [float(err[0]) for _, err in scored]
+        st.scores = [float(score[0]) for score, _ in scored]
+        st.mode = "single"
+    else:
+        (score, err), = scored
+        best = int(torch.argmin(score))
+        improves = not st.scores or float(score[best]) < st.scores[-1]
+        row = sets[0][best]
+        if st.mode == "pair":
+            if not improves:
+                st.mode = "force"  # neither a single nor a pair helps: add the least harmful single
+                return
+            a, b = (int(c) for c in row[-2:])
+            if st.singles.get(b, (0.0, np.inf))[1] < st.singles.get(a, (0.0, np.inf))[1]:
+                a, b = b, a  # the better single first
+            st.chosen += [a, b]
+            st.errors += [st.singles[a][0] if a in st.singles else float(err[best]), float(err[best])]
+            st.scores += [st.singles[a][1] if a in st.singles else float(score[best]), float(score[best])]
+            st.mode = "single"
+        elif improves or st.mode == "force":
+            st.chosen.append(int(row[-1]))
+            st.errors.append(float(err[best]))
+            st.scores.append(float(score[best]))
+            st.mode = "single"
+        else:  # no single candidate lowers the error
+            st.singles = {int(r[-1]): (float(e), float(s)) for r, e, s in zip(sets[0], err, score, strict=True)}
+            st.mode = "pair" if len(st.chosen) + 2 <= cfg.max_effectors else "force"
+            return
+    if st.errors[-1] < cfg.threshold:
+        st.done = True
+    elif len(st.chosen) >= cfg.max_effectors:
+        if st.restarted or len(st.chosen) < len(RESTART_SET):
+            st.done = True
+        else:  # full above the threshold: also try the path from the dense start, keep the better
+            _restart(st)
 
 
 @torch.inference_mode()
 def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: RecoveryConfig = RecoveryConfig(), *,
                  scales: Sequence[float] | None = None,
                  progress: Callable[[int, int], None] | None = None) -> list[RecoveryResult]:
-    """Greedy effector recovery of several poses at once (many people / frames): each step solves the
-    candidates of every unfinished pose in ONE batched call; the final solves are batched per count.
+    """Effector recovery of several poses at once (many people / frames): each round solves the trial
+    sets of every unfinished pose in one batched call per set width; the final solves are batched per count.
 
     Args:
         targets: poses to reproduce (SMPL space); scales: their character scales (default 1).
-        progress: ``progress(step, max_steps)`` after each greedy step.
+        progress: ``progress(round, max_effectors)`` after each search round (capped at ``max_effectors``).
 
     Returns: one :class:`RecoveryResult` per target, the same as :func:`recover_effectors` on each.
     """
@@ -236,55 +352,26 @@ def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: Recov
     for scale in scales:
         if not scale > 0:
             raise ValueError(f"scale must be positive, got {scale}.")
-    states = []
-    for t, scale in zip(targets, scales, strict=True):
-        cand = candidate_table(t, cfg)
-        states.append(_Search(t, float(scale), cand, torch.ones(cand[0].shape[0], dtype=torch.bool), [], [], []))
+    states = [_Search(t, float(s), candidate_table(t, cfg)) for t, s in zip(targets, scales, strict=True)]
+    limit = min(cfg.max_effectors, min((s.cand[0].shape[0] for s in states), default=0))
+    cfg = replace(cfg, max_effectors=limit)
     search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
-    steps = min(cfg.max_effectors, min((s.cand[0].shape[0] for s in states), default=0))
-    for k in range(steps):
+    for round_ in range(6 * limit + 4):  # a round adds effectors or moves single -> pair -> force; one restart
         active = [s for s in states if not s.done]
         if not active:
             break
-        parts, rows_of = [], []
-        for st in active:
-            cand_joint, cand_type, cand_data = st.cand
-            rows = torch.nonzero(st.remaining)[:, 0]
-            B = rows.shape[0]
-            sel = torch.tensor(st.chosen, dtype=torch.long)
-            parts.append((torch.cat([cand_joint[sel].expand(B, k), cand_joint[rows, None]], 1),
-                          torch.cat([cand_type[sel].expand(B, k), cand_type[rows, None]], 1),
-                          torch.cat([cand_data[sel].expand(B, k, 6), cand_data[rows, None]], 1)))
-            rows_of.append(rows)
-        joint, kind, data = (torch.cat([p[i] for p in parts]) for i in range(3))
-        sizes = [r.shape[0] for r in rows_of]
-        betas = torch.cat([st.target.betas.float().reshape(1, NUM_BETAS).expand(n, NUM_BETAS)
-                           for st, n in zip(active, sizes, strict=True)])
-        gender = torch.cat([torch.full((n,), st.target.gender.index) for st, n in zip(active, sizes, strict=True)])
-        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
-                            torch.ones(joint.shape, dtype=torch.bool))
-        out = solver.solve_tensors(eff, betas, gender, refine=search)
+        trials = [_trial_sets(st, cfg) for st in active]
+        flat_states = [st for st, sets in zip(active, trials, strict=True) for _ in sets]
+        scored = _score_sets(solver, flat_states, [s for sets in trials for s in sets], cfg, search)
         start = 0
-        for st, rows, n in zip(active, rows_of, sizes, strict=True):
-            sl = slice(start, start + n)
-            start += n
-            joint_err = (out.p_world[sl].float() - st.target.p_world.float()).norm(dim=-1)  # (n, 24), SMPL space
-            score = recovery_score(joint_err, cfg.criterion) * st.scale
-            err = joint_err.mean(-1) * st.scale
-            best = int(torch.argmin(score))
-            if st.scores and float(score[best]) >= st.scores[-1]:
-                st.done = True  # no candidate improves on the current set
-                continue
-            st.chosen.append(int(rows[best]))
-            st.remaining[rows[best]] = False
-            st.errors.append(float(err[best]))
-            st.scores.append(float(score[best]))
-            b = sl.start + best
-            st.best_eff = EffectorBatch(joint[b:b + 1], kind[b:b + 1], data[b:b + 1], eff.tolerance[b:b + 1],
-                                        eff.mask[b:b + 1])
-            st.done = st.errors[-1] < cfg.threshold
+        for st, sets in zip(active, trials, strict=True):
+            _advance(st, sets, scored[start:start + len(sets)], cfg)
+            start += len(sets)
         if progress is not None:
-            progress(k + 1, steps)
+            progress(min(round_ + 1, limit), limit)
+    for st in states:
+        if st.stuck_path is not None and st.stuck_path[2][-1] < st.scores[-1]:
+            st.chosen, st.errors, st.scores = st.stuck_path  # the restart ended farther than the first path
     return _finish(solver, states, cfg)
 
 
@@ -294,12 +381,14 @@ def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) ->
     results: list[RecoveryResult | None] = [None] * len(states)
     by_count: dict[int, list[int]] = {}
     for i, st in enumerate(states):
-        assert st.best_eff is not None
+        assert st.chosen
         by_count.setdefault(len(st.chosen), []).append(i)
     for group in by_count.values():
-        effs = [states[i].best_eff for i in group]
-        eff = EffectorBatch(*(torch.cat([getattr(e, f) for e in effs]) for f in  # type: ignore[union-attr]
-                              ("joint", "type", "data", "tolerance", "mask")))
+        idx = [torch.tensor(states[i].chosen) for i in group]
+        joint, kind, data = (torch.stack([states[i].cand[f][c] for i, c in zip(group, idx, strict=True)])
+                             for f in range(3))
+        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
+                            torch.ones(joint.shape, dtype=torch.bool))
         betas = torch.stack([states[i].target.betas.float().reshape(NUM_BETAS) for i in group])
         gender = torch.tensor([states[i].target.gender.index for i in group])
         final = solver.solve_tensors(eff, betas, gender)
@@ -311,5 +400,5 @@ def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) ->
             joint_err = (final.p_world[row].float() - st.target.p_world.float()).norm(dim=-1)
             final_error = float(joint_err.mean()) * st.scale
             pose = output_to_pose(final, row, st.target.betas, st.target.gender)
-            results[i] = RecoveryResult(effectors, tuple(st.errors), pose, st.scale, final_error)  # type: ignore[arg-type]
+            results[i] = RecoveryResult(effectors, tuple(st.errors), pose, st.scale, final_error)
     return results  # type: ignore[return-value]
