@@ -43,7 +43,7 @@ class Written:
 FOCAL = {"romp": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)), "bev": max(IMAGE_W, IMAGE_H) / 2 / np.tan(
     np.radians(30.0)), "hybrik": 1000.0 / 256.0 * 250.0, "phalp": 5000.0 / 256.0 * max(IMAGE_W, IMAGE_H),
     "wham": float(np.hypot(IMAGE_W, IMAGE_H)), "pymafx": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)),
-    "gvhmr": 700.0, "plain": 800.0}
+    "gvhmr": float(np.hypot(IMAGE_W, IMAGE_H)), "gvhmr_flat": float(np.hypot(IMAGE_W, IMAGE_H)), "plain": 800.0}
 """Each fixture's focal length (pixels), to frame the people the same way in every format."""
 
 
@@ -204,8 +204,9 @@ def write_pymafx(folder: Path, aa, transl, betas) -> Written:
 
 
 def write_gvhmr(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
-    """GVHMR ``tools/demo/demo.py``: ``torch.save(pred, 'hmr4d_results.pt')`` of tensors (one person, L frames)."""
-    f, cx, cy = FOCAL["gvhmr"], IMAGE_W / 2 + 7.0, IMAGE_H / 2 - 5.0
+    """GVHMR ``tools/demo/demo.py``: ``torch.save(pred, 'hmr4d_results.pt')`` of tensors (one person, L frames);
+    ``K_fullimg = estimate_K(width, height)`` (``hmr4d/utils/geo/hmr_cam.py``: diagonal focal, centred)."""
+    f, cx, cy = FOCAL["gvhmr"], IMAGE_W / 2, IMAGE_H / 2
     K = torch.tensor([[f, 0, cx], [0, f, cy], [0, 0, 1.0]]).expand(frames, 3, 3).clone()
 
     def params(a: np.ndarray, t: np.ndarray) -> dict:
@@ -221,6 +222,30 @@ def write_gvhmr(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
     return Written(path, f, cx, cy, family="smplx", fmt="gvhmr")
 
 
+def write_gvhmr_flat_npz(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
+    """A user's AMASS-style conversion of GVHMR's ``hmr4d_results.pt``: github.com/wenconggan/video2smpl
+    ``pt2npz/Converter.py`` ``convert_pt_to_npz``: ``poses (L, 72)`` / ``trans`` from ``smpl_params_global``
+    (turned by its ``R_fix``), ``betas (10,)``, ``gender``, ``mocap_framerate``, ``K_fullimg`` and every other
+    entry flattened with ``_`` (``smpl_params_incam_body_pose`` ...), ``np.savez_compressed``."""
+    w = write_gvhmr(folder, aa, transl, betas, frames=frames)
+    pred = torch.load(w.path, weights_only=True)
+    w.path.unlink()
+
+    def flat(obj, prefix: str) -> dict:  # the converter's extract_tensors
+        if isinstance(obj, dict):
+            return {k: v for key, val in obj.items() for k, v in flat(val, f"{prefix}{key}_").items()}
+        return {prefix[:-1]: obj.numpy()}
+
+    g = pred["smpl_params_global"]
+    poses = np.concatenate([g["global_orient"].numpy(), g["body_pose"].numpy(), np.zeros((frames, 6))], 1)
+    extra = {k: v for key in pred if key != "smpl_params_global" for k, v in flat(pred[key], f"{key}_").items()}
+    path = folder / "hmr4d_results.npz"
+    np.savez_compressed(path, poses=poses.astype(np.float32), trans=g["transl"].numpy(),
+                        betas=g["betas"].numpy()[0], gender="neutral", mocap_framerate=np.array(30),
+                        **{"K_fullimg": pred["K_fullimg"].numpy(), **extra})
+    return Written(path, w.f, w.cx, w.cy, family="smplx", fmt="gvhmr")
+
+
 def write_plain(folder: Path, aa, transl, betas) -> Written:
     """A plain ``.npz`` of smplx keys in the camera frame with intrinsics ``K``."""
     f, cx, cy = FOCAL["plain"], IMAGE_W / 2 - 10.0, IMAGE_H / 2 + 4.0
@@ -232,9 +257,9 @@ def write_plain(folder: Path, aa, transl, betas) -> Written:
 
 CAMERA_WRITERS = {"romp": write_romp, "bev": lambda *a: write_romp(*a, bev=True), "hybrik": write_hybrik,
                   "phalp": write_phalp, "wham": write_wham, "pymafx": write_pymafx, "gvhmr": write_gvhmr,
-                  "plain": write_plain}
+                  "gvhmr_flat": write_gvhmr_flat_npz, "plain": write_plain}
 """Every camera-frame format's writer (HybrIK and GVHMR hold one person: pass n=1 people)."""
-SINGLE_PERSON = {"hybrik", "gvhmr"}
+SINGLE_PERSON = {"hybrik", "gvhmr", "gvhmr_flat"}
 
 
 # SAM-3D-Body: MHR-rig slots of the SMPL joints (the reader's table is not used to write them)

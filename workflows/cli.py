@@ -88,6 +88,8 @@ def from_estimate_cmd(
                                            "larger than this uncompressed (bytes).")] = 1 << 30,
     space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'camera' or 'world' output "
                                               "(default: WHAM world, GVHMR camera).")] = None,
+    focal: Annotated[float | None, typer.Option("--focal", min=0.0, help="Focal length (pixels of --image) for "
+                                                "the overlay; gives a camera to files without one.")] = None,
     checkpoint: Checkpoint = None,
     no_previews: Annotated[bool, typer.Option("--no-previews", help="Skip the PNG previews.")] = False,
 ) -> None:
@@ -115,7 +117,9 @@ def from_estimate_cmd(
                                 config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
                                 trust_pickle=trust_pickle, image_path=image, frame=frame,
                                 previews=not no_previews, max_people=max_people, max_bytes=max_bytes, ground=ground,
-                                space=space, progress=progress)
+                                space=space, focal=focal, progress=progress)
+    for note in outputs.notes:
+        say(note)
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "
