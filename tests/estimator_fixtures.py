@@ -43,7 +43,8 @@ class Written:
 FOCAL = {"romp": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)), "bev": max(IMAGE_W, IMAGE_H) / 2 / np.tan(
     np.radians(30.0)), "hybrik": 1000.0 / 256.0 * 250.0, "phalp": 5000.0 / 256.0 * max(IMAGE_W, IMAGE_H),
     "wham": float(np.hypot(IMAGE_W, IMAGE_H)), "pymafx": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)),
-    "gvhmr": float(np.hypot(IMAGE_W, IMAGE_H)), "gvhmr_flat": float(np.hypot(IMAGE_W, IMAGE_H)), "plain": 800.0}
+    "gvhmr": float(np.hypot(IMAGE_W, IMAGE_H)), "gvhmr_flat": float(np.hypot(IMAGE_W, IMAGE_H)), "plain": 800.0,
+    "vibe": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0))}
 """Each fixture's focal length (pixels), to frame the people the same way in every format."""
 
 
@@ -397,3 +398,52 @@ def overlay_pixels(people_list, width: int = IMAGE_W, height: int = IMAGE_H, gro
         x = (np.linalg.inv(cam.T_world_camera) @ np.c_[J, np.ones(2)].T).T[:, :3]
         out.append(np.stack([cam.cx + cam.fx * x[:, 0] / -x[:, 2], cam.cy - cam.fy * x[:, 1] / -x[:, 2]], -1))
     return np.stack(out)
+
+
+def write_vibe(folder: Path, aa, transl, betas, *, pare: bool = False, frames: int = 3) -> Written:
+    """VIBE ``demo.py`` (``joblib.dump(vibe_results, 'vibe_output.pkl')``) or PARE ``run_on_video`` (``pose``
+    as rotation matrices, plus ``smpl_joints2d``): ``{person_id: output_dict}`` over ``frames`` frames, the
+    people at frame 1 only for person 2 (a track that starts later). ``orig_cam = [sx, sy, tx, ty]`` is the
+    weak-perspective camera that draws a body at depth ``tz`` the size a 60-degree pinhole draws it
+    (``convert_crop_cam_to_orig_img`` of a crop camera, ``lib/utils/demo_utils.py``)."""
+    f = FOCAL["vibe"]
+    out = {}
+    for i in range(aa.shape[0]):
+        tz = transl[i, 2]
+        cam = np.array([2 * f / (IMAGE_W * tz), 2 * f / (IMAGE_H * tz), transl[i, 0], transl[i, 1]])
+        ids = np.arange(frames) if i == 0 else np.arange(1, frames)
+        n = ids.shape[0]
+        pose = np.broadcast_to(aa[i].reshape(1, 72), (n, 72)).astype(np.float32)
+        d = {"pred_cam": np.zeros((n, 3), np.float32), "orig_cam": np.broadcast_to(cam, (n, 4)).astype(np.float32),
+             "verts": np.zeros((n, 6890, 3), np.float32),
+             "pose": _R(pose.reshape(n, 24, 3)).astype(np.float32) if pare else pose,
+             "betas": np.broadcast_to(betas[i], (n, 10)).astype(np.float32), "joints3d": np.zeros((n, 49, 3)),
+             "joints2d": None, "bboxes": np.tile([320.0, 240.0, 200.0, 200.0], (n, 1)), "frame_ids": ids}
+        if pare:
+            d["smpl_joints2d"] = np.zeros((n, 49, 2), np.float32)
+        out[i + 1] = d
+    path = folder / ("pare_output.pkl" if pare else "vibe_output.pkl")
+    joblib.dump(out, path)
+    return Written(path, f, IMAGE_W / 2, IMAGE_H / 2, fmt="vibe")
+
+
+def weak_perspective_pixels(w: Written, aa: np.ndarray, transl: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) pelvis and head as VIBE's renderer draws them (``WeakPerspectiveCamera``): SMPL's output
+    joints (no transl) at ``u = W/2 (1 + sx (x + tx))``, ``v = H/2 (1 + sy (y + ty))``."""
+    J = producer_joints(aa, np.zeros_like(transl))[:, [PELVIS, HEAD]]
+    sx, sy = (2 * w.f / (IMAGE_W * transl[:, 2]))[:, None], (2 * w.f / (IMAGE_H * transl[:, 2]))[:, None]
+    u = IMAGE_W / 2 * (1 + sx * (J[..., 0] + transl[:, :1]))
+    v = IMAGE_H / 2 * (1 + sy * (J[..., 1] + transl[:, 1:2]))
+    return np.stack([u, v], -1)
+
+
+def write_easymocap(folder: Path, people_zup: list[dict]) -> Path:
+    """EasyMocap ``write_smpl`` (``easymocap/mytools/file_utils.py``): ``output/smpl/000000.json``, a list of
+    ``{"id", "Rh": [[3]], "Th": [[3]], "poses": [[72]], "shapes": [[10]]}`` (one frame, z-up world)."""
+    import json
+
+    path = folder / "000000.json"
+    path.write_text(json.dumps([{"id": p["id"], "Rh": [list(map(float, p["Rh"]))], "Th": [list(map(float, p["Th"]))],
+                                 "poses": [list(map(float, p["poses"]))], "shapes": [list(map(float, p["shapes"]))]}
+                                for p in people_zup], indent=4))
+    return path

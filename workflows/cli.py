@@ -27,7 +27,8 @@ scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve 
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
-FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d", "plain")
+FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "aist", "amass", "sam3d",
+           "easymocap", "plain", "pose_array")
 
 
 def _solver(checkpoint: Path | None):

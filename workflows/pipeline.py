@@ -16,6 +16,7 @@ optionally put on a floor (``ground``), then per estimated person:
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -189,12 +190,19 @@ def from_estimate(
     out_dir.mkdir(parents=True, exist_ok=True)
     config = RecoveryConfig() if config is None else config
     from workflows.estimators import MAX_BYTES, MAX_PEOPLE
+    from workflows.estimators.pose_array import EstimateNote
 
-    people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame,  # type: ignore[arg-type]
-                           max_people=MAX_PEOPLE if max_people is None else max_people,
-                           max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space,  # type: ignore[arg-type]
-                           solver=solver if isinstance(solver, IKSolver) else None)  # fits SAM-3D-Body's MHR joints
+    with warnings.catch_warnings(record=True) as caught:  # readers' assumptions become notes for the user
+        warnings.simplefilter("always", EstimateNote)
+        people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame,  # type: ignore[arg-type]
+                               max_people=MAX_PEOPLE if max_people is None else max_people,
+                               max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space,  # type: ignore[arg-type]
+                               solver=solver if isinstance(solver, IKSolver) else None)  # fits SAM-3D-Body's MHR joints
+    for w in caught:
+        if not issubclass(w.category, EstimateNote):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     people, notes = _overlay_camera(people, results_path, image_path, focal)
+    notes = tuple(str(w.message) for w in caught if issubclass(w.category, EstimateNote)) + notes
     character = skeleton = None
     if character_path is not None:
         options = CharacterOptions() if character_options is None else character_options
