@@ -27,19 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from workflows.estimators.base import (
-    MAX_PEOPLE,
-    CameraInfo,
-    EstimatedPerson,
-    EstimateFormatError,
-    check_people_count,
-    finite,
-    frame_numbers,
-    make_people,
-    require,
-    rotations_to_axis_angle,
-    rows,
-)
+from workflows.estimators import base
+from workflows.estimators.base import EstimatedPerson, EstimateFormatError
 
 FORMAT = "vibe"
 FOV_DEG = 60.0
@@ -64,38 +53,38 @@ def orig_cam_to_transl(orig_cam: np.ndarray, fov_deg: float = FOV_DEG) -> np.nda
 
 
 def _pose(value: Any, where: str) -> np.ndarray:
-    arr = finite(value, "pose", where)
+    arr = base.finite(value, "pose", where)
     if arr.ndim == 4 and arr.shape[1:] == (24, 3, 3):  # PARE: rotation matrices
-        return rotations_to_axis_angle(arr).reshape(-1, 72)
-    return rows(arr, "pose", 72, where)
+        return base.rotations_to_axis_angle(arr).reshape(-1, 72)
+    return base.rows(arr, "pose", 72, where)
 
 
 def from_data(data: dict[Any, Any], *, source: str = "<vibe>", frame: int = 0,
-              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
+              max_people: int = base.MAX_PEOPLE) -> list[EstimatedPerson]:
     if not matches(data):
         raise EstimateFormatError(f"{source}: expected {{person_id: {{'pose', 'betas', 'orig_cam', 'frame_ids'}}}}.")
-    check_people_count(len(data), max_people, source)
+    base.check_people_count(len(data), max_people, source)
     poses, transl, betas, ids = [], [], [], []
     for pid, d in data.items():
         where = f"{source}[{pid!r}]"
-        frames = frame_numbers(require(d, "frame_ids", where), "frame_ids", where)
+        frames = base.frame_numbers(base.require(d, "frame_ids", where), "frame_ids", where)
         keep = np.nonzero(frames == frame)[0]
         if keep.size == 0:
             continue
-        pose = _pose(require(d, "pose", where), where)
+        pose = _pose(base.require(d, "pose", where), where)
         N = pose.shape[0]
         if frames.shape[0] != N:
             raise EstimateFormatError(f"{where}: 'frame_ids' has {frames.shape[0]} entries for {N} poses.")
-        cam = rows(require(d, "orig_cam", where), "orig_cam", 4, where, N)
-        b = rows(require(d, "betas", where), "betas", tuple(range(1, 301)), where, N)
+        cam = base.rows(base.require(d, "orig_cam", where), "orig_cam", 4, where, N)
+        b = base.rows(base.require(d, "betas", where), "betas", tuple(range(1, 301)), where, N)
         poses.append(pose[keep])
         transl.append(orig_cam_to_transl(cam[keep]))
         betas.append(b[keep, :10] if b.shape[1] >= 10 else np.pad(b[keep], ((0, 0), (0, 10 - b.shape[1]))))
         ids += [str(pid)] * keep.size
     if not ids:
         raise EstimateFormatError(f"{source}: no person in frame {frame}.")
-    return make_people(np.concatenate(poses), np.concatenate(transl), np.concatenate(betas),
+    return base.make_people(np.concatenate(poses), np.concatenate(transl), np.concatenate(betas),
                        frame_of_reference="camera", translation_kind="transl",
-                       camera=CameraInfo(default_fov_deg=FOV_DEG),
+                       camera=base.CameraInfo(default_fov_deg=FOV_DEG),
                        person_ids=ids, frames=[str(frame)] * len(ids), source=f"{source} (vibe)",
                        max_people=max_people)
