@@ -447,3 +447,33 @@ def write_easymocap(folder: Path, people_zup: list[dict]) -> Path:
                                  "poses": [list(map(float, p["poses"]))], "shapes": [list(map(float, p["shapes"]))]}
                                 for p in people_zup], indent=4))
     return path
+
+
+def write_glamr(folder: Path, aa, transl, betas, *, frames: int = 3) -> tuple[Written, np.ndarray]:
+    """GLAMR ``global_recon/run_demo.py``: the optimiser's ``data`` dict pickled, ``person_data[id]`` with
+    ``smpl_pose (T, 69)``, ``smpl_beta``, ``smpl_orient_cam``, ``root_trans_cam`` (the pelvis, HybrIK's
+    ``root_trans``), ``cam_K``, and the world (z-up) ``smpl_orient_world`` / ``root_trans_world`` from
+    ``cam_pose_inv``. Returns the fixture and ``cam_pose_inv`` (4, 4) (world <- camera)."""
+    f, cx, cy = FOCAL["hybrik"], IMAGE_W / 2 + 3.0, IMAGE_H / 2 - 2.0
+    K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+    T_wc = np.eye(4)
+    T_wc[:3, :3] = Rotation.from_euler("xz", [-100.0, 30.0], degrees=True).as_matrix()  # camera looks along +y-ish
+    T_wc[:3, 3] = [0.5, -2.0, 1.6]
+    pelvis = producer_joints(aa, transl)[:, 0]
+    person_data = {}
+    for i in range(aa.shape[0]):
+        R_w = Rotation.from_matrix(T_wc[:3, :3]) * Rotation.from_rotvec(aa[i, 0])
+        person_data[i] = {
+            "smpl_pose": np.tile(aa[i, 1:].reshape(1, 69), (frames, 1)),
+            "smpl_beta": np.tile(betas[i], (frames, 1)), "smpl_orient_cam": np.tile(aa[i, 0], (frames, 1)),
+            "root_trans_cam": np.tile(pelvis[i], (frames, 1)), "cam_K": np.tile(K, (frames, 1, 1)),
+            "smpl_orient_world": np.tile(R_w.as_rotvec(), (frames, 1)),
+            "root_trans_world": np.tile(T_wc[:3, :3] @ pelvis[i] + T_wc[:3, 3], (frames, 1)),
+            "frames": np.arange(frames), "visible": np.ones(frames)}
+    data = {"seq_name": "demo", "person_data": person_data, "seq_len": frames,
+            "cam_pose_inv": np.tile(T_wc, (frames, 1, 1)), "cam_pose": np.tile(np.linalg.inv(T_wc), (frames, 1, 1)),
+            "meta": {"algo": "global_recon", "num_fr": frames}}
+    path = folder / "demo_result.pkl"
+    with open(path, "wb") as fh:
+        pickle.dump(data, fh)
+    return Written(path, f, cx, cy, fmt="glamr"), T_wc

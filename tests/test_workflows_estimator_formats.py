@@ -107,3 +107,21 @@ def test_no_reader_fits_names_the_closest_format_and_its_missing_keys(tmp_path):
     assert closest_format({"Rh": 1, "Th": 2, "poses": 3}).startswith("closest: easymocap")
     assert "known formats" in closest_format({"nothing": 1})
 
+
+
+def test_glamr_camera_and_world_spaces(tmp_path):
+    from estimator_fixtures import FOCAL, producer_pixels, write_glamr
+
+    aa, transl, betas = people(seed=6, n=2, depth=FOCAL["hybrik"] * 1.7 / 200.0, focal=FOCAL["hybrik"])
+    w, T_wc = write_glamr(tmp_path, aa, transl, betas)
+    cam = read_estimate(w.path, space="camera", frame=2)
+    assert [p.person_id for p in cam] == ["0", "1"] and cam[0].camera.focal_px == pytest.approx(w.f)
+    err = np.linalg.norm(overlay_pixels(cam) - producer_pixels(w, aa, transl), axis=-1)
+    assert err[:, 0].max() < 1e-3 and err[:, 1].max() < 2.0, err  # the pelvis exactly (root_trans is the pelvis)
+    world = read_estimate(w.path)  # GLAMR's point: the world trajectory, z-up -> y-up
+    assert world[0].camera is None
+    pelvis_w = T_wc[:3, :3] @ producer_joints(aa, transl)[:, 0].T + T_wc[:3, 3:]
+    for i, p in enumerate(world):
+        np.testing.assert_allclose(our_joints(p)[0], R_YUP_ZUP.apply(pelvis_w[:, i]), atol=1e-4)
+    with pytest.raises(EstimateFormatError, match="no person has frame 5"):
+        read_estimate(w.path, frame=5)

@@ -27,8 +27,8 @@ scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve 
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
-FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "aist", "amass", "sam3d",
-           "easymocap", "plain", "pose_array")
+FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist", "amass",
+           "sam3d", "easymocap", "plain", "pose_array")
 
 
 def _solver(checkpoint: Path | None):
@@ -87,8 +87,8 @@ def from_estimate_cmd(
                                             "the frame than this.")] = 100,
     max_bytes: Annotated[int, typer.Option("--max-bytes", min=1, help="Refuse estimator files whose data is "
                                            "larger than this uncompressed (bytes).")] = 1 << 30,
-    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'camera' or 'world' output "
-                                              "(default: WHAM world, GVHMR camera).")] = None,
+    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR / GLAMR: 'camera' or 'world' "
+                                              "output (default: WHAM, GLAMR world; GVHMR camera).")] = None,
     focal: Annotated[float | None, typer.Option("--focal", min=0.0, help="Focal length (pixels of --image) for "
                                                 "the overlay; gives a camera to files without one.")] = None,
     checkpoint: Checkpoint = None,

@@ -28,6 +28,7 @@ from workflows.estimators import (
     aist,
     amass_params,
     easymocap,
+    glamr,
     gvhmr,
     hybrik,
     phalp,
@@ -48,20 +49,20 @@ from workflows.estimators.base import (
     camera_to_world,
 )
 
-FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "aist", "amass",
-                     "sam3d", "easymocap", "plain", "pose_array"]
-FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "aist", "amass",
-                            "sam3d", "easymocap", "plain", "pose_array")
+FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
+                     "amass", "sam3d", "easymocap", "plain", "pose_array"]
+FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
+                            "amass", "sam3d", "easymocap", "plain", "pose_array")
 _MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx, "vibe": vibe,
-            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "easymocap": easymocap,
+            "gvhmr": gvhmr, "glamr": glamr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "easymocap": easymocap,
             "plain": plain, "pose_array": pose_array}
-_DETECT_ORDER = (romp, hybrik, gvhmr, aist, sam3d, phalp, wham, pymafx, vibe, amass_params, easymocap, plain,
+_DETECT_ORDER = (romp, hybrik, gvhmr, glamr, aist, sam3d, phalp, wham, pymafx, vibe, amass_params, easymocap, plain,
                  pose_array)
 SIGNATURES: dict[str, tuple[str, ...]] = {
     "romp": ("smpl_thetas", "smpl_betas", "cam_trans"), "hybrik": ("pred_thetas", "pred_betas", "transl"),
     "phalp": ("smpl", "camera"), "wham": ("pose", "trans", "betas"), "pymafx": ("pose", "betas", "orig_cam_t"),
     "vibe": ("pose", "betas", "orig_cam", "frame_ids"),
-    "gvhmr": ("smpl_params_incam", "smpl_params_global", "K_fullimg"),
+    "gvhmr": ("smpl_params_incam", "smpl_params_global", "K_fullimg"), "glamr": ("person_data", "cam_pose"),
     "aist": ("smpl_poses", "smpl_trans", "smpl_scaling"), "amass": ("poses", "trans", "betas"),
     "sam3d": ("pred_joint_coords", "pred_cam_t"), "easymocap": ("id", "Rh", "Th", "poses", "shapes"),
     "plain": ("global_orient", "body_pose", "transl", "betas")}
@@ -217,7 +218,8 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
             by the estimator's track id (``person_id``).
         max_people: refuse more people than this in the frame.
         max_bytes: refuse files whose (uncompressed) data is larger.
-        space: for WHAM and GVHMR, ``"camera"`` or ``"world"`` output (default: WHAM world, GVHMR camera).
+        space: for WHAM, GVHMR and GLAMR, ``"camera"`` or ``"world"`` output (default: WHAM and GLAMR world,
+            GVHMR camera).
         solver: for SAM-3D-Body (not SMPL), the :class:`smplik.solver.IKSolver` that fits the SMPL pose
             (default: the shipped model).
 
@@ -246,7 +248,7 @@ def people_from_data(data: Any, *, source: str, format: FormatName = "auto", fra
     name = detect_format(data) if format == "auto" else format
     module = _MODULES[name]
     kwargs: dict[str, Any] = {"frame": int(frame), "max_people": max_people}
-    if space is not None and module in (wham, gvhmr):
+    if space is not None and module in (wham, gvhmr, glamr):
         kwargs["space"] = space
     if solver is not None and module is sam3d:
         kwargs["solver"] = solver
