@@ -199,3 +199,11 @@ def test_a_full_path_above_the_threshold_is_polished_by_swaps(synthetic_pose, or
     assert spine3_rot not in {(e.joint, int(e.type)) for e in res.effectors} and len(res.effectors) == 6
     assert res.final_error == pytest.approx(res.errors[-1], rel=1e-5)  # errors re-scored for the new order
     assert res.final_error < plain.final_error + 0.05 - 0.01
+
+
+def test_polish_off_keeps_the_plain_greedy_path(synthetic_pose, oracle_solver):
+    target = TargetPose.from_pose(synthetic_pose(0))
+    solver = oracle_solver(target.p_world)
+    res = recover_effectors(solver, target, RecoveryConfig(max_effectors=6, threshold=0.0, polish=False))
+    assert len(res.effectors) == 6 and solver.calls == 6 + 1  # one solve per greedy step, then the final pose
+    assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))

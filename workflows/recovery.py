@@ -154,6 +154,9 @@ class RecoveryConfig:
     search_refine_steps: int = 1
     """Refinement steps (:mod:`smplik.refine`) while scoring candidates; the final pose gets the
     solver's own refinement. One step keeps 8 effectors under 100 ms on one CPU thread."""
+    polish: bool = True
+    """Restart and swaps on a full path still above the threshold (steps 3-4 of the module docstring); off
+    keeps the plain greedy search's speed (pairs and forced steps still run)."""
     criterion: Criterion = "joints"
     """What each step minimises (:func:`recovery_score`); ``errors`` always report the mean joint error."""
 
@@ -365,6 +368,9 @@ def _advance(st: _Search, sets: list[Tensor], scored: list[tuple[Tensor, Tensor]
 def _full(st: _Search, cfg: RecoveryConfig) -> None:
     """A path holds ``max_effectors`` but is above the threshold: restart (once, with room for the restart
     set), else keep the closer of the two paths and polish it by swaps."""
+    if not cfg.polish:
+        st.done = True
+        return
     if not st.restarted and len(st.chosen) >= len(RESTART_SET):
         _restart(st)
         return
