@@ -14,11 +14,20 @@ SAM-3D-Body (``sam3d``, MHR joints, the SMPL pose fitted by the SMPL-IK solver):
 MHR joints at the joints of a known pose of our body, the reference is the producer's projection of
 ``pred_joint_coords + pred_cam_t``; also reported: the fitted body's joint error (mm, all 24 joints).
 
+Against the producer's own render (real files): for every ``hmr4d_results.pt`` under ``--real`` (else
+``$SMPLIK_REAL_ESTIMATORS``, else ``/work/realdata/estimators``) that has GVHMR's ``0_input_video.mp4`` and
+``1_incam.mp4`` (its in-camera render over the video) beside it, 10 frames per track: the producer's body
+is where the two videos differ; its top row (head) and bottom row (feet) are compared with those of our
+built-in body's mesh projected through the scene's overlay camera, in % of the producer's body height in
+the image (positive: ours lower). Needs imageio with its ffmpeg plugin (``imageio-ffmpeg``); skipped
+without it or without the files.
+
 Prints a table and writes ``benchmarks/results/estimator_placement.json``.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -86,9 +95,13 @@ def main() -> None:
                 print(f"{fmt:8s} {height:9.0f} {row['pelvis_px_mean']:11.3f} {row['pelvis_px_max']:10.3f} {hm:>9s} "
                       f"{hx:>8s} {row['before_fix_pelvis_px_mean']:15.1f}")
         results["sam3d"] = sam3d_rows(Path(tmp))
+    real = Path(os.environ.get("SMPLIK_REAL_ESTIMATORS", "/work/realdata/estimators"))
+    renders = producer_render_rows(real)
     path = save("estimator_placement", {"image_size": [640, 480], "seeds": SEEDS, "formats": results,
+                                        "producer_renders": renders,
                                         "note": "head error = built-in body proportions vs SMPL's; SMPL-X "
-                                                "producers (gvhmr): pelvis only; sam3d: fitted SMPL pose"})
+                                                "producers (gvhmr): pelvis only; sam3d: fitted SMPL pose; "
+                                                "producer_renders: % of the body's image height, + = ours lower"})
     print(f"wrote {path}")
 
 
@@ -119,6 +132,76 @@ def sam3d_rows(tmp: Path) -> dict:
         print(f"{'sam3d':8s} {height:9.0f} {row['pelvis_px_mean']:11.3f} {row['pelvis_px_max']:10.3f} "
               f"{row['head_px_mean']:9.2f} {row['head_px_max']:8.2f} {'-':>15s}  joints {row['joint_mm_mean']:.1f} "
               f"mm mean, {row['joint_mm_max']:.1f} max")
+    return rows
+
+
+def _body_rows(video_in: np.ndarray, video_out: np.ndarray, threshold: int = 60, min_pixels: int = 4
+               ) -> tuple[int, int] | None:
+    """Top and bottom image rows where the producer's render differs from the input frame (its body)."""
+    diff = np.abs(video_in.astype(np.int16) - video_out.astype(np.int16)).max(-1) > threshold
+    rows = np.nonzero(diff.sum(1) >= min_pixels)[0]
+    return (int(rows.min()), int(rows.max())) if rows.size else None
+
+
+def producer_render_rows(folder: Path, frames_per_track: int = 10) -> dict:
+    """Head (top) and feet (bottom) of our overlay vs GVHMR's own in-camera render, per real track."""
+    tracks = sorted(folder.rglob("hmr4d_results.pt")) if folder.is_dir() else []
+    tracks = [t for t in tracks if (t.parent / "0_input_video.mp4").is_file() and (t.parent / "1_incam.mp4").is_file()]
+    if not tracks:
+        print(f"producer renders: skipped (no GVHMR track with its videos under {folder})")
+        return {}
+    try:
+        import imageio
+
+        imageio.get_reader(tracks[0].parent / "1_incam.mp4").close()
+    except (ImportError, ValueError, RuntimeError, OSError) as exc:
+        print(f"producer renders: skipped (cannot decode mp4 with imageio: {exc})")
+        return {}
+    import torch
+
+    from smplik.body_model import load_body_model
+    from workflows.estimators import _load_raw as load_estimator_file
+    from workflows.estimators import people_from_data
+    from workflows.previews import image_camera
+    from workflows.scene import Scene, SceneCharacter
+
+    rows = {}
+    print(f"{'GVHMR track':36s} {'frames':>6s} {'head % mean':>11s} {'head % max':>10s} {'feet % mean':>11s} "
+          f"{'feet % max':>10s}")
+    for path in tracks:
+        data = load_estimator_file(path, False, 1 << 30)
+        length = len(data["smpl_params_incam"]["body_pose"])
+        video_in = imageio.get_reader(path.parent / "0_input_video.mp4")
+        video_out = imageio.get_reader(path.parent / "1_incam.mp4")
+        head, feet = [], []
+        for f in np.linspace(0, length - 1, frames_per_track).round().astype(int):
+            a, b = video_in.get_data(int(f)), video_out.get_data(int(f))
+            body = _body_rows(a, b)
+            if body is None:
+                continue
+            p = people_from_data(data, source=str(path), frame=int(f))[0]
+            cam = image_camera(Scene((SceneCharacter("p", p.gender, p.betas, pose=p.to_pose()),), camera=p.camera),
+                               a.shape[1], a.shape[0])
+
+            def t(x: np.ndarray) -> torch.Tensor:
+                return torch.as_tensor(np.asarray(x), dtype=torch.float32)[None]
+
+            with torch.no_grad():
+                verts, _ = load_body_model(p.gender).vertices(t(p.global_orient), t(p.body_pose), t(p.transl),
+                                                              t(p.betas))
+            V = np.linalg.solve(cam.T_world_camera, np.c_[verts[0].double().numpy(), np.ones(len(verts[0]))].T).T
+            v = cam.cy - cam.fy * V[:, 1] / -V[:, 2]
+            height = body[1] - body[0]
+            head.append(100 * (v.min() - body[0]) / height)
+            feet.append(100 * (v.max() - body[1]) / height)
+        name = str(path.parent.relative_to(folder))
+        rows[name] = {"frames": len(head), "head_pct_mean": round(float(np.mean(head)), 2),
+                      "head_pct_max_abs": round(float(np.max(np.abs(head))), 2),
+                      "feet_pct_mean": round(float(np.mean(feet)), 2),
+                      "feet_pct_max_abs": round(float(np.max(np.abs(feet))), 2)}
+        r = rows[name]
+        print(f"{name:36s} {r['frames']:6d} {r['head_pct_mean']:11.2f} {r['head_pct_max_abs']:10.2f} "
+              f"{r['feet_pct_mean']:11.2f} {r['feet_pct_max_abs']:10.2f}")
     return rows
 
 

@@ -43,7 +43,8 @@ class Written:
 FOCAL = {"romp": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)), "bev": max(IMAGE_W, IMAGE_H) / 2 / np.tan(
     np.radians(30.0)), "hybrik": 1000.0 / 256.0 * 250.0, "phalp": 5000.0 / 256.0 * max(IMAGE_W, IMAGE_H),
     "wham": float(np.hypot(IMAGE_W, IMAGE_H)), "pymafx": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0)),
-    "gvhmr": 700.0, "plain": 800.0}
+    "gvhmr": float(np.hypot(IMAGE_W, IMAGE_H)), "gvhmr_flat": float(np.hypot(IMAGE_W, IMAGE_H)), "plain": 800.0,
+    "vibe": max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(30.0))}
 """Each fixture's focal length (pixels), to frame the people the same way in every format."""
 
 
@@ -204,8 +205,9 @@ def write_pymafx(folder: Path, aa, transl, betas) -> Written:
 
 
 def write_gvhmr(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
-    """GVHMR ``tools/demo/demo.py``: ``torch.save(pred, 'hmr4d_results.pt')`` of tensors (one person, L frames)."""
-    f, cx, cy = FOCAL["gvhmr"], IMAGE_W / 2 + 7.0, IMAGE_H / 2 - 5.0
+    """GVHMR ``tools/demo/demo.py``: ``torch.save(pred, 'hmr4d_results.pt')`` of tensors (one person, L frames);
+    ``K_fullimg = estimate_K(width, height)`` (``hmr4d/utils/geo/hmr_cam.py``: diagonal focal, centred)."""
+    f, cx, cy = FOCAL["gvhmr"], IMAGE_W / 2, IMAGE_H / 2
     K = torch.tensor([[f, 0, cx], [0, f, cy], [0, 0, 1.0]]).expand(frames, 3, 3).clone()
 
     def params(a: np.ndarray, t: np.ndarray) -> dict:
@@ -221,6 +223,30 @@ def write_gvhmr(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
     return Written(path, f, cx, cy, family="smplx", fmt="gvhmr")
 
 
+def write_gvhmr_flat_npz(folder: Path, aa, transl, betas, *, frames: int = 2) -> Written:
+    """A user's AMASS-style conversion of GVHMR's ``hmr4d_results.pt``: github.com/wenconggan/video2smpl
+    ``pt2npz/Converter.py`` ``convert_pt_to_npz``: ``poses (L, 72)`` / ``trans`` from ``smpl_params_global``
+    (turned by its ``R_fix``), ``betas (10,)``, ``gender``, ``mocap_framerate``, ``K_fullimg`` and every other
+    entry flattened with ``_`` (``smpl_params_incam_body_pose`` ...), ``np.savez_compressed``."""
+    w = write_gvhmr(folder, aa, transl, betas, frames=frames)
+    pred = torch.load(w.path, weights_only=True)
+    w.path.unlink()
+
+    def flat(obj, prefix: str) -> dict:  # the converter's extract_tensors
+        if isinstance(obj, dict):
+            return {k: v for key, val in obj.items() for k, v in flat(val, f"{prefix}{key}_").items()}
+        return {prefix[:-1]: obj.numpy()}
+
+    g = pred["smpl_params_global"]
+    poses = np.concatenate([g["global_orient"].numpy(), g["body_pose"].numpy(), np.zeros((frames, 6))], 1)
+    extra = {k: v for key in pred if key != "smpl_params_global" for k, v in flat(pred[key], f"{key}_").items()}
+    path = folder / "hmr4d_results.npz"
+    np.savez_compressed(path, poses=poses.astype(np.float32), trans=g["transl"].numpy(),
+                        betas=g["betas"].numpy()[0], gender="neutral", mocap_framerate=np.array(30),
+                        **{"K_fullimg": pred["K_fullimg"].numpy(), **extra})
+    return Written(path, w.f, w.cx, w.cy, family="smplx", fmt="gvhmr")
+
+
 def write_plain(folder: Path, aa, transl, betas) -> Written:
     """A plain ``.npz`` of smplx keys in the camera frame with intrinsics ``K``."""
     f, cx, cy = FOCAL["plain"], IMAGE_W / 2 - 10.0, IMAGE_H / 2 + 4.0
@@ -232,9 +258,9 @@ def write_plain(folder: Path, aa, transl, betas) -> Written:
 
 CAMERA_WRITERS = {"romp": write_romp, "bev": lambda *a: write_romp(*a, bev=True), "hybrik": write_hybrik,
                   "phalp": write_phalp, "wham": write_wham, "pymafx": write_pymafx, "gvhmr": write_gvhmr,
-                  "plain": write_plain}
+                  "gvhmr_flat": write_gvhmr_flat_npz, "plain": write_plain}
 """Every camera-frame format's writer (HybrIK and GVHMR hold one person: pass n=1 people)."""
-SINGLE_PERSON = {"hybrik", "gvhmr"}
+SINGLE_PERSON = {"hybrik", "gvhmr", "gvhmr_flat"}
 
 
 # SAM-3D-Body: MHR-rig slots of the SMPL joints (the reader's table is not used to write them)
@@ -372,3 +398,82 @@ def overlay_pixels(people_list, width: int = IMAGE_W, height: int = IMAGE_H, gro
         x = (np.linalg.inv(cam.T_world_camera) @ np.c_[J, np.ones(2)].T).T[:, :3]
         out.append(np.stack([cam.cx + cam.fx * x[:, 0] / -x[:, 2], cam.cy - cam.fy * x[:, 1] / -x[:, 2]], -1))
     return np.stack(out)
+
+
+def write_vibe(folder: Path, aa, transl, betas, *, pare: bool = False, frames: int = 3) -> Written:
+    """VIBE ``demo.py`` (``joblib.dump(vibe_results, 'vibe_output.pkl')``) or PARE ``run_on_video`` (``pose``
+    as rotation matrices, plus ``smpl_joints2d``): ``{person_id: output_dict}`` over ``frames`` frames, the
+    people at frame 1 only for person 2 (a track that starts later). ``orig_cam = [sx, sy, tx, ty]`` is the
+    weak-perspective camera that draws a body at depth ``tz`` the size a 60-degree pinhole draws it
+    (``convert_crop_cam_to_orig_img`` of a crop camera, ``lib/utils/demo_utils.py``)."""
+    f = FOCAL["vibe"]
+    out = {}
+    for i in range(aa.shape[0]):
+        tz = transl[i, 2]
+        cam = np.array([2 * f / (IMAGE_W * tz), 2 * f / (IMAGE_H * tz), transl[i, 0], transl[i, 1]])
+        ids = np.arange(frames) if i == 0 else np.arange(1, frames)
+        n = ids.shape[0]
+        pose = np.broadcast_to(aa[i].reshape(1, 72), (n, 72)).astype(np.float32)
+        d = {"pred_cam": np.zeros((n, 3), np.float32), "orig_cam": np.broadcast_to(cam, (n, 4)).astype(np.float32),
+             "verts": np.zeros((n, 6890, 3), np.float32),
+             "pose": _R(pose.reshape(n, 24, 3)).astype(np.float32) if pare else pose,
+             "betas": np.broadcast_to(betas[i], (n, 10)).astype(np.float32), "joints3d": np.zeros((n, 49, 3)),
+             "joints2d": None, "bboxes": np.tile([320.0, 240.0, 200.0, 200.0], (n, 1)), "frame_ids": ids}
+        if pare:
+            d["smpl_joints2d"] = np.zeros((n, 49, 2), np.float32)
+        out[i + 1] = d
+    path = folder / ("pare_output.pkl" if pare else "vibe_output.pkl")
+    joblib.dump(out, path)
+    return Written(path, f, IMAGE_W / 2, IMAGE_H / 2, fmt="vibe")
+
+
+def weak_perspective_pixels(w: Written, aa: np.ndarray, transl: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) pelvis and head as VIBE's renderer draws them (``WeakPerspectiveCamera``): SMPL's output
+    joints (no transl) at ``u = W/2 (1 + sx (x + tx))``, ``v = H/2 (1 + sy (y + ty))``."""
+    J = producer_joints(aa, np.zeros_like(transl))[:, [PELVIS, HEAD]]
+    sx, sy = (2 * w.f / (IMAGE_W * transl[:, 2]))[:, None], (2 * w.f / (IMAGE_H * transl[:, 2]))[:, None]
+    u = IMAGE_W / 2 * (1 + sx * (J[..., 0] + transl[:, :1]))
+    v = IMAGE_H / 2 * (1 + sy * (J[..., 1] + transl[:, 1:2]))
+    return np.stack([u, v], -1)
+
+
+def write_easymocap(folder: Path, people_zup: list[dict]) -> Path:
+    """EasyMocap ``write_smpl`` (``easymocap/mytools/file_utils.py``): ``output/smpl/000000.json``, a list of
+    ``{"id", "Rh": [[3]], "Th": [[3]], "poses": [[72]], "shapes": [[10]]}`` (one frame, z-up world)."""
+    import json
+
+    path = folder / "000000.json"
+    path.write_text(json.dumps([{"id": p["id"], "Rh": [list(map(float, p["Rh"]))], "Th": [list(map(float, p["Th"]))],
+                                 "poses": [list(map(float, p["poses"]))], "shapes": [list(map(float, p["shapes"]))]}
+                                for p in people_zup], indent=4))
+    return path
+
+
+def write_glamr(folder: Path, aa, transl, betas, *, frames: int = 3) -> tuple[Written, np.ndarray]:
+    """GLAMR ``global_recon/run_demo.py``: the optimiser's ``data`` dict pickled, ``person_data[id]`` with
+    ``smpl_pose (T, 69)``, ``smpl_beta``, ``smpl_orient_cam``, ``root_trans_cam`` (the pelvis, HybrIK's
+    ``root_trans``), ``cam_K``, and the world (z-up) ``smpl_orient_world`` / ``root_trans_world`` from
+    ``cam_pose_inv``. Returns the fixture and ``cam_pose_inv`` (4, 4) (world <- camera)."""
+    f, cx, cy = FOCAL["hybrik"], IMAGE_W / 2 + 3.0, IMAGE_H / 2 - 2.0
+    K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+    T_wc = np.eye(4)
+    T_wc[:3, :3] = Rotation.from_euler("xz", [-100.0, 30.0], degrees=True).as_matrix()  # camera looks along +y-ish
+    T_wc[:3, 3] = [0.5, -2.0, 1.6]
+    pelvis = producer_joints(aa, transl)[:, 0]
+    person_data = {}
+    for i in range(aa.shape[0]):
+        R_w = Rotation.from_matrix(T_wc[:3, :3]) * Rotation.from_rotvec(aa[i, 0])
+        person_data[i] = {
+            "smpl_pose": np.tile(aa[i, 1:].reshape(1, 69), (frames, 1)),
+            "smpl_beta": np.tile(betas[i], (frames, 1)), "smpl_orient_cam": np.tile(aa[i, 0], (frames, 1)),
+            "root_trans_cam": np.tile(pelvis[i], (frames, 1)), "cam_K": np.tile(K, (frames, 1, 1)),
+            "smpl_orient_world": np.tile(R_w.as_rotvec(), (frames, 1)),
+            "root_trans_world": np.tile(T_wc[:3, :3] @ pelvis[i] + T_wc[:3, 3], (frames, 1)),
+            "frames": np.arange(frames), "visible": np.ones(frames)}
+    data = {"seq_name": "demo", "person_data": person_data, "seq_len": frames,
+            "cam_pose_inv": np.tile(T_wc, (frames, 1, 1)), "cam_pose": np.tile(np.linalg.inv(T_wc), (frames, 1, 1)),
+            "meta": {"algo": "global_recon", "num_fr": frames}}
+    path = folder / "demo_result.pkl"
+    with open(path, "wb") as fh:
+        pickle.dump(data, fh)
+    return Written(path, f, cx, cy, fmt="glamr"), T_wc

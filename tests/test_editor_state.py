@@ -200,7 +200,9 @@ def test_recovery_replaces_effectors_from_the_estimated_pose(solver, tmp_path):
     errors = state.recover(5)
     effs = state.character().effectors
     assert 1 <= len(effs) <= 5 and len(errors) == len(effs)
-    assert all(a > b for a, b in zip(errors, errors[1:], strict=False))
+    # the full set is the closest (workflows/recovery.py: after a restart or swaps an intermediate count may
+    # be above the one before it)
+    assert errors[-1] <= min(errors) + 1e-9 and len(errors) == 5
     target = estimated.joints * 1.2  # character space
     assert np.linalg.norm(state.view().joints - target, axis=1).mean() < 0.06
     assert state.undo() and len(state.character().effectors) == 1

@@ -54,7 +54,7 @@ def test_placement_matches_the_producers_pixels(tmp_path, fmt):
     aa, transl, betas = people(seed=3, n=n, **framing(fmt, 200))
     written = CAMERA_WRITERS[fmt](tmp_path, aa, transl, betas)
     found = read_estimate(written.path, format="auto", space="camera")
-    assert detect_format(_raw(written.path)) == ("romp" if fmt == "bev" else fmt)
+    assert detect_format(_raw(written.path)) == {"bev": "romp", "gvhmr_flat": "gvhmr"}.get(fmt, fmt)
     assert len(found) == n
     expected = producer_pixels(written, aa[:n], transl[:n])
     got = overlay_pixels(found)
@@ -154,7 +154,27 @@ def test_gvhmr_world_and_npz(tmp_path):
     np.savez(npz, K_fullimg=data["K_fullimg"].numpy(), **flat)
     a, b = read_estimate(npz)[0], read_estimate(w.path)[0]
     np.testing.assert_allclose(a.transl, b.transl, atol=1e-6)
-    assert a.camera.principal_px == pytest.approx((IMAGE_W / 2 + 7, IMAGE_H / 2 - 5))
+    assert a.camera.principal_px == pytest.approx((IMAGE_W / 2, IMAGE_H / 2))
+    # GVHMR's K_fullimg = estimate_K(width, height): the image size is twice the principal point
+    assert a.camera.image_size == (IMAGE_W, IMAGE_H) and a.camera.focal_rule == "intrinsics"
+    assert a.camera.focal_px == pytest.approx(np.hypot(IMAGE_W, IMAGE_H), rel=1e-6)
+
+
+def test_gvhmr_flat_underscore_keys_of_an_amass_style_conversion(tmp_path):
+    """video2smpl's pt2npz/Converter.py: AMASS keys (poses, trans) beside K_fullimg and smpl_params_incam_*:
+    auto-detection reads it as GVHMR with its camera; --format amass reads the AMASS keys, without one."""
+    from estimator_fixtures import write_gvhmr_flat_npz
+
+    aa, transl, betas = people(seed=8, n=1)
+    w = write_gvhmr_flat_npz(tmp_path, aa, transl, betas)
+    assert "smpl_params_incam_body_pose" in np.load(w.path).files
+    a = read_estimate(w.path)[0]
+    b = read_estimate(CAMERA_WRITERS["gvhmr"](tmp_path / "pt" if (tmp_path / "pt").mkdir() is None else tmp_path,
+                                              aa, transl, betas).path)[0]
+    np.testing.assert_allclose(a.transl, b.transl, atol=1e-6)
+    np.testing.assert_allclose(a.body_pose, b.body_pose, atol=1e-6)
+    assert a.camera == b.camera and a.camera.image_size == (IMAGE_W, IMAGE_H)
+    assert read_estimate(w.path, format="amass")[0].camera is None
 
 
 def test_aist_world_frame(tmp_path):

@@ -88,3 +88,31 @@ def test_preview_shows_ghost_labels_and_overlay(tmp_path, cli, fmt):
     assert dark.sum() > 30  # the ghost wireframe (dark bones) is there
     legend = img[:40, :200]
     assert (legend.min(-1) < 80).sum() > 50  # legend text printed on the image
+
+
+@pytest.mark.parametrize(("writer", "extra"), [("gvhmr_flat", ["--format", "amass"]), ("gvhmr", ["--space", "world"])])
+def test_image_without_a_camera_says_so_in_one_line_or_uses_focal(tmp_path, cli, writer, extra):
+    """An AMASS-style file (even one holding K_fullimg) or GVHMR in world space yields no camera: --image is
+    recorded, nothing is drawn over it, and one line says so; --focal gives the overlay a camera."""
+    aa, transl, betas = people(seed=2, n=1, **framing("gvhmr", 240))
+    w = CAMERA_WRITERS[writer](tmp_path, aa, transl, betas)
+    photo = tmp_path / "photo.png"
+    photo.write_bytes(b"not read with --no-previews")
+    result = cli(w.path, "--out", tmp_path / "a", "--image", photo, "--no-previews", "--max-effectors", 2, *extra)
+    assert result.exit_code == 0, result.output
+    notes = [line for line in result.output.splitlines() if "holds no camera" in line]
+    assert len(notes) == 1 and "--focal" in notes[0], result.output
+    assert load_scene(tmp_path / "a" / "scene.json").camera is None
+    result = cli(w.path, "--out", tmp_path / "b", "--image", photo, "--no-previews", "--max-effectors", 2,
+                 "--focal", 812.5, *extra)
+    assert result.exit_code == 0 and "holds no camera" not in result.output, result.output
+    cam = load_scene(tmp_path / "b" / "scene.json").camera
+    assert cam.focal_px == 812.5 and cam.focal_rule == "given" and cam.image_size is None
+
+
+def test_gvhmr_scene_records_the_intrinsics_and_image_size(tmp_path, cli):
+    aa, transl, betas = people(seed=2, n=1, **framing("gvhmr", 240))
+    w = CAMERA_WRITERS["gvhmr"](tmp_path, aa, transl, betas)
+    assert cli(w.path, "--out", tmp_path / "o", "--no-previews", "--max-effectors", 2).exit_code == 0
+    cam = json.loads((tmp_path / "o" / "scene.json").read_text())["camera"]
+    assert cam["focal_rule"] == "intrinsics" and cam["image_size"] == [640, 480]

@@ -27,7 +27,8 @@ scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve 
 demo_app = typer.Typer(help="End-to-end demo on built-in material.")
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
-FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d", "plain")
+FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist", "amass",
+           "sam3d", "easymocap", "plain", "pose_array")
 
 
 def _solver(checkpoint: Path | None):
@@ -86,8 +87,10 @@ def from_estimate_cmd(
                                             "the frame than this.")] = 100,
     max_bytes: Annotated[int, typer.Option("--max-bytes", min=1, help="Refuse estimator files whose data is "
                                            "larger than this uncompressed (bytes).")] = 1 << 30,
-    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'camera' or 'world' output "
-                                              "(default: WHAM world, GVHMR camera).")] = None,
+    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR / GLAMR: 'camera' or 'world' "
+                                              "output (default: WHAM, GLAMR world; GVHMR camera).")] = None,
+    focal: Annotated[float | None, typer.Option("--focal", min=0.0, help="Focal length (pixels of --image) for "
+                                                "the overlay; gives a camera to files without one.")] = None,
     checkpoint: Checkpoint = None,
     no_previews: Annotated[bool, typer.Option("--no-previews", help="Skip the PNG previews.")] = False,
 ) -> None:
@@ -115,7 +118,9 @@ def from_estimate_cmd(
                                 config=RecoveryConfig(max_effectors=max_effectors, threshold=threshold),
                                 trust_pickle=trust_pickle, image_path=image, frame=frame,
                                 previews=not no_previews, max_people=max_people, max_bytes=max_bytes, ground=ground,
-                                space=space, progress=progress)
+                                space=space, focal=focal, progress=progress)
+    for note in outputs.notes:
+        say(note)
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "

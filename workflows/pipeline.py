@@ -16,6 +16,7 @@ optionally put on a floor (``ground``), then per estimated person:
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,6 +140,8 @@ class EstimateOutputs:
     plots: tuple[Path, ...]
     bvh: tuple[Path, ...]
     results: tuple[PersonResult, ...]
+    notes: tuple[str, ...] = ()
+    """One-line remarks for the user (e.g. an ``--image`` that could not be overlaid)."""
 
     @property
     def all_files(self) -> tuple[Path, ...]:
@@ -163,6 +166,7 @@ def from_estimate(
     max_bytes: int | None = None,
     ground: bool = False,
     space: str | None = None,
+    focal: float | None = None,
     progress: Progress | None = None,
 ) -> EstimateOutputs:
     """Estimator output -> ``out_dir/scene.json`` (+ previews, recovery plots, BVH with a character).
@@ -172,6 +176,11 @@ def from_estimate(
     camera when ``image_path`` is given,
     plus front and side views), ``<person>_character.png`` with a custom character; plots:
     ``<person>_recovery.png``; BVH: ``<person>.bvh`` (the posed custom character, its own skeleton).
+
+    ``focal``: a focal length (pixels of ``image_path``) for the overlay camera: it replaces the file's
+    (principal point kept), or gives a camera at the world origin to a file that holds none (AMASS-style
+    files, GVHMR or WHAM in world space). Without one, such a file's ``image_path`` is recorded in the
+    scene but no overlay is drawn, and ``notes`` says so.
     """
     from workflows.character import export_bvh, load_character
     from workflows.estimators import read_estimate
@@ -181,11 +190,19 @@ def from_estimate(
     out_dir.mkdir(parents=True, exist_ok=True)
     config = RecoveryConfig() if config is None else config
     from workflows.estimators import MAX_BYTES, MAX_PEOPLE
+    from workflows.estimators.pose_array import EstimateNote
 
-    people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame,  # type: ignore[arg-type]
-                           max_people=MAX_PEOPLE if max_people is None else max_people,
-                           max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space,  # type: ignore[arg-type]
-                           solver=solver if isinstance(solver, IKSolver) else None)  # fits SAM-3D-Body's MHR joints
+    with warnings.catch_warnings(record=True) as caught:  # readers' assumptions become notes for the user
+        warnings.simplefilter("always", EstimateNote)
+        people = read_estimate(results_path, format=format, trust_pickle=trust_pickle, frame=frame,  # type: ignore[arg-type]
+                               max_people=MAX_PEOPLE if max_people is None else max_people,
+                               max_bytes=MAX_BYTES if max_bytes is None else max_bytes, space=space,  # type: ignore[arg-type]
+                               solver=solver if isinstance(solver, IKSolver) else None)  # fits SAM-3D-Body's MHR joints
+    for w in caught:
+        if not issubclass(w.category, EstimateNote):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    people, notes = _overlay_camera(people, results_path, image_path, focal)
+    notes = tuple(str(w.message) for w in caught if issubclass(w.category, EstimateNote)) + notes
     character = skeleton = None
     if character_path is not None:
         options = CharacterOptions() if character_options is None else character_options
@@ -227,4 +244,21 @@ def from_estimate(
                 img = render_custom_character(character, r.custom_pose, c)
                 preview_paths.append(save_png(img, out_dir / f"{r.name}_character.png"))
     return EstimateOutputs(scene_path, tuple(preview_paths), tuple(plot_paths), tuple(bvh_paths),
-                           tuple(person_results))
+                           tuple(person_results), notes)
+
+
+def _overlay_camera(people: list[EstimatedPerson], results_path: str | Path, image_path: str | Path | None,
+                    focal: float | None) -> tuple[list[EstimatedPerson], tuple[str, ...]]:
+    """Apply ``--focal`` to the people's camera; a note when ``--image`` cannot be overlaid (no camera)."""
+    from workflows.estimators.base import CameraInfo, EstimateFormatError
+
+    if focal is not None:
+        if not (np.isfinite(focal) and focal > 0):
+            raise EstimateFormatError(f"--focal must be a positive number of pixels, got {focal}.")
+        people = [dataclasses.replace(p, camera=dataclasses.replace(
+            p.camera or CameraInfo(), focal_px=float(focal), image_size=None, focal_rule="given")) for p in people]
+    if image_path is None or any(p.camera is not None for p in people):
+        return people, ()
+    return people, (f"{results_path}: this file holds no camera (its people are in a world frame), so --image "
+                    f"{image_path} is recorded but not overlaid; GVHMR/WHAM: --space camera; else --focal PX "
+                    f"overlays through a camera at the world origin.",)

@@ -3,9 +3,30 @@
 Greedy: start from no effector; at each step try every remaining candidate ``(joint, type)`` added
 to the current set, all candidates in **one** batched solve (row ``b`` = current set + candidate
 ``b``); keep the candidate whose solved pose has the lowest mean per-joint L2 error to the target
-in character space; stop at ``max_effectors``, once the error is below ``threshold``, or when no
-remaining candidate lowers the error (with a learned solver an extra effector can make the pose
-slightly worse; such an effector is not kept), so the errors strictly decrease.
+in character space; stop at ``max_effectors`` or once the error is below ``threshold``.
+
+The search never gives up above the threshold while effectors remain. A learned solver can sit in a
+local minimum where every single extra effector makes the pose worse (on a real GVHMR squat, spine1 and
+neck positions at 96 mm, every third effector above 100 mm, while the 6-point set reaches 20 mm), so:
+
+1. **pairs**: when no single candidate lowers the error, every pair of remaining candidates is tried
+   (one batched solve) and the best pair is kept if it lowers the error (its first member's error is
+   the one it had as a single);
+2. **force**: if no pair helps either, the least harmful single is added and the search goes on;
+3. **restart**: a path that is full (``max_effectors``, at least 6) but still above the threshold is
+   set aside and the search starts again, once, from the dense :data:`RESTART_SET` (all its prefixes
+   scored in one round), continuing by the same rules; the closer path (search score) goes on;
+4. **swaps**: a full path still above the threshold is polished by up to :data:`SWAP_ROUNDS` swaps,
+   each the best replacement of one effector by another candidate (all in one batched solve) when it
+   lowers the error; the new one goes last and the path's per-count errors are scored again.
+
+Of the full paths (the first, the restart's, before and after swaps), the result is the one whose
+re-solved pose (the final solve below) is closest: the search's cheap solve can rank them otherwise.
+So the result holds ``max_effectors`` effectors unless the threshold was reached. ``errors`` decrease
+strictly along a path except after a forced step, along the restart set's prefixes and after swaps.
+On every frame of four real GVHMR tracks and an AIST++ dance (``benchmarks/estimator_recovery.py``)
+the plain greedy search left squat frames at 72-96 mm with 2 effectors; with these steps the worst
+GVHMR frame is under 40 mm with 8.
 
 Candidates: the 24 joints x {position, rotation}, plus (``include_look_at``) a look-at on the head
 whose target is ``look_at_distance`` metres along the head's forward axis (+z in its frame).
@@ -31,7 +52,7 @@ Speed: candidate effector data are precomputed once as tensors; each step builds
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol
 
 import numpy as np
@@ -59,6 +80,13 @@ LIMB_ZONES: dict[str, tuple[str, ...]] = {
 """The body's limbs, for the ``"joints+worst_limb"`` criterion and the benchmark's per-limb errors."""
 
 Criterion = Literal["joints", "joints+worst_limb"]
+
+RESTART_SET = ("pelvis", "neck", "left_wrist", "right_wrist", "left_ankle", "right_ankle")
+"""Where a stuck search restarts (position effectors, this order): the 6-point set of the IK benchmark
+(DESIGN.md section 5), a dense set that pins every limb; truncated to ``max_effectors``."""
+
+SWAP_ROUNDS = 3
+"""At most this many swaps (one effector replaced by another candidate) polish a full path above the threshold."""
 
 
 def limb_errors(joint_err: Tensor) -> Tensor:
@@ -126,6 +154,9 @@ class RecoveryConfig:
     search_refine_steps: int = 1
     """Refinement steps (:mod:`smplik.refine`) while scoring candidates; the final pose gets the
     solver's own refinement. One step keeps 8 effectors under 100 ms on one CPU thread."""
+    polish: bool = True
+    """Restart and swaps on a full path still above the threshold (steps 3-4 of the module docstring); off
+    keeps the plain greedy search's speed (pairs and forced steps still run)."""
     criterion: Criterion = "joints"
     """What each step minimises (:func:`recovery_score`); ``errors`` always report the mean joint error."""
 
@@ -198,31 +229,172 @@ def recover_effectors(solver: TensorSolver, target: TargetPose, cfg: RecoveryCon
     return recover_many(solver, [target], cfg, scales=[scale])[0]
 
 
+SearchMode = Literal["single", "pair", "seed", "force", "swap", "rescore"]
+
+
 @dataclass
 class _Search:
-    """One target's greedy state inside :func:`recover_many`."""
+    """One target's search state inside :func:`recover_many` (candidate indices into ``cand``)."""
 
     target: TargetPose
     scale: float
     cand: tuple[Tensor, Tensor, Tensor]
-    remaining: Tensor
-    chosen: list[int]
-    errors: list[float]
-    scores: list[float]
-    best_eff: EffectorBatch | None = None
+    chosen: list[int] = field(default_factory=list)
+    errors: list[float] = field(default_factory=list)
+    scores: list[float] = field(default_factory=list)
+    mode: SearchMode = "single"
+    singles: dict[int, tuple[float, float]] = field(default_factory=dict)
+    """The last single step's (error, score) per candidate: a kept pair's first member reports its own."""
+    restarted: bool = False
+    paths: list[tuple[list[int], list[float], list[float]]] = field(default_factory=list)
+    """Full paths set aside (the first one at the restart, the one before swaps): :func:`_finish` keeps the
+    path whose re-solved pose is closest."""
+    swaps_left: int = 0
+    swapped: bool = False
+    stuck_path: tuple[list[int], list[float], list[float]] | None = None
+    """The first (full) path, set aside at the restart (kept if the restart ends no closer)."""
     done: bool = False
+
+
+def _trial_sets(st: _Search, cfg: RecoveryConfig) -> list[Tensor]:
+    """The candidate sets to score for ``st`` this round: a list of (B, width) long tensors of candidate indices."""
+    n = st.cand[0].shape[0]
+    chosen = torch.tensor(st.chosen, dtype=torch.long)
+    taken = torch.zeros(n, dtype=torch.bool)
+    taken[chosen] = True
+    rest = torch.nonzero(~taken)[:, 0]
+    if st.mode in ("seed", "rescore"):  # every prefix, one set per width
+        seed = chosen if st.mode == "rescore" else torch.tensor(
+            [JOINT_INDEX[name] for name in RESTART_SET[:cfg.max_effectors]])  # position rows
+        return [seed[:m][None] for m in range(1, seed.shape[0] + 1)]
+    if st.mode == "swap":  # every effector replaced by every remaining candidate (appended last)
+        k = len(st.chosen)
+        return [torch.cat([torch.cat([torch.cat([chosen[:i], chosen[i + 1:]]).expand(rest.shape[0], k - 1),
+                                      rest[:, None]], 1) for i in range(k)])]
+    if st.mode == "pair":
+        pairs = torch.combinations(rest, 2)
+        return [torch.cat([chosen.expand(pairs.shape[0], len(st.chosen)), pairs], 1)]
+    return [torch.cat([chosen.expand(rest.shape[0], len(st.chosen)), rest[:, None]], 1)]
+
+
+def _score_sets(solver: TensorSolver, states: Sequence[_Search], sets: Sequence[Tensor], cfg: RecoveryConfig,
+                refine: RefineConfig) -> list[tuple[Tensor, Tensor]]:
+    """Solve every trial set (``sets[i]`` belongs to ``states[i]``), one batched call per set width.
+
+    Returns per entry ``(score (B,), mean joint error (B,))`` in character space.
+    """
+    out: list[tuple[Tensor, Tensor] | None] = [None] * len(sets)
+    widths = sorted({int(s.shape[1]) for s in sets})
+    for width in widths:
+        group = [i for i, s in enumerate(sets) if s.shape[1] == width]
+        parts = [[states[i].cand[f][sets[i]] for f in range(3)] for i in group]
+        joint, kind, data = (torch.cat([p[f] for p in parts]) for f in range(3))
+        sizes = [sets[i].shape[0] for i in group]
+        betas = torch.cat([states[i].target.betas.float().reshape(1, NUM_BETAS).expand(n, NUM_BETAS)
+                           for i, n in zip(group, sizes, strict=True)])
+        gender = torch.cat([torch.full((n,), states[i].target.gender.index) for i, n in zip(group, sizes, strict=True)])
+        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
+                            torch.ones(joint.shape, dtype=torch.bool))
+        solved = solver.solve_tensors(eff, betas, gender, refine=refine)
+        start = 0
+        for i, n in zip(group, sizes, strict=True):
+            st = states[i]
+            joint_err = (solved.p_world[start:start + n].float() - st.target.p_world.float()).norm(dim=-1)
+            start += n
+            out[i] = (recovery_score(joint_err, cfg.criterion) * st.scale, joint_err.mean(-1) * st.scale)
+    return out  # type: ignore[return-value]
+
+
+def _restart(st: _Search) -> None:
+    """Keep the current path aside and search again from :data:`RESTART_SET` (once per target)."""
+    st.stuck_path = (list(st.chosen), list(st.errors), list(st.scores))
+    st.chosen, st.errors, st.scores, st.singles = [], [], [], {}
+    st.restarted, st.mode = True, "seed"
+
+
+def _advance(st: _Search, sets: list[Tensor], scored: list[tuple[Tensor, Tensor]], cfg: RecoveryConfig) -> None:
+    """Apply one round's scores to ``st`` (see the module docstring for the rules)."""
+    if st.mode in ("seed", "rescore"):  # every prefix of the restart set / of the swapped path was scored
+        st.chosen = [int(c) for c in sets[-1][0]]
+        st.errors = [float(err[0]) for _, err in scored]
+        st.scores = [float(score[0]) for score, _ in scored]
+        if st.mode == "rescore":
+            st.done = True
+            return
+        st.mode = "single"
+    elif st.mode == "swap":
+        (score, err), = scored
+        best = int(torch.argmin(score))
+        if float(score[best]) < st.scores[-1]:
+            st.chosen = [int(c) for c in sets[0][best]]
+            st.errors[-1], st.scores[-1] = float(err[best]), float(score[best])
+            st.swapped, st.swaps_left = True, st.swaps_left - 1
+            if st.swaps_left > 0 and st.errors[-1] >= cfg.threshold:
+                return
+        st.mode = "rescore"
+        st.done = not st.swapped
+        return
+    else:
+        (score, err), = scored
+        best = int(torch.argmin(score))
+        improves = not st.scores or float(score[best]) < st.scores[-1]
+        row = sets[0][best]
+        if st.mode == "pair":
+            if not improves:
+                st.mode = "force"  # neither a single nor a pair helps: add the least harmful single
+                return
+            a, b = (int(c) for c in row[-2:])
+            if st.singles.get(b, (0.0, np.inf))[1] < st.singles.get(a, (0.0, np.inf))[1]:
+                a, b = b, a  # the better single first
+            st.chosen += [a, b]
+            st.errors += [st.singles[a][0] if a in st.singles else float(err[best]), float(err[best])]
+            st.scores += [st.singles[a][1] if a in st.singles else float(score[best]), float(score[best])]
+            st.mode = "single"
+        elif improves or st.mode == "force":
+            st.chosen.append(int(row[-1]))
+            st.errors.append(float(err[best]))
+            st.scores.append(float(score[best]))
+            st.mode = "single"
+        else:  # no single candidate lowers the error
+            st.singles = {int(r[-1]): (float(e), float(s)) for r, e, s in zip(sets[0], err, score, strict=True)}
+            st.mode = "pair" if len(st.chosen) + 2 <= cfg.max_effectors else "force"
+            return
+    if st.errors[-1] < cfg.threshold:
+        st.done = True
+    elif len(st.chosen) >= cfg.max_effectors:
+        _full(st, cfg)
+
+
+def _full(st: _Search, cfg: RecoveryConfig) -> None:
+    """A path holds ``max_effectors`` but is above the threshold: restart (once, with room for the restart
+    set), else keep the closer of the two paths and polish it by swaps."""
+    if not cfg.polish:
+        st.done = True
+        return
+    if not st.restarted and len(st.chosen) >= len(RESTART_SET):
+        _restart(st)
+        return
+    if st.stuck_path is not None:
+        st.paths.append((list(st.chosen), list(st.errors), list(st.scores)))
+        if st.stuck_path[2][-1] < st.scores[-1]:
+            st.chosen, st.errors, st.scores = st.stuck_path  # the restart ended farther than the first path
+        else:
+            st.paths.append(st.stuck_path)
+    st.stuck_path = None
+    st.paths.append((list(st.chosen), list(st.errors), list(st.scores)))
+    st.mode, st.swaps_left = "swap", SWAP_ROUNDS
 
 
 @torch.inference_mode()
 def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: RecoveryConfig = RecoveryConfig(), *,
                  scales: Sequence[float] | None = None,
                  progress: Callable[[int, int], None] | None = None) -> list[RecoveryResult]:
-    """Greedy effector recovery of several poses at once (many people / frames): each step solves the
-    candidates of every unfinished pose in ONE batched call; the final solves are batched per count.
+    """Effector recovery of several poses at once (many people / frames): each round solves the trial
+    sets of every unfinished pose in one batched call per set width; the final solves are batched per count.
 
     Args:
         targets: poses to reproduce (SMPL space); scales: their character scales (default 1).
-        progress: ``progress(step, max_steps)`` after each greedy step.
+        progress: ``progress(round, max_effectors)`` after each search round (capped at ``max_effectors``).
 
     Returns: one :class:`RecoveryResult` per target, the same as :func:`recover_effectors` on each.
     """
@@ -236,80 +408,68 @@ def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: Recov
     for scale in scales:
         if not scale > 0:
             raise ValueError(f"scale must be positive, got {scale}.")
-    states = []
-    for t, scale in zip(targets, scales, strict=True):
-        cand = candidate_table(t, cfg)
-        states.append(_Search(t, float(scale), cand, torch.ones(cand[0].shape[0], dtype=torch.bool), [], [], []))
+    states = [_Search(t, float(s), candidate_table(t, cfg)) for t, s in zip(targets, scales, strict=True)]
+    limit = min(cfg.max_effectors, min((s.cand[0].shape[0] for s in states), default=0))
+    cfg = replace(cfg, max_effectors=limit)
     search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
-    steps = min(cfg.max_effectors, min((s.cand[0].shape[0] for s in states), default=0))
-    for k in range(steps):
+    for round_ in range(8 * limit + 2 * SWAP_ROUNDS + 8):  # a round adds effectors or moves to another mode
         active = [s for s in states if not s.done]
         if not active:
             break
-        parts, rows_of = [], []
-        for st in active:
-            cand_joint, cand_type, cand_data = st.cand
-            rows = torch.nonzero(st.remaining)[:, 0]
-            B = rows.shape[0]
-            sel = torch.tensor(st.chosen, dtype=torch.long)
-            parts.append((torch.cat([cand_joint[sel].expand(B, k), cand_joint[rows, None]], 1),
-                          torch.cat([cand_type[sel].expand(B, k), cand_type[rows, None]], 1),
-                          torch.cat([cand_data[sel].expand(B, k, 6), cand_data[rows, None]], 1)))
-            rows_of.append(rows)
-        joint, kind, data = (torch.cat([p[i] for p in parts]) for i in range(3))
-        sizes = [r.shape[0] for r in rows_of]
-        betas = torch.cat([st.target.betas.float().reshape(1, NUM_BETAS).expand(n, NUM_BETAS)
-                           for st, n in zip(active, sizes, strict=True)])
-        gender = torch.cat([torch.full((n,), st.target.gender.index) for st, n in zip(active, sizes, strict=True)])
-        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
-                            torch.ones(joint.shape, dtype=torch.bool))
-        out = solver.solve_tensors(eff, betas, gender, refine=search)
+        trials = [_trial_sets(st, cfg) for st in active]
+        flat_states = [st for st, sets in zip(active, trials, strict=True) for _ in sets]
+        scored = _score_sets(solver, flat_states, [s for sets in trials for s in sets], cfg, search)
         start = 0
-        for st, rows, n in zip(active, rows_of, sizes, strict=True):
-            sl = slice(start, start + n)
-            start += n
-            joint_err = (out.p_world[sl].float() - st.target.p_world.float()).norm(dim=-1)  # (n, 24), SMPL space
-            score = recovery_score(joint_err, cfg.criterion) * st.scale
-            err = joint_err.mean(-1) * st.scale
-            best = int(torch.argmin(score))
-            if st.scores and float(score[best]) >= st.scores[-1]:
-                st.done = True  # no candidate improves on the current set
-                continue
-            st.chosen.append(int(rows[best]))
-            st.remaining[rows[best]] = False
-            st.errors.append(float(err[best]))
-            st.scores.append(float(score[best]))
-            b = sl.start + best
-            st.best_eff = EffectorBatch(joint[b:b + 1], kind[b:b + 1], data[b:b + 1], eff.tolerance[b:b + 1],
-                                        eff.mask[b:b + 1])
-            st.done = st.errors[-1] < cfg.threshold
+        for st, sets in zip(active, trials, strict=True):
+            _advance(st, sets, scored[start:start + len(sets)], cfg)
+            start += len(sets)
         if progress is not None:
-            progress(k + 1, steps)
+            progress(min(round_ + 1, limit), limit)
     return _finish(solver, states, cfg)
 
 
 def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) -> list[RecoveryResult]:
     """Final solves with the solver's full refinement, batched per effector count: the pose that re-solving
-    the recovered effectors gives (a scene's stored pose is what ``smplik scene solve`` reproduces)."""
-    results: list[RecoveryResult | None] = [None] * len(states)
-    by_count: dict[int, list[int]] = {}
+    the recovered effectors gives (a scene's stored pose is what ``smplik scene solve`` reproduces).
+
+    A target with several full paths (the first, the restart's, the swapped one) keeps the one whose
+    re-solved pose is closest (the search scored them with its cheap solve, which can rank them otherwise).
+    """
+    entries: list[tuple[int, tuple[list[int], list[float], list[float]]]] = []
     for i, st in enumerate(states):
-        assert st.best_eff is not None
-        by_count.setdefault(len(st.chosen), []).append(i)
+        assert st.chosen
+        current = (st.chosen, st.errors, st.scores)
+        seen = {tuple(st.chosen)}
+        entries.append((i, current))  # first: it wins ties
+        for path in st.paths:
+            if tuple(path[0]) not in seen:
+                seen.add(tuple(path[0]))
+                entries.append((i, path))
+    by_count: dict[int, list[int]] = {}
+    for e, (_, path) in enumerate(entries):
+        by_count.setdefault(len(path[0]), []).append(e)
+    best: dict[int, tuple[float, IKOutput, int, tuple[list[int], list[float], list[float]]]] = {}
     for group in by_count.values():
-        effs = [states[i].best_eff for i in group]
-        eff = EffectorBatch(*(torch.cat([getattr(e, f) for e in effs]) for f in  # type: ignore[union-attr]
-                              ("joint", "type", "data", "tolerance", "mask")))
-        betas = torch.stack([states[i].target.betas.float().reshape(NUM_BETAS) for i in group])
-        gender = torch.tensor([states[i].target.gender.index for i in group])
+        joint, kind, data = (torch.stack([states[entries[e][0]].cand[f][torch.tensor(entries[e][1][0])]
+                                          for e in group]) for f in range(3))
+        eff = EffectorBatch(joint, kind, data, torch.full(joint.shape, float(cfg.tolerance)),
+                            torch.ones(joint.shape, dtype=torch.bool))
+        betas = torch.stack([states[entries[e][0]].target.betas.float().reshape(NUM_BETAS) for e in group])
+        gender = torch.tensor([states[entries[e][0]].target.gender.index for e in group])
         final = solver.solve_tensors(eff, betas, gender)
-        for row, i in enumerate(group):
-            st = states[i]
-            cand_joint, cand_type, cand_data = st.cand
-            effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(),
-                                           st.scale, cfg.tolerance) for c in st.chosen)
-            joint_err = (final.p_world[row].float() - st.target.p_world.float()).norm(dim=-1)
-            final_error = float(joint_err.mean()) * st.scale
-            pose = output_to_pose(final, row, st.target.betas, st.target.gender)
-            results[i] = RecoveryResult(effectors, tuple(st.errors), pose, st.scale, final_error)  # type: ignore[arg-type]
-    return results  # type: ignore[return-value]
+        for row, e in enumerate(group):
+            i, path = entries[e]
+            joint_err = (final.p_world[row].float() - states[i].target.p_world.float()).norm(dim=-1)
+            score = float(recovery_score(joint_err, cfg.criterion))
+            if i not in best or score < best[i][0]:
+                best[i] = (score, final, row, path)
+    results = []
+    for i, st in enumerate(states):
+        _, final, row, (chosen, errors, _) = best[i]
+        cand_joint, cand_type, cand_data = st.cand
+        effectors = tuple(_to_effector(int(cand_joint[c]), int(cand_type[c]), cand_data[c].double().numpy(),
+                                       st.scale, cfg.tolerance) for c in chosen)
+        joint_err = (final.p_world[row].float() - st.target.p_world.float()).norm(dim=-1)
+        pose = output_to_pose(final, row, st.target.betas, st.target.gender)
+        results.append(RecoveryResult(effectors, tuple(errors), pose, st.scale, float(joint_err.mean()) * st.scale))
+    return results

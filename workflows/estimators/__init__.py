@@ -24,7 +24,22 @@ from typing import Any, Literal
 
 import numpy as np
 
-from workflows.estimators import aist, amass_params, gvhmr, hybrik, phalp, plain, pymafx, romp, sam3d, wham
+from workflows.estimators import (
+    aist,
+    amass_params,
+    easymocap,
+    glamr,
+    gvhmr,
+    hybrik,
+    phalp,
+    plain,
+    pose_array,
+    pymafx,
+    romp,
+    sam3d,
+    vibe,
+    wham,
+)
 from workflows.estimators.base import (
     M_WORLD_CAMERA,
     MAX_PEOPLE,
@@ -34,19 +49,30 @@ from workflows.estimators.base import (
     camera_to_world,
 )
 
-FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d",
-                     "plain"]
-FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "gvhmr", "aist", "amass", "sam3d",
-                            "plain")
-_MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx,
-            "gvhmr": gvhmr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "plain": plain}
-_DETECT_ORDER = (romp, hybrik, gvhmr, aist, sam3d, phalp, wham, pymafx, amass_params, plain)
-SUFFIXES = (".npz", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
+FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
+                     "amass", "sam3d", "easymocap", "plain", "pose_array"]
+FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
+                            "amass", "sam3d", "easymocap", "plain", "pose_array")
+_MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx, "vibe": vibe,
+            "gvhmr": gvhmr, "glamr": glamr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "easymocap": easymocap,
+            "plain": plain, "pose_array": pose_array}
+_DETECT_ORDER = (romp, hybrik, gvhmr, glamr, aist, sam3d, phalp, wham, pymafx, vibe, amass_params, easymocap, plain,
+                 pose_array)
+SIGNATURES: dict[str, tuple[str, ...]] = {
+    "romp": ("smpl_thetas", "smpl_betas", "cam_trans"), "hybrik": ("pred_thetas", "pred_betas", "transl"),
+    "phalp": ("smpl", "camera"), "wham": ("pose", "trans", "betas"), "pymafx": ("pose", "betas", "orig_cam_t"),
+    "vibe": ("pose", "betas", "orig_cam", "frame_ids"),
+    "gvhmr": ("smpl_params_incam", "smpl_params_global", "K_fullimg"), "glamr": ("person_data", "cam_pose"),
+    "aist": ("smpl_poses", "smpl_trans", "smpl_scaling"), "amass": ("poses", "trans", "betas"),
+    "sam3d": ("pred_joint_coords", "pred_cam_t"), "easymocap": ("id", "Rh", "Th", "poses", "shapes"),
+    "plain": ("global_orient", "body_pose", "transl", "betas")}
+"""The keys that identify each format (in a person's record for per-person layouts), for the closest-format hint."""
+SUFFIXES = (".npz", ".npy", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
 MAX_BYTES = 1 << 30
 """Default cap (1 GiB) on the uncompressed size of an estimator file's data."""
 
 __all__ = ["M_WORLD_CAMERA", "MAX_BYTES", "MAX_PEOPLE", "CameraInfo", "EstimatedPerson", "EstimateFormatError",
-           "FORMATS", "camera_to_world", "detect_format", "read_estimate"]
+           "FORMATS", "camera_to_world", "closest_format", "detect_format", "read_estimate"]
 
 
 def _check_zip(path: Path, max_bytes: int) -> None:
@@ -104,6 +130,9 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
         raise EstimateFormatError(f"{path}: unsupported file type {suffix!r} (expected {', '.join(SUFFIXES)}).")
     if suffix in (".npz", ".pt", ".pth"):
         _check_zip(path, max_bytes)
+    elif suffix == ".npy" and path.stat().st_size > max_bytes:
+        raise EstimateFormatError(f"{path}: {path.stat().st_size / 2**20:.0f} MiB is over the "
+                                  f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
     elif path.stat().st_size > max_bytes:
         raise EstimateFormatError(f"{path}: {path.stat().st_size / 2**20:.0f} MiB is over the "
                                   f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
@@ -112,6 +141,8 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
             return load_npz(path)
         if suffix in (".pt", ".pth"):
             return _load_torch(path)
+        if suffix == ".npy":  # never pickles: an object array (a saved dict) is refused with one line
+            return np.load(path, allow_pickle=False)
         if suffix == ".json":
             try:
                 return json.loads(path.read_text(encoding="utf-8"))
@@ -146,8 +177,35 @@ def detect_format(data: Any) -> str:
     for module in _DETECT_ORDER:
         if module.matches(data):
             return module.FORMAT
-    raise EstimateFormatError(f"Cannot detect the estimator format ({_describe(data)}); known formats: "
-                              f"{', '.join(FORMATS)} (pass --format to choose one).")
+    raise EstimateFormatError(f"Cannot detect the estimator format ({_describe(data)}); {closest_format(data)}")
+
+
+def _record_keys(data: Any) -> set[str]:
+    """The keys of the top level, of a list's first record, and of a dict's first value (per-person layouts)."""
+    keys: set[str] = set()
+    if isinstance(data, dict):
+        keys |= {str(k) for k in data}
+        first = next(iter(data.values()), None)
+        if isinstance(first, dict):
+            keys |= {str(k) for k in first}
+    elif isinstance(data, list) and data and isinstance(data[0], dict):
+        keys |= {str(k) for k in data[0]}
+    return keys
+
+
+def closest_format(data: Any) -> str:
+    """One sentence naming the format whose identifying keys (:data:`SIGNATURES`) ``data`` shares most, and
+    the keys it lacks; or, sharing none, the formats known."""
+    if isinstance(data, np.ndarray):
+        return (f"an array of shape {data.shape}: the pose_array format needs (T, 72 | 156 | 165) floats "
+                f"(axis-angle, root first).")
+    keys = _record_keys(data)
+    scored = [(len(keys & set(sig)) / len(sig), name) for name, sig in SIGNATURES.items()]
+    share, name = max(scored, key=lambda t: t[0])
+    if share == 0:
+        return f"no known layout shares its keys (known formats: {', '.join(FORMATS)})."
+    lacks = [k for k in SIGNATURES[name] if k not in keys]
+    return f"closest: {name}, which also needs {', '.join(repr(k) for k in lacks)}."
 
 
 def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle: bool = False,
@@ -163,7 +221,8 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
             by the estimator's track id (``person_id``).
         max_people: refuse more people than this in the frame.
         max_bytes: refuse files whose (uncompressed) data is larger.
-        space: for WHAM and GVHMR, ``"camera"`` or ``"world"`` output (default: WHAM world, GVHMR camera).
+        space: for WHAM, GVHMR and GLAMR, ``"camera"`` or ``"world"`` output (default: WHAM and GLAMR world,
+            GVHMR camera).
         solver: for SAM-3D-Body (not SMPL), the :class:`smplik.solver.IKSolver` that fits the SMPL pose
             (default: the shipped model).
 
@@ -192,7 +251,7 @@ def people_from_data(data: Any, *, source: str, format: FormatName = "auto", fra
     name = detect_format(data) if format == "auto" else format
     module = _MODULES[name]
     kwargs: dict[str, Any] = {"frame": int(frame), "max_people": max_people}
-    if space is not None and module in (wham, gvhmr):
+    if space is not None and module in (wham, gvhmr, glamr):
         kwargs["space"] = space
     if solver is not None and module is sam3d:
         kwargs["solver"] = solver

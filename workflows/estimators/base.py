@@ -106,15 +106,17 @@ class CameraInfo:
         default_fov_deg: field of view (over the larger image side) the estimator assumes when no focal
             length is stored; used with the image size to build a camera for overlays.
         principal_px: ``(cx, cy)`` principal point in pixels of ``image_size`` (None: the image centre).
-        focal_rule: without ``focal_px``: ``"fov"`` (from ``default_fov_deg``) or ``"diagonal"`` (focal =
-            the image diagonal in pixels, WHAM's default camera).
+        focal_rule: where the focal length comes from. Without ``focal_px``: ``"fov"`` (from
+            ``default_fov_deg``) or ``"diagonal"`` (focal = the image diagonal in pixels, WHAM's default
+            camera). With it: ``"intrinsics"`` (the file's intrinsics matrix, :meth:`from_K`) or ``"given"``
+            (the user's ``--focal``, in pixels of the ``--image``).
     """
 
     focal_px: float | None = None
     image_size: tuple[int, int] | None = None
     default_fov_deg: float = 60.0
     principal_px: tuple[float, float] | None = None
-    focal_rule: Literal["fov", "diagonal"] = "fov"
+    focal_rule: Literal["fov", "diagonal", "intrinsics", "given"] = "fov"
 
     def __post_init__(self) -> None:
         if self.focal_px is not None and not (math.isfinite(self.focal_px) and self.focal_px > 0):
@@ -127,8 +129,9 @@ class CameraInfo:
         if self.principal_px is not None and not (len(self.principal_px) == 2 and all(
                 math.isfinite(v) for v in self.principal_px)):
             raise EstimateFormatError(f"camera principal point must be two finite numbers, got {self.principal_px}.")
-        if self.focal_rule not in ("fov", "diagonal"):
-            raise EstimateFormatError(f"camera focal_rule must be 'fov' or 'diagonal', got {self.focal_rule!r}.")
+        if self.focal_rule not in ("fov", "diagonal", "intrinsics", "given"):
+            raise EstimateFormatError(f"camera focal_rule must be 'fov', 'diagonal', 'intrinsics' or 'given', "
+                                      f"got {self.focal_rule!r}.")
 
     @classmethod
     def from_K(cls, K: Any, image_size: tuple[int, int] | None, source: str) -> CameraInfo:
@@ -140,7 +143,7 @@ class CameraInfo:
         fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
         if not (fx > 0 and fy > 0):
             raise EstimateFormatError(f"{source}: 'K' has a non-positive focal length ({fx}, {fy}).")
-        return cls((fx + fy) / 2.0, image_size, principal_px=(cx, cy))
+        return cls((fx + fy) / 2.0, image_size, principal_px=(cx, cy), focal_rule="intrinsics")
 
     def focal_for(self, width: int, height: int) -> float:
         """Focal length (pixels) for an image of this size: ``focal_px`` rescaled, else from the rule."""

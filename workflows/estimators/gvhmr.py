@@ -9,12 +9,17 @@ static_cam=...)``, ``torch.save(pred, paths.hmr4d_results)``). GVHMR poses **SMP
   ``smplx(**smpl_params_incam).vertices`` with ``K_fullimg``), so the pelvis is
   ``J0_smplx + transl``.
 * ``smpl_params_global``: the same keys in GVHMR's gravity-aligned y-up world (``space="world"``).
-* ``K_fullimg (L, 3, 3)``: the full-image intrinsics, used as they are (the image size is not stored).
+* ``K_fullimg (L, 3, 3)``: the full-image intrinsics, used as they are. The image size is not stored, but
+  the demo builds ``K_fullimg = estimate_K(width, height)`` (``hmr4d/utils/geo/hmr_cam.py``: focal = the
+  image diagonal, principal point = the image centre), so the image is ``(2 cx, 2 cy)`` pixels; it is
+  recorded so that an overlay on a resized frame rescales the intrinsics.
 
 SMPL's two hand joints have no SMPL-X body counterpart and get zero rotation. ``--frame N`` is row N
 (the video frame); the person id is ``"0"``. An ``.npz`` holds the same dicts (pickled object arrays
 read by the restricted unpickler) or flattened keys ``smpl_params_incam.body_pose`` /
-``smpl_params_incam/body_pose``.
+``smpl_params_incam/body_pose`` / ``smpl_params_incam_body_pose`` (the last as written by users'
+AMASS-style conversions, e.g. github.com/wenconggan/video2smpl ``outputs/demo/tennis/hmr4d_results.npz``:
+``poses, trans, betas, gender, mocap_framerate`` plus ``K_fullimg`` and ``smpl_params_incam_*``).
 """
 
 from __future__ import annotations
@@ -44,12 +49,11 @@ def _nest(data: Any) -> Any:
     out: dict[str, Any] = {}
     for k, v in data.items():
         key = str(k)
-        for sep in ("/", "."):
-            if sep in key and key.split(sep, 1)[0] in _KEYS:
-                head, tail = key.split(sep, 1)
+        for head in _KEYS:
+            if len(key) > len(head) + 1 and key.startswith(head) and key[len(head)] in "/._":
                 inner = out.setdefault(head, {})
                 if isinstance(inner, dict):
-                    inner[tail] = v
+                    inner[key[len(head) + 1:]] = v
                 break
         else:
             out[key] = v
@@ -86,7 +90,10 @@ def from_data(data: Any, *, source: str = "<gvhmr>", frame: int = 0,
         if "K_fullimg" in data:
             K = np.asarray(data["K_fullimg"], dtype=object if isinstance(data["K_fullimg"], list) else None)
             K = rows(K, "K_fullimg", 9, source)
-            camera = CameraInfo.from_K(K[min(frame, K.shape[0] - 1)].reshape(3, 3), None, f"{source}.K_fullimg")
+            K = K[min(frame, K.shape[0] - 1)].reshape(3, 3)
+            cx, cy = float(K[0, 2]), float(K[1, 2])
+            size = (round(2 * cx), round(2 * cy)) if 0 < cx < 50_000 and 0 < cy < 50_000 else None
+            camera = CameraInfo.from_K(K, size, f"{source}.K_fullimg")
     return make_people(pose, transl[frame:frame + 1], betas[min(frame, betas.shape[0] - 1)][None],
                        frame_of_reference="world" if space == "world" else "camera", translation_kind="transl",
                        body_family="smplx", camera=camera, person_ids=["0"], frames=[str(frame)],

@@ -1,0 +1,127 @@
+"""Readers added for issue 26: VIBE / PARE, EasyMocap SMPL json, bare pose arrays; the closest-format hint."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from estimator_fixtures import (
+    FOCAL,
+    our_joints,
+    overlay_pixels,
+    people,
+    producer_joints,
+    weak_perspective_pixels,
+    write_easymocap,
+    write_vibe,
+)
+from scipy.spatial.transform import Rotation
+
+from workflows.estimators import EstimateFormatError, closest_format, detect_format, read_estimate
+from workflows.estimators.easymocap import R_YUP_ZUP
+from workflows.estimators.pose_array import EstimateNote
+
+
+@pytest.mark.parametrize("pare", [False, True])
+def test_vibe_and_pare_land_where_their_renderer_draws(tmp_path, pare):
+    depth = FOCAL["vibe"] * 1.7 / 200.0  # people 200 px tall
+    aa, transl, betas = people(seed=4, n=2, depth=depth, focal=FOCAL["vibe"])
+    w = write_vibe(tmp_path, aa, transl, betas, pare=pare)
+    from workflows.estimators import _load_raw
+
+    assert detect_format(_load_raw(w.path, False, 1 << 30)) == "vibe"
+    first = read_estimate(w.path, frame=0)
+    assert [p.person_id for p in first] == ["1"]  # person 2's track starts at frame 1
+    both = read_estimate(w.path, frame=1)
+    assert [p.person_id for p in both] == ["1", "2"]
+    err = np.linalg.norm(overlay_pixels(both) - weak_perspective_pixels(w, aa, transl), axis=-1)
+    # pelvis: weak perspective ignores the pelvis's own depth (a few cm at 4-6 m); head: that plus the head's
+    # depth off the pelvis (a leaning body) and body proportions: within 3 % of the body's 200 px
+    assert err[:, 0].max() < 2.0 and err[:, 1].max() < 0.03 * 200, err
+    np.testing.assert_allclose(both[0].body_pose, aa[0, 1:], atol=1e-5)
+
+
+def test_vibe_frame_without_people_is_one_line(tmp_path):
+    aa, transl, betas = people(seed=4, n=1)
+    w = write_vibe(tmp_path, aa, transl, betas)
+    with pytest.raises(EstimateFormatError, match="no person in frame 7"):
+        read_estimate(w.path, frame=7)
+
+
+def test_easymocap_json_follows_its_body_model(tmp_path):
+    """EasyMocap poses the body with ``poses``, rotates it by Rh about the origin and adds Th (z-up world)."""
+    rng = np.random.default_rng(0)
+    aa = rng.normal(0, 0.2, (2, 24, 3))
+    Rh = np.array([[0.1, -0.2, 1.4], [1.5, 0.0, 0.3]])
+    Th = np.array([[0.4, 1.2, 0.9], [-0.8, 0.1, 1.0]])
+    path = write_easymocap(tmp_path, [{"id": 3 + i, "Rh": Rh[i], "Th": Th[i], "poses": aa[i].reshape(72),
+                                       "shapes": np.zeros(10)} for i in range(2)])
+    found = read_estimate(path)
+    assert [p.person_id for p in found] == ["3", "4"] and found[0].camera is None
+    for i, p in enumerate(found):
+        lbs = producer_joints(aa[i:i + 1], np.zeros((1, 3)))[0]  # SMPL's joints, no translation
+        world_zup = Rotation.from_rotvec(Rh[i]).apply(lbs) + Th[i]
+        ours = our_joints(p)
+        np.testing.assert_allclose(ours[0], R_YUP_ZUP.apply(world_zup[0]), atol=1e-4)  # the pelvis exactly
+        assert np.linalg.norm(ours[15] - R_YUP_ZUP.apply(world_zup[15])) < 0.03  # the head: body proportions
+    with pytest.raises(EstimateFormatError, match="one frame"):
+        read_estimate(path, frame=1)
+
+
+@pytest.mark.parametrize(("width", "model"), [(72, "SMPL"), (156, "SMPL-H"), (165, "SMPL-X")])
+def test_bare_pose_arrays_say_what_they_assume(tmp_path, width, model):
+    rng = np.random.default_rng(width)
+    poses = rng.normal(0, 0.2, (4, width))
+    path = tmp_path / "poses.npy"
+    np.save(path, poses)
+    with pytest.warns(EstimateNote, match=f"{width} columns, read as {model} axis-angle"):
+        found = read_estimate(path, frame=2)
+    np.testing.assert_allclose(found[0].global_orient, poses[2, :3], atol=1e-9)
+    np.testing.assert_allclose(found[0].body_pose[:21], poses[2, 3:66].reshape(21, 3), atol=1e-9)
+    np.testing.assert_allclose(our_joints(found[0])[0], 0.0, atol=1e-6)  # pelvis at the origin
+    npz = tmp_path / "one.npz"
+    np.savez(npz, full_pose=poses)
+    with pytest.warns(EstimateNote):
+        assert read_estimate(npz, frame=1)[0].body_pose.shape == (23, 3)
+
+
+def test_pose_array_without_a_root_and_pickled_npy_are_one_line(tmp_path):
+    path = tmp_path / "body.npy"
+    np.save(path, np.zeros((3, 69)))
+    with pytest.raises(EstimateFormatError, match=r"\(3, 69\).*72 \| 156 \| 165"):
+        read_estimate(path)
+    with pytest.raises(EstimateFormatError, match="root rotation is missing"):
+        read_estimate(path, format="pose_array")
+    obj = tmp_path / "dict.npy"
+    np.save(obj, {"pose": np.zeros(3)}, allow_pickle=True)
+    with pytest.raises(EstimateFormatError, match="allow_pickle"):
+        read_estimate(obj)
+
+
+def test_no_reader_fits_names_the_closest_format_and_its_missing_keys(tmp_path):
+    path = tmp_path / "x.npz"
+    np.savez(path, pose=np.zeros((2, 72)), betas=np.zeros((2, 10)))  # WHAM-like keys without 'trans', flat
+    with pytest.raises(EstimateFormatError) as exc:
+        read_estimate(path)
+    message = str(exc.value)
+    assert "\n" not in message and "closest: wham" in message and "'trans'" in message, message
+    assert closest_format({"Rh": 1, "Th": 2, "poses": 3}).startswith("closest: easymocap")
+    assert "known formats" in closest_format({"nothing": 1})
+
+
+
+def test_glamr_camera_and_world_spaces(tmp_path):
+    from estimator_fixtures import FOCAL, producer_pixels, write_glamr
+
+    aa, transl, betas = people(seed=6, n=2, depth=FOCAL["hybrik"] * 1.7 / 200.0, focal=FOCAL["hybrik"])
+    w, T_wc = write_glamr(tmp_path, aa, transl, betas)
+    cam = read_estimate(w.path, space="camera", frame=2)
+    assert [p.person_id for p in cam] == ["0", "1"] and cam[0].camera.focal_px == pytest.approx(w.f)
+    err = np.linalg.norm(overlay_pixels(cam) - producer_pixels(w, aa, transl), axis=-1)
+    assert err[:, 0].max() < 1e-3 and err[:, 1].max() < 2.0, err  # the pelvis exactly (root_trans is the pelvis)
+    world = read_estimate(w.path)  # GLAMR's point: the world trajectory, z-up -> y-up
+    assert world[0].camera is None
+    pelvis_w = T_wc[:3, :3] @ producer_joints(aa, transl)[:, 0].T + T_wc[:3, 3:]
+    for i, p in enumerate(world):
+        np.testing.assert_allclose(our_joints(p)[0], R_YUP_ZUP.apply(pelvis_w[:, i]), atol=1e-4)
+    with pytest.raises(EstimateFormatError, match="no person has frame 5"):
+        read_estimate(w.path, frame=5)
