@@ -15,7 +15,7 @@ MHR joints at the joints of a known pose of our body, the reference is the produ
 ``pred_joint_coords + pred_cam_t``; also reported: the fitted body's joint error (mm, all 24 joints).
 
 Against the producer's own render (real files): for every ``hmr4d_results.pt`` under ``--real`` (else
-``$SMPLIK_REAL_ESTIMATORS``, else ``/work/realdata/estimators``) that has GVHMR's ``0_input_video.mp4`` and
+``$SMPLIK_REAL_ESTIMATORS``, else ``<cache>/real/estimators``) that has GVHMR's ``0_input_video.mp4`` and
 ``1_incam.mp4`` (its in-camera render over the video) beside it, 10 frames per track: the producer's body
 is where the two videos differ; its top row (head) and bottom row (feet) are compared with those of our
 built-in body's mesh projected through the scene's overlay camera, in % of the producer's body height in
@@ -27,7 +27,6 @@ Prints a table and writes ``benchmarks/results/estimator_placement.json``.
 
 from __future__ import annotations
 
-import os
 import sys
 import tempfile
 from pathlib import Path
@@ -50,6 +49,7 @@ from estimator_fixtures import (  # noqa: E402
 )
 
 from smplik.conventions import Gender  # noqa: E402
+from smplik.paths import real_estimators_dir  # noqa: E402
 from workflows.estimators import read_estimate  # noqa: E402
 from workflows.estimators.base import estimator_rest_pelvis, rest_pelvis  # noqa: E402
 
@@ -95,7 +95,7 @@ def main() -> None:
                 print(f"{fmt:8s} {height:9.0f} {row['pelvis_px_mean']:11.3f} {row['pelvis_px_max']:10.3f} {hm:>9s} "
                       f"{hx:>8s} {row['before_fix_pelvis_px_mean']:15.1f}")
         results["sam3d"] = sam3d_rows(Path(tmp))
-    real = Path(os.environ.get("SMPLIK_REAL_ESTIMATORS", "/work/realdata/estimators"))
+    real = real_estimators_dir()
     renders = producer_render_rows(real)
     path = save("estimator_placement", {"image_size": [640, 480], "seeds": SEEDS, "formats": results,
                                         "producer_renders": renders,

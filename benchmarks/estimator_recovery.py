@@ -1,7 +1,7 @@
 """Effector recovery on every frame of real estimator tracks: worst-frame and mean error, effectors used.
 
 Real third-party files are not shipped (their licences do not allow it); the script reads a folder
-(``--data``, else ``$SMPLIK_REAL_ESTIMATORS``, else ``/work/realdata/estimators``) and skips cleanly when
+(``--data``, else ``$SMPLIK_REAL_ESTIMATORS``, else ``<cache>/real/estimators``) and skips cleanly when
 it is absent. Tracks found there (any depth):
 
 * ``hmr4d_results.pt``: GVHMR ``tools/demo/demo.py`` outputs (read in its camera frame, as
@@ -20,7 +20,6 @@ Prints a table and writes ``benchmarks/results/estimator_recovery.json``.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -33,12 +32,12 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(1, str(Path(__file__).resolve().parent))
 from _common import save  # noqa: E402
 
+from smplik.paths import real_estimators_dir  # noqa: E402
 from workflows.estimators import EstimateFormatError, detect_format, people_from_data  # noqa: E402
 from workflows.estimators import _load_raw as load_estimator_file  # noqa: E402
 from workflows.pipeline import retarget_to_body  # noqa: E402
 from workflows.recovery import RecoveryConfig, TargetPose, recover_many  # noqa: E402
 
-DEFAULT_DATA = Path("/work/realdata/estimators")
 LIMIT_MM = 40.0
 CHUNK = 128
 
@@ -76,7 +75,7 @@ def targets_of(fmt: str, path: Path, data: dict) -> list[TargetPose]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=Path(os.environ.get("SMPLIK_REAL_ESTIMATORS", DEFAULT_DATA)))
+    parser.add_argument("--data", type=Path, default=real_estimators_dir())
     parser.add_argument("--checkpoint", type=Path, default=None)
     parser.add_argument("--max-effectors", type=int, default=8)
     args = parser.parse_args()

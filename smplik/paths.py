@@ -6,6 +6,9 @@
 * ``SMPLIK_CACHE_DIR``: generated files (built-in body model, SMPL-SI sample banks, the benchmark
   scripts' pose cache and benchmark files); default ``$XDG_CACHE_HOME/smplik``, else ``~/.cache/smplik``.
 * ``SMPLIK_POSE_CACHE``: the pose cache the benchmark scripts read; default ``<cache>/cmu30.npz``.
+* ``SMPLIK_REAL_ESTIMATORS`` / ``SMPLIK_RIG_CORPUS``: third-party files whose licences keep them out of the
+  repository (real estimator outputs; real rigs), read by the benchmark scripts when present; default
+  ``<cache>/real/estimators`` and ``<cache>/real/rigs``.
 
 (``SMPLIK_MODEL_DIR``, real SMPL files, is read by :func:`smplik.body_model.resolve_model_dir`.)
 An empty variable counts as unset. Nothing here creates a folder; no default is an absolute path
@@ -21,6 +24,8 @@ SHARED_DIR_ENV = "SMPLIK_SHARED_DIR"
 CMU_DIR_ENV = "SMPLIK_CMU_DIR"
 CACHE_DIR_ENV = "SMPLIK_CACHE_DIR"
 POSE_CACHE_ENV = "SMPLIK_POSE_CACHE"
+REAL_ESTIMATORS_ENV = "SMPLIK_REAL_ESTIMATORS"
+RIG_CORPUS_ENV = "SMPLIK_RIG_CORPUS"
 POSE_CACHE_NAME = "cmu30.npz"
 """File name of the default pose cache (the README's ``smplik data build`` recipe, 30 fps CMU)."""
 
@@ -69,6 +74,16 @@ def cache_dir(override: str | Path | None = None) -> Path:
 def pose_cache() -> Path:
     """``$SMPLIK_POSE_CACHE``, else ``<cache_dir()>/cmu30.npz``."""
     return _env(POSE_CACHE_ENV) or cache_dir() / POSE_CACHE_NAME
+
+
+def real_estimators_dir() -> Path:
+    """``$SMPLIK_REAL_ESTIMATORS``, else ``<cache_dir()>/real/estimators`` (real estimator outputs kept locally)."""
+    return _env(REAL_ESTIMATORS_ENV) or cache_dir() / "real" / "estimators"
+
+
+def rig_corpus_dir() -> Path:
+    """``$SMPLIK_RIG_CORPUS``, else ``<cache_dir()>/real/rigs`` (real rigs kept locally)."""
+    return _env(RIG_CORPUS_ENV) or cache_dir() / "real" / "rigs"
 
 
 def benchmark_files_dir(split: str, seed: int, samples_per_count: int) -> Path:
