@@ -209,3 +209,9 @@ def demo_cmd(
                       f"; error after each (mm): {errs}; final pose {r.recovery.final_error * 1000:.0f} mm")
     for path in outputs.all_files:
         say(f"wrote {path}")
+
+
+# ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation_cli.py
+from workflows.animation_cli import animate_cmd  # noqa: E402
+
+scene_app.command("animate")(animate_cmd)
