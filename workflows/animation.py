@@ -241,8 +241,9 @@ def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: 
     have = [f for f, _ in rows]
     first, last = have[0], have[-1]
     if frames is not None and (first > frames[0] or last < frames[1] - 1):
-        raise AnimationError(f"{source}: track {track_id} covers frames {first}..{last}, not all of the requested "
-                             f"{frames[0]}..{frames[1] - 1} (choose --frames inside its span or another --track).")
+        where = f"starts at frame {first}" if first > frames[0] else f"ends at frame {last}"
+        raise AnimationError(f"{source}: track {track_id} {where}, inside the requested frames {frames[0]}.."
+                             f"{frames[1] - 1} (choose --frames within the track's frames or another --track).")
     if len(have) != last - first + 1:
         missing = sorted(set(range(first, last + 1)) - set(have))
         shown = ", ".join(map(str, missing[:8])) + (", ..." if len(missing) > 8 else "")

@@ -1,0 +1,297 @@
+"""``smplik scene animate``: video estimates in producers' layouts -> animation file + animated BVH; cleaning math."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from animation_fixtures import video_motion, write_gvhmr_video, write_phalp_video, write_wham_video
+from estimator_fixtures import write_aist
+from scipy.spatial.transform import Rotation
+
+from smplik.conventions import JOINT_INDEX, JOINT_NAMES
+from smplik.data.bvh import read_bvh
+from workflows.animation import AnimationTrack, joints_of, rest_joints, select_keyframes
+from workflows.animation_io import AnimationFileError, animation_to_dict, load_animation, save_animation
+from workflows.motion_clean import (
+    CleanConfig,
+    foot_contacts,
+    foot_skating,
+    jitter,
+    lock_feet,
+    one_euro,
+    smooth_motion,
+    two_bone_ik,
+)
+
+MM = 1e-3
+
+
+@pytest.fixture()
+def animate(monkeypatch, best_solver):
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.cli import scene_app
+
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
+
+
+def _track_joints(track: AnimationTrack) -> np.ndarray:
+    R = Rotation.from_rotvec(np.concatenate([track.global_orient[:, None], track.body_pose], 1).reshape(-1, 3))
+    return joints_of(R.as_matrix().reshape(-1, 24, 3, 3), track.transl, rest_joints(track.betas, track.gender))
+
+
+def _one_error_line(result) -> str:
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert result.exit_code == 1 and len(lines) == 1 and "Traceback" not in result.output, result.output
+    return lines[0]
+
+
+def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, animate):
+    from workflows.estimators import read_estimate
+    from workflows.pipeline import retarget_to_body
+
+    aa, transl = video_motion(40, seed=1)
+    path = write_gvhmr_video(tmp_path, aa, transl)
+    res = animate(path, "--out", tmp_path / "raw", "--fps", 25, "--smoothing", "none", "--no-foot-lock",
+                  "--max-effectors", 3)
+    assert res.exit_code == 0, res.output
+    anim = load_animation(tmp_path / "raw" / "animation.json")
+    assert anim.fps == 25 and anim.space == "camera" and anim.source_format == "gvhmr" and anim.camera is not None
+    (track,) = anim.tracks
+    assert track.num_frames == 40 and track.first_frame == 0
+    # every row is that frame as from-estimate reads and retargets it
+    for f in (0, 17, 39):
+        person = read_estimate(path, frame=f)[0]
+        want = retarget_to_body(person, track.betas, track.gender, 1.0)
+        assert np.allclose(track.transl[f], want.transl, atol=1e-9)
+        assert np.allclose(Rotation.from_rotvec(track.body_pose[f]).as_matrix(),
+                           Rotation.from_rotvec(want.body_pose).as_matrix(), atol=1e-9)
+    keys = [k.frame for k in track.keyframes]
+    assert keys[0] == 0 and keys[-1] == 39 and 2 < len(keys) < 40
+    assert all(0 < len(k.effectors) <= 3 for k in track.keyframes)
+    # the animated BVH: 40 frames at 1/25 s, SMPL's joint names, joints within 1 mm of the animation's
+    bvh = read_bvh(tmp_path / "raw" / "person_0.bvh")
+    assert bvh.num_frames == 40 and bvh.frame_time == pytest.approx(1 / 25, abs=1e-6)
+    assert sorted(bvh.joint_names) == sorted(JOINT_NAMES)
+    order = [bvh.index(n) for n in JOINT_NAMES]
+    assert np.abs(bvh.positions[:, order] - _track_joints(track)).max() < MM
+    # cleaning on: less jitter, still close to the estimate
+    res = animate(path, "--out", tmp_path / "clean", "--fps", 25, "--max-effectors", 2, "--space", "world")
+    assert res.exit_code == 0, res.output
+    clean = load_animation(tmp_path / "clean" / "animation.json")
+    assert clean.space == "world" and clean.camera is None and clean.clean == CleanConfig()
+    raw_world = load_animation(tmp_path / "raw" / "animation.json")  # camera frame; compare local motion only
+    assert jitter(_track_joints(clean.tracks[0])) < 0.7 * jitter(_track_joints(raw_world.tracks[0]))
+
+
+def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
+    a0, t0 = video_motion(30, seed=2, fmt="wham")
+    a1, t1 = video_motion(20, seed=3, fmt="wham", x=0.8)
+    path = write_wham_video(tmp_path, {0: (a0, t0, np.arange(30)), 1: (a1, t1, np.arange(10, 30))})
+    res = animate(path, "--out", tmp_path / "all", "--fps", 30, "--max-effectors", 2)
+    assert res.exit_code == 0, res.output
+    anim = load_animation(tmp_path / "all" / "animation.json")
+    assert anim.space == "world" and [(t.track_id, t.first_frame, t.num_frames) for t in anim.tracks] == [
+        ("0", 0, 30), ("1", 10, 20)]
+    assert all(k.frame in t.frames for t in anim.tracks for k in t.keyframes)
+    assert read_bvh(tmp_path / "all" / "person_1.bvh").num_frames == 20
+    res = animate(path, "--out", tmp_path / "one", "--fps", 30, "--frames", "12:20", "--track", 1,
+                  "--max-effectors", 2)
+    assert res.exit_code == 0, res.output
+    (t,) = load_animation(tmp_path / "one" / "animation.json").tracks
+    assert (t.track_id, t.first_frame, t.num_frames) == ("1", 12, 8)
+    out = tmp_path / "bad"
+    assert "track 1 starts at frame 10" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--frames", "0:20",
+                                                             "--track", 1))
+    assert "outside the clip" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--frames", "0:50"))
+    assert "A < B" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--frames", "9:3"))
+    assert "'all' or 'A:B'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--frames", "1-3"))
+    assert "frame rate" in _one_error_line(animate(path, "--out", out, "--fps", 0))
+    assert "pass --fps" in _one_error_line(animate(path, "--out", out))
+    assert "no track '7'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--track", 7))
+    gap = write_wham_video(tmp_path, {3: (a0[:20], t0[:20], np.r_[np.arange(10), np.arange(14, 24)])})
+    assert "frame(s) 10, 11, 12, 13" in _one_error_line(animate(gap, "--out", out, "--fps", 30))
+    assert not out.exists() or not (out / "animation.json").exists()
+
+
+def test_phalp_tracks_and_aist_on_a_custom_character(tmp_path, animate):
+    from workflows.character import character_from_estimate, smpl_to_custom
+
+    a, t = video_motion(12, seed=4, fmt="phalp")
+    b, u = video_motion(12, seed=5, fmt="phalp", x=0.8)
+    frames = [{3: (a[i], t[i]), **({8: (b[i], u[i])} if i >= 4 else {})} for i in range(12)]
+    path = write_phalp_video(tmp_path, frames)
+    res = animate(path, "--out", tmp_path / "phalp", "--fps", 24, "--max-effectors", 2)
+    assert res.exit_code == 0, res.output
+    anim = load_animation(tmp_path / "phalp" / "animation.json")
+    assert [(x.track_id, x.first_frame, x.num_frames) for x in anim.tracks] == [("3", 0, 12), ("8", 4, 8)]
+    # AIST++: world frame at its 60 frames/s, on the Mixamo character of the examples
+    from pathlib import Path
+
+    import workflows
+
+    aa, tr = video_motion(16, seed=6, fmt="gvhmr")
+    aist = write_aist(tmp_path, *(_x for _x in (aa, tr)))
+    hero = Path(workflows.__file__).parent / "examples" / "mixamo_character.bvh"
+    res = animate(aist, "--out", tmp_path / "aist", "--character", hero, "--max-effectors", 2)
+    assert res.exit_code == 0, res.output
+    anim = load_animation(tmp_path / "aist" / "animation.json")
+    (track,) = anim.tracks
+    assert anim.fps == 60 and anim.space == "world" and track.skeleton is not None and track.num_frames == 16
+    char = character_from_estimate(track.skeleton.path, track.skeleton.options, track.betas, track.scale,
+                                   track.gender)
+    bvh = read_bvh(tmp_path / "aist" / "person_0.bvh")
+    assert bvh.num_frames == 16 and bvh.frame_time == pytest.approx(1 / 60, abs=1e-6)
+    assert bvh.joint_names == read_bvh(hero).joint_names
+    for f in (0, 9, 15):
+        _, p_file = smpl_to_custom(track.pose(f), char).positions(char)
+        assert np.abs(bvh.positions[f] - p_file).max() < MM / char.units_m
+
+
+def test_animation_file_round_trips_and_the_reader_is_strict(tmp_path, animate):
+    aa, transl = video_motion(10, seed=7)
+    res = animate(write_gvhmr_video(tmp_path, aa, transl), "--out", tmp_path, "--fps", 30, "--max-effectors", 2)
+    assert res.exit_code == 0, res.output
+    path = tmp_path / "animation.json"
+    anim = load_animation(path)
+    again = save_animation(anim, tmp_path / "again.json")
+    good, back = json.loads(path.read_text()), json.loads(again.read_text())
+    keys_good, keys_back = good["tracks"][0].pop("keyframes"), back["tracks"][0].pop("keyframes")
+    assert back == good  # poses, contacts, body, camera, clean settings exactly
+    assert [k["frame"] for k in keys_back] == [k["frame"] for k in keys_good]
+    for k_good, k_back in zip(keys_good, keys_back, strict=True):  # rotations re-orthonormalised on reading
+        for e_good, e_back in zip(k_good["effectors"], k_back["effectors"], strict=True):
+            assert e_good["joint"] == e_back["joint"] and np.allclose(e_good["value"], e_back["value"], atol=1e-12)
+    good["tracks"][0]["keyframes"] = keys_good
+
+    def broken(edit) -> str:
+        data = json.loads(json.dumps(good))
+        edit(data)
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps(data))
+        with pytest.raises(AnimationFileError) as info:
+            load_animation(bad)
+        message = str(info.value)
+        assert "\n" not in message and message.startswith(str(bad))
+        return message
+
+    assert "tracks[0].keyframes[0].frame: 10 is outside the track's frames 0..9" in broken(
+        lambda d: d["tracks"][0]["keyframes"][0].update(frame=10))
+    assert "fps: must be a frame rate" in broken(lambda d: d.update(fps=0))
+    assert "version" in broken(lambda d: d.update(version=2))
+    assert "unknown key(s) ['colour']" in broken(lambda d: d["tracks"][0].update(colour=1))
+    assert "tracks[0].body_pose: has 9 frames; expected 10" in broken(
+        lambda d: d["tracks"][0].update(body_pose=d["tracks"][0]["body_pose"][:9]))
+    assert "tracks[0].contacts" in broken(lambda d: d["tracks"][0].update(contacts=[[1, 0]] * 10))
+    assert "tracks[0].betas" in broken(lambda d: d["tracks"][0].update(betas=[0.0] * 3))
+    assert "strictly increasing" in broken(lambda d: d["tracks"][0]["keyframes"].append(
+        d["tracks"][0]["keyframes"][0]))
+    # atomic: an animation that would not read back is refused and the old file stays
+    import dataclasses
+
+    before = path.read_bytes()
+    nan = dataclasses.replace(anim.tracks[0], transl=anim.tracks[0].transl * np.nan)
+    with pytest.raises(AnimationFileError):
+        save_animation(dataclasses.replace(anim, tracks=(nan,)), path)
+    assert path.read_bytes() == before
+    assert animation_to_dict(load_animation(path))["tracks"][0]["transl"] == good["tracks"][0]["transl"]
+
+
+# ----------------------------------------------------------------------------- cleaning math
+
+
+def test_two_bone_ik_reaches_targets_and_keeps_bone_lengths():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(500, 3))
+    b = a + rng.normal(size=(500, 3))
+    c = b + rng.normal(size=(500, 3))
+    l_ab, l_bc = np.linalg.norm(b - a, axis=-1), np.linalg.norm(c - b, axis=-1)
+    direction = rng.normal(size=(500, 3))
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    reach = np.abs(l_ab - l_bc) + (l_ab + l_bc - np.abs(l_ab - l_bc)) * rng.uniform(0.05, 0.95, 500)
+    target = a + direction * reach[:, None]
+    R_a, R_b = two_bone_ik(a, b, c, target, np.tile([1.0, 0.0, 0.0], (500, 1)))
+    b2 = a + (R_a @ (b - a)[..., None])[..., 0]
+    c2 = a + (R_a @ ((b - a) + (R_b @ (c - b)[..., None])[..., 0])[..., None])[..., 0]
+    assert np.abs(c2 - target).max() < 1e-9
+    assert np.abs(np.linalg.norm(b2 - a, axis=-1) - l_ab).max() < 1e-9
+    assert np.abs(np.linalg.norm(c2 - b2, axis=-1) - l_bc).max() < 1e-9
+    # a straight SMPL-like leg bends its knee forward (+z), about minus the knee's x axis
+    R_a, R_b = two_bone_ik(np.zeros((1, 3)), np.array([[0, -0.4, 0.0]]), np.array([[0, -0.8, 0.0]]),
+                           np.array([[0, -0.6, 0.0]]), -np.array([[1.0, 0, 0]]))
+    assert (R_a @ np.array([0, -0.4, 0.0]))[0, 2] > 0.2
+
+
+def test_one_euro_smooths_jitter_and_keeps_fast_motion():
+    rng = np.random.default_rng(0)
+    t = np.arange(300) / 30.0
+    slow = np.stack([np.sin(0.5 * t), np.cos(0.5 * t), 0 * t], -1)
+    noisy = slow + rng.normal(0, 0.01, slow.shape)
+    out = one_euro(noisy, 30.0, min_cutoff_hz=1.0, beta=0.3)
+    assert np.abs(out - slow).mean() < 0.4 * np.abs(noisy - slow).mean()
+    fast = np.stack([np.sin(2 * np.pi * 1.5 * t), 0 * t, 0 * t], -1)  # 1.5 Hz swing of 1 rad (9 rad/s peaks)
+    kept = one_euro(fast, 30.0, min_cutoff_hz=1.0, beta=0.3)
+    assert np.abs(kept - fast)[20:-20].max() < 0.25  # the adaptive cutoff follows the fast swing
+    fixed = one_euro(fast, 30.0, min_cutoff_hz=1.0, beta=0.0)  # the same filter with a fixed 1 Hz cutoff
+    assert np.abs(fixed - fast)[20:-20].max() > 0.5
+
+
+def _standing_sway(T: int = 60, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local rotations (T, 24, 3, 3), transl and rest joints of a person swaying with jittery legs (feet should
+    stay planted)."""
+    from smplik.conventions import Gender
+
+    rng = np.random.default_rng(seed)
+    aa = np.zeros((T, 24, 3))
+    aa[:, [1, 2, 4, 5], 0] = rng.normal(0, 0.03, (T, 4))
+    aa[:, [1, 2], 0] -= 0.25  # slightly bent legs (a straight leg cannot reach a lock above its reach)
+    aa[:, [4, 5], 0] += 0.5
+    aa[:, 16, 2], aa[:, 17, 2] = -1.2, 1.2
+    transl = np.zeros((T, 3))
+    J = rest_joints(np.zeros(10), Gender.NEUTRAL)
+    transl[:, 1] = -J[[10, 11], 1].min()  # feet on y = 0
+    R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
+    return R, transl, J
+
+
+def test_foot_contacts_are_locked_without_skating_and_only_legs_change():
+    R, transl, J = _standing_sway()
+    p = joints_of(R, transl, J)
+    cfg = CleanConfig(contact_speed_mps=3.0)  # the jitter here is fast; the feet are low all along
+    contact = foot_contacts(p, 30.0, cfg)
+    assert contact.mean() > 0.9
+    locked = lock_feet(R, p, contact, cfg.blend_frames)
+    p2 = joints_of(locked, transl, J)
+    assert foot_skating(p2, contact) < 0.05 * foot_skating(p, contact)
+    feet = [JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"]]
+    assert np.abs(p2[:, feet] - p[:, feet].mean(0)).max() < 0.005  # pinned near the mean
+    legs = {JOINT_INDEX[n] for n in ("left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+                                     "right_ankle")}
+    others = [j for j in range(24) if j not in legs]
+    assert np.array_equal(locked[:, others], R[:, others])
+    # the ankles keep their world rotations
+    from workflows.motion_clean import local_to_world
+
+    ankles = [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]]
+    assert np.abs(local_to_world(locked)[:, ankles] - local_to_world(R)[:, ankles]).max() < 1e-9
+
+
+def test_smoothing_methods_and_keyframes():
+    R, transl, J = _standing_sway(seed=1)
+    p = joints_of(R, transl, J)
+    for method in ("one_euro", "savgol"):
+        R_s, t_s = smooth_motion(R, transl, 30.0, CleanConfig(smoothing=method))
+        assert jitter(joints_of(R_s, t_s, J)) < 0.5 * jitter(p)
+    # a motion that is an interpolation of its ends needs two keyframes; a sharp middle pose adds one there
+    from workflows.animation import interpolate_poses
+
+    w = np.linspace(0, 1, 21)
+    R_end = Rotation.from_rotvec(np.tile([0.0, 0.0, 0.8], (24, 1))).as_matrix()
+    R_i, t_i = interpolate_poses(R[0], R_end, transl[0], transl[0] + [0.3, 0, 0], w)
+    assert select_keyframes(R_i, t_i, J, 0.01) == [0, 20]
+    R_i[13, JOINT_INDEX["left_shoulder"]] = Rotation.from_rotvec([0, 0, 1.5]).as_matrix()
+    assert 13 in select_keyframes(R_i, t_i, J, 0.01)
