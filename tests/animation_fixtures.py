@@ -18,7 +18,7 @@ from pathlib import Path
 import joblib
 import numpy as np
 import torch
-from estimator_fixtures import FOCAL, IMAGE_H, IMAGE_W, _R, depth_for, people
+from estimator_fixtures import _R, FOCAL, IMAGE_H, IMAGE_W, depth_for, people
 from scipy.spatial.transform import Rotation
 
 M = np.diag([1.0, -1.0, -1.0])
