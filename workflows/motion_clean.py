@@ -50,9 +50,9 @@ class CleanConfig:
 
     smoothing: SmoothingMethod = "one_euro"
     """``"one_euro"`` (adaptive, zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
-    min_cutoff_hz: float = 1.0
+    min_cutoff_hz: float = 3.0
     """One-Euro: cutoff (Hz) of slow motion; lower smooths more."""
-    beta: float = 0.3
+    beta: float = 1.0
     """One-Euro: how fast the cutoff rises with speed (per unit/s: rad/s for rotations, m/s for the root)."""
     d_cutoff_hz: float = 1.0
     """One-Euro: cutoff (Hz) of the speed estimate."""
