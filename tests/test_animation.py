@@ -44,6 +44,41 @@ def _track_joints(track: AnimationTrack) -> np.ndarray:
     return joints_of(R.as_matrix().reshape(-1, 24, 3, 3), track.transl, rest_joints(track.betas, track.gender))
 
 
+def _accessor(g, index: int) -> np.ndarray:
+    """An accessor's float32 data (count, width) from a loaded GLB."""
+    acc = g.accessors[index]
+    view = g.bufferViews[acc.bufferView]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc.type]
+    raw = g.binary_blob()[view.byteOffset + (acc.byteOffset or 0):][:acc.count * width * 4]
+    return np.frombuffer(raw, dtype=np.float32).reshape(acc.count, width)
+
+
+def _glb_animation_joints(path, names) -> tuple[np.ndarray, np.ndarray]:
+    """Sampler times (T,) and world joint positions (T, J, 3) of the GLB's animation by FK of its node TRS."""
+    import pygltflib
+
+    g = pygltflib.GLTF2.load_binary(str(path))
+    (anim,) = g.animations
+    trs = {}
+    for ch in anim.channels:
+        trs[(ch.target.node, ch.target.path)] = _accessor(g, anim.samplers[ch.sampler].output)
+    times = _accessor(g, anim.samplers[0].input)[:, 0]
+    parent = {c: i for i, n in enumerate(g.nodes) for c in (n.children or [])}
+    index = {n.name: i for i, n in enumerate(g.nodes)}
+    T = len(times)
+    world: dict[int, np.ndarray] = {}
+
+    def matrix(node: int) -> np.ndarray:
+        if node not in world:
+            M = np.tile(np.eye(4), (T, 1, 1))
+            M[:, :3, :3] = Rotation.from_quat(trs[(node, "rotation")]).as_matrix() * trs[(node, "scale")][:, None]
+            M[:, :3, 3] = trs[(node, "translation")]
+            world[node] = matrix(parent[node]) @ M if node in parent else M
+        return world[node]
+
+    return times, np.stack([matrix(index[n])[:, :3, 3] for n in names], 1)
+
+
 def _one_error_line(result) -> str:
     lines = [ln for ln in result.output.splitlines() if ln.strip()]
     assert result.exit_code == 1 and len(lines) == 1 and "Traceback" not in result.output, result.output
@@ -57,7 +92,7 @@ def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, a
     aa, transl = video_motion(40, seed=1)
     path = write_gvhmr_video(tmp_path, aa, transl)
     res = animate(path, "--out", tmp_path / "raw", "--fps", 25, "--smoothing", "none", "--no-foot-lock",
-                  "--max-effectors", 3)
+                  "--max-effectors", 3, "--export", "bvh,glb")
     assert res.exit_code == 0, res.output
     anim = load_animation(tmp_path / "raw" / "animation.json")
     assert anim.fps == 25 and anim.space == "camera" and anim.source_format == "gvhmr" and anim.camera is not None
@@ -79,6 +114,10 @@ def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, a
     assert sorted(bvh.joint_names) == sorted(JOINT_NAMES)
     order = [bvh.index(n) for n in JOINT_NAMES]
     assert np.abs(bvh.positions[:, order] - _track_joints(track)).max() < MM
+    # the animated GLB (skinned SMPL mesh): 40 samples 1/25 s apart, joint nodes within 1 mm
+    times, glb_joints = _glb_animation_joints(tmp_path / "raw" / "person_0.glb", JOINT_NAMES)
+    assert len(times) == 40 and np.allclose(np.diff(times), 1 / 25, atol=1e-6)
+    assert np.abs(glb_joints - _track_joints(track)).max() < MM
     # cleaning on: less jitter, still close to the estimate
     res = animate(path, "--out", tmp_path / "clean", "--fps", 25, "--max-effectors", 2, "--space", "world")
     assert res.exit_code == 0, res.output
@@ -112,6 +151,8 @@ def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
     assert "'all' or 'A:B'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--frames", "1-3"))
     assert "frame rate" in _one_error_line(animate(path, "--out", out, "--fps", 0))
     assert "pass --fps" in _one_error_line(animate(path, "--out", out))
+    assert "unknown export format(s) ['fbx']" in _one_error_line(animate(path, "--out", out, "--fps", 30,
+                                                                        "--export", "bvh,fbx"))
     assert "no track '7'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--track", 7))
     gap = write_wham_video(tmp_path, {3: (a0[:20], t0[:20], np.r_[np.arange(10), np.arange(14, 24)])})
     assert "frame(s) 10, 11, 12, 13" in _one_error_line(animate(gap, "--out", out, "--fps", 30))

@@ -417,25 +417,31 @@ class AnimateOutputs:
     """Files written by :func:`animate_file`, and the animation with its before/after motions."""
 
     animation_file: Path
-    bvh: tuple[Path, ...]
+    exported: tuple[Path, ...]
     animation: Animation
     motions: tuple[TrackMotion, ...]
 
     @property
     def all_files(self) -> tuple[Path, ...]:
-        return (self.animation_file, *self.bvh)
+        return (self.animation_file, *self.exported)
 
 
 def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSolver, *, format: str = "auto",
                  frames: str = "all", fps: float | None = None, track: str | None = None,
                  character_path: str | Path | None = None, character_options: Any = None,
                  config: AnimateConfig | None = None, trust_pickle: bool = False, space: str | None = None,
-                 max_people: int | None = None, max_bytes: int | None = None, bvh: bool = True,
+                 max_people: int | None = None, max_bytes: int | None = None, formats: Sequence[str] = ("bvh",),
                  progress: Progress | None = None) -> AnimateOutputs:
-    """Estimator output -> ``out_dir/animation.json`` (+ one animated BVH per track at the source frame rate)."""
+    """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
+    ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
     from workflows.animation_io import save_animation, scene_of
     from workflows.export import export_scene
 
+    from workflows.export import FORMATS
+
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
     span = parse_frames(frames)
@@ -457,7 +463,7 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     out.mkdir(parents=True, exist_ok=True)
     path = save_animation(animation, out / "animation.json")
     written: list[Path] = []
-    if bvh:
-        written = export_scene(scene_of(animation), out, formats=["bvh"], frame_time=1.0 / animation.fps,
+    if formats:
+        written = export_scene(scene_of(animation), out, formats=formats, frame_time=1.0 / animation.fps,
                                poses={t.name: t.poses() for t in animation.tracks})
     return AnimateOutputs(path, tuple(written), animation, tuple(motions))

@@ -45,13 +45,15 @@ def animate_cmd(
     foot_lock: Annotated[bool, typer.Option("--foot-lock/--no-foot-lock", help="Lock feet in contact.")] = True,
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
                                                       "interpolation errs more than this (m).")] = 0.03,
+    export: Annotated[str, typer.Option("--export", help="Animated files per track, comma-separated: bvh, glb "
+                                        "(GLB for SMPL bodies and glTF characters); '' for none.")] = "bvh",
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per keyframe.")] = 6,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
 ) -> None:
     """Video estimates -> per track: cleaned per-frame poses on the body or character, effectors on keyframes,
-    OUT/animation.json and an animated BVH at the source frame rate."""
+    OUT/animation.json and an animated BVH (and GLB) at the source frame rate."""
     from rich.progress import Progress
 
     from smplik.cli.errors import console
@@ -73,7 +75,8 @@ def animate_cmd(
 
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,
-                               trust_pickle=trust_pickle, space=space, progress=progress)
+                               trust_pickle=trust_pickle, space=space, progress=progress,
+                               formats=[f.strip().lower() for f in export.split(",") if f.strip()])
     anim = outputs.animation
     for t in anim.tracks:
         contacts = 0 if t.contacts is None else int(t.contacts.sum())
