@@ -435,9 +435,7 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
     ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
     from workflows.animation_io import save_animation, scene_of
-    from workflows.export import export_scene
-
-    from workflows.export import FORMATS
+    from workflows.export import FORMATS, export_scene
 
     bad = [f for f in formats if f not in FORMATS]
     if bad:
