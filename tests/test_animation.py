@@ -336,3 +336,43 @@ def test_smoothing_methods_and_keyframes():
     assert select_keyframes(R_i, t_i, J, 0.01) == [0, 20]
     R_i[13, JOINT_INDEX["left_shoulder"]] = Rotation.from_rotvec([0, 0, 1.5]).as_matrix()
     assert 13 in select_keyframes(R_i, t_i, J, 0.01)
+
+
+def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
+    from typer.testing import CliRunner
+
+    from smplik.effector_schema import save_effector_file
+    from smplik.effectors import Effector
+    from workflows.cli import scene_app
+
+    aa, transl = video_motion(40, seed=8)
+    res = animate(write_gvhmr_video(tmp_path, aa, transl), "--out", tmp_path, "--fps", 30, "--max-effectors", 4)
+    assert res.exit_code == 0, res.output
+    path = tmp_path / "animation.json"
+    before = load_animation(path).tracks[0]
+    frame, window = 20, 5
+    p_before = _track_joints(before)
+    wrist = JOINT_INDEX["right_wrist"]
+    target = p_before[frame, wrist] + np.array([0.0, 0.15, 0.1])
+    effs = [Effector.position("right_wrist", target), Effector.position("pelvis", p_before[frame, 0]),
+            Effector.position("left_wrist", p_before[frame, JOINT_INDEX["left_wrist"]])]
+    save_effector_file(tmp_path / "edit.json", effs)
+    res = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", str(frame), "--effectors",
+                                         str(tmp_path / "edit.json"), "--window", str(window),
+                                         "--out", str(tmp_path / "edited.json")])
+    assert res.exit_code == 0, res.output
+    after = load_animation(tmp_path / "edited.json").tracks[0]
+    outside = np.r_[0:frame - window, frame + window + 1:40]
+    for key in ("global_orient", "body_pose", "transl"):  # bit for bit outside the window
+        assert np.array_equal(getattr(after, key)[outside], getattr(before, key)[outside])
+        assert not np.array_equal(getattr(after, key)[frame], getattr(before, key)[frame])
+    p_after = _track_joints(after)
+    solved = best_solver.solve(effs, betas=before.betas, gender=before.gender)
+    assert np.abs(p_after[frame] - np.asarray(solved.joints)).max() < 1e-4  # the keyframe is the new solve
+    moved = np.linalg.norm(p_after[:, wrist] - p_before[:, wrist], axis=-1)
+    assert moved[frame] > moved[frame - 3] > moved[frame - window] > 0 == moved[frame - window - 1]
+    key = next(k for k in after.keyframes if k.frame == frame)
+    assert [e.joint_name for e in key.effectors] == ["right_wrist", "pelvis", "left_wrist"]
+    bad = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", "99", "--effectors",
+                                         str(tmp_path / "edit.json")])
+    assert "frame 99 is outside track person_0's frames 0..39" in _one_error_line(bad)

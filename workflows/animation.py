@@ -254,7 +254,7 @@ def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: 
 # ----------------------------------------------------------------------------- motion math
 
 
-def _rotations(global_orient: np.ndarray, body_pose: np.ndarray) -> np.ndarray:
+def axis_angle_to_local(global_orient: np.ndarray, body_pose: np.ndarray) -> np.ndarray:
     """(T, 3), (T, 23, 3) axis-angle -> local rotations (T, 24, 3, 3)."""
     aa = np.concatenate([global_orient[:, None], body_pose], axis=1)
     return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(aa.shape[:-1] + (3, 3))
@@ -342,7 +342,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     bp = np.stack([p.body_pose for p in poses])
     transl = np.stack([p.transl for p in poses])
     J_rest = rest_joints(poses[0].betas, poses[0].gender)
-    R = _rotations(go, bp)
+    R = axis_angle_to_local(go, bp)
     raw = joints_of(R, transl, J_rest) * scale
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)

@@ -84,3 +84,35 @@ def animate_cmd(
             f"({anim.space} frame), {len(t.keyframes)} keyframes, {contacts} foot-contact frames")
     for path in outputs.all_files:
         say(f"wrote {path}")
+
+
+def edit_keyframe_cmd(
+    animation: Annotated[Path, typer.Argument(help="Animation file (animation.json of scene animate).")],
+    frame: Annotated[int, typer.Option("--frame", help="Source frame of the keyframe to set.")],
+    effectors: Annotated[Path, typer.Option("--effectors", help="Effector file (smplik-effectors JSON, "
+                                            "character space) for that frame.")],
+    track: Annotated[str | None, typer.Option("--track", help="Track name or id (default: the only one).")] = None,
+    window: Annotated[int, typer.Option("--window", min=0, help="Blend the change over this many frames on "
+                                        "each side; frames beyond stay unchanged.")] = 10,
+    out: Annotated[Path | None, typer.Option("--out", help="Output file (default: overwrite ANIMATION).")] = None,
+    checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
+) -> None:
+    """Set a keyframe's effectors, re-solve that frame and blend the change into the neighbouring frames."""
+    from smplik.effector_schema import load_effector_file
+    from workflows.animation import AnimationError
+    from workflows.animation_edit import edit_keyframe
+    from workflows.animation_io import load_animation, save_animation
+    from workflows.cli import _solver
+
+    with user_errors():
+        anim = load_animation(animation)
+        if track is None:
+            if len(anim.tracks) != 1:
+                raise AnimationError(f"{animation}: {len(anim.tracks)} tracks; choose one with --track "
+                                     f"({', '.join(t.name for t in anim.tracks)}).")
+            track = anim.tracks[0].name
+        effs = load_effector_file(effectors).effectors
+        edited = edit_keyframe(anim, track, frame, effs, _solver(checkpoint), window=window)
+        path = save_animation(edited, out or animation)
+    say(f"{track}: frame {frame} re-solved from {len(effs)} effectors, blended over +-{window} frames")
+    say(f"wrote {path}")

@@ -212,6 +212,7 @@ def demo_cmd(
 
 
 # ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation_cli.py
-from workflows.animation_cli import animate_cmd  # noqa: E402
+from workflows.animation_cli import animate_cmd, edit_keyframe_cmd  # noqa: E402
 
 scene_app.command("animate")(animate_cmd)
+scene_app.command("edit-keyframe")(edit_keyframe_cmd)
