@@ -359,9 +359,9 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
     save_effector_file(tmp_path / "edit.json", effs)
     res = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", str(frame), "--effectors",
                                          str(tmp_path / "edit.json"), "--window", str(window),
-                                         "--out", str(tmp_path / "edited.json")])
+                                         "--out", str(tmp_path / "edited" / "edited.json"), "--export", "bvh"])
     assert res.exit_code == 0, res.output
-    after = load_animation(tmp_path / "edited.json").tracks[0]
+    after = load_animation(tmp_path / "edited" / "edited.json").tracks[0]
     outside = np.r_[0:frame - window, frame + window + 1:40]
     for key in ("global_orient", "body_pose", "transl"):  # bit for bit outside the window
         assert np.array_equal(getattr(after, key)[outside], getattr(before, key)[outside])
@@ -371,6 +371,9 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
     assert np.abs(p_after[frame] - np.asarray(solved.joints)).max() < 1e-4  # the keyframe is the new solve
     moved = np.linalg.norm(p_after[:, wrist] - p_before[:, wrist], axis=-1)
     assert moved[frame] > moved[frame - 3] > moved[frame - window] > 0 == moved[frame - window - 1]
+    bvh = read_bvh(tmp_path / "edited" / "person_0.bvh")  # re-exported: the edit is in the file
+    order = [bvh.index(n) for n in JOINT_NAMES]
+    assert bvh.num_frames == 40 and np.abs(bvh.positions[:, order] - p_after).max() < MM
     key = next(k for k in after.keyframes if k.frame == frame)
     assert [e.joint_name for e in key.effectors] == ["right_wrist", "pelvis", "left_wrist"]
     bad = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", "99", "--effectors",

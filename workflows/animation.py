@@ -434,8 +434,8 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
                  progress: Progress | None = None) -> AnimateOutputs:
     """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
     ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
-    from workflows.animation_io import save_animation, scene_of
-    from workflows.export import FORMATS, export_scene
+    from workflows.animation_io import save_animation
+    from workflows.export import FORMATS
 
     bad = [f for f in formats if f not in FORMATS]
     if bad:
@@ -460,8 +460,15 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = save_animation(animation, out / "animation.json")
-    written: list[Path] = []
-    if formats:
-        written = export_scene(scene_of(animation), out, formats=formats, frame_time=1.0 / animation.fps,
-                               poses={t.name: t.poses() for t in animation.tracks})
+    written = export_animation(animation, out, formats) if formats else []
     return AnimateOutputs(path, tuple(written), animation, tuple(motions))
+
+
+def export_animation(animation: Animation, out_dir: str | Path, formats: Sequence[str] = ("bvh",),
+                     base_dir: str | Path | None = None) -> list[Path]:
+    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.export.export_scene`)."""
+    from workflows.animation_io import scene_of
+    from workflows.export import export_scene
+
+    return export_scene(scene_of(animation), out_dir, formats=formats, frame_time=1.0 / animation.fps,
+                        poses={t.name: t.poses() for t in animation.tracks}, base_dir=base_dir)

@@ -95,11 +95,13 @@ def edit_keyframe_cmd(
     window: Annotated[int, typer.Option("--window", min=0, help="Blend the change over this many frames on "
                                         "each side; frames beyond stay unchanged.")] = 10,
     out: Annotated[Path | None, typer.Option("--out", help="Output file (default: overwrite ANIMATION).")] = None,
+    export: Annotated[str, typer.Option("--export", help="Also re-export per track next to the output: bvh, "
+                                        "glb (comma-separated; default none).")] = "",
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
 ) -> None:
     """Set a keyframe's effectors, re-solve that frame and blend the change into the neighbouring frames."""
     from smplik.effector_schema import load_effector_file
-    from workflows.animation import AnimationError
+    from workflows.animation import AnimationError, export_animation
     from workflows.animation_edit import edit_keyframe
     from workflows.animation_io import load_animation, save_animation
     from workflows.cli import _solver
@@ -114,5 +116,8 @@ def edit_keyframe_cmd(
         effs = load_effector_file(effectors).effectors
         edited = edit_keyframe(anim, track, frame, effs, _solver(checkpoint), window=window)
         path = save_animation(edited, out or animation)
+        formats = [f.strip().lower() for f in export.split(",") if f.strip()]
+        files = export_animation(edited, path.parent, formats, base_dir=path.parent) if formats else []
     say(f"{track}: frame {frame} re-solved from {len(effs)} effectors, blended over +-{window} frames")
-    say(f"wrote {path}")
+    for written in (path, *files):
+        say(f"wrote {written}")
