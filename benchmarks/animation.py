@@ -70,8 +70,9 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
         poses = [retarget_to_body(p, *body) for p in people]
         default = clean_track(poses, fps, CleanConfig(), 1.0)
         raw_joints, contacts = default[3], default[2]
+        repaired = int(default[5].sum())
         result = {"file": str(path.relative_to(path.parents[1])), "format": clip.format, "space": clip.space,
-                  "track": tid, "frames": len(poses), "fps": fps}
+                  "track": tid, "frames": len(poses), "fps": fps, "repaired_glitches": repaired}
         result["raw"] = motion_metrics(raw_joints, raw_joints, contacts).to_dict()
         for name, cfg in VARIANTS.items():
             joints = default[4] if name == "one_euro" else clean_track(poses, fps, cfg, 1.0)[4]
@@ -137,7 +138,7 @@ def bench_cmu(folder: Path, solver, frames: int) -> list[dict]:
         p_frame = np.stack([np.asarray(r.pose.joints, dtype=np.float64) for r in recs])
         row = {"clip": name, "frames": len(idx), "frame_wise": _errors(p_frame, p_true)}
         for label, cfg in (("sequence", CleanConfig()), ("sequence_savgol", CleanConfig(smoothing="savgol"))):
-            R_seq, t_seq, _, _, _ = clean_track(solved, 30.0, cfg, 1.0)
+            R_seq, t_seq = clean_track(solved, 30.0, cfg, 1.0)[:2]
             row[label] = _errors(joints_of(R_seq, t_seq, J), p_true)
         rows.append({**row,                      "recovery_frames_per_s": round(len(idx) / elapsed, 1)})
     return rows
@@ -160,11 +161,12 @@ def main() -> None:
     for path in find_files(args.data):
         rows += bench_file(path, solver, args.max_frames)
     head = (f"{'file':52s} {'T':>4s} {'variant':17s} {'jitter':>7s} {'skating':>8s} {'MPJPE':>6s}")
-    print(head + f" {'keys':>5s} {'fps':>6s}")
+    print(head + f" {'keys':>5s} {'fps':>6s} {'glitches':>8s}")
     for r in rows:
         for v in ("raw", *VARIANTS):
             m = r[v]
-            extra = f" {r['keyframes']:5d} {r['pipeline_frames_per_s']:6.1f}" if v == "one_euro" else ""
+            extra = (f" {r['keyframes']:5d} {r['pipeline_frames_per_s']:6.1f} {r['repaired_glitches']:8d}"
+                     if v == "one_euro" else "")
             print(f"{r['file'][:52]:52s} {r['frames']:4d} {v:17s} {m['jitter_mm_per_frame2']:7.2f} "
                   f"{m['skating_mm_per_frame']:8.2f} {m['mpjpe_mm']:6.1f}{extra}")
     checks = {v: all(r[v]["jitter_mm_per_frame2"] < r["raw"]["jitter_mm_per_frame2"]

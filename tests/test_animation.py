@@ -229,6 +229,7 @@ def test_animation_file_round_trips_and_the_reader_is_strict(tmp_path, animate):
         lambda d: d["tracks"][0].update(body_pose=d["tracks"][0]["body_pose"][:9]))
     assert "tracks[0].contacts" in broken(lambda d: d["tracks"][0].update(contacts=[[1, 0]] * 10))
     assert "tracks[0].betas" in broken(lambda d: d["tracks"][0].update(betas=[0.0] * 3))
+    assert "tracks[0].repaired[0]: 10 is outside [0, 9]" in broken(lambda d: d["tracks"][0].update(repaired=[10]))
     assert "strictly increasing" in broken(lambda d: d["tracks"][0]["keyframes"].append(
         d["tracks"][0]["keyframes"][0]))
     # atomic: an animation that would not read back is refused and the old file stays
@@ -379,3 +380,25 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
     bad = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", "99", "--effectors",
                                          str(tmp_path / "edit.json")])
     assert "frame 99 is outside track person_0's frames 0..39" in _one_error_line(bad)
+
+
+def test_single_frame_glitches_are_flagged_and_repaired_but_fast_motion_is_not():
+    from smplik.pose import Pose
+    from workflows.animation import clean_track
+    from workflows.motion_clean import glitch_frames
+
+    R, transl, J = _standing_sway(T=40, seed=2)
+    aa = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(40, 24, 3)
+    aa[:, 16, 2] += 1.2 * np.sin(2 * np.pi * 1.5 * np.arange(40) / 30.0)  # a fast real arm swing
+    truth = joints_of(Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(40, 24, 3, 3), transl, J)
+    assert not glitch_frames(truth).any()
+    aa[17, 18] += [0.0, 2.0, 0.0]  # frame 17: the left elbow snaps away for one frame
+    poses = [Pose(aa[t, 0], aa[t, 1:], transl[t], np.zeros(10)) for t in range(40)]
+    _, _, _, raw, clean, glitches = clean_track(poses, 30.0, CleanConfig(foot_lock=False, smoothing="none"), 1.0)
+    assert np.nonzero(glitches)[0].tolist() == [17]
+    hand = JOINT_INDEX["left_wrist"]
+    assert np.linalg.norm(raw[17, hand] - raw[16, hand]) > 0.2
+    # the neighbours' slerp is near the unglitched pose (the fast swing's curve is what it misses)
+    assert np.linalg.norm(raw[17] - truth[17], axis=-1).max() > 0.3 > 0.08 > np.linalg.norm(
+        clean[17] - truth[17], axis=-1).max()
+    assert np.abs(clean[:17] - raw[:17]).max() < 1e-9  # the other frames are kept

@@ -10,7 +10,7 @@ Steps (:func:`animate_file`):
    character's SMPL-SI body (``betas``, ``gender``, ``scale``); each frame is retargeted onto it as
    ``from-estimate`` does (:func:`workflows.pipeline.retarget_to_body`: local rotations kept, pelvis
    at its world position).
-3. **Cleaning** (:mod:`workflows.motion_clean`): smoothing, foot contacts and foot locking.
+3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, smoothing, foot contacts and foot locking.
 4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, recursively, the frame
    where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
    errs most, while that error (mean joint distance, character space) is above a threshold.
@@ -38,7 +38,7 @@ from smplik.conventions import Gender
 from smplik.effectors import Effector
 from smplik.pose import Pose
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
-from workflows.motion_clean import CleanConfig, foot_contacts, lock_feet, smooth_motion
+from workflows.motion_clean import CleanConfig, foot_contacts, glitch_frames, lock_feet, smooth_motion
 from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
 from workflows.scene import SkeletonSource
 
@@ -87,6 +87,7 @@ class AnimationTrack:
     Attributes:
         global_orient: (T, 3) axis-angle; body_pose: (T, 23, 3); transl: (T, 3) smplx translation.
         contacts: (T, 2) bool foot contacts (left, right), or None when not detected.
+        repaired: source frames whose estimate was an implausible glitch, replaced by interpolation.
         keyframes: sorted by frame (source frame numbers, within the track's frames).
     """
 
@@ -102,6 +103,8 @@ class AnimationTrack:
     transl: np.ndarray
     keyframes: tuple[Keyframe, ...] = ()
     contacts: np.ndarray | None = None
+    repaired: tuple[int, ...] = ()
+    """Source frames flagged as glitches and replaced by interpolating their neighbours."""
 
     @property
     def num_frames(self) -> int:
@@ -331,12 +334,30 @@ class TrackMotion:
     contacts: np.ndarray
 
 
+def repair_frames(R_parent_joint: np.ndarray, transl: np.ndarray, bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Replace the rows flagged in ``bad`` (T,) by interpolating the nearest good rows on either side
+    (slerp / lerp; at an end, the nearest good row). R (T, 24, 3, 3), transl (T, 3)."""
+    R, t = R_parent_joint.copy(), transl.copy()
+    good = np.nonzero(~bad)[0]
+    if good.size == 0:
+        return R, t
+    for row in np.nonzero(bad)[0]:
+        after = good[np.searchsorted(good, row):]
+        before = good[:np.searchsorted(good, row)]
+        a = before[-1] if before.size else after[0]
+        b = after[0] if after.size else before[-1]
+        w = np.array([0.0 if a == b else (row - a) / (b - a)])
+        R_i, t_i = interpolate_poses(R_parent_joint[a], R_parent_joint[b], transl[a], transl[b], w)
+        R[row], t[row] = R_i[0], t_i[0]
+    return R, t
+
+
 def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Smooth and foot-lock one track's poses (SMPL space, one body).
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Repair glitches, smooth and foot-lock one track's poses (SMPL space, one body).
 
     Returns: local rotations (T, 24, 3, 3), transl (T, 3), contacts (T, 2), raw joints and clean joints
-    (T, 24, 3) in character space.
+    (T, 24, 3) in character space, and the repaired glitch rows (T,) bool.
     """
     go = np.stack([p.global_orient for p in poses])
     bp = np.stack([p.body_pose for p in poses])
@@ -344,13 +365,18 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     J_rest = rest_joints(poses[0].betas, poses[0].gender)
     R = axis_angle_to_local(go, bp)
     raw = joints_of(R, transl, J_rest) * scale
+    glitches = np.zeros(len(poses), dtype=bool)
+    if cfg.repair_glitches:
+        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio)
+        if glitches.any():
+            R, transl = repair_frames(R, transl, glitches)
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)
     contacts = foot_contacts(p_s * scale, fps, cfg) if cfg.foot_lock else np.zeros((len(poses), 2), dtype=bool)
     if cfg.foot_lock and contacts.any():
         R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames)
         p_s = joints_of(R_s, t_s, J_rest)
-    return R_s, t_s, contacts, raw, p_s * scale
+    return R_s, t_s, contacts, raw, p_s * scale, glitches
 
 
 def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None = None, track: str | None = None,
@@ -387,14 +413,15 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         else:
             body = (np.asarray(character.betas, dtype=np.float64), character.gender, float(character.scale))
         poses = [retarget_to_body(p, *body) for p in people]
-        R, transl, contacts, raw, clean = clean_track(poses, rate, config.clean, body[2])
+        R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, config.clean, body[2])
         J_rest = rest_joints(body[0], body[1])
         keys = select_keyframes(R, transl, J_rest, config.keyframe_threshold_m, scale=body[2],
                                 max_gap=config.max_keyframe_gap)
         aa = _axis_angle(R)
         name = f"person_{tid}"
         tracks.append(AnimationTrack(name, tid, body[1], body[0], body[2], skeleton, rows[0][0], aa[:, 0],
-                                     aa[:, 1:], transl, (), contacts if config.clean.foot_lock else None))
+                                     aa[:, 1:], transl, (), contacts if config.clean.foot_lock else None,
+                                     tuple(int(rows[0][0] + r) for r in np.nonzero(glitches)[0])))
         motions.append(TrackMotion(name, raw, clean, contacts))
         for k in keys:
             targets.append(TargetPose.from_pose(tracks[-1].pose(k)))

@@ -18,6 +18,7 @@ track's body fields are a scene character's, read by the scene reader's rules)::
           "first_frame": 12,                                       # source frame of row 0
           "global_orient": [[3] x T], "body_pose": [[[3] x 23] x T], "transl": [[3] x T],   # SMPL space
           "contacts": null | [[left, right] x T],                  # foot contacts (booleans)
+          "repaired": [frames],                                    # glitches replaced by interpolation
           "keyframes": [{"frame": 12, "error_m": 0.012, "effectors": [...scene effectors...]}, ...]
         }
       ]
@@ -60,7 +61,7 @@ MAX_TRACKS = 100
 MAX_FRAMES = 1_000_000
 _BODY_KEYS = ("name", "gender", "betas", "scale", "skeleton")
 _TRACK_KEYS = {*_BODY_KEYS, "track_id", "first_frame", "global_orient", "body_pose", "transl", "contacts",
-               "keyframes"}
+               "keyframes", "repaired"}
 _ROOT_KEYS = {"format", "version", "source", "source_format", "fps", "space", "camera", "clean", "tracks"}
 
 
@@ -75,6 +76,7 @@ def _track_to_dict(t: AnimationTrack) -> dict[str, Any]:
         "first_frame": int(t.first_frame), "global_orient": np.asarray(t.global_orient).tolist(),
         "body_pose": np.asarray(t.body_pose).tolist(), "transl": np.asarray(t.transl).tolist(),
         "contacts": None if t.contacts is None else np.asarray(t.contacts, dtype=bool).tolist(),
+        "repaired": [int(f) for f in t.repaired],
         "keyframes": [{"frame": int(k.frame), "error_m": float(k.error_m),
                        "effectors": [e.to_dict() for e in k.effectors]} for k in t.keyframes],
     }
@@ -168,8 +170,14 @@ def _track(data: Any, path: str, camera: Any) -> AnimationTrack:
         if keyframes[i].frame <= keyframes[i - 1].frame:
             raise AnimationFileError(f"{path}.keyframes[{i}].frame: {keyframes[i].frame} does not follow "
                                      f"{keyframes[i - 1].frame}; keyframes must be strictly increasing.")
+    repaired = _expect(data.get("repaired", []), list, f"{path}.repaired", "a list of frames")
+    for i, f in enumerate(repaired):
+        _whole(f, f"{path}.repaired[{i}]", frames.start, frames.stop - 1)
+        if i and f <= repaired[i - 1]:
+            raise AnimationFileError(f"{path}.repaired[{i}]: {f} does not follow {repaired[i - 1]}; frames must be "
+                                     "strictly increasing.")
     return AnimationTrack(body.name, track_id, body.gender, body.betas, body.scale, body.skeleton, first, go, bp, tr,
-                          keyframes, contacts)
+                          keyframes, contacts, tuple(repaired))
 
 
 def _clean(data: Any) -> CleanConfig:

@@ -19,6 +19,10 @@ each contact run (blended in and out over ``blend_frames``) by a two-bone IK of 
 (:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
 lands on the locked point exactly when the leg can reach it.
 
+Plausibility (:func:`glitch_frames`): single-frame glitches (a pose that jumps away and comes back, as
+when a tracker briefly swaps limbs) are flagged and, before smoothing, replaced by interpolating their
+neighbours.
+
 Metrics (:func:`motion_metrics`), on joint positions ``(T, 24, 3)`` in metres: jitter = mean joint
 acceleration ``|p[t+1] - 2 p[t] + p[t-1]|`` (mm/frame^2); skating = mean speed of the foot joints
 during contact (mm/frame); fidelity = MPJPE to reference joints (mm).
@@ -70,11 +74,18 @@ class CleanConfig:
     """Contact runs shorter than this are dropped."""
     blend_frames: int = 3
     """Frames over which a lock is blended in before and out after a contact run."""
+    repair_glitches: bool = True
+    """Detect single-frame glitches (:func:`glitch_frames`) and replace them by interpolation before smoothing."""
+    glitch_min_m: float = 0.1
+    """A glitch moves some joint at least this far (m) from the midpoint of its neighbouring frames ..."""
+    glitch_ratio: float = 2.0
+    """... and more than this many times the distance between those neighbours (fast real motion does not)."""
 
     def __post_init__(self) -> None:
         if self.smoothing not in ("one_euro", "savgol", "none"):
             raise ValueError(f"smoothing must be 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
-        for name in ("min_cutoff_hz", "d_cutoff_hz", "contact_height_m", "contact_speed_mps"):
+        for name in ("min_cutoff_hz", "d_cutoff_hz", "contact_height_m", "contact_speed_mps", "glitch_min_m",
+                     "glitch_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value}.")
@@ -154,6 +165,24 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
         q_s = one_euro(q, fps, **kw)
         t_s = one_euro(transl, fps, **kw)
     return quaternions_to_matrices(q_s), t_s
+
+
+# ----------------------------------------------------------------------------- plausibility
+
+
+def glitch_frames(p_world: np.ndarray, min_m: float = 0.1, ratio: float = 2.0) -> np.ndarray:
+    """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3): frames where some joint jumps away
+    from the midpoint of its neighbouring frames by more than ``min_m`` and by more than ``ratio`` times the
+    distance between those neighbours (a pose that jumps and comes back; smooth motion, however fast, bends
+    its path by far less than it advances). The first and last frames are never flagged."""
+    flags = np.zeros(p_world.shape[0], dtype=bool)
+    if p_world.shape[0] < 3:
+        return flags
+    mid = 0.5 * (p_world[2:] + p_world[:-2])
+    away = np.linalg.norm(p_world[1:-1] - mid, axis=-1)  # (T-2, J)
+    gap = np.linalg.norm(p_world[2:] - p_world[:-2], axis=-1)
+    flags[1:-1] = ((away > min_m) & (away > ratio * gap)).any(-1)
+    return flags
 
 
 # ----------------------------------------------------------------------------- contacts
