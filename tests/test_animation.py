@@ -92,7 +92,7 @@ def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, a
     aa, transl = video_motion(40, seed=1)
     path = write_gvhmr_video(tmp_path, aa, transl)
     res = animate(path, "--out", tmp_path / "raw", "--fps", 25, "--smoothing", "none", "--no-foot-lock",
-                  "--max-effectors", 3, "--export", "bvh,glb")
+                  "--max-effectors", 3, "--export", "bvh,glb", "--space", "camera")
     assert res.exit_code == 0, res.output
     anim = load_animation(tmp_path / "raw" / "animation.json")
     assert anim.fps == 25 and anim.space == "camera" and anim.source_format == "gvhmr" and anim.camera is not None
@@ -100,7 +100,7 @@ def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, a
     assert track.num_frames == 40 and track.first_frame == 0
     # every row is that frame as from-estimate reads and retargets it
     for f in (0, 17, 39):
-        person = read_estimate(path, frame=f)[0]
+        person = read_estimate(path, frame=f, space="camera")[0]
         want = retarget_to_body(person, track.betas, track.gender, 1.0)
         assert np.allclose(track.transl[f], want.transl, atol=1e-9)
         assert np.allclose(Rotation.from_rotvec(track.body_pose[f]).as_matrix(),
@@ -119,7 +119,7 @@ def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, a
     assert len(times) == 40 and np.allclose(np.diff(times), 1 / 25, atol=1e-6)
     assert np.abs(glb_joints - _track_joints(track)).max() < MM
     # cleaning on: less jitter, still close to the estimate
-    res = animate(path, "--out", tmp_path / "clean", "--fps", 25, "--max-effectors", 2, "--space", "world")
+    res = animate(path, "--out", tmp_path / "clean", "--fps", 25, "--max-effectors", 2)  # world by default
     assert res.exit_code == 0, res.output
     clean = load_animation(tmp_path / "clean" / "animation.json")
     assert clean.space == "world" and clean.camera is None and clean.clean == CleanConfig()

@@ -18,8 +18,8 @@ Steps (:func:`animate_file`):
    tracks in one batch.
 
 Spaces: as in scenes, poses are in SMPL space (character = SMPL body scaled by ``scale``), effectors in
-character space; the world is the estimator's world trajectory when it gives one (WHAM and GVHMR with
-``--space world``, AIST++, AMASS), else its camera frame (converted to y-up).
+character space; the world is the estimator's world trajectory when it gives one (WHAM and GVHMR by
+default, ``--space camera`` for their camera frame; AIST++, AMASS), else its camera frame (converted to y-up).
 """
 
 from __future__ import annotations
@@ -192,6 +192,19 @@ def stored_fps(data: Any, fmt: str) -> float | None:
     return KNOWN_FPS.get(fmt)
 
 
+def has_world_trajectory(data: Any, fmt: str) -> bool:
+    """Whether a WHAM / GVHMR output holds its world-frame trajectory (WHAM ``pose_world``/``trans_world`` in
+    every track, GVHMR ``smpl_params_global``)."""
+    if fmt == "gvhmr":
+        from workflows.estimators.gvhmr import _nest
+
+        return isinstance(_nest(data), dict) and "smpl_params_global" in _nest(data)
+    if fmt == "wham":
+        return isinstance(data, dict) and all(isinstance(t, dict) and "pose_world" in t and "trans_world" in t
+                                              for t in data.values())
+    return False
+
+
 @dataclass(frozen=True)
 class Clip:
     """Every frame's people of an estimator file, grouped by track id (each track's rows in frame order)."""
@@ -215,8 +228,12 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
         raise EstimateFormatError(f"Estimator output not found: {path}")
     data = _load_raw(path, trust_pickle, MAX_BYTES if max_bytes is None else max_bytes)
     fmt = detect_format(data) if format == "auto" else format
-    world = (space or ("world" if fmt == "wham" else "camera")) == "world" and fmt in ("wham", "gvhmr")
-    is_world = world or fmt in ("aist", "amass")
+    if fmt in ("wham", "gvhmr"):
+        if space is None:  # an animation follows the world trajectory when the estimator gives one
+            space = "world" if has_world_trajectory(data, fmt) else "camera"
+        elif space == "world" and not has_world_trajectory(data, fmt):
+            raise AnimationError(f"{path}: this {fmt} output has no world trajectory; use --space camera.")
+    is_world = space == "world" and fmt in ("wham", "gvhmr") or fmt in ("aist", "amass")
     length = clip_length(data, fmt, space)
     if frames is not None and frames[1] > length:
         raise AnimationError(f"{path}: --frames {frames[0]}:{frames[1]} is outside the clip (frames 0..{length - 1}).")

@@ -31,7 +31,8 @@ def animate_cmd(
                                               "when the format does not store it).")] = None,
     track: Annotated[str | None, typer.Option("--track", help="Only this track id (default: every track).")] = None,
     format: Annotated[str, typer.Option("--format", help="Estimator format (as in from-estimate).")] = "auto",
-    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'camera' or 'world'.")] = None,
+    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'world' (their world trajectory, "
+                                              "the default when present) or 'camera'.")] = None,
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
     rig: RigOption = None,
     map_file: MapOption = None,
