@@ -70,9 +70,17 @@ def _glb_animation_joints(path, names) -> tuple[np.ndarray, np.ndarray]:
 
     def matrix(node: int) -> np.ndarray:
         if node not in world:
+            n = g.nodes[node]
+            if (node, "rotation") in trs:  # animated
+                q, t, sc = trs[(node, "rotation")], trs[(node, "translation")], trs[(node, "scale")]
+            else:  # a static node (a glTF character's armature)
+                q = np.tile(n.rotation or [0.0, 0.0, 0.0, 1.0], (T, 1))
+                t, sc = np.tile(n.translation or [0.0] * 3, (T, 1)), np.tile(n.scale or [1.0] * 3, (T, 1))
             M = np.tile(np.eye(4), (T, 1, 1))
-            M[:, :3, :3] = Rotation.from_quat(trs[(node, "rotation")]).as_matrix() * trs[(node, "scale")][:, None]
-            M[:, :3, 3] = trs[(node, "translation")]
+            M[:, :3, :3] = Rotation.from_quat(q).as_matrix() * sc[:, None]
+            M[:, :3, 3] = t
+            if n.matrix is not None and (node, "rotation") not in trs:
+                M[:] = np.asarray(n.matrix, dtype=np.float64).reshape(4, 4).T
             world[node] = matrix(parent[node]) @ M if node in parent else M
         return world[node]
 
@@ -402,3 +410,22 @@ def test_single_frame_glitches_are_flagged_and_repaired_but_fast_motion_is_not()
     assert np.linalg.norm(raw[17] - truth[17], axis=-1).max() > 0.3 > 0.08 > np.linalg.norm(
         clean[17] - truth[17], axis=-1).max()
     assert np.abs(clean[:17] - raw[:17]).max() < 1e-9  # the other frames are kept
+
+
+def test_gltf_character_gets_an_animated_glb_of_its_own_file(tmp_path, animate):
+    from workflows.character import character_from_estimate, smpl_to_custom
+    from workflows.layout_examples import smpl_rest, write_mixamo_gltf
+
+    J, V, F, W = smpl_rest()
+    hero = write_mixamo_gltf(tmp_path / "hero.glb", J, (V, F, W))
+    aa, tr = video_motion(12, seed=9, fmt="gvhmr")
+    res = animate(write_aist(tmp_path, aa, tr), "--out", tmp_path / "out", "--character", hero, "--max-effectors", 2,
+                  "--export", "bvh,glb")
+    assert res.exit_code == 0, res.output
+    (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
+    char = character_from_estimate(track.skeleton.path, track.skeleton.options, track.betas, track.scale,
+                                   track.gender)
+    want = np.stack([smpl_to_custom(track.pose(f), char).positions(char)[1] for f in range(12)])
+    times, got = _glb_animation_joints(tmp_path / "out" / "person_0.glb", char.names)
+    assert len(times) == 12 and np.allclose(np.diff(times), 1 / 60, atol=1e-6)  # AIST++: 60 frames/s
+    assert np.abs(got - want).max() < MM / char.units_m
