@@ -429,3 +429,44 @@ def test_gltf_character_gets_an_animated_glb_of_its_own_file(tmp_path, animate):
     times, got = _glb_animation_joints(tmp_path / "out" / "person_0.glb", char.names)
     assert len(times) == 12 and np.allclose(np.diff(times), 1 / 60, atol=1e-6)  # AIST++: 60 frames/s
     assert np.abs(got - want).max() < MM / char.units_m
+
+
+def _can_render() -> bool:
+    import os
+
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    try:
+        from smplik.render import Sphere, render
+
+        render([], [Sphere((0, 0, 0))], size=(32, 32))
+        return True
+    except Exception:  # noqa: BLE001 - no OpenGL backend on this machine
+        return False
+
+
+def test_preview_over_the_source_video_and_in_3d(tmp_path, animate):
+    if not _can_render():
+        pytest.skip("no OpenGL backend for pyrender")
+    import imageio.v2 as imageio
+    from estimator_fixtures import IMAGE_H, IMAGE_W
+
+    aa, transl = video_motion(6, seed=10)
+    path = write_gvhmr_video(tmp_path, aa, transl)
+    video = tmp_path / "input.mp4"
+    imageio.mimsave(video, [np.full((IMAGE_H, IMAGE_W, 3), 40 + 20 * i, np.uint8) for i in range(6)], fps=30,
+                    macro_block_size=1)
+    res = animate(path, "--out", tmp_path / "out", "--fps", 30, "--space", "camera", "--max-effectors", 2,
+                  "--video", video, "--preview", tmp_path / "out" / "preview.gif")
+    assert res.exit_code == 0, res.output
+    gif = imageio.mimread(tmp_path / "out" / "preview.gif")
+    assert len(gif) == 6 and gif[0].shape[:2] == (IMAGE_H, IMAGE_W)
+    assert imageio.get_reader(tmp_path / "out" / "preview.gif").get_meta_data()["duration"] == pytest.approx(
+        1000 / 30, abs=10)  # GIF frame delays are whole centiseconds
+    background = np.asarray(gif[3])[..., :3].astype(int)
+    assert (np.abs(background - (40 + 20 * 3)).max(-1) > 60).mean() > 0.01  # the person drawn over the frame
+    res = animate(path, "--out", tmp_path / "out3d", "--fps", 30, "--max-effectors", 2, "--preview",
+                  tmp_path / "out3d" / "preview.mp4", "--preview-every", 2)
+    assert res.exit_code == 0, res.output
+    assert imageio.get_reader(tmp_path / "out3d" / "preview.mp4").count_frames() == 3
+    assert "camera frame" in _one_error_line(animate(path, "--out", tmp_path / "bad", "--fps", 30, "--video", video,
+                                                     "--preview", tmp_path / "bad" / "p.gif"))

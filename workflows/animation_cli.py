@@ -49,6 +49,11 @@ def animate_cmd(
     export: Annotated[str, typer.Option("--export", help="Animated files per track, comma-separated: bvh, glb "
                                         "(GLB for SMPL bodies and glTF characters); '' for none.")] = "bvh",
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per keyframe.")] = 6,
+    preview: Annotated[Path | None, typer.Option("--preview", help="Write an animated preview (.gif or .mp4).")
+                       ] = None,
+    video: Annotated[Path | None, typer.Option("--video", help="Source video (or folder of frames) for the "
+                                               "preview's background (camera-frame animations).")] = None,
+    preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame.")] = 1,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
@@ -78,12 +83,19 @@ def animate_cmd(
                                character_path=character, character_options=options, config=config,
                                trust_pickle=trust_pickle, space=space, progress=progress,
                                formats=[f.strip().lower() for f in export.split(",") if f.strip()])
-    anim = outputs.animation
+        files = list(outputs.all_files)
+        anim = outputs.animation
+        if preview is not None:
+            from workflows.animation_preview import preview_frames, save_preview
+
+            bar.update(task, description="preview")
+            images = preview_frames(anim, video=video, every=preview_every)
+            files.append(save_preview(images, preview, anim.fps / preview_every))
     for t in anim.tracks:
         contacts = 0 if t.contacts is None else int(t.contacts.sum())
         say(f"{t.name}: frames {t.first_frame}..{t.first_frame + t.num_frames - 1} at {anim.fps:g} frames/s "
             f"({anim.space} frame), {len(t.keyframes)} keyframes, {contacts} foot-contact frames")
-    for path in outputs.all_files:
+    for path in files:
         say(f"wrote {path}")
 
 
