@@ -162,6 +162,12 @@ def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
     assert "unknown export format(s) ['fbx']" in _one_error_line(animate(path, "--out", out, "--fps", 30,
                                                                         "--export", "bvh,fbx"))
     assert "no track '7'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--track", 7))
+    far = write_wham_video(tmp_path, {4: (a0[:2], t0[:2], np.array([0, 900_000_000]))})  # sparse ids: no hang
+    assert "no pose at frame(s) 1, 2, 3" in _one_error_line(animate(far, "--out", out, "--fps", 30))
+    from workflows.animation import read_clip
+
+    with pytest.raises(ValueError, match="refusing more than 1 "):
+        read_clip(far, max_frames=1)
     gap = write_wham_video(tmp_path, {3: (a0[:20], t0[:20], np.r_[np.arange(10), np.arange(14, 24)])})
     assert "frame(s) 10, 11, 12, 13" in _one_error_line(animate(gap, "--out", out, "--fps", 30))
     assert not out.exists() or not (out / "animation.json").exists()

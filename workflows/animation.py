@@ -42,6 +42,8 @@ from workflows.motion_clean import CleanConfig, foot_contacts, glitch_frames, lo
 from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
 from workflows.scene import SkeletonSource
 
+MAX_FRAMES = 100_000
+"""Most frames read from one file by default (55 minutes at 30 frames/s; ``max_frames`` raises it)."""
 KNOWN_FPS = {"aist": 60.0}
 """Frame rates fixed by a format (AIST++ motions are 60 frames/s); AMASS files store theirs."""
 
@@ -182,6 +184,23 @@ def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
     return 1
 
 
+def frames_present(data: Any, fmt: str) -> list[int] | None:
+    """The frame numbers a sparse format holds (WHAM: the union of its tracks' ``frame_ids``), else None (every
+    frame of :func:`clip_length`)."""
+    if fmt != "wham" or not isinstance(data, dict):
+        return None
+    ids: set[int] = set()
+    for t in data.values():
+        if isinstance(t, dict) and "frame_ids" in t:
+            try:
+                ids.update(int(f) for f in np.asarray(t["frame_ids"]).reshape(-1)[:MAX_FRAMES + 1] if f >= 0)
+            except (TypeError, ValueError, OverflowError):
+                return None  # the reader names the problem
+        elif isinstance(t, dict) and "pose" in t:
+            ids.update(range(min(len(t["pose"]), MAX_FRAMES + 1)))
+    return sorted(ids)
+
+
 def stored_fps(data: Any, fmt: str) -> float | None:
     """The frame rate a file states or its format fixes (AMASS ``mocap_framerate``, AIST++ 60), else None."""
     if fmt == "amass":
@@ -219,8 +238,8 @@ class Clip:
 
 def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
               max_people: int | None = None, max_bytes: int | None = None, solver: Any = None,
-              frames: tuple[int, int] | None = None) -> Clip:
-    """Read the people of every frame (or frames A..B-1) of an estimator file, by track."""
+              frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES) -> Clip:
+    """Read the people of every frame (or frames A..B-1; at most ``max_frames``) of an estimator file, by track."""
     from workflows.estimators import MAX_BYTES, MAX_PEOPLE, _load_raw, detect_format, people_from_data
 
     path = Path(path)
@@ -238,8 +257,13 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
     if frames is not None and frames[1] > length:
         raise AnimationError(f"{path}: --frames {frames[0]}:{frames[1]} is outside the clip (frames 0..{length - 1}).")
     start, stop = frames if frames is not None else (0, length)
+    present = frames_present(data, fmt)
+    wanted = range(start, stop) if present is None else [f for f in present if start <= f < stop]
+    if len(wanted) > max_frames:
+        raise AnimationError(f"{path}: {len(wanted)} frames to read; refusing more than {max_frames} "
+                             "(--frames A:B reads a part; max_frames / --max-frames raises the cap).")
     tracks: dict[str, list[tuple[int, EstimatedPerson]]] = {}
-    for f in range(start, stop):
+    for f in wanted:
         try:
             people = people_from_data(data, source=str(path), format=fmt, frame=f,  # type: ignore[arg-type]
                                       max_people=MAX_PEOPLE if max_people is None else max_people,
@@ -265,7 +289,11 @@ def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: 
         raise AnimationError(f"{source}: track {track_id} {where}, inside the requested frames {frames[0]}.."
                              f"{frames[1] - 1} (choose --frames within the track's frames or another --track).")
     if len(have) != last - first + 1:
-        missing = sorted(set(range(first, last + 1)) - set(have))
+        missing: list[int] = []  # the first few missing frames, without enumerating a huge span
+        for a, b in zip(have[:-1], have[1:], strict=True):
+            missing += range(a + 1, min(b, a + 10))
+            if len(missing) > 8:
+                break
         shown = ", ".join(map(str, missing[:8])) + (", ..." if len(missing) > 8 else "")
         raise AnimationError(f"{source}: track {track_id} has no pose at frame(s) {shown} inside its span "
                              f"{first}..{last} (missing frames; choose --frames around them).")
