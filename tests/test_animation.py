@@ -161,6 +161,10 @@ def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
     assert "pass --fps" in _one_error_line(animate(path, "--out", out))
     assert "unknown export format(s) ['fbx']" in _one_error_line(animate(path, "--out", out, "--fps", 30,
                                                                         "--export", "bvh,fbx"))
+    assert "smoothing must be" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--smoothing", "wavy"))
+    assert "keyframe threshold" in _one_error_line(animate(path, "--out", out, "--fps", 30,
+                                                           "--keyframe-threshold", 0))
+    assert "refusing more than 5" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--max-frames", 5))
     assert "no track '7'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--track", 7))
     far = write_wham_video(tmp_path, {4: (a0[:2], t0[:2], np.array([0, 900_000_000]))})  # sparse ids: no hang
     assert "no pose at frame(s) 1, 2, 3" in _one_error_line(animate(far, "--out", out, "--fps", 30))

@@ -503,7 +503,7 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
                  character_path: str | Path | None = None, character_options: Any = None,
                  config: AnimateConfig | None = None, trust_pickle: bool = False, space: str | None = None,
                  max_people: int | None = None, max_bytes: int | None = None, formats: Sequence[str] = ("bvh",),
-                 progress: Progress | None = None) -> AnimateOutputs:
+                 max_frames: int = MAX_FRAMES, progress: Progress | None = None) -> AnimateOutputs:
     """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
     ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
     from workflows.animation_io import save_animation
@@ -524,7 +524,7 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
         character = load_character(character_path, options)
         skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
     clip = read_clip(results_path, format=format, trust_pickle=trust_pickle, space=space, max_people=max_people,
-                     max_bytes=max_bytes, solver=solver, frames=span)
+                     max_bytes=max_bytes, solver=solver, frames=span, max_frames=max_frames)
     first = next(iter(clip.tracks.values()))[0][1]
     animation, motions = animation_from_clip(clip, solver, fps=fps, track=track, frames=span, character=character,
                                              skeleton=skeleton, config=config, camera=first.camera,

@@ -53,6 +53,8 @@ def animate_cmd(
                        ] = None,
     video: Annotated[Path | None, typer.Option("--video", help="Source video (or folder of frames) for the "
                                                "preview's background (camera-frame animations).")] = None,
+    max_frames: Annotated[int, typer.Option("--max-frames", min=1, help="Refuse to read more frames than "
+                                            "this.")] = 100_000,
     preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame.")] = 1,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
@@ -82,7 +84,8 @@ def animate_cmd(
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,
                                trust_pickle=trust_pickle, space=space, progress=progress,
-                               formats=[f.strip().lower() for f in export.split(",") if f.strip()])
+                               formats=[f.strip().lower() for f in export.split(",") if f.strip()],
+                               max_frames=max_frames)
         files = list(outputs.all_files)
         anim = outputs.animation
         if preview is not None:

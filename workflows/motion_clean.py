@@ -48,6 +48,10 @@ LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["l
 SmoothingMethod = Literal["one_euro", "savgol", "none"]
 
 
+class CleanError(ValueError):
+    """Invalid cleaning settings (one line)."""
+
+
 @dataclass(frozen=True)
 class CleanConfig:
     """How :func:`smooth_motion` and :func:`lock_feet` clean a motion."""
@@ -83,19 +87,19 @@ class CleanConfig:
 
     def __post_init__(self) -> None:
         if self.smoothing not in ("one_euro", "savgol", "none"):
-            raise ValueError(f"smoothing must be 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
+            raise CleanError(f"smoothing must be 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
         for name in ("min_cutoff_hz", "d_cutoff_hz", "contact_height_m", "contact_speed_mps", "glitch_min_m",
                      "glitch_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value}.")
+                raise CleanError(f"{name} must be a positive number, got {value}.")
         if not (np.isfinite(self.beta) and self.beta >= 0):
-            raise ValueError(f"beta must be >= 0, got {self.beta}.")
+            raise CleanError(f"beta must be >= 0, got {self.beta}.")
         if self.savgol_window < 3 or self.savgol_window % 2 == 0 or self.savgol_order >= self.savgol_window:
-            raise ValueError(f"savgol_window must be odd, >= 3 and above savgol_order; got {self.savgol_window} "
+            raise CleanError(f"savgol_window must be odd, >= 3 and above savgol_order; got {self.savgol_window} "
                              f"and order {self.savgol_order}.")
         if self.contact_min_frames < 1 or self.blend_frames < 0:
-            raise ValueError("contact_min_frames must be >= 1 and blend_frames >= 0.")
+            raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
 
 
 # ----------------------------------------------------------------------------- filters
