@@ -480,3 +480,43 @@ def test_preview_over_the_source_video_and_in_3d(tmp_path, animate):
     assert imageio.get_reader(tmp_path / "out3d" / "preview.mp4").count_frames() == 3
     assert "camera frame" in _one_error_line(animate(path, "--out", tmp_path / "bad", "--fps", 30, "--video", video,
                                                      "--preview", tmp_path / "bad" / "p.gif"))
+
+
+def test_timeline_scrubs_plays_jumps_keyframes_and_applies_edits_with_undo(tmp_path, animate, best_solver):
+    import dataclasses
+
+    from smplik.effectors import Effector
+    from workflows.animation import AnimationError
+    from workflows.editor.timeline import AnimationTimeline
+
+    aa, transl = video_motion(30, seed=11)
+    res = animate(write_gvhmr_video(tmp_path, aa, transl), "--out", tmp_path, "--fps", 30, "--max-effectors", 3)
+    assert res.exit_code == 0, res.output
+    tl = AnimationTimeline.open(tmp_path / "animation.json", best_solver, window=4)
+    assert tl.frames == range(0, 30) and tl.frame == 0 and tl.frame_time == pytest.approx(1 / 30)
+    assert tl.step(29) == 29 and tl.step() == 0  # playback wraps
+    keys = tl.keyframes()
+    assert keys[0] == 0 and keys[-1] == 29
+    assert tl.next_keyframe() == keys[1] and tl.next_keyframe(-1) == 0
+    with pytest.raises(AnimationError, match="outside the animation's frames 0..29"):
+        tl.set_frame(30)
+    with pytest.raises(AnimationError, match="blend window"):
+        tl.window = -1
+    tl.set_frame(15)
+    scene = tl.scene()
+    (c,) = scene.characters
+    before = tl.animation.tracks[0]
+    p15 = _track_joints(before)[15]
+    moved = dataclasses.replace(c, effectors=(Effector.position("left_wrist", p15[20] + [0.0, 0.2, 0.0]),
+                                              Effector.position("pelvis", p15[0])))
+    assert tl.apply_scene(dataclasses.replace(scene, characters=(moved,))) == ["person_0"]
+    after = tl.animation.tracks[0]
+    assert np.array_equal(after.body_pose[:11], before.body_pose[:11])
+    assert np.array_equal(after.body_pose[20:], before.body_pose[20:])
+    assert not np.array_equal(after.body_pose[15], before.body_pose[15])
+    assert [len(k.effectors) for k in after.keyframes if k.frame == 15] == [2]
+    assert tl.apply_scene(tl.scene()) == []  # nothing changed: nothing applied
+    assert tl.undo() and np.array_equal(tl.animation.tracks[0].body_pose, before.body_pose)
+    assert tl.redo() and np.array_equal(tl.animation.tracks[0].body_pose, after.body_pose)
+    saved = tl.save(tmp_path / "edited.json")
+    assert np.array_equal(load_animation(saved).tracks[0].body_pose, after.body_pose)
