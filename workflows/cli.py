@@ -256,3 +256,10 @@ def demo_report(outputs) -> list[str]:  # noqa: ANN001 - workflows.demo.DemoOutp
     lines += [f"open first: {first} (the solved people over the photo); then edit a scene in the browser with "
               f"`smplik edit {character.scene}` or export it with `smplik scene export {smpl.scene} --out exported`"]
     return lines
+
+
+# ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation_cli.py
+from workflows.animation_cli import animate_cmd, edit_keyframe_cmd  # noqa: E402
+
+scene_app.command("animate")(animate_cmd)
+scene_app.command("edit-keyframe")(edit_keyframe_cmd)

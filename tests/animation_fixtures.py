@@ -1,0 +1,105 @@
+"""Video estimator outputs (many frames, tracks that start late or have gaps) in each producer's exact layout.
+
+No tests here: ``test_animation.py`` uses it. The single-frame writers and the producers' conventions are in
+``estimator_fixtures.py``; these write the same layouts with one pose per frame:
+
+* GVHMR ``tools/demo/demo.py``: ``torch.save(pred, 'hmr4d_results.pt')``, ``smpl_params_incam`` /
+  ``smpl_params_global`` dicts of (L, ...) tensors and ``K_fullimg (L, 3, 3)``.
+* WHAM ``demo.py``: ``joblib.dump(results, 'wham_output.pkl')``, ``results[track_id]`` with ``pose (T, 72)``,
+  ``trans``, ``pose_world``, ``trans_world``, ``betas (T, 10)``, ``verts``, ``frame_ids (T,)``.
+* PHALP ``PHALP.track``: ``joblib.dump(final_visuals_dic, path, compress=3)``, one dict per frame name with
+  per-detection lists ``smpl`` (rotation matrices), ``camera``, ``tid``, ``size``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import joblib
+import numpy as np
+import torch
+from estimator_fixtures import _R, FOCAL, IMAGE_H, IMAGE_W, depth_for, people
+from scipy.spatial.transform import Rotation
+
+M = np.diag([1.0, -1.0, -1.0])
+
+
+def video_motion(T: int, seed: int = 0, fmt: str = "gvhmr", x: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A walking-in-place motion over T frames in a producer's camera convention (OpenCV axes):
+    aa (T, 24, 3) with swinging legs and arms plus estimator-like jitter, transl (T, 3)."""
+    rng = np.random.default_rng(seed)
+    aa0, t0, _ = people(seed=seed, n=1, depth=depth_for(fmt), focal=FOCAL[fmt])
+    phase = 2 * np.pi * np.arange(T) / 30.0
+    aa = np.repeat(aa0 * 0.3, T, 0)
+    aa[:, 0] = aa0[0, 0]
+    swing = 0.5 * np.sin(phase)
+    aa[:, 1, 0] += swing  # left hip
+    aa[:, 2, 0] -= swing
+    aa[:, 4, 0] += 0.4 * (1 + np.sin(phase))  # knees
+    aa[:, 5, 0] += 0.4 * (1 - np.sin(phase))
+    aa[:, 16, 2] -= 1.0 + 0.3 * np.sin(phase)  # shoulders
+    aa[:, 17, 2] += 1.0 + 0.3 * np.sin(phase)
+    aa[:, 1:] += rng.normal(0, 0.02, (T, 23, 3))
+    transl = np.repeat(t0, T, 0) + np.array([x, 0.0, 0.0]) + rng.normal(0, 0.005, (T, 3))
+    return aa, transl
+
+
+def _world(aa: np.ndarray, transl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-convention people -> the same people in a y-up world (roots rotated by M; same rest-pelvis rule
+    is ignored: a producer's world transl is just another smplx transl)."""
+    go = Rotation.from_matrix(M @ _R(aa[:, 0])).as_rotvec()
+    out = aa.copy()
+    out[:, 0] = go
+    return out, transl @ M.T
+
+
+def write_gvhmr_video(folder: Path, aa: np.ndarray, transl: np.ndarray) -> Path:
+    """GVHMR's ``hmr4d_results.pt`` over L = len(aa) frames (one person)."""
+    L = aa.shape[0]
+    f, cx, cy = FOCAL["gvhmr"], IMAGE_W / 2, IMAGE_H / 2
+    aa_w, t_w = _world(aa, transl)
+
+    def params(a: np.ndarray, t: np.ndarray) -> dict:
+        return {"body_pose": torch.tensor(a[:, 1:22].reshape(L, 63), dtype=torch.float32),
+                "global_orient": torch.tensor(a[:, 0], dtype=torch.float32),
+                "transl": torch.tensor(t, dtype=torch.float32), "betas": torch.zeros(L, 10)}
+
+    pred = {"smpl_params_global": params(aa_w, t_w), "smpl_params_incam": params(aa, transl),
+            "K_fullimg": torch.tensor([[f, 0, cx], [0, f, cy], [0, 0, 1.0]]).expand(L, 3, 3).clone(),
+            "net_outputs": {"pred_cam": torch.zeros(L, 3)}}
+    path = folder / "hmr4d_results.pt"
+    torch.save(pred, path)
+    return path
+
+
+def write_wham_video(folder: Path, tracks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Path:
+    """WHAM's ``wham_output.pkl``: ``{track_id: (aa (T, 24, 3), transl (T, 3), frame_ids (T,))}``."""
+    out = {}
+    for tid, (aa, transl, frame_ids) in tracks.items():
+        T = aa.shape[0]
+        aa_w, t_w = _world(aa, transl)
+        out[tid] = {"pose": aa.reshape(T, 72).astype(np.float32), "trans": transl.astype(np.float32),
+                    "pose_world": aa_w.reshape(T, 72).astype(np.float32), "trans_world": t_w.astype(np.float32),
+                    "betas": np.zeros((T, 10), np.float32), "verts": np.zeros((T, 4, 3), np.float32),
+                    "frame_ids": np.asarray(frame_ids)}
+    path = folder / "wham_output.pkl"
+    joblib.dump(out, path)
+    return path
+
+
+def write_phalp_video(folder: Path, frames: list[dict[int, tuple[np.ndarray, np.ndarray]]]) -> Path:
+    """PHALP's per-frame dict; ``frames[t] = {tid: (aa (24, 3), transl (3,))}`` (an empty dict: nobody)."""
+    data = {}
+    for t, people_t in enumerate(frames):
+        tids = sorted(people_t)
+        data[f"img/{t + 1:06d}.jpg"] = {
+            "time": t, "shot": 0, "frame_path": f"img/{t + 1:06d}.jpg", "tid": tids, "tracked_ids": tids,
+            "bbox": [np.zeros(4)] * len(tids),
+            "smpl": [{"global_orient": _R(people_t[i][0][:1]).astype(np.float32),
+                      "body_pose": _R(people_t[i][0][1:]).astype(np.float32),
+                      "betas": np.zeros(10, np.float32)} for i in tids],
+            "camera": [people_t[i][1].astype(np.float32) for i in tids], "size": [[IMAGE_H, IMAGE_W]] * len(tids),
+            "conf": [1.0] * len(tids)}
+    path = folder / "demo_video.pkl"
+    joblib.dump(data, path, compress=3)
+    return path

@@ -1,0 +1,546 @@
+"""A video's estimates -> per-track animations on the chosen body or custom character (``smplik scene animate``).
+
+Steps (:func:`animate_file`):
+
+1. **Read every frame** with the estimator readers (:func:`workflows.estimators.people_from_data`,
+   the same per-frame rule as ``scene from-estimate --frame N``), the file loaded once. People are
+   grouped into tracks by the estimator's track id. A track's frames must be contiguous (a gap is an
+   error naming the missing frames); with ``--frames A:B`` every kept track must cover A..B-1.
+2. **Body per track**: the track's mean betas and first gender at scale 1, or the custom
+   character's SMPL-SI body (``betas``, ``gender``, ``scale``); each frame is retargeted onto it as
+   ``from-estimate`` does (:func:`workflows.pipeline.retarget_to_body`: local rotations kept, pelvis
+   at its world position).
+3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, smoothing, foot contacts and foot locking.
+4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, recursively, the frame
+   where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
+   errs most, while that error (mean joint distance, character space) is above a threshold.
+5. **Effectors on keyframes**: :func:`workflows.recovery.recover_many` on all keyframes of all
+   tracks in one batch.
+
+Spaces: as in scenes, poses are in SMPL space (character = SMPL body scaled by ``scale``), effectors in
+character space; the world is the estimator's world trajectory when it gives one (WHAM and GVHMR by
+default, ``--space camera`` for their camera frame; AIST++, AMASS), else its camera frame (converted to y-up).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from smplik.conventions import Gender
+from smplik.effectors import Effector
+from smplik.pose import Pose
+from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
+from workflows.motion_clean import CleanConfig, foot_contacts, glitch_frames, lock_feet, smooth_motion
+from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
+from workflows.scene import SkeletonSource
+
+MAX_FRAMES = 100_000
+"""Most frames read from one file by default (55 minutes at 30 frames/s; ``max_frames`` raises it)."""
+KNOWN_FPS = {"aist": 60.0}
+"""Frame rates fixed by a format (AIST++ motions are 60 frames/s); AMASS files store theirs."""
+
+
+class AnimationError(ValueError):
+    """Bad animation input (frame range, track, frame rate, missing frames); one line."""
+
+
+@dataclass(frozen=True)
+class AnimateConfig:
+    """Settings of :func:`animate_file` beyond the estimator reading options."""
+
+    clean: CleanConfig = field(default_factory=CleanConfig)
+    """Smoothing and foot locking."""
+    keyframe_threshold_m: float = 0.03
+    """Add a keyframe where interpolating the neighbouring ones errs more than this (mean joint error, m)."""
+    max_keyframe_gap: int = 0
+    """Also split any keyframe interval longer than this many frames (0: no limit)."""
+    recovery: RecoveryConfig = field(default_factory=lambda: RecoveryConfig(max_effectors=6, threshold=0.03))
+    """Effector recovery on keyframes."""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.keyframe_threshold_m) and self.keyframe_threshold_m > 0):
+            raise AnimationError(f"keyframe threshold must be a positive number of metres, got "
+                                 f"{self.keyframe_threshold_m}.")
+        if self.max_keyframe_gap < 0:
+            raise AnimationError(f"max keyframe gap must be >= 0, got {self.max_keyframe_gap}.")
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """Recovered effectors (character space) at one frame and the mean joint error of their solve (m)."""
+
+    frame: int
+    effectors: tuple[Effector, ...]
+    error_m: float
+
+
+@dataclass(frozen=True)
+class AnimationTrack:
+    """One person's animation. Arrays are per frame of the track (T frames from ``first_frame``), SMPL space.
+
+    Attributes:
+        global_orient: (T, 3) axis-angle; body_pose: (T, 23, 3); transl: (T, 3) smplx translation.
+        contacts: (T, 2) bool foot contacts (left, right), or None when not detected.
+        repaired: source frames whose estimate was an implausible glitch, replaced by interpolation.
+        keyframes: sorted by frame (source frame numbers, within the track's frames).
+    """
+
+    name: str
+    track_id: str
+    gender: Gender
+    betas: np.ndarray
+    scale: float
+    skeleton: SkeletonSource | None
+    first_frame: int
+    global_orient: np.ndarray
+    body_pose: np.ndarray
+    transl: np.ndarray
+    keyframes: tuple[Keyframe, ...] = ()
+    contacts: np.ndarray | None = None
+    repaired: tuple[int, ...] = ()
+    """Source frames flagged as glitches and replaced by interpolating their neighbours."""
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.global_orient.shape[0])
+
+    @property
+    def frames(self) -> range:
+        """The source frame numbers of the track's rows."""
+        return range(self.first_frame, self.first_frame + self.num_frames)
+
+    def pose(self, row: int) -> Pose:
+        """Row ``row`` (0-based within the track) as a :class:`~smplik.pose.Pose`."""
+        return Pose(self.global_orient[row].copy(), self.body_pose[row].copy(), self.transl[row].copy(),
+                    np.asarray(self.betas, dtype=np.float64).copy(), self.gender)
+
+    def poses(self) -> list[Pose]:
+        return [self.pose(i) for i in range(self.num_frames)]
+
+
+@dataclass(frozen=True)
+class Animation:
+    """Tracks plus what they came from: the source file and format, frame rate, space and camera."""
+
+    tracks: tuple[AnimationTrack, ...]
+    fps: float
+    source: str | None = None
+    source_format: str | None = None
+    space: str = "camera"
+    camera: CameraInfo | None = None
+    clean: CleanConfig | None = None
+
+
+# ----------------------------------------------------------------------------- reading a clip
+
+
+def parse_frames(spec: str) -> tuple[int, int] | None:
+    """``"all"`` -> None; ``"A:B"`` -> (A, B): frames A..B-1 (Python slice), 0 <= A < B."""
+    spec = str(spec).strip()
+    if spec == "all":
+        return None
+    parts = spec.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        start, stop = int(parts[0]), int(parts[1])
+    except ValueError:
+        raise AnimationError(f"--frames must be 'all' or 'A:B' (frames A..B-1), got {spec!r}.") from None
+    if start < 0 or stop <= start:
+        raise AnimationError(f"--frames {spec}: need 0 <= A < B (frames A..B-1).")
+    return start, stop
+
+
+def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
+    """How many video frames a loaded estimator file holds (1 for single-image formats)."""
+    try:
+        if fmt == "gvhmr":
+            from workflows.estimators.gvhmr import _nest
+
+            params = _nest(data)["smpl_params_global" if space == "world" else "smpl_params_incam"]
+            return len(params["body_pose"])
+        if fmt == "wham":
+            return 1 + max(int(np.max(t.get("frame_ids", np.arange(len(t["pose"]))))) for t in data.values())
+        if fmt == "phalp":
+            return len(data)
+        if fmt in ("romp", "bev") and isinstance(data.get("results"), dict) and "smpl_thetas" not in data["results"]:
+            return len(data["results"])
+        if fmt == "hybrik":
+            return len(data["pred_thetas"])
+        if fmt == "aist":
+            return len(data["smpl_poses"])
+        if fmt == "amass":
+            return len(data["poses"])
+    except (KeyError, TypeError, ValueError, AttributeError):
+        pass  # the per-frame reader names the problem
+    return 1
+
+
+def frames_present(data: Any, fmt: str) -> list[int] | None:
+    """The frame numbers a sparse format holds (WHAM: the union of its tracks' ``frame_ids``), else None (every
+    frame of :func:`clip_length`)."""
+    if fmt != "wham" or not isinstance(data, dict):
+        return None
+    ids: set[int] = set()
+    for t in data.values():
+        if isinstance(t, dict) and "frame_ids" in t:
+            try:
+                ids.update(int(f) for f in np.asarray(t["frame_ids"]).reshape(-1)[:MAX_FRAMES + 1] if f >= 0)
+            except (TypeError, ValueError, OverflowError):
+                return None  # the reader names the problem
+        elif isinstance(t, dict) and "pose" in t:
+            ids.update(range(min(len(t["pose"]), MAX_FRAMES + 1)))
+    return sorted(ids)
+
+
+def stored_fps(data: Any, fmt: str) -> float | None:
+    """The frame rate a file states or its format fixes (AMASS ``mocap_framerate``, AIST++ 60), else None."""
+    if fmt == "amass":
+        for key in ("mocap_framerate", "mocap_frame_rate"):
+            if isinstance(data, dict) and key in data:
+                value = float(np.asarray(data[key]).reshape(-1)[0])
+                return value if np.isfinite(value) and value > 0 else None
+    return KNOWN_FPS.get(fmt)
+
+
+def has_world_trajectory(data: Any, fmt: str) -> bool:
+    """Whether a WHAM / GVHMR output holds its world-frame trajectory (WHAM ``pose_world``/``trans_world`` in
+    every track, GVHMR ``smpl_params_global``)."""
+    if fmt == "gvhmr":
+        from workflows.estimators.gvhmr import _nest
+
+        return isinstance(_nest(data), dict) and "smpl_params_global" in _nest(data)
+    if fmt == "wham":
+        return isinstance(data, dict) and all(isinstance(t, dict) and "pose_world" in t and "trans_world" in t
+                                              for t in data.values())
+    return False
+
+
+@dataclass(frozen=True)
+class Clip:
+    """Every frame's people of an estimator file, grouped by track id (each track's rows in frame order)."""
+
+    source: str
+    format: str
+    length: int
+    tracks: dict[str, list[tuple[int, EstimatedPerson]]]
+    fps: float | None
+    space: str
+
+
+def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
+              max_people: int | None = None, max_bytes: int | None = None, solver: Any = None,
+              frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES) -> Clip:
+    """Read the people of every frame (or frames A..B-1; at most ``max_frames``) of an estimator file, by track."""
+    from workflows.estimators import MAX_BYTES, MAX_PEOPLE, _load_raw, detect_format, people_from_data
+
+    path = Path(path)
+    if not path.is_file():
+        raise EstimateFormatError(f"Estimator output not found: {path}")
+    data = _load_raw(path, trust_pickle, MAX_BYTES if max_bytes is None else max_bytes)
+    fmt = detect_format(data) if format == "auto" else format
+    if fmt in ("wham", "gvhmr"):
+        if space is None:  # an animation follows the world trajectory when the estimator gives one
+            space = "world" if has_world_trajectory(data, fmt) else "camera"
+        elif space == "world" and not has_world_trajectory(data, fmt):
+            raise AnimationError(f"{path}: this {fmt} output has no world trajectory; use --space camera.")
+    is_world = space == "world" and fmt in ("wham", "gvhmr") or fmt in ("aist", "amass")
+    length = clip_length(data, fmt, space)
+    if frames is not None and frames[1] > length:
+        raise AnimationError(f"{path}: --frames {frames[0]}:{frames[1]} is outside the clip (frames 0..{length - 1}).")
+    start, stop = frames if frames is not None else (0, length)
+    present = frames_present(data, fmt)
+    wanted = range(start, stop) if present is None else [f for f in present if start <= f < stop]
+    if len(wanted) > max_frames:
+        raise AnimationError(f"{path}: {len(wanted)} frames to read; refusing more than {max_frames} "
+                             "(--frames A:B reads a part; max_frames / --max-frames raises the cap).")
+    tracks: dict[str, list[tuple[int, EstimatedPerson]]] = {}
+    for f in wanted:
+        try:
+            people = people_from_data(data, source=str(path), format=fmt, frame=f,  # type: ignore[arg-type]
+                                      max_people=MAX_PEOPLE if max_people is None else max_people,
+                                      space=space, path=path, solver=solver)  # type: ignore[arg-type]
+        except EstimateFormatError as exc:
+            if "no people" in str(exc) or "no track covers" in str(exc):
+                continue  # an empty frame: the tracks' coverage is checked below
+            raise
+        for p in people:
+            tracks.setdefault(str(p.person_id), []).append((f, p))
+    if not tracks:
+        raise AnimationError(f"{path}: no people in frames {start}..{stop - 1}.")
+    return Clip(str(path), fmt, length, tracks, stored_fps(data, fmt), "world" if is_world else "camera")
+
+
+def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: tuple[int, int] | None,
+                source: str) -> None:
+    """A track must cover its frames without gaps (and all of ``frames`` A..B-1 when given)."""
+    have = [f for f, _ in rows]
+    first, last = have[0], have[-1]
+    if frames is not None and (first > frames[0] or last < frames[1] - 1):
+        where = f"starts at frame {first}" if first > frames[0] else f"ends at frame {last}"
+        raise AnimationError(f"{source}: track {track_id} {where}, inside the requested frames {frames[0]}.."
+                             f"{frames[1] - 1} (choose --frames within the track's frames or another --track).")
+    if len(have) != last - first + 1:
+        missing: list[int] = []  # the first few missing frames, without enumerating a huge span
+        for a, b in zip(have[:-1], have[1:], strict=True):
+            missing += range(a + 1, min(b, a + 10))
+            if len(missing) > 8:
+                break
+        shown = ", ".join(map(str, missing[:8])) + (", ..." if len(missing) > 8 else "")
+        raise AnimationError(f"{source}: track {track_id} has no pose at frame(s) {shown} inside its span "
+                             f"{first}..{last} (missing frames; choose --frames around them).")
+
+
+# ----------------------------------------------------------------------------- motion math
+
+
+def axis_angle_to_local(global_orient: np.ndarray, body_pose: np.ndarray) -> np.ndarray:
+    """(T, 3), (T, 23, 3) axis-angle -> local rotations (T, 24, 3, 3)."""
+    aa = np.concatenate([global_orient[:, None], body_pose], axis=1)
+    return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(aa.shape[:-1] + (3, 3))
+
+
+def _axis_angle(R: np.ndarray) -> np.ndarray:
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def rest_joints(betas: np.ndarray, gender: Gender) -> np.ndarray:
+    """Rest joints J(betas) (24, 3) of our body model, float64."""
+    from smplik.body_model import load_body_model
+
+    model = load_body_model(gender)
+    return model.rest_joints(torch.as_tensor(np.asarray(betas), dtype=torch.float32)).double().numpy()
+
+
+def joints_of(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.ndarray) -> np.ndarray:
+    """Posed joints (T, 24, 3) of local rotations (T, 24, 3, 3), smplx transl (T, 3), rest joints (24, 3)."""
+    from smplik.kinematics import forward_kinematics
+
+    _, p = forward_kinematics(torch.as_tensor(R_parent_joint), torch.as_tensor(J_rest, dtype=torch.float64),
+                              torch.as_tensor(transl, dtype=torch.float64))
+    return p.numpy()
+
+
+def interpolate_poses(R_a: np.ndarray, R_b: np.ndarray, t_a: np.ndarray, t_b: np.ndarray, w: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Slerp of local rotations (24, 3, 3) and lerp of transl (3,) at weights w (n,) -> (n, 24, 3, 3), (n, 3)."""
+    rel = Rotation.from_matrix(np.swapaxes(R_a, -1, -2) @ R_b).as_rotvec()  # (24, 3)
+    steps = Rotation.from_rotvec((w[:, None, None] * rel[None]).reshape(-1, 3)).as_matrix().reshape(-1, 24, 3, 3)
+    return R_a[None] @ steps, (1.0 - w[:, None]) * t_a + w[:, None] * t_b
+
+
+def select_keyframes(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, threshold_m: float, *,
+                     scale: float = 1.0, max_gap: int = 0) -> list[int]:
+    """Keyframe rows (sorted) of a motion (see the module docstring, step 4). Errors in character space
+    (``scale`` times SMPL space). R_parent_joint (T, 24, 3, 3), transl (T, 3), J_rest (24, 3)."""
+    T = R_parent_joint.shape[0]
+    if T <= 2:
+        return list(range(T))
+    p = joints_of(R_parent_joint, transl, J_rest)
+    keys = {0, T - 1}
+    stack = [(0, T - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        rows = np.arange(a + 1, b)
+        w = (rows - a) / (b - a)
+        R_i, t_i = interpolate_poses(R_parent_joint[a], R_parent_joint[b], transl[a], transl[b], w)
+        err = scale * np.linalg.norm(joints_of(R_i, t_i, J_rest) - p[rows], axis=-1).mean(-1)
+        worst = int(np.argmax(err))
+        if err[worst] > threshold_m or (max_gap and b - a > max_gap):
+            k = int(rows[worst]) if err[worst] > threshold_m else (a + b) // 2
+            keys.add(k)
+            stack += [(a, k), (k, b)]
+    return sorted(keys)
+
+
+# ----------------------------------------------------------------------------- the pipeline
+
+
+Progress = Callable[[int, int, str], None]
+
+
+@dataclass(frozen=True)
+class TrackMotion:
+    """A track's motion before and after cleaning (joints in character space, metres) for reports."""
+
+    name: str
+    raw_joints: np.ndarray
+    clean_joints: np.ndarray
+    contacts: np.ndarray
+
+
+def repair_frames(R_parent_joint: np.ndarray, transl: np.ndarray, bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Replace the rows flagged in ``bad`` (T,) by interpolating the nearest good rows on either side
+    (slerp / lerp; at an end, the nearest good row). R (T, 24, 3, 3), transl (T, 3)."""
+    R, t = R_parent_joint.copy(), transl.copy()
+    good = np.nonzero(~bad)[0]
+    if good.size == 0:
+        return R, t
+    for row in np.nonzero(bad)[0]:
+        after = good[np.searchsorted(good, row):]
+        before = good[:np.searchsorted(good, row)]
+        a = before[-1] if before.size else after[0]
+        b = after[0] if after.size else before[-1]
+        w = np.array([0.0 if a == b else (row - a) / (b - a)])
+        R_i, t_i = interpolate_poses(R_parent_joint[a], R_parent_joint[b], transl[a], transl[b], w)
+        R[row], t[row] = R_i[0], t_i[0]
+    return R, t
+
+
+def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Repair glitches, smooth and foot-lock one track's poses (SMPL space, one body).
+
+    Returns: local rotations (T, 24, 3, 3), transl (T, 3), contacts (T, 2), raw joints and clean joints
+    (T, 24, 3) in character space, and the repaired glitch rows (T,) bool.
+    """
+    go = np.stack([p.global_orient for p in poses])
+    bp = np.stack([p.body_pose for p in poses])
+    transl = np.stack([p.transl for p in poses])
+    J_rest = rest_joints(poses[0].betas, poses[0].gender)
+    R = axis_angle_to_local(go, bp)
+    raw = joints_of(R, transl, J_rest) * scale
+    glitches = np.zeros(len(poses), dtype=bool)
+    if cfg.repair_glitches:
+        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio)
+        if glitches.any():
+            R, transl = repair_frames(R, transl, glitches)
+    R_s, t_s = smooth_motion(R, transl, fps, cfg)
+    p_s = joints_of(R_s, t_s, J_rest)
+    contacts = foot_contacts(p_s * scale, fps, cfg) if cfg.foot_lock else np.zeros((len(poses), 2), dtype=bool)
+    if cfg.foot_lock and contacts.any():
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames)
+        p_s = joints_of(R_s, t_s, J_rest)
+    return R_s, t_s, contacts, raw, p_s * scale, glitches
+
+
+def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None = None, track: str | None = None,
+                        frames: tuple[int, int] | None = None, character: Any = None,
+                        skeleton: SkeletonSource | None = None, config: AnimateConfig | None = None,
+                        camera: CameraInfo | None = None, progress: Progress | None = None
+                        ) -> tuple[Animation, list[TrackMotion]]:
+    """Build the :class:`Animation` of a read clip (module docstring, steps 2-5)."""
+    from workflows.pipeline import retarget_to_body
+    from workflows.recovery import recover_many
+
+    config = AnimateConfig() if config is None else config
+    rate = fps if fps is not None else clip.fps
+    if rate is None:
+        raise AnimationError(f"{clip.source}: the {clip.format} output does not store its frame rate; pass --fps "
+                             "(the source video's frames per second).")
+    if not (np.isfinite(rate) and 0 < rate <= 1000):
+        raise AnimationError(f"--fps must be a frame rate in (0, 1000] frames/s, got {rate}.")
+    ids = list(clip.tracks)
+    if track is not None:
+        if str(track) not in clip.tracks:
+            raise AnimationError(f"{clip.source}: no track {track!r} (tracks: {', '.join(ids[:20])}).")
+        ids = [str(track)]
+    elif frames is not None:  # only tracks that appear in the range are exported; they must cover it
+        ids = [i for i in ids if clip.tracks[i]]
+    for i in ids:
+        check_track(i, clip.tracks[i], frames, clip.source)
+    tracks, motions, targets, scales, owners = [], [], [], [], []
+    for n, tid in enumerate(ids):
+        rows = clip.tracks[tid]
+        people = [p for _, p in rows]
+        if character is None:
+            body = (np.mean([p.betas for p in people], axis=0), people[0].gender, 1.0)
+        else:
+            body = (np.asarray(character.betas, dtype=np.float64), character.gender, float(character.scale))
+        poses = [retarget_to_body(p, *body) for p in people]
+        R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, config.clean, body[2])
+        J_rest = rest_joints(body[0], body[1])
+        keys = select_keyframes(R, transl, J_rest, config.keyframe_threshold_m, scale=body[2],
+                                max_gap=config.max_keyframe_gap)
+        aa = _axis_angle(R)
+        name = f"person_{tid}"
+        tracks.append(AnimationTrack(name, tid, body[1], body[0], body[2], skeleton, rows[0][0], aa[:, 0],
+                                     aa[:, 1:], transl, (), contacts if config.clean.foot_lock else None,
+                                     tuple(int(rows[0][0] + r) for r in np.nonzero(glitches)[0])))
+        motions.append(TrackMotion(name, raw, clean, contacts))
+        for k in keys:
+            targets.append(TargetPose.from_pose(tracks[-1].pose(k)))
+            scales.append(body[2])
+            owners.append((n, k))
+        if progress is not None:
+            progress(n + 1, len(ids), "cleaning")
+    recs = recover_many(solver, targets, config.recovery, scales=scales,
+                        progress=None if progress is None else lambda k, m: progress(k, m, "keyframe effectors"))
+    keyframes: dict[int, list[Keyframe]] = {}
+    for (n, k), rec in zip(owners, recs, strict=True):
+        keyframes.setdefault(n, []).append(Keyframe(tracks[n].first_frame + k, rec.effectors, rec.final_error))
+    tracks = [dataclasses.replace(t, keyframes=tuple(keyframes.get(n, ()))) for n, t in enumerate(tracks)]
+    return Animation(tuple(tracks), float(rate), clip.source, clip.format, clip.space,
+                     camera if clip.space == "camera" else None, config.clean), motions
+
+
+@dataclass(frozen=True)
+class AnimateOutputs:
+    """Files written by :func:`animate_file`, and the animation with its before/after motions."""
+
+    animation_file: Path
+    exported: tuple[Path, ...]
+    animation: Animation
+    motions: tuple[TrackMotion, ...]
+
+    @property
+    def all_files(self) -> tuple[Path, ...]:
+        return (self.animation_file, *self.exported)
+
+
+def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSolver, *, format: str = "auto",
+                 frames: str = "all", fps: float | None = None, track: str | None = None,
+                 character_path: str | Path | None = None, character_options: Any = None,
+                 config: AnimateConfig | None = None, trust_pickle: bool = False, space: str | None = None,
+                 max_people: int | None = None, max_bytes: int | None = None, formats: Sequence[str] = ("bvh",),
+                 max_frames: int = MAX_FRAMES, progress: Progress | None = None) -> AnimateOutputs:
+    """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
+    ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
+    from workflows.animation_io import save_animation
+    from workflows.export import FORMATS
+
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
+    span = parse_frames(frames)
+    character = skeleton = None
+    if character_path is not None:
+        from shape_inversion.options import CharacterOptions
+        from workflows.character import load_character
+
+        options = CharacterOptions() if character_options is None else character_options
+        character = load_character(character_path, options)
+        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
+    clip = read_clip(results_path, format=format, trust_pickle=trust_pickle, space=space, max_people=max_people,
+                     max_bytes=max_bytes, solver=solver, frames=span, max_frames=max_frames)
+    first = next(iter(clip.tracks.values()))[0][1]
+    animation, motions = animation_from_clip(clip, solver, fps=fps, track=track, frames=span, character=character,
+                                             skeleton=skeleton, config=config, camera=first.camera,
+                                             progress=progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = save_animation(animation, out / "animation.json")
+    written = export_animation(animation, out, formats) if formats else []
+    return AnimateOutputs(path, tuple(written), animation, tuple(motions))
+
+
+def export_animation(animation: Animation, out_dir: str | Path, formats: Sequence[str] = ("bvh",),
+                     base_dir: str | Path | None = None) -> list[Path]:
+    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.export.export_scene`)."""
+    from workflows.animation_io import scene_of
+    from workflows.export import export_scene
+
+    return export_scene(scene_of(animation), out_dir, formats=formats, frame_time=1.0 / animation.fps,
+                        poses={t.name: t.poses() for t in animation.tracks}, base_dir=base_dir)

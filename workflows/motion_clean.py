@@ -1,0 +1,379 @@
+"""Cleaning an estimated motion: temporal smoothing, foot contacts, foot locking, and the metrics that judge them.
+
+All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
+
+Smoothing (:func:`smooth_motion`) filters the local joint rotations as unit quaternions (scalar
+first, made sign-continuous over time, renormalised after filtering) and the root translation:
+
+* ``"one_euro"``: the One-Euro filter (Casiez, Roussel and Vogel, CHI 2012), a low-pass whose
+  cutoff rises with the signal's speed, ``fc = min_cutoff + beta * |dx/dt|``: slow parts (where
+  jitter shows) are smoothed hard, fast real motion passes with little lag. Run forward then
+  backward (``zero_phase``) so the result has no lag at all.
+* ``"savgol"``: a plain Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`), the baseline.
+
+Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
+foot) touches the floor where it is low (within ``height_m`` of the clip's floor, a low percentile
+of the feet's heights; world y is up) **and** slow (below ``speed_mps``); runs shorter than
+``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the foot to its mean position over
+each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
+(:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
+lands on the locked point exactly when the leg can reach it.
+
+Plausibility (:func:`glitch_frames`): single-frame glitches (a pose that jumps away and comes back, as
+when a tracker briefly swaps limbs) are flagged and, before smoothing, replaced by interpolating their
+neighbours.
+
+Metrics (:func:`motion_metrics`), on joint positions ``(T, 24, 3)`` in metres: jitter = mean joint
+acceleration ``|p[t+1] - 2 p[t] + p[t-1]|`` (mm/frame^2); skating = mean speed of the foot joints
+during contact (mm/frame); fidelity = MPJPE to reference joints (mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.signal import savgol_filter
+from scipy.spatial.transform import Rotation
+
+from smplik.conventions import JOINT_INDEX, PARENTS
+
+FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
+"""The joints that touch the floor, per side (left, right)."""
+LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"]),
+              (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"]))
+"""(hip, knee, ankle) per side (left, right)."""
+
+SmoothingMethod = Literal["one_euro", "savgol", "none"]
+
+
+class CleanError(ValueError):
+    """Invalid cleaning settings (one line)."""
+
+
+@dataclass(frozen=True)
+class CleanConfig:
+    """How :func:`smooth_motion` and :func:`lock_feet` clean a motion."""
+
+    smoothing: SmoothingMethod = "one_euro"
+    """``"one_euro"`` (adaptive, zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
+    min_cutoff_hz: float = 3.0
+    """One-Euro: cutoff (Hz) of slow motion; lower smooths more."""
+    beta: float = 1.0
+    """One-Euro: how fast the cutoff rises with speed (per unit/s: rad/s for rotations, m/s for the root)."""
+    d_cutoff_hz: float = 1.0
+    """One-Euro: cutoff (Hz) of the speed estimate."""
+    savgol_window: int = 9
+    """Savitzky-Golay: window length in frames (odd)."""
+    savgol_order: int = 2
+    """Savitzky-Golay: polynomial order."""
+    foot_lock: bool = True
+    """Detect foot contacts and lock the feet by leg IK."""
+    contact_height_m: float = 0.08
+    """A foot within this height of the floor may be in contact."""
+    contact_speed_mps: float = 0.35
+    """... and slower than this (m/s)."""
+    contact_min_frames: int = 3
+    """Contact runs shorter than this are dropped."""
+    blend_frames: int = 3
+    """Frames over which a lock is blended in before and out after a contact run."""
+    repair_glitches: bool = True
+    """Detect single-frame glitches (:func:`glitch_frames`) and replace them by interpolation before smoothing."""
+    glitch_min_m: float = 0.1
+    """A glitch moves some joint at least this far (m) from the midpoint of its neighbouring frames ..."""
+    glitch_ratio: float = 2.0
+    """... and more than this many times the distance between those neighbours (fast real motion does not)."""
+
+    def __post_init__(self) -> None:
+        if self.smoothing not in ("one_euro", "savgol", "none"):
+            raise CleanError(f"smoothing must be 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
+        for name in ("min_cutoff_hz", "d_cutoff_hz", "contact_height_m", "contact_speed_mps", "glitch_min_m",
+                     "glitch_ratio"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise CleanError(f"{name} must be a positive number, got {value}.")
+        if not (np.isfinite(self.beta) and self.beta >= 0):
+            raise CleanError(f"beta must be >= 0, got {self.beta}.")
+        if self.savgol_window < 3 or self.savgol_window % 2 == 0 or self.savgol_order >= self.savgol_window:
+            raise CleanError(f"savgol_window must be odd, >= 3 and above savgol_order; got {self.savgol_window} "
+                             f"and order {self.savgol_order}.")
+        if self.contact_min_frames < 1 or self.blend_frames < 0:
+            raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
+
+
+# ----------------------------------------------------------------------------- filters
+
+
+def _alpha(cutoff_hz: np.ndarray | float, fps: float) -> np.ndarray:
+    tau = 1.0 / (2.0 * np.pi * np.asarray(cutoff_hz))
+    return 1.0 / (1.0 + tau * fps)
+
+
+def one_euro(x: np.ndarray, fps: float, *, min_cutoff_hz: float = 1.0, beta: float = 0.3, d_cutoff_hz: float = 1.0,
+             zero_phase: bool = True) -> np.ndarray:
+    """One-Euro filter along time. x (T, ..., C) -> (T, ..., C); one cutoff per ``(...)`` group, from the norm
+    of the group's speed over its C components (units per second)."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape[0] < 2:
+        return x.copy()
+
+    def forward(sig: np.ndarray) -> np.ndarray:
+        out = np.empty_like(sig)
+        out[0] = sig[0]
+        dx_hat = np.zeros_like(sig[0])
+        a_d = _alpha(d_cutoff_hz, fps)
+        for t in range(1, sig.shape[0]):
+            dx = (sig[t] - out[t - 1]) * fps
+            dx_hat = a_d * dx + (1.0 - a_d) * dx_hat
+            cutoff = min_cutoff_hz + beta * np.linalg.norm(dx_hat, axis=-1, keepdims=True)
+            a = _alpha(cutoff, fps)
+            out[t] = a * sig[t] + (1.0 - a) * out[t - 1]
+        return out
+
+    y = forward(x)
+    return forward(y[::-1])[::-1].copy() if zero_phase else y
+
+
+def continuous_quaternions(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (T, J, 3, 3) -> unit quaternions (T, J, 4), scalar first, with q[t] . q[t-1] >= 0."""
+    T = R.shape[0]
+    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(T, -1, 4)
+    for t in range(1, T):
+        flip = (q[t] * q[t - 1]).sum(-1) < 0
+        q[t, flip] *= -1.0
+    return q
+
+
+def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions, scalar first, any norm -> (..., 3, 3) rotation matrices."""
+    flat = q.reshape(-1, 4)
+    flat = flat / np.linalg.norm(flat, axis=-1, keepdims=True)
+    return Rotation.from_quat(flat[:, [1, 2, 3, 0]]).as_matrix().reshape(q.shape[:-1] + (3, 3))
+
+
+def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cfg: CleanConfig
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Smooth local rotations (T, 24, 3, 3) and root translation (T, 3) over time (see the module docstring)."""
+    if cfg.smoothing == "none" or R_parent_joint.shape[0] < 3:
+        return R_parent_joint.copy(), transl.copy()
+    q = continuous_quaternions(R_parent_joint)
+    if cfg.smoothing == "savgol":
+        window = min(cfg.savgol_window, q.shape[0] - (1 - q.shape[0] % 2))
+        if window <= cfg.savgol_order:
+            return R_parent_joint.copy(), transl.copy()
+        q_s = savgol_filter(q, window, cfg.savgol_order, axis=0, mode="interp")
+        t_s = savgol_filter(transl, window, cfg.savgol_order, axis=0, mode="interp")
+    else:
+        kw = {"min_cutoff_hz": cfg.min_cutoff_hz, "beta": cfg.beta, "d_cutoff_hz": cfg.d_cutoff_hz}
+        q_s = one_euro(q, fps, **kw)
+        t_s = one_euro(transl, fps, **kw)
+    return quaternions_to_matrices(q_s), t_s
+
+
+# ----------------------------------------------------------------------------- plausibility
+
+
+def glitch_frames(p_world: np.ndarray, min_m: float = 0.1, ratio: float = 2.0) -> np.ndarray:
+    """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3): frames where some joint jumps away
+    from the midpoint of its neighbouring frames by more than ``min_m`` and by more than ``ratio`` times the
+    distance between those neighbours (a pose that jumps and comes back; smooth motion, however fast, bends
+    its path by far less than it advances). The first and last frames are never flagged."""
+    flags = np.zeros(p_world.shape[0], dtype=bool)
+    if p_world.shape[0] < 3:
+        return flags
+    mid = 0.5 * (p_world[2:] + p_world[:-2])
+    away = np.linalg.norm(p_world[1:-1] - mid, axis=-1)  # (T-2, J)
+    gap = np.linalg.norm(p_world[2:] - p_world[:-2], axis=-1)
+    flags[1:-1] = ((away > min_m) & (away > ratio * gap)).any(-1)
+    return flags
+
+
+# ----------------------------------------------------------------------------- contacts
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end_exclusive) of the True runs of a (T,) bool array."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
+
+
+def floor_height(p_world: np.ndarray) -> float:
+    """The floor's y (metres): the 5th percentile of the foot joints' heights over the clip. p_world (T, 24, 3)."""
+    return float(np.percentile(p_world[:, list(FOOT_JOINTS), 1], 5.0))
+
+
+def joint_speed(p: np.ndarray) -> np.ndarray:
+    """Per-frame speed (units per frame) by central differences (one-sided at the ends). p (T, ..., 3) -> (T, ...)."""
+    if p.shape[0] < 2:
+        return np.zeros(p.shape[:-1])
+    return np.linalg.norm(np.gradient(p, axis=0), axis=-1)
+
+
+def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig) -> np.ndarray:
+    """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up."""
+    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    low = feet[..., 1] - floor_height(p_world) < cfg.contact_height_m
+    slow = joint_speed(feet) * fps < cfg.contact_speed_mps
+    contact = low & slow
+    for side in range(2):
+        for s, e in _runs(contact[:, side]):
+            if e - s < cfg.contact_min_frames:
+                contact[s:e, side] = False
+    return contact
+
+
+# ----------------------------------------------------------------------------- IK
+
+
+def _axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rodrigues: unit axes (..., 3), angles (...) -> (..., 3, 3)."""
+    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
+    zero = np.zeros_like(x)
+    K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
+def _unit(v: np.ndarray, eps: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(n, eps), n[..., 0]
+
+
+def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), (u * v).sum(-1))
+
+
+def two_bone_ik(p_a: np.ndarray, p_b: np.ndarray, p_c: np.ndarray, target: np.ndarray, bend_axis: np.ndarray,
+                eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Analytic two-bone IK (root a, middle b, end c), batched.
+
+    Args:
+        p_a, p_b, p_c, target: (..., 3) world positions.
+        bend_axis: (..., 3) world axis about which a *negative* rotation at b bends the chain (for
+            SMPL's knee: minus its x axis); used only when the chain is straight.
+
+    Returns:
+        ``(R_a, R_b)`` (..., 3, 3) world-frame rotations: R_b about b (applied to the lower bone first),
+        then R_a about a (applied to both bones). New positions ``b' = a + R_a (b - a)``,
+        ``c' = a + R_a (b - a + R_b (c - b))``; new world rotations ``R_a G_a`` and ``R_a R_b G_b``.
+        ``c'`` equals the target when it is within reach, else it points at it from ``a``.
+    """
+    l_ab = np.linalg.norm(p_b - p_a, axis=-1)
+    l_bc = np.linalg.norm(p_c - p_b, axis=-1)
+    l_at = np.clip(np.linalg.norm(target - p_a, axis=-1), np.abs(l_ab - l_bc) + eps, l_ab + l_bc - eps)
+    u, v = p_a - p_b, p_c - p_b
+    normal, n_len = _unit(np.cross(u, v))
+    fallback, _ = _unit(bend_axis)
+    normal = np.where((n_len > 1e-9 * np.maximum(l_ab * l_bc, 1e-12))[..., None], normal, fallback)
+    theta0 = _angle(u, v)
+    cos1 = np.clip((l_ab ** 2 + l_bc ** 2 - l_at ** 2) / (2.0 * l_ab * l_bc), -1.0, 1.0)
+    R_b = _axis_angle_matrix(normal, np.arccos(cos1) - theta0)
+    c1 = p_b + (R_b @ v[..., None])[..., 0]
+    from_dir, _ = _unit(c1 - p_a)
+    to_dir, _ = _unit(target - p_a)
+    swing_axis, s_len = _unit(np.cross(from_dir, to_dir))
+    swing = _angle(from_dir, to_dir)
+    # antiparallel: any axis perpendicular to from_dir
+    perp, _ = _unit(np.cross(from_dir, np.where(np.abs(from_dir[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0])))
+    swing_axis = np.where((s_len > 1e-12)[..., None], swing_axis, perp)
+    R_a = _axis_angle_matrix(swing_axis, np.where(s_len > 1e-12, swing, np.where(swing > 1.0, swing, 0.0)))
+    return R_a, R_b
+
+
+def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
+    """(..., 24, 3, 3) local -> world rotations (parents before children)."""
+    G = np.empty_like(R_parent_joint)
+    for j, p in enumerate(PARENTS):
+        G[..., j, :, :] = R_parent_joint[..., j, :, :] if p < 0 else G[..., p, :, :] @ R_parent_joint[..., j, :, :]
+    return G
+
+
+def lock_weights(contact: np.ndarray, blend_frames: int) -> list[tuple[np.ndarray, int, int]]:
+    """Per contact run of a (T,) mask: a (T,) weight (1 inside the run, ramping to 0 over ``blend_frames``
+    outside it) and the run's (start, end_exclusive)."""
+    T = contact.shape[0]
+    out = []
+    t = np.arange(T)
+    for s, e in _runs(contact):
+        before = np.clip(1.0 - (s - t) / (blend_frames + 1), 0.0, 1.0)
+        after = np.clip(1.0 - (t - (e - 1)) / (blend_frames + 1), 0.0, 1.0)
+        w = np.where(t < s, before, np.where(t >= e, after, 1.0))
+        out.append((w, s, e))
+    return out
+
+
+def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3
+              ) -> np.ndarray:
+    """Pin each foot joint to its mean position over each contact run by two-bone leg IK.
+
+    Args:
+        R_parent_joint: (T, 24, 3, 3) local rotations; p_world: (T, 24, 3) their joint positions;
+        contact: (T, 2) bool (left, right) from :func:`foot_contacts`.
+
+    Returns: new local rotations (T, 24, 3, 3); only the hips, knees and ankles of locked legs change
+    (the ankles keep their world rotations).
+    """
+    R_out = R_parent_joint.copy()
+    G = local_to_world(R_parent_joint)
+    for side, ((hip, knee, ankle), foot) in enumerate(zip(LEG_CHAINS, FOOT_JOINTS, strict=True)):
+        weight = np.zeros(p_world.shape[0])
+        foot_target = p_world[:, foot].copy()
+        for w, s, e in lock_weights(contact[:, side], blend_frames):
+            lock = p_world[s:e, foot].mean(0)
+            take = w > weight
+            foot_target[take] = (1.0 - w[take, None]) * p_world[take, foot] + w[take, None] * lock
+            weight = np.maximum(weight, w)
+        rows = np.nonzero(weight > 0)[0]
+        if rows.size == 0:
+            continue
+        ankle_target = foot_target[rows] - (p_world[rows, foot] - p_world[rows, ankle])
+        R_a, R_b = two_bone_ik(p_world[rows, hip], p_world[rows, knee], p_world[rows, ankle], ankle_target,
+                               -G[rows, knee, :, 0])
+        G_hip = R_a @ G[rows, hip]
+        G_knee = R_a @ R_b @ G[rows, knee]
+        R_out[rows, hip] = np.swapaxes(G[rows, PARENTS[hip]], -1, -2) @ G_hip
+        R_out[rows, knee] = np.swapaxes(G_hip, -1, -2) @ G_knee
+        R_out[rows, ankle] = np.swapaxes(G_knee, -1, -2) @ G[rows, ankle]
+    return R_out
+
+
+# ----------------------------------------------------------------------------- metrics
+
+
+@dataclass(frozen=True)
+class MotionMetrics:
+    """What :func:`motion_metrics` measures (millimetres)."""
+
+    jitter_mm: float
+    """Mean joint acceleration magnitude, mm/frame^2."""
+    skating_mm: float
+    """Mean speed of the foot joints during contact, mm/frame (0 without contacts)."""
+    mpjpe_mm: float
+    """Mean per-joint position error to the reference, mm."""
+    contact_frames: int
+    """Foot-frames in contact (both feet counted)."""
+
+    def to_dict(self) -> dict[str, float]:
+        return {"jitter_mm_per_frame2": round(self.jitter_mm, 3), "skating_mm_per_frame": round(self.skating_mm, 3),
+                "mpjpe_mm": round(self.mpjpe_mm, 3), "contact_frames": int(self.contact_frames)}
+
+
+def jitter(p: np.ndarray) -> float:
+    """Mean joint acceleration |p[t+1] - 2p[t] + p[t-1]| in p's units per frame^2. p (T, J, 3)."""
+    if p.shape[0] < 3:
+        return 0.0
+    return float(np.linalg.norm(p[2:] - 2.0 * p[1:-1] + p[:-2], axis=-1).mean())
+
+
+def foot_skating(p: np.ndarray, contact: np.ndarray) -> float:
+    """Mean speed (units/frame) of the foot joints over their contact frames. p (T, 24, 3), contact (T, 2)."""
+    speed = joint_speed(p[:, list(FOOT_JOINTS)])
+    return float(speed[contact].mean()) if contact.any() else 0.0
+
+
+def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray) -> MotionMetrics:
+    """Jitter, skating (on ``contact``) and MPJPE to ``reference`` of joints p (T, 24, 3) in metres."""
+    mpjpe = float(np.linalg.norm(p - reference, axis=-1).mean())
+    return MotionMetrics(1000 * jitter(p), 1000 * foot_skating(p, contact), 1000 * mpjpe, int(contact.sum()))
