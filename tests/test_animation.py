@@ -188,14 +188,12 @@ def test_phalp_tracks_and_aist_on_a_custom_character(tmp_path, animate):
     assert res.exit_code == 0, res.output
     anim = load_animation(tmp_path / "phalp" / "animation.json")
     assert [(x.track_id, x.first_frame, x.num_frames) for x in anim.tracks] == [("3", 0, 12), ("8", 4, 8)]
-    # AIST++: world frame at its 60 frames/s, on the Mixamo character of the examples
-    from pathlib import Path
-
-    import workflows
+    # AIST++: world frame at its 60 frames/s, on the demo's Mixamo character
+    from workflows.examples_gen import write_mixamo_character
 
     aa, tr = video_motion(16, seed=6, fmt="gvhmr")
     aist = write_aist(tmp_path, *(_x for _x in (aa, tr)))
-    hero = Path(workflows.__file__).parent / "examples" / "mixamo_character.bvh"
+    hero = write_mixamo_character(tmp_path / "mixamo_character.bvh")
     res = animate(aist, "--out", tmp_path / "aist", "--character", hero, "--max-effectors", 2)
     assert res.exit_code == 0, res.output
     anim = load_animation(tmp_path / "aist" / "animation.json")
