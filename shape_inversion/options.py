@@ -53,13 +53,15 @@ class CharacterOptions:
     """BVH non-root position channels: replace the OFFSET (BVH convention), add to it (MakeHuman), or auto."""
     max_joints: int = DEFAULT_MAX_JOINTS
     """Refuse files with more joints than this."""
+    root: str | None = None
+    """With several root joints: the name of the one whose hierarchy is the character (None: chosen)."""
 
     def __post_init__(self) -> None:
         def bad(option: str, value: Any, expected: str) -> CharacterOptionsError:
             return CharacterOptionsError(f"character option {option}: {str(value)[:60]!r} is invalid; "
                                          f"expected {expected}")
 
-        for name in ("rig", "map"):
+        for name in ("rig", "map", "root"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, str):
                 raise bad(name, value, "a string or null")
@@ -108,14 +110,18 @@ BindOption = Annotated[str, typer.Option("--bind", help="glTF bind pose: inverse
 PositionsOption = Annotated[str, typer.Option("--positions", help="BVH non-root position channels: auto, replace "
                                               "(BVH convention, Mixamo/Rokoko) or add (MakeHuman).")]
 MaxJointsOption = Annotated[int, typer.Option("--max-joints", help="Refuse character files with more joints.")]
+RootOption = Annotated[str | None, typer.Option("--root", help="Character with several root joints: the root "
+                                                "joint whose hierarchy to use (default: the one holding the body).")]
 
 
 def character_options_from_cli(rig: str | None = None, map_file: Path | None = None, units: str = "auto",
                                up: str = "auto", rest: str = "frame0", bind: str = "inverse_bind",
-                               positions: str = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> CharacterOptions:
+                               positions: str = "auto", max_joints: int = DEFAULT_MAX_JOINTS,
+                               root: str | None = None) -> CharacterOptions:
     """:class:`CharacterOptions` from the CLI options above; raises :class:`typer.BadParameter` naming the option."""
     try:
         return CharacterOptions(rig=rig, map=None if map_file is None else str(map_file), units=units, up=up,
-                                rest=rest, bind=bind, positions=positions, max_joints=max_joints)  # type: ignore[arg-type]
+                                rest=rest, bind=bind, positions=positions, max_joints=max_joints,  # type: ignore[arg-type]
+                                root=root)
     except CharacterOptionsError as exc:
         raise typer.BadParameter(str(exc)) from None

@@ -194,11 +194,13 @@ def from_estimate(
         character = load_character(character_path, options)
         from shape_inversion.rigs import available_presets
 
-        if options.map is None and character.rig.name in available_presets():  # a re-read skips detection
-            options = dataclasses.replace(options, rig=character.rig.name)
-        else:
+        if options.map is not None:
             options = dataclasses.replace(options, map=str(Path(options.map).resolve()))
-        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
+        elif character.rig.name in available_presets():  # a re-read skips detection
+            options = dataclasses.replace(options, rig=character.rig.name)
+        # else: mapped by the rig mapper (rig None), which maps a re-read identically
+        joint_map = {s: character.names[k] for s, k in character.character.smpl_joints.items()}
+        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options, joint_map)
     image_ref = str(Path(image_path).resolve()) if image_path is not None else None
     scene, person_results = scene_from_people(people, solver, config=config, character=character, skeleton=skeleton,
                                               source=str(Path(results_path).resolve()), image=image_ref,
