@@ -309,6 +309,32 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
 
 
+def read_node_rig(doc: GltfFile, node: int) -> GltfRig:
+    """A skeleton of plain nodes (no skin): the whole hierarchy holding ``node``, in its default pose.
+
+    For a humanoid defined on nodes only (a VRM whose humanoid table names unskinned nodes).
+    ``skin`` is -1; the bind pose is the nodes' world transforms.
+    """
+    top = node
+    while doc.parent[top] >= 0:
+        top = doc.parent[top]
+    members, stack = [], [top]
+    while stack:
+        n = stack.pop()
+        members.append(n)
+        stack.extend(doc.gltf.nodes[n].children or [])
+    index = set(members)
+    depth = {}
+    for n in members:
+        d, p = 0, doc.parent[n]
+        while p >= 0 and p in index:
+            d, p = d + 1, doc.parent[p]
+        depth[n] = d
+    joints = tuple(sorted(members, key=lambda n: (depth[n], n)))
+    world = doc.world[list(joints)].copy()
+    return GltfRig(doc, -1, joints, tuple(range(len(joints))), np.linalg.inv(world), np.eye(4), world)
+
+
 def _joint_parent(doc: GltfFile, node: int, index: dict[int, int]) -> int:
     """Index (into the skin's joints) of the nearest ancestor that is a joint, -1 if none."""
     p = doc.parent[node]

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from shape_inversion.features import named_joints_to_features
-from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_rig
+from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_node_rig, read_rig
 from shape_inversion.options import BindSource, CharacterOptions, RestSource
 from shape_inversion.rigs import RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
 from smplik.conventions import JOINT_NAMES, PARENTS
@@ -73,6 +73,7 @@ class Skeleton:
             (BVH: frame 0's, or identity); None means identity.
         rest_translations: (J, 3) the BVH local translations of the rest pose (file units).
         gltf: the glTF node tree and skin (glTF skeletons).
+        humanoid: SMPL joint -> joint name from the file's own humanoid bone table (VRM 0.x / 1.0).
     """
 
     names: tuple[str, ...]
@@ -86,6 +87,8 @@ class Skeleton:
     rest_rotations: np.ndarray | None = field(default=None, repr=False)
     rest_translations: np.ndarray | None = field(default=None, repr=False)
     gltf: GltfRig | None = field(default=None, repr=False)
+    humanoid: dict[str, str] | None = None
+    """The file's own humanoid table (VRM): SMPL joint name -> joint name."""
 
 
 # ----------------------------------------------------------------------------- BVH
@@ -142,8 +145,15 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
     """
     if bind not in ("inverse_bind", "nodes"):
         raise SkeletonError(f"Unknown bind source {bind!r}; expected 'inverse_bind' or 'nodes'.")
+    from shape_inversion.vrm import humanoid_nodes, humanoid_to_smpl
+
     try:
-        rig = read_rig(load_gltf(path), skin=skin, bind=bind)
+        doc = load_gltf(path)
+        table = humanoid_nodes(doc)
+        if not doc.gltf.skins and table:  # a humanoid on plain nodes: its hierarchy is the skeleton
+            rig = read_node_rig(doc, table["hips"])
+        else:
+            rig = read_rig(doc, skin=skin, bind=bind)
     except GltfError as exc:
         raise SkeletonError(str(exc)) from None
     nodes = rig.doc.gltf.nodes
@@ -152,7 +162,12 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
         dup = next(n for n in names if names.count(n) > 1)
         raise SkeletonError(f"{path}: duplicate joint name {dup!r} in skin #{skin}")
     positions = rig.T_world_joint_bind[:, :3, 3].copy()
-    return Skeleton(names, joint_parents(rig), positions, str(path), "gltf", units=None, up="y", gltf=rig)
+    humanoid = None
+    if table:
+        index = {n: k for k, n in enumerate(rig.joint_nodes)}
+        humanoid = {s: names[index[n]] for s, n in humanoid_to_smpl(table).items() if n in index} or None
+    return Skeleton(names, joint_parents(rig), positions, str(path), "gltf", units=None, up="y", gltf=rig,
+                    humanoid=humanoid)
 
 
 # ----------------------------------------------------------------------------- JSON
@@ -198,22 +213,22 @@ def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_M
 
 def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind",
                   positions: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
-    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``, ``.json``."""
+    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``/``.vrm``, ``.json``."""
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":
         return read_bvh(Path(path), rest=rest, position_mode=positions, max_joints=max_joints)
-    if suffix in (".glb", ".gltf"):
+    if suffix in (".glb", ".gltf", ".vrm"):  # a VRM file is a GLB with a humanoid table
         return read_gltf(path, bind=bind)
     if suffix == ".json":
         return read_joint_json(path, max_joints=max_joints)
-    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf or .json.")
+    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf, .vrm or .json.")
 
 
 def read_character(path: str | Path, options: CharacterOptions | None = None) -> Character:
     """Read ``path`` and map it to SMPL as ``options`` say (one call for every command taking a character)."""
     o = CharacterOptions() if options is None else options
     skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
-    return prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up)
+    return prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
 
 
 # ----------------------------------------------------------------------------- units, axes, mapping
@@ -299,8 +314,39 @@ def _detect_units(height_units: float, hints: list[float | None]) -> tuple[float
     return UNIT_NAMES[detect_units(height_units / HEAD_ANKLE_PER_STATURE)], "detected"
 
 
+def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
+    """The joints ``keep`` (a whole hierarchy, parents first) of ``skeleton``, re-indexed."""
+    index = {j: k for k, j in enumerate(keep)}
+    parents = tuple(index.get(skeleton.parents[j], -1) for j in keep)
+
+    def take(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else a[keep]
+
+    gltf = skeleton.gltf
+    if gltf is not None:
+        import dataclasses
+
+        gltf = dataclasses.replace(gltf, joint_nodes=tuple(gltf.joint_nodes[j] for j in keep),
+                                   skin_order=tuple(gltf.skin_order[j] for j in keep),
+                                   inverse_bind=gltf.inverse_bind[keep],
+                                   T_world_joint_bind=gltf.T_world_joint_bind[keep])
+    names = tuple(skeleton.names[j] for j in keep)
+    humanoid = None if skeleton.humanoid is None else {s: n for s, n in skeleton.humanoid.items() if n in names}
+    return Skeleton(names, parents, skeleton.positions[keep], skeleton.source, skeleton.format,
+                    skeleton.units, skeleton.up, None if skeleton.bvh is None or len(keep) == len(skeleton.names)
+                    else skeleton.bvh, take(skeleton.rest_rotations), take(skeleton.rest_translations), gltf, humanoid)
+
+
+def _hierarchy(parents: tuple[int, ...], root: int) -> list[int]:
+    keep = {root}
+    for j, p in enumerate(parents):  # parents are listed before children
+        if p in keep:
+            keep.add(j)
+    return sorted(keep)
+
+
 def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, map_file: str | Path | None = None,
-                      units: str | float = "auto", up: str = "auto") -> Character:
+                      units: str | float = "auto", up: str = "auto", root: str | None = None) -> Character:
     """Map ``skeleton`` to SMPL joints, convert to metres and to smplik's frame.
 
     Args:
@@ -321,9 +367,24 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
         rig_map = rig
     elif rig is not None:
         rig_map = load_preset(rig)
+    elif skeleton.humanoid and root is None:  # the file's own humanoid table wins
+        rig_map = RigMap("vrm", tuple(skeleton.humanoid.items()), "the file's humanoid bone table (VRM)")
     else:
-        rig_map = detect_rig(skeleton.names, skeleton.parents)
+        rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
     found, _ = match_joints(rig_map, skeleton.names)
+    roots = [j for j, p in enumerate(skeleton.parents) if p < 0]
+    if len(roots) > 1 and "pelvis" in found:  # several roots: keep the hierarchy holding the body
+        top = found["pelvis"]
+        while skeleton.parents[top] >= 0:
+            top = skeleton.parents[top]
+        if root is not None and root in skeleton.names:
+            top = skeleton.names.index(root)
+        skeleton = subset_skeleton(skeleton, _hierarchy(skeleton.parents, top))
+        if rig_map.root != skeleton.names[0]:
+            import dataclasses
+
+            rig_map = dataclasses.replace(rig_map, root=skeleton.names[0])
+        found, _ = match_joints(rig_map, skeleton.names)
     from shape_inversion.rigs import missing_required
 
     if missing_required(rig_map, found):
