@@ -18,6 +18,7 @@ from shape_inversion.options import (
     PositionsOption,
     RestOption,
     RigOption,
+    RootOption,
     UnitsOption,
     UpOption,
     character_options_from_cli,
@@ -43,7 +44,9 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
         "units_source": character.units_source,
         "up": character.up,
         "head_ankle_height_m": character.head_ankle_height_m,
-        "joint_map": {s: character.skeleton.names[i] for s, i in character.smpl_joints.items()},
+        "joint_map": character.joint_map,
+        "root": character.rig.root,
+        "map_warnings": list(character.rig.warnings),
     }
     out["diagnostics"]["query_time_s"] = elapsed_s
     return out
@@ -64,6 +67,7 @@ def invert_shape(
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    root: RootOption = None,
     render_png: Annotated[Path | None, typer.Option("--render", help="Also write a comparison PNG.")] = None,
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                       "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
@@ -84,7 +88,7 @@ def invert_shape(
     from smplik.body_model import load_body_model
 
     console = Console(stderr=True)
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     try:
         char = read_character(character, options)
         model = load_body_model(gender, model_dir)
@@ -98,8 +102,8 @@ def invert_shape(
         raise typer.Exit(code=1) from None
     payload = shape_payload(char, estimate, model, rest=rest, elapsed_s=elapsed)
     payload["character"]["options"] = options.to_dict()
-    if char.rig.name == "auto":  # no preset fitted: say which map was chosen
-        console.print(f"rig auto, {escape(char.rig.description)}", soft_wrap=True)
+    for line in char.map_report():  # the map chosen, and the mapper's doubts
+        console.print(escape(line), soft_wrap=True, highlight=False)
     for note in estimate.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     write_json_atomic(out, payload)

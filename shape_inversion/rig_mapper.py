@@ -251,6 +251,8 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
         return None
     if tree.is_ancestor(arms_meet, feet[0]) or tree.is_ancestor(arms_meet, feet[1]):
         return None
+    if tree.lca(head, hands[0]) == pelvis:  # the head hangs on the spine, not on the pelvis
+        return None
     up = P[head] - (P[feet[0]] + P[feet[1]]) / 2
     height = float(np.linalg.norm(up))
     if height < 1e-3 * size:
@@ -310,10 +312,10 @@ def _map_leg(tree: _Tree, names: Sequence[str], pelvis: int, leaf: int, up: np.n
     for a, b in zip(chain, chain[1:], strict=False):
         d = P[b] - P[a]
         n = np.linalg.norm(d)
-        if n > 1e-6 * stature and -(d @ up) >= 0.7 * n:
+        if n > 1e-6 * stature and -(d @ up) >= 0.8 * n:
             ankle = b
-    named = _named(chain, names, "ankle")
-    if named and named[0] != ankle and chain.index(named[0]) > len(chain) // 2:
+    named = [j for j in _named(chain, names, "ankle") if chain.index(j) >= 2]
+    if named:
         ankle = named[0]
     hip_first = next((j for j in chain if abs(float((P[j] - P[pelvis]) @ across)) >= 0.025 * stature), chain[0])
     if chain.index(hip_first) >= chain.index(ankle):
@@ -376,6 +378,9 @@ def _map_arm(tree: _Tree, names: Sequence[str], top: int, leaf: int, stature: fl
     shoulder_first = next((j for j in pre if lateral(j) >= 0.07 * stature), pre[0])
     if shoulder_first == pre[-1]:
         shoulder_first = pre[-2] if len(pre) >= 2 else pre[0]
+    upper_named = [j for j in pre[:-1] if _part(names[j]) in ("upperarm", "uparm", "shldr", "arm", "humerus")]
+    if upper_named:  # the name says upper arm: it is the shoulder joint, what comes before is the collar
+        shoulder_first = upper_named[0]
     elbow = _at_fraction(P, chain, shoulder_first, wrist, 0.53)
     if elbow is None:
         raise RigMappingError(f"arm chain {names[shoulder_first]!r} -> {names[wrist]!r} has no joint for the elbow")

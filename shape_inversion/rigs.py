@@ -187,11 +187,12 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
             why = f"rig mapper: {exc}"
         else:
             in_tree = {j for j in range(len(names)) if _root_of(parents, j) == mapping.root}
+            root_name = names[mapping.root] if sum(p < 0 for p in parents) > 1 else None
             if complete and len(found) >= len(mapping.joints) and set(found.values()) <= in_tree:
-                return dataclasses.replace(best, root=names[mapping.root])
+                return dataclasses.replace(best, root=root_name)
             pairs = tuple((s, names[j]) for s, j in mapping.joints.items())
             return RigMap("auto", pairs, "matched by topology: " + ", ".join(f"{s}={r}" for s, r in pairs),
-                          warnings=mapping.warnings, root=names[mapping.root])
+                          warnings=mapping.warnings, root=root_name)
         if root is not None:
             raise RigError(f"Could not map the skeleton under --root {root!r}: {why}")
     if complete:

@@ -284,6 +284,19 @@ class Character:
     R_canon_file: np.ndarray = field(default_factory=lambda: np.eye(3))
     shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
+    @property
+    def joint_map(self) -> dict[str, str]:
+        """SMPL joint -> joint name of the map used (SMPL order)."""
+        return {s: self.skeleton.names[i] for s, i in self.smpl_joints.items()}
+
+    def map_report(self) -> list[str]:
+        """Lines saying which map was chosen (rig, hierarchy, every pair) and the mapper's doubts."""
+        how = {"auto": "mapped by topology, geometry and names", "vrm": "the file's humanoid table"}.get(
+            self.rig.name, "preset")
+        root = f", hierarchy of root joint {self.rig.root!r}" if self.rig.root else ""
+        pairs = ", ".join(f"{s}={n}" for s, n in self.joint_map.items())
+        return [f"rig {self.rig.name} ({how}{root}): {pairs}"] + [f"warning: {w}" for w in self.rig.warnings]
+
     def joint(self, smpl_name: str) -> np.ndarray:
         """Position (3,) of a mapped SMPL joint, metres."""
         return self.positions[self.smpl_joints[smpl_name]]

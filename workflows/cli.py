@@ -15,6 +15,7 @@ from shape_inversion.options import (
     PositionsOption,
     RestOption,
     RigOption,
+    RootOption,
     UnitsOption,
     UpOption,
     character_options_from_cli,
@@ -73,6 +74,7 @@ def from_estimate_cmd(
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    root: RootOption = None,
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per person.")] = 8,
     threshold: Annotated[float, typer.Option("--threshold", min=0.0, help="Stop below this error (m).")] = 0.02,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
@@ -102,7 +104,7 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
     if space not in (None, "camera", "world"):
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
         task = bar.add_task("effector recovery", total=None)
@@ -116,6 +118,9 @@ def from_estimate_cmd(
                                 trust_pickle=trust_pickle, image_path=image, frame=frame,
                                 previews=not no_previews, max_people=max_people, max_bytes=max_bytes, ground=ground,
                                 space=space, progress=progress)
+    if outputs.character is not None:
+        for line in outputs.character.character.map_report():
+            say(line)
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "

@@ -139,6 +139,7 @@ class EstimateOutputs:
     plots: tuple[Path, ...]
     bvh: tuple[Path, ...]
     results: tuple[PersonResult, ...]
+    character: CustomCharacter | None = None
 
     @property
     def all_files(self) -> tuple[Path, ...]:
@@ -229,4 +230,4 @@ def from_estimate(
                 img = render_custom_character(character, r.custom_pose, c)
                 preview_paths.append(save_png(img, out_dir / f"{r.name}_character.png"))
     return EstimateOutputs(scene_path, tuple(preview_paths), tuple(plot_paths), tuple(bvh_paths),
-                           tuple(person_results))
+                           tuple(person_results), character)
