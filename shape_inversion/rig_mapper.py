@@ -221,20 +221,21 @@ def _candidates(tree: _Tree, members: list[int], names: Sequence[str], k: int = 
     return picked
 
 
-def _find_body(tree: _Tree, members: list[int], names: Sequence[str]) -> _Body | None:
+def _find_bodies(tree: _Tree, members: list[int], names: Sequence[str]) -> list[_Body]:
+    """Every valid assignment of feet, hands and head among the candidate leaves, best first."""
     cands = _candidates(tree, members, names)
     P = tree.P
     size = max(float(np.ptp(P[members], axis=0).max()), 1e-12)
-    best: _Body | None = None
+    found: dict[tuple, _Body] = {}
     for five in itertools.combinations(cands, 5):
         for head in five:
             rest = [j for j in five if j != head]
             for feet in itertools.combinations(rest, 2):
                 hands = tuple(j for j in rest if j not in feet)
                 body = _check(tree, head, feet, hands, size)  # type: ignore[arg-type]
-                if body is not None and (best is None or body.score < best.score):
-                    best = body
-    return best
+                if body is not None:
+                    found[(head, feet, hands)] = body
+    return sorted(found.values(), key=lambda b: b.score)
 
 
 def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int], size: float) -> _Body | None:
@@ -253,6 +254,9 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
         return None
     if tree.lca(head, hands[0]) == pelvis:  # the head hangs on the spine, not on the pelvis
         return None
+    # hip, knee, ankle on each leg and shoulder, elbow, wrist on each arm: IK targets hang on one bone
+    if min(len(tree.chain(pelvis, f)) for f in feet) < 3 or min(len(tree.chain(arms_meet, x)) for x in hands) < 3:
+        return None
     up = P[head] - (P[feet[0]] + P[feet[1]]) / 2
     height = float(np.linalg.norm(up))
     if height < 1e-3 * size:
@@ -266,6 +270,8 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
     score = abs(leg[0] - leg[1]) / max(leg) + abs(arm[0] - arm[1]) / max(arm)
     score += abs(np.log(np.mean(arm) / np.mean(leg) / 0.85))  # arms about as long as legs (eyes are not arms)
     score += max(0.0, tree.tree_distance(arms_meet, head) / np.mean(arm) - 0.8)  # the neck shorter than an arm
+    if min(h[hands[0]], h[hands[1]]) < 0.3 * height:  # hands on the floor: a quadruped's front legs
+        return None
     score += 2.0 * sum(max(0.0, (min(h[feet[0]], h[feet[1]]) - h[x]) / height) for x in hands)  # feet lowest
     score += abs(h[feet[0]] - h[feet[1]]) / height
     score += max(0.0, 0.5 - float((P[pelvis] - P[feet[0]]) @ up) / height)  # the pelvis well above the feet
@@ -511,24 +517,32 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
             raise RigMappingError(f"--root {root!r} is not a joint of the skeleton; roots: "
                                   f"{', '.join(repr(names[j]) for j in roots)}")
         roots = chosen
-    found: list[tuple[float, int, _Body]] = []
+    bodies: list[tuple[float, int, _Body]] = []
     for r in roots:
         members = tree.subtree(r)
-        if len(members) < 5:
-            continue
-        body = _find_body(tree, members, names)
-        if body is not None:
-            found.append((body.score, -len(members), body))
-            found[-1] = (body.score, -len(members), body)
-    if not found:
+        if len(members) >= 5:
+            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members, names)]
+    if not bodies:
         raise RigMappingError("no humanoid found: no hierarchy has two legs and a spine meeting at a pelvis with two "
                               "arms branching from the spine")
-    found.sort(key=lambda t: (t[0], t[1]))
-    body = found[0][2]
+    bodies.sort(key=lambda t: (t[0], t[1]))
+    error: RigMappingError | None = None
+    for _, _, body in bodies[:20]:  # the best assignment whose chains hold every joint
+        try:
+            return _map_body(tree, names, body)
+        except RigMappingError as exc:
+            error = error or exc
+    assert error is not None
+    raise error
+
+
+def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
+    P = tree.P
     r = tree.path_to_root(body.pelvis)[-1]
     notes: list[str] = []
     up = body.up
     stature = float((P[body.head] - (P[body.feet[0]] + P[body.feet[1]]) / 2) @ up) / 0.88
+
     def across(a: int, b: int) -> np.ndarray:
         d = P[a] - P[b]
         d = d - (d @ up) * up

@@ -1,0 +1,215 @@
+"""The rig mapper on real rigs and on synthetic variations of them, each asserting the exact map.
+
+Real rigs: the two VRM 1.0 samples of ``tests/data/rigs/`` (their own humanoid tables are the expected maps),
+the CMU BVH and the CMU dance (DAZ/Poser-style) BVH of ``../shared/data`` (shared_data fixture).
+Variations of the 53-bone VRM humanoid: renamed joints in other tools' conventions, names removed (sides
+from the rest geometry), children reordered, extra twist/IK/helper bones, several roots, a mirrored rig,
+scaled armatures.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shape_inversion.rig_mapper import RigMappingError, map_skeleton, side_of
+from shape_inversion.rigs import detect_rig
+from shape_inversion.skeleton_io import read_character, read_skeleton
+
+RIGS = Path(__file__).resolve().parent / "data" / "rigs"
+HUMANOID = RIGS / "VRMC_materials_mtoon_UV_Animation_Test.vrm"
+BLOCKS = RIGS / "VRMC_vrm_expressions_isBinary_Overridden.vrm"
+
+
+def _names_map(names, mapping) -> dict[str, str]:
+    return {s: names[j] for s, j in mapping.joints.items()}
+
+
+@pytest.fixture(scope="module")
+def humanoid():
+    sk = read_skeleton(HUMANOID)
+    return list(sk.names), list(sk.parents), sk.positions.copy(), dict(sk.humanoid)
+
+
+@pytest.mark.parametrize("path", [HUMANOID, BLOCKS], ids=lambda p: p.stem)
+def test_vrm_table_is_read_and_the_mapper_reproduces_it(path):
+    sk = read_skeleton(path)
+    assert sk.gltf is not None and sk.gltf.skin == -1  # a humanoid on plain nodes, no skin
+    assert sk.humanoid["pelvis"] in ("hips", "Hips") and sk.humanoid["left_shoulder"] in ("upper_arm.L", "UpperArm.L")
+    char = read_character(path)
+    assert char.rig.name == "vrm" and char.joint_map == {s: sk.humanoid[s] for s in char.joint_map}
+    mapping = map_skeleton(sk.names, sk.parents, sk.positions)  # the table ignored: topology + geometry + names
+    assert _names_map(sk.names, mapping) == sk.humanoid
+    assert mapping.warnings == ()
+
+
+def test_vrm_extension_and_table_win_over_detection(tmp_path, humanoid):
+    copy = tmp_path / "avatar.glb"
+    copy.write_bytes(HUMANOID.read_bytes())
+    assert read_character(copy).rig.name == "vrm"  # the table is read whatever the extension
+
+
+# ----------------------------------------------------------------------------- synthetic variations
+
+CONVENTIONS = {  # (side, part) -> name; parts of the 53-bone VRM rig
+    "J_Bip": lambda side, part: f"J_Bip_{side.upper()}_{part.title().replace('_', '')}",
+    "Bip01": lambda side, part: f"Bip01 {side.upper()} {part.title().replace('_', '')}",
+    "daz": lambda side, part: f"{side}{part.title().replace('_', '')}",
+    "ue": lambda side, part: f"{part.replace('_', '').lower()}_{side}",
+    "Left": lambda side, part: f"{'Left' if side == 'l' else 'Right'}{part.title().replace('_', '')}",
+}
+
+
+def _rename(names: list[str], convention: str) -> list[str]:
+    out = []
+    for n in names:
+        if n.endswith((".L", ".R")):
+            side = n[-1].lower()
+            out.append(CONVENTIONS[convention](side, n[:-2].replace(".", "_")))
+        else:
+            out.append(n)
+    return out
+
+
+def _expected(base: dict[str, str], names: list[str], renamed: list[str]) -> dict[str, str]:
+    index = {n: k for k, n in enumerate(names)}
+    return {s: renamed[index[n]] for s, n in base.items()}
+
+
+@pytest.mark.parametrize("convention", sorted(CONVENTIONS))
+def test_renamed_joints_in_other_conventions_map_exactly(humanoid, convention):
+    names, parents, P, table = humanoid
+    renamed = _rename(names, convention)
+    assert side_of(renamed[names.index("upper_leg.L")]) == "left"
+    assert side_of(renamed[names.index("hand.R")]) == "right"
+    mapping = map_skeleton(renamed, parents, P)
+    assert _names_map(renamed, mapping) == _expected(table, names, renamed)
+
+
+def test_names_removed_sides_come_from_the_geometry_with_a_warning(humanoid):
+    names, parents, P, table = humanoid
+    anonymous = [f"bone{k:03d}" for k in range(len(names))]
+    mapping = map_skeleton(anonymous, parents, P)
+    assert _names_map(anonymous, mapping) == _expected(table, names, anonymous)
+    assert any("rest geometry" in w for w in mapping.warnings)
+
+
+def test_mirrored_rig_names_decide_the_side_and_without_names_the_geometry(humanoid):
+    names, parents, P, table = humanoid
+    mirrored = P * np.array([-1.0, 1.0, 1.0])  # left joints now at -x: the names still say which is left
+    assert _names_map(names, map_skeleton(names, parents, mirrored)) == table
+    anonymous = [f"bone{k:03d}" for k in range(len(names))]
+    got = _names_map(anonymous, map_skeleton(anonymous, parents, mirrored))
+    swapped = {s.replace("left", "tmp").replace("right", "left").replace("tmp", "right"): n for s, n in table.items()}
+    assert got == _expected(swapped, names, anonymous)  # a mirrored body has its left on the other side
+
+
+def _reindex(names, parents, P, order):
+    """The skeleton with its joints listed in ``order`` (parents still first)."""
+    new = {j: k for k, j in enumerate(order)}
+    return [names[j] for j in order], [new[parents[j]] if parents[j] >= 0 else -1 for j in order], P[order]
+
+
+def test_reordered_children_map_exactly(humanoid):
+    names, parents, P, table = humanoid
+    depth = [0] * len(names)
+    for j, p in enumerate(parents):
+        depth[j] = 0 if p < 0 else depth[p] + 1
+    rng = np.random.default_rng(0)
+    order = sorted(range(len(names)), key=lambda j: (depth[j], rng.random()))  # siblings shuffled
+    n2, p2, P2 = _reindex(names, parents, P, order)
+    assert n2 != names
+    assert _names_map(n2, map_skeleton(n2, p2, P2)) == table
+
+
+def _add(names, parents, P, name, parent, position):
+    names.append(name)
+    parents.append(-1 if parent is None else names.index(parent))
+    P = np.vstack([P, position])
+    return P
+
+
+def test_extra_twist_ik_and_helper_bones_do_not_change_the_map(humanoid):
+    names, parents, P, table = list(humanoid[0]), list(humanoid[1]), humanoid[2].copy(), humanoid[3]
+    at = {n: P[k] for k, n in enumerate(names)}
+    for side in "LR":
+        P = _add(names, parents, P, f"upper_arm_twist.{side}", f"upper_arm.{side}",
+                 (at[f"upper_arm.{side}"] + at[f"lower_arm.{side}"]) / 2)
+        P = _add(names, parents, P, f"thigh_twist.{side}", f"upper_leg.{side}",
+                 (at[f"upper_leg.{side}"] + at[f"lower_leg.{side}"]) / 2)
+        P = _add(names, parents, P, f"ik_foot.{side}", "root", at[f"foot.{side}"])  # IK targets under the root
+        P = _add(names, parents, P, f"ik_hand.{side}", "root", at[f"hand.{side}"])
+    P = _add(names, parents, P, "prop_weapon", "hand.R", at["hand.R"] + np.array([0.0, -0.4, 0.3]))
+    P = _add(names, parents, P, "skirt_helper", "hips", at["hips"] + np.array([0.0, -0.3, 0.1]))
+    assert _names_map(names, map_skeleton(names, parents, P)) == table
+
+
+def test_several_roots_pick_the_body_and_root_overrides(humanoid):
+    names, parents, P, table = list(humanoid[0]), list(humanoid[1]), humanoid[2].copy(), humanoid[3]
+    at = {n: P[k] for k, n in enumerate(names)}
+    P = _add(names, parents, P, "ik_hand_root", None, np.zeros(3))  # UE-style extra roots
+    for side in "LR":
+        P = _add(names, parents, P, f"ik_hand.{side}", "ik_hand_root", at[f"hand.{side}"])
+        P = _add(names, parents, P, f"ik_foot.{side}", "ik_hand_root", at[f"foot.{side}"])
+    mapping = map_skeleton(names, parents, P)
+    assert names[mapping.root] == "Armature" and _names_map(names, mapping) == table
+    assert _names_map(names, map_skeleton(names, parents, P, root="Armature")) == table
+    with pytest.raises(RigMappingError, match="no humanoid"):
+        map_skeleton(names, parents, P, root="ik_hand_root")
+    with pytest.raises(RigMappingError, match="not a joint"):
+        map_skeleton(names, parents, P, root="nope")
+    rig = detect_rig(names, parents, P)
+    assert rig.name == "auto" and rig.root == "Armature"
+
+
+@pytest.mark.parametrize("scale", [0.01, 100.0, 2.54])
+def test_scaled_armatures_map_exactly(humanoid, scale):
+    names, parents, P, table = humanoid
+    z_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # and turned z-up
+    assert _names_map(names, map_skeleton(names, parents, scale * P @ z_up.T)) == table
+
+
+def test_prefixless_mixamo_names_choose_the_mixamo_preset_not_cmu(tmp_path):
+    """A Ready Player Me / prefix-less Mixamo rig used to be detected as 'cmu' (spine1 and neck unmapped)."""
+    from workflows.examples_gen import write_mixamo_character
+
+    sk = read_skeleton(write_mixamo_character(tmp_path / "rpm.bvh", prefix=""))
+    rig = detect_rig(sk.names, sk.parents, sk.positions)
+    assert rig.name == "mixamo"
+    char = read_character(tmp_path / "rpm.bvh")
+    assert char.rig.name == "mixamo" and len(char.smpl_joints) == 24
+    assert char.joint_map["spine1"] == "Spine" and char.joint_map["neck"] == "Neck"
+
+
+def test_a_non_humanoid_is_refused_in_one_line():
+    names = ["root", "spine", "neck", "head", "tail"] + [f"leg{k}_{s}" for k in range(4) for s in ("a", "b")]
+    parents = [-1, 0, 1, 2, 0, 0, 5, 1, 7, 0, 9, 1, 11]
+    P = np.array([[0, 1, 0], [0, 1, 1], [0, 1.2, 1.5], [0, 1.3, 1.8], [0, 1, -1],
+                  [0.2, 0.5, 0], [0.2, 0, 0], [0.2, 0.5, 1], [0.2, 0, 1],
+                  [-0.2, 0.5, 0], [-0.2, 0, 0], [-0.2, 0.5, 1], [-0.2, 0, 1]], dtype=float)  # a quadruped
+    with pytest.raises(RigMappingError) as err:
+        map_skeleton(names, parents, P)
+    assert "\n" not in str(err.value) and "no humanoid" in str(err.value)
+
+
+# ----------------------------------------------------------------------------- shared real data
+
+
+def test_cmu_bvh_maps_exactly_as_the_cmu_preset(shared_data):
+    from shape_inversion.rigs import load_preset
+
+    sk = read_skeleton(shared_data.cmu("01_01.bvh"))
+    got = _names_map(sk.names, map_skeleton(sk.names, sk.parents, sk.positions))
+    assert got == dict(load_preset("cmu").joints)
+
+
+def test_cmu_dance_daz_skeleton_maps_by_topology(shared_data):
+    sk = read_skeleton(shared_data.file("data/cmu-dance/salsa_01.bvh"), rest="offsets")
+    got = _names_map(sk.names, map_skeleton(sk.names, sk.parents, sk.positions))
+    sided = {"hip": "Thigh", "knee": "Shin", "ankle": "Foot", "collar": "Collar", "shoulder": "Shldr",
+             "elbow": "ForeArm", "wrist": "Hand", "hand": "Mid1"}
+    expected = {"pelvis": "hip", "spine1": "abdomen", "spine3": "chest", "neck": "neck", "head": "head"}
+    expected |= {f"{side}_{role}": f"{side[0]}{part}" for side in ("left", "right") for role, part in sided.items()}
+    assert got == expected
