@@ -38,7 +38,7 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
     out["character"] = {
         "source": character.skeleton.source,
         "format": character.skeleton.format,
-        "rest": rest if character.skeleton.format == "bvh" else None,
+        "rest": (character.skeleton.rest or rest) if character.skeleton.format == "bvh" else None,
         "rig": character.rig.name,
         "units_m": character.units_m,
         "units_source": character.units_source,
@@ -63,7 +63,7 @@ def invert_shape(
     map_file: MapOption = None,
     units: UnitsOption = "auto",
     up: UpOption = "auto",
-    rest: RestOption = "frame0",
+    rest: RestOption = "auto",
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,

@@ -70,6 +70,10 @@ class EstimatorConfig:
     """Feature residual (metres) that costs as much as moving one posterior standard deviation."""
     refine_max_evaluations: int = 100
     """Cap on the refinement's least-squares iterations."""
+    weak_residual_m: float = 0.04
+    """A fit whose largest feature residual exceeds this (metres) is reported as weak in ``warnings``."""
+    weak_effective_samples: float = 5.0
+    """A fit resting on fewer effective bank samples than this is reported as weak in ``warnings``."""
     edge_fraction: float = 0.05
     """An estimate within this fraction of the bank's range from its edge is at the edge: a scale there is
     refused (wrong units, or a body the bank does not cover), a beta there is reported in ``warnings``."""
@@ -248,6 +252,16 @@ class ShapeEstimator:
         residual = self.features_of(betas, scale) - query
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
         notes = self._edge_check(betas, scale, query)
+        max_residual, n_eff = float(np.abs(residual).max()), float(w.sum() ** 2 / (w**2).sum())
+        if max_residual > cfg.weak_residual_m or n_eff < cfg.weak_effective_samples:
+            import warnings
+
+            worst = FEATURE_NAMES[int(np.argmax(np.abs(residual)))]
+            note = (f"weak shape inversion: largest feature residual {max_residual * 1000:.0f} mm ({worst}; limit "
+                    f"{cfg.weak_residual_m * 1000:.0f} mm), {n_eff:.1f} effective samples (limit "
+                    f"{cfg.weak_effective_samples:g}): check the joint map and the rest pose (--rest, --map)")
+            warnings.warn(note, stacklevel=2)
+            notes = (*notes, note)
         return ShapeEstimate(
             betas=betas, scale=scale, gender=self.gender, betas_std=std[:NUM_BETAS], scale_std=float(std[NUM_BETAS]),
             effective_samples=float(w.sum() ** 2 / (w**2).sum()), neighbours_used=int(w.size),

@@ -26,6 +26,7 @@ sign, along which the head is farthest from the ankles.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -89,6 +90,8 @@ class Skeleton:
     gltf: GltfRig | None = field(default=None, repr=False)
     humanoid: dict[str, str] | None = None
     """The file's own humanoid table (VRM): SMPL joint name -> joint name."""
+    rest: str | None = None
+    """BVH: the rest pose used, ``"frame0"`` or ``"offsets"`` (with why, when chosen by ``rest="auto"``)."""
 
 
 # ----------------------------------------------------------------------------- BVH
@@ -101,15 +104,16 @@ def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: 
     Args:
         source: a path, or the BVH text itself (anything containing ``HIERARCHY``).
         rest: ``"frame0"``: forward kinematics of the first MOTION frame (position channels per
-            ``position_mode``); ``"offsets"``: the zero-rotation OFFSET pose.
+            ``position_mode``); ``"offsets"``: the zero-rotation OFFSET pose; ``"auto"``: frame 0 when the
+            file has frames (:func:`read_character` then checks that it is a rest pose).
         position_mode, max_joints: see :func:`smplik.data.bvh.read_bvh`.
 
     Returns: a :class:`Skeleton` (end sites are not joints) holding the parsed motion in ``bvh``.
 
     Raises: SkeletonError on malformed files, or ``rest="frame0"`` with no frame.
     """
-    if rest not in ("frame0", "offsets"):
-        raise SkeletonError(f"Unknown rest source {rest!r}; expected 'frame0' or 'offsets'.")
+    if rest not in ("auto", "frame0", "offsets"):
+        raise SkeletonError(f"Unknown rest source {rest!r}; expected 'auto', 'frame0' or 'offsets'.")
     try:
         if isinstance(source, str) and "HIERARCHY" in source:
             motion = parse_bvh(source, position_mode=position_mode, max_joints=max_joints)
@@ -117,6 +121,11 @@ def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: 
             motion = bvh_read(source, position_mode=position_mode, max_joints=max_joints)
     except BVHError as exc:
         raise SkeletonError(str(exc)) from None
+    return bvh_skeleton(motion, ("frame0" if motion.num_frames else "offsets") if rest == "auto" else rest)
+
+
+def bvh_skeleton(motion: BVHMotion, rest: str) -> Skeleton:
+    """The :class:`Skeleton` of a parsed BVH file in the rest pose ``"frame0"`` or ``"offsets"``."""
     if rest == "frame0":
         if motion.num_frames == 0:
             raise SkeletonError(f"{motion.name}: no MOTION frame for rest='frame0'; use rest='offsets'.")
@@ -126,7 +135,7 @@ def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: 
         R_rest, positions = motion.rest_pose()
         t_rest = motion.offsets.copy()
     return Skeleton(motion.joint_names, motion.parents, positions, motion.name, "bvh", bvh=motion,
-                    rest_rotations=R_rest, rest_translations=t_rest)
+                    rest_rotations=R_rest, rest_translations=t_rest, rest=rest)
 
 
 # ----------------------------------------------------------------------------- glTF
@@ -213,7 +222,11 @@ def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_M
 
 def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind",
                   positions: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
-    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``/``.vrm``, ``.json``."""
+    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``/``.vrm``, ``.json``.
+
+    BVH ``rest="auto"`` reads frame 0 (the OFFSETs when the file has no frame); :func:`read_character`
+    then decides between frame 0 and the OFFSETs.
+    """
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":
         return read_bvh(Path(path), rest=rest, position_mode=positions, max_joints=max_joints)
@@ -228,7 +241,37 @@ def read_character(path: str | Path, options: CharacterOptions | None = None) ->
     """Read ``path`` and map it to SMPL as ``options`` say (one call for every command taking a character)."""
     o = CharacterOptions() if options is None else options
     skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
-    return prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
+    char = prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
+    if o.rest == "auto" and skeleton.bvh is not None and skeleton.rest == "frame0":
+        offsets = bvh_skeleton(skeleton.bvh, "offsets")
+        bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(
+            prepare_character(offsets, rig=char.rig, units=char.units_m, up=char.up).positions, char.smpl_joints)
+        if bend_off + 10.0 < bend0:  # frame 0 is motion, not a rest pose: the OFFSETs define the skeleton
+            char = prepare_character(offsets, rig=char.rig, map_file=None, units=o.units, up=o.up, root=o.root)
+            why = (f"offsets (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the "
+                   f"OFFSET pose {bend_off:.0f} deg)")
+        else:
+            why = f"frame0 (frame 0 is a rest pose: {bend0:.0f} deg of bend; the OFFSET pose {bend_off:.0f} deg)"
+        char = dataclasses.replace(char, skeleton=dataclasses.replace(char.skeleton, rest=why))
+    return char
+
+
+def rest_bend_deg(positions: np.ndarray, found: Mapping[str, int]) -> float:
+    """How far a pose is from a rest pose (T or A): degrees of bend at knees, elbows and along the spine,
+    plus the angle between the two legs. positions (J, 3); ``found`` SMPL joint -> index."""
+    def angle(a: str, b: str, c: str) -> float:
+        if not all(k in found for k in (a, b, c)):
+            return 0.0
+        u, v = positions[found[b]] - positions[found[a]], positions[found[c]] - positions[found[b]]
+        return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v)), u @ v)))
+
+    total = sum(angle(f"{s}_{a}", f"{s}_{b}", f"{s}_{c}") for s in ("left", "right")
+                for a, b, c in (("hip", "knee", "ankle"), ("shoulder", "elbow", "wrist")))
+    total += angle("pelvis", "spine3", "head")
+    if all(f"{s}_{j}" in found for s in ("left", "right") for j in ("hip", "ankle")):
+        legs = [positions[found[f"{s}_ankle"]] - positions[found[f"{s}_hip"]] for s in ("left", "right")]
+        total += float(np.degrees(np.arctan2(np.linalg.norm(np.cross(*legs)), legs[0] @ legs[1])))
+    return total
 
 
 # ----------------------------------------------------------------------------- units, axes, mapping
@@ -295,7 +338,10 @@ class Character:
             self.rig.name, "preset")
         root = f", hierarchy of root joint {self.rig.root!r}" if self.rig.root else ""
         pairs = ", ".join(f"{s}={n}" for s, n in self.joint_map.items())
-        return [f"rig {self.rig.name} ({how}{root}): {pairs}"] + [f"warning: {w}" for w in self.rig.warnings]
+        lines = [f"rig {self.rig.name} ({how}{root}): {pairs}"] + [f"warning: {w}" for w in self.rig.warnings]
+        if self.skeleton.format == "bvh" and self.skeleton.rest:
+            lines.append(f"rest pose: {self.skeleton.rest}")
+        return lines
 
     def joint(self, smpl_name: str) -> np.ndarray:
         """Position (3,) of a mapped SMPL joint, metres."""
@@ -337,8 +383,6 @@ def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
 
     gltf = skeleton.gltf
     if gltf is not None:
-        import dataclasses
-
         gltf = dataclasses.replace(gltf, joint_nodes=tuple(gltf.joint_nodes[j] for j in keep),
                                    skin_order=tuple(gltf.skin_order[j] for j in keep),
                                    inverse_bind=gltf.inverse_bind[keep],
@@ -347,7 +391,8 @@ def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
     humanoid = None if skeleton.humanoid is None else {s: n for s, n in skeleton.humanoid.items() if n in names}
     return Skeleton(names, parents, skeleton.positions[keep], skeleton.source, skeleton.format,
                     skeleton.units, skeleton.up, None if skeleton.bvh is None or len(keep) == len(skeleton.names)
-                    else skeleton.bvh, take(skeleton.rest_rotations), take(skeleton.rest_translations), gltf, humanoid)
+                    else skeleton.bvh, take(skeleton.rest_rotations), take(skeleton.rest_translations), gltf, humanoid,
+                    skeleton.rest)
 
 
 def _hierarchy(parents: tuple[int, ...], root: int) -> list[int]:
@@ -394,8 +439,6 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
             top = skeleton.names.index(root)
         skeleton = subset_skeleton(skeleton, _hierarchy(skeleton.parents, top))
         if rig_map.root != skeleton.names[0]:
-            import dataclasses
-
             rig_map = dataclasses.replace(rig_map, root=skeleton.names[0])
         found, _ = match_joints(rig_map, skeleton.names)
     from shape_inversion.rigs import missing_required

@@ -213,3 +213,46 @@ def test_cmu_dance_daz_skeleton_maps_by_topology(shared_data):
     expected = {"pelvis": "hip", "spine1": "abdomen", "spine3": "chest", "neck": "neck", "head": "head"}
     expected |= {f"{side}_{role}": f"{side[0]}{part}" for side in ("left", "right") for role, part in sided.items()}
     assert got == expected
+
+
+# ----------------------------------------------------------------------------- rest pose and fit quality
+
+
+def test_bvh_whose_frame0_is_motion_uses_the_offsets_and_says_so(tmp_path):
+    """A clip starting mid-motion (knees and elbows bent in frame 0): ``rest=auto`` takes the OFFSET pose."""
+    from shape_inversion.options import CharacterOptions
+    from smplik.data.bvh import read_bvh as parse
+    from workflows.examples_gen import write_mixamo_character
+
+    src = write_mixamo_character(tmp_path / "t.bvh")
+    motion = parse(src)
+    text = src.read_text()
+    head, _, _ = text.partition("MOTION")
+    values = np.zeros(sum(len(c) for c in motion.channels))
+    col = 0
+    for name, chans in zip(motion.joint_names, motion.channels, strict=True):
+        for c in chans:
+            if (name.endswith("Leg") and not name.endswith("UpLeg") and c == "Xrotation") or \
+                    (name.endswith("ForeArm") and c == "Yrotation"):
+                values[col] = 70.0
+            col += 1
+    bent = tmp_path / "bent.bvh"
+    bent.write_text(head + "MOTION\nFrames: 1\nFrame Time: 0.0333333\n" + " ".join(f"{v:g}" for v in values) + "\n")
+    char = read_character(bent)  # rest="auto" by default
+    assert char.skeleton.rest.startswith("offsets (frame 0 is not a rest pose")
+    assert any(line.startswith("rest pose: offsets") for line in char.map_report())
+    as_frame0 = read_character(bent, CharacterOptions(rest="frame0"))
+    assert as_frame0.skeleton.rest == "frame0"
+    np.testing.assert_allclose(char.features, read_character(src).features, atol=1e-9)  # the OFFSET skeleton
+    assert not np.allclose(as_frame0.features, char.features, atol=1e-3)
+
+
+def test_a_weak_inversion_is_reported(bodies):
+    from shape_inversion.bank import BankConfig
+    from shape_inversion.estimator import ShapeEstimator
+
+    sk = read_character(BLOCKS)  # a block figure: limbs far from human proportions
+    est = ShapeEstimator.build(bodies["neutral"], BankConfig(num_samples=4000))
+    with pytest.warns(UserWarning, match="weak shape inversion"):
+        estimate = est.estimate(sk.features)
+    assert any("weak shape inversion" in w for w in estimate.warnings)

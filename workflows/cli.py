@@ -70,7 +70,7 @@ def from_estimate_cmd(
     map_file: MapOption = None,
     units: UnitsOption = "auto",
     up: UpOption = "auto",
-    rest: RestOption = "frame0",
+    rest: RestOption = "auto",
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,

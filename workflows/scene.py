@@ -17,7 +17,7 @@ Format ``smplik-scene``, version :data:`SCENE_VERSION`::
           "betas": [10 numbers],
           "scale": 1.0,
           "skeleton": null | {"path": "hero.bvh", "rig": "mixamo" | null, "map": null, "units": "auto",
-                               "up": "auto", "rest": "frame0", "bind": "inverse_bind", "positions": "auto",
+                               "up": "auto", "rest": "auto", "bind": "inverse_bind", "positions": "auto",
                                "max_joints": 10000, "root": null,   # the character options (all but path optional)
                                "joint_map": {"pelvis": "Hips", ...}},  # the map used (a record)
           "effectors": [{"joint": "left_wrist", "type": "position", "value": [x, y, z], "tolerance": 0.0}, ...],
@@ -95,7 +95,7 @@ class SkeletonSource:
     map: str | None = None
     units: str = "auto"
     up: str = "auto"
-    rest: str = "frame0"
+    rest: str = "auto"
     bind: str = "inverse_bind"
     positions: str = "auto"
     max_joints: int = DEFAULT_MAX_JOINTS
