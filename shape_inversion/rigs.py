@@ -165,8 +165,8 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
 
     With ``parents`` and ``positions`` (J, 3), :func:`shape_inversion.rig_mapper.map_skeleton` maps the
     skeleton by topology, geometry and names (``root`` picks the hierarchy); a preset is chosen only
-    when it finds every required joint and at least as many joints as the mapper (and, with several
-    roots, only joints of the mapper's hierarchy). The mapper's map is a :class:`RigMap` named
+    when it finds every required joint and every SMPL joint the mapper maps (and, with several roots,
+    only joints of the mapper's hierarchy). The mapper's map is a :class:`RigMap` named
     ``"auto"`` whose ``description`` lists it and whose ``warnings`` hold its doubts. Without positions,
     the best preset, else :func:`smplik.data.rig_names.match_humanoid` (names checked against the
     hierarchy).
@@ -188,7 +188,7 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
         else:
             in_tree = {j for j in range(len(names)) if _root_of(parents, j) == mapping.root}
             root_name = names[mapping.root] if sum(p < 0 for p in parents) > 1 else None
-            if complete and len(found) >= len(mapping.joints) and set(found.values()) <= in_tree:
+            if complete and set(found) >= set(mapping.joints) and set(found.values()) <= in_tree:
                 return dataclasses.replace(best, root=root_name)
             pairs = tuple((s, names[j]) for s, j in mapping.joints.items())
             return RigMap("auto", pairs, "matched by topology: " + ", ".join(f"{s}={r}" for s, r in pairs),

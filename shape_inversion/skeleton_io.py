@@ -245,7 +245,7 @@ def read_character(path: str | Path, options: CharacterOptions | None = None) ->
     if o.rest == "auto" and skeleton.bvh is not None and skeleton.rest == "frame0":
         offsets = bvh_skeleton(skeleton.bvh, "offsets")
         bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(
-            prepare_character(offsets, rig=char.rig, units=char.units_m, up=char.up).positions, char.smpl_joints)
+            prepare_character(offsets, rig=char.rig, units=char.units_m).positions, char.smpl_joints)
         if bend_off + 10.0 < bend0:  # frame 0 is motion, not a rest pose: the OFFSETs define the skeleton
             char = prepare_character(offsets, rig=char.rig, map_file=None, units=o.units, up=o.up, root=o.root)
             why = (f"offsets (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the "

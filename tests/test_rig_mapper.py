@@ -256,3 +256,22 @@ def test_a_weak_inversion_is_reported(bodies):
     with pytest.warns(UserWarning, match="weak shape inversion"):
         estimate = est.estimate(sk.features)
     assert any("weak shape inversion" in w for w in estimate.warnings)
+
+
+def test_3ds_max_biped_names_with_spaces_parse_and_map(humanoid, tmp_path):
+    """3ds Max writes ``JOINT Bip01 L Thigh``: the BVH reader keeps the whole name, the mapper maps it."""
+    from smplik.data.bvh import format_bvh
+    from smplik.data.bvh import read_bvh as parse
+
+    names, parents, P, table = humanoid
+    renamed = _rename(names, "Bip01")
+    offsets = np.array([P[k] if p < 0 else P[k] - P[p] for k, p in enumerate(parents)]) * 100.0
+    channels = [("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation") if p < 0
+                else ("Zrotation", "Xrotation", "Yrotation") for p in parents]
+    values = np.zeros((1, sum(len(c) for c in channels)))
+    path = tmp_path / "biped.bvh"
+    path.write_text(format_bvh(renamed, parents, offsets, channels, values, 1 / 30))
+    motion = parse(path)
+    assert "Bip01 L UpperLeg" in motion.joint_names
+    char = read_character(path)
+    assert char.joint_map == _expected(table, names, renamed) and char.units_m == pytest.approx(0.01)
