@@ -15,7 +15,8 @@ Per humanoid, exactly as ``smplik invert-shape`` / ``scene from-estimate --chara
 * fit residual (largest of the six SMPL-SI features, mm) and effective samples;
 * export round trip: a pose (the example ``reach`` pose) retargeted onto the character, written as BVH
   (re-read with smplik's BVH reader) and, for glTF/VRM characters, as GLB (re-read with pygltflib and
-  trimesh); largest joint position error against the retargeted pose (mm).
+  trimesh; the GLB is in the scene's world frame); largest joint position error against the
+  retargeted pose (mm).
 
 Non-humanoids (a real rig made non-human: arms 2.5 x longer, legs 0.3 x) must be refused in one line
 naming the features out of range.
@@ -78,7 +79,8 @@ def round_trip(char, estimate, tmp: Path) -> dict:
         glb.write_bytes(posed_character_glb(cc, [custom]))
         doc = load_gltf(glb)
         nodes = list(cc.skeleton.gltf.joint_nodes)
-        out["glb_max_error_mm"] = float(np.abs(doc.world[nodes, :3, 3] - p_file).max() * to_mm)
+        world = cc.file_to_canon_points(p_file)  # the GLB is in the scene's world frame (metres)
+        out["glb_max_error_mm"] = float(np.abs(doc.world[nodes, :3, 3] - world).max() * 1000)
         g = pygltflib.GLTF2.load_binary(str(glb))
         out["glb_animations"] = [a.name for a in g.animations or []]
         scene = trimesh.load(glb, force="scene")

@@ -109,7 +109,7 @@ def test_glb_character_exports_its_own_posed_mesh(glb_scene, tmp_path):
     custom = smpl_to_custom(c.pose, char)
     _, p_file = custom.positions(char)
     got = _glb_joint_positions(tmp_path / "hero.glb", char.names)
-    assert np.abs(got - p_file).max() < MM
+    assert np.abs(got - char.file_to_canon_points(p_file)).max() < MM  # the scene's world frame
     mesh = trimesh.load(tmp_path / "hero.glb", force="scene")
     assert sum(len(g.faces) for g in mesh.geometry.values()) == len(smpl_rest()[2])
     bvh = read_bvh(tmp_path / "hero.bvh")
@@ -171,3 +171,73 @@ def test_scene_export_cli_error_is_one_line(demo, tmp_path):
     res = CliRunner().invoke(scene_app, ["export", str(demo.smpl.scene), "--out", str(tmp_path), "--format", "fbx"])
     assert res.exit_code == 1 and "Unknown export format" in res.output
     assert len(res.output.strip().splitlines()) == 1
+
+
+def _turned_copy(src, dst):
+    """The same GLB character with its root node turned half around the vertical (it faces the other way)."""
+    import pygltflib
+    from scipy.spatial.transform import Rotation
+
+    g = pygltflib.GLTF2.load_binary(str(src))
+    root = g.scenes[g.scene or 0].nodes[0]
+    node = g.nodes[root]
+    q = Rotation.from_euler("y", 180, degrees=True) * Rotation.from_quat(node.rotation or [0, 0, 0, 1])
+    node.rotation = [float(x) for x in q.as_quat()]
+    node.translation = [float(x) + d for x, d in zip(node.translation or [0, 0, 0], (0.7, 0.0, -0.3), strict=True)]
+    g.save_binary(str(dst))
+    return dst
+
+
+def test_characters_of_a_scene_export_in_one_world_frame(glb_scene, tmp_path):
+    """Two files of one character, one turned around and moved in its own file: exported, they line up."""
+    scene, src = glb_scene
+    c = scene.characters[0]
+    turned = _turned_copy(src, tmp_path / "turned.glb")
+    other = dataclasses.replace(c, name="turned", skeleton=dataclasses.replace(c.skeleton, path=str(turned)))
+    export_scene(Scene((c, other)), tmp_path / "out", formats=("glb",))
+    char = character_from_estimate(src, CharacterOptions(), c.betas, c.scale, c.gender)
+    names = [n for n in char.names if n.endswith(("Hips", "Hand", "Foot", "Head"))]
+    a = _glb_joint_positions(tmp_path / "out" / "hero.glb", names)
+    b = _glb_joint_positions(tmp_path / "out" / "turned.glb", names)
+    assert np.abs(a - b).max() < MM
+    np.testing.assert_allclose(a, character_joints_world(c, char, names), atol=MM)
+
+
+def character_joints_world(c, char, names):
+    custom = smpl_to_custom(c.pose, char)
+    _, p_file = custom.positions(char)
+    return char.file_to_canon_points(p_file[[char.names.index(n) for n in names]])
+
+
+def test_export_keeps_the_source_clips_and_adds_the_pose(glb_scene, tmp_path):
+    import pygltflib
+
+    scene, _ = glb_scene
+    export_scene(scene, tmp_path / "first", formats=("glb",))  # a GLB with one clip, "pose"
+    animated = tmp_path / "animated.glb"
+    animated.write_bytes((tmp_path / "first" / "hero.glb").read_bytes())
+    source_clip = pygltflib.GLTF2.load_binary(str(animated)).animations[0]
+    c = scene.characters[0]
+    again = dataclasses.replace(c, skeleton=dataclasses.replace(c.skeleton, path=str(animated)))
+    export_scene(Scene((again,)), tmp_path / "second", formats=("glb", "bvh"))
+    g = pygltflib.GLTF2.load_binary(str(tmp_path / "second" / "hero.glb"))
+    assert [a.name for a in g.animations] == ["pose", "pose_1"]  # the source's clip kept, the pose added
+    assert len(g.animations[0].channels) == len(source_clip.channels)
+    times = g.accessors[g.animations[0].samplers[0].input]
+    assert times.count == 1
+
+
+def test_bvh_export_keeps_the_source_frames_after_the_pose(tmp_path):
+    from workflows.examples_gen import write_mixamo_character
+
+    src = write_mixamo_character(tmp_path / "hero.bvh")
+    source = read_bvh(src)
+    char = character_from_estimate(src, CharacterOptions(), np.zeros(10), 1.0, "neutral")
+    c = SceneCharacter("hero", char.gender, np.zeros(10), 1.0, SkeletonSource.from_options(str(src),
+                       CharacterOptions()), (), dataclasses.replace(example_poses()[1].pose, betas=np.zeros(10)))
+    export_scene(Scene((c,)), tmp_path / "out", formats=("bvh",))
+    bvh = read_bvh(tmp_path / "out" / "hero.bvh")
+    assert bvh.num_frames == 1 + source.num_frames
+    np.testing.assert_allclose(bvh.values[1:], source.values, atol=1e-5)  # the source's own frames, unchanged
+    _, p_file = smpl_to_custom(c.pose, char).positions(char)
+    assert np.abs(bvh.positions[0] - p_file).max() < MM / char.units_m

@@ -325,7 +325,8 @@ def custom_to_smpl(custom: CustomPose, char: CustomCharacter) -> Pose:
 # ----------------------------------------------------------------------------- BVH export
 
 
-def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30) -> str:
+def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30, *,
+                    keep_source_frames: bool = False) -> str:
     """BVH text of the custom hierarchy (its own offsets, file units/axes) with one frame per pose.
 
     A BVH character keeps its source file's layout: the same joints, OFFSETs, End Sites, channels
@@ -334,13 +335,14 @@ def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_ti
     the root's carry the root position. Joints with fewer than three rotation channels keep only
     those axes of their rotation. Other characters get ``Xposition Yposition Zposition Zrotation
     Yrotation Xrotation`` on the root and ``Zrotation Yrotation Xrotation`` elsewhere (intrinsic,
-    degrees; see :mod:`smplik.data.bvh`).
+    degrees; see :mod:`smplik.data.bvh`). ``keep_source_frames``: a BVH source's own MOTION frames follow
+    the pose frames (its clip is kept; the pose frames come first).
     """
     if len(poses) == 0:
         raise ValueError("At least one pose is needed to write a BVH file.")
     motion = char.skeleton.bvh
     if motion is not None and motion.joint_names == char.names:
-        return _source_layout_bvh(char, motion, poses, frame_time)
+        return _source_layout_bvh(char, motion, poses, frame_time, keep_source_frames)
     K = len(char.parents)
     channels = [ROOT_CHANNELS if par < 0 else JOINT_CHANNELS for par in char.parents]
     rows = []
@@ -354,7 +356,8 @@ def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_ti
                       char.end_sites or None)
 
 
-def _source_layout_bvh(char: CustomCharacter, motion, poses: Sequence[CustomPose], frame_time: float) -> str:
+def _source_layout_bvh(char: CustomCharacter, motion, poses: Sequence[CustomPose], frame_time: float,
+                       keep_source_frames: bool = False) -> str:
     R0 = char.skeleton.rest_rotations
     t_rest = char.skeleton.rest_translations
     rows = []
@@ -383,7 +386,11 @@ def _source_layout_bvh(char: CustomCharacter, motion, poses: Sequence[CustomPose
                     row.append(angles[c[0]])
         rows.append(row)
     end_sites = dict(zip(motion.end_site_parents, motion.end_site_offsets, strict=True))
-    return format_bvh(motion.joint_names, motion.parents, motion.offsets, motion.channels, np.asarray(rows),
+    values = np.asarray(rows)
+    if keep_source_frames and motion.num_frames:
+        values = np.concatenate([values, motion.values], axis=0)
+        frame_time = motion.frame_time  # one clock for the pose frames and the source's clip
+    return format_bvh(motion.joint_names, motion.parents, motion.offsets, motion.channels, values,
                       frame_time, end_sites or None)
 
 
