@@ -207,6 +207,10 @@ class ShapeEstimator:
         off = [f"{FEATURE_NAMES[k]} = {query[k]:.3f} m ({ratio_q[k]:.2f} x head-ankle; human range "
                f"{lo[k]:.2f}-{hi[k]:.2f})" for k in range(NUM_FEATURES) if k != 2 and not lo[k] <= ratio_q[k] <= hi[k]]
         size_lo, size_hi = bank_f[:, 2].min(), bank_f[:, 2].max()
+        if not off and not size_lo <= query[2] <= size_hi:  # human proportions, inhuman size: the units
+            return (f"The skeleton has human proportions but its units look wrong: head to ankle is {query[2]:.3f} m "
+                    f"(about {query[2] / 0.84:.2f} m tall; SMPL-SI covers {size_lo:.2f}-{size_hi:.2f} m head to "
+                    "ankle). Try --units (m, cm, mm, in, ft, cmu or metres per unit).")
         if not size_lo <= query[2] <= size_hi:
             off.append(f"{FEATURE_NAMES[2]} = {query[2]:.3f} m (overall size; bank covers {size_lo:.2f}-{size_hi:.2f} "
                        "m: check the units)")
@@ -215,9 +219,9 @@ class ShapeEstimator:
             diff = np.abs(query - bank_f[idx[0, 0]])
             off = [f"{FEATURE_NAMES[k]} = {query[k]:.3f} m (nearest human sample: {bank_f[idx[0, 0], k]:.3f} m)"
                    for k in np.argsort(-diff)[:2]]
-        return (f"The skeleton's proportions are outside the human range covered by SMPL-SI (nearest bank sample "
-                f"{nearest * 1000:.0f} mm away in feature space, limit {self.config.max_nearest_distance * 1000:.0f} "
-                f"mm). Features off: " + "; ".join(off) + ".")
+        return (f"Not a human: the skeleton's proportions are outside the human range covered by SMPL-SI (nearest "
+                f"bank sample {nearest * 1000:.0f} mm away in feature space, limit "
+                f"{self.config.max_nearest_distance * 1000:.0f} mm). Features off: " + "; ".join(off) + ".")
 
     def estimate(self, features: np.ndarray) -> ShapeEstimate:
         """Estimate (beta, scale) from a skeleton's features (6,) in metres.

@@ -259,9 +259,9 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
 
     ``bind="inverse_bind"``: ``T_world_joint = T_world_bind @ inv(IBM_joint)``, where ``T_world_bind`` is
     the identity when the IBMs are in world space (Blender's exporter folds the armature's scale and the
-    root nodes into them) or the world transform of the root joint's parent node when they are relative to
-    it (an armature scaled 0.01 or a z-up root node left out): whichever puts the joints nearer their
-    nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
+    root nodes into them) or the world transform of an ancestor node of the root joint when they are
+    relative to it (an armature scaled 0.01 or a z-up root node left out): whichever puts the joints
+    nearest their nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
     """
     gltf = doc.gltf
     skins = gltf.skins or []
@@ -303,8 +303,14 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
         def mismatch(B: np.ndarray) -> float:
             return float(np.median(np.linalg.norm((B @ inv)[:, :3, 3] - node_p, axis=-1)))
 
-        # IBMs in world space (Blender) or relative to the skeleton root's parent (armature/root nodes left out)
-        to_world = min((np.eye(4), parent_world), key=mismatch)
+        # IBMs in world space (Blender) or relative to an ancestor of the skeleton root (the armature, a scale
+        # 0.01 node, a z-up root node left out): every ancestor's world transform is a candidate
+        candidates = [np.eye(4), parent_world]
+        a = doc.parent[joints[root]]
+        while a >= 0:
+            candidates.append(doc.world[a])
+            a = doc.parent[a]
+        to_world = min(candidates, key=mismatch)
         T_bind = to_world @ inv
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
 
