@@ -125,6 +125,7 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
 def run_non_humanoid(name: str, base: Path, limbs: dict[str, float], estimator) -> dict:
     """A real rig made non-human (the bones below a limb's first joint scaled) must be refused in one line."""
     from shape_inversion.skeleton_io import prepare_character, read_character
+    from smplik.data.rig_names import is_ancestor
 
     char = read_character(base)
     sk = char.skeleton
@@ -132,7 +133,7 @@ def run_non_humanoid(name: str, base: Path, limbs: dict[str, float], estimator) 
     for start, factor in limbs.items():
         top = char.smpl_joints[start]
         for j in range(len(sk.names)):
-            if _under(sk.parents, j, top):
+            if j != top and is_ancestor(top, j, sk.parents):
                 P[j] = P[top] + factor * (P[j] - P[top])
     row: dict = {"id": name, "from": base.name, "limbs": limbs}
     try:
@@ -143,15 +144,6 @@ def run_non_humanoid(name: str, base: Path, limbs: dict[str, float], estimator) 
         row.update(refused=True, one_line="\n" not in str(exc), message=str(exc))
     row["passed"] = bool(row.get("refused") and row.get("one_line"))
     return row
-
-
-def _under(parents, j: int, top: int) -> bool:
-    p = parents[j]
-    while p >= 0:
-        if p == top:
-            return True
-        p = parents[p]
-    return False
 
 
 def main() -> None:
