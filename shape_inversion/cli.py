@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -95,7 +96,9 @@ def invert_shape(
         estimator = ShapeEstimator.build(model, BankConfig(num_samples=bank_samples),
                                          EstimatorConfig(refine=refine))
         start = time.perf_counter()
-        estimate = estimator.estimate(char.features)
+        with warnings.catch_warnings():  # its notes are printed below, once
+            warnings.simplefilter("ignore")
+            estimate = estimator.estimate(char.features)
         elapsed = time.perf_counter() - start
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from shape_inversion.gltf_io import GltfError, GltfFile
+from smplik.conventions import JOINT_NAMES
 
 VRM_TO_SMPL: dict[str, str] = {
     "hips": "pelvis", "spine": "spine1", "neck": "neck", "head": "head",
@@ -69,4 +70,4 @@ def humanoid_to_smpl(table: Mapping[str, int]) -> dict[str, int]:
             out["spine2"] = table["chest"]
     elif "chest" in table:
         out["spine3"] = table["chest"]
-    return out
+    return {s: out[s] for s in JOINT_NAMES if s in out}

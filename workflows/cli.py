@@ -118,9 +118,11 @@ def from_estimate_cmd(
                                 trust_pickle=trust_pickle, image_path=image, frame=frame,
                                 previews=not no_previews, max_people=max_people, max_bytes=max_bytes, ground=ground,
                                 space=space, progress=progress)
-    if outputs.character is not None:
+    if outputs.character is not None:  # the map chosen, the mapper's and SMPL-SI's doubts
         for line in outputs.character.character.map_report():
             say(line)
+        for note in outputs.character.estimate.warnings:
+            say(f"warning: {note}")
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "
