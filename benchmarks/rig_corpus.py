@@ -15,8 +15,8 @@ Per humanoid, exactly as ``smplik invert-shape`` / ``scene from-estimate --chara
 * fit residual (largest of the six SMPL-SI features, mm) and effective samples;
 * export round trip: a pose (the example ``reach`` pose) retargeted onto the character, written as BVH
   (re-read with smplik's BVH reader) and, for glTF/VRM characters, as GLB (re-read with pygltflib and
-  trimesh; the GLB is in the scene's world frame); largest joint position error against the
-  retargeted pose (mm).
+  trimesh; the GLB is in the scene's world frame and keeps the source's animation clips); largest joint
+  position error against the retargeted pose (mm).
 
 Non-humanoids (a real rig made non-human: arms 2.5 x longer, legs 0.3 x) must be refused in one line
 naming the features out of range.
@@ -83,6 +83,9 @@ def round_trip(char, estimate, tmp: Path) -> dict:
         out["glb_max_error_mm"] = float(np.abs(doc.world[nodes, :3, 3] - world).max() * 1000)
         g = pygltflib.GLTF2.load_binary(str(glb))
         out["glb_animations"] = [a.name for a in g.animations or []]
+        source_clips = [a.name for a in cc.skeleton.gltf.doc.gltf.animations or []]
+        out["glb_keeps_source_clips"] = out["glb_animations"][:len(source_clips)] == source_clips \
+            and len(out["glb_animations"]) == len(source_clips) + 1
         scene = trimesh.load(glb, force="scene")
         out["glb_trimesh_geometries"] = len(scene.geometry)
     return out
@@ -118,7 +121,7 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
     row.update(round_trip(char, estimate, tmp))
     row["seconds"] = time.perf_counter() - t0
     row["passed"] = bool(row["map_correct"] and row["bvh_max_error_mm"] < 1.0
-                         and row.get("glb_max_error_mm", 0.0) < 1.0)
+                         and row.get("glb_max_error_mm", 0.0) < 1.0 and row.get("glb_keeps_source_clips", True))
     return row
 
 

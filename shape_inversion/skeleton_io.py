@@ -145,7 +145,8 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
     """Read the joints of a glTF/GLB skin in its bind pose, in world space (:mod:`shape_inversion.gltf_io`).
 
     Args:
-        path: ``.glb`` or ``.gltf`` file (external buffers inside its folder).
+        path: ``.glb``, ``.gltf`` or ``.vrm`` file (external buffers inside its folder). A file without a
+            skin is read from its node hierarchy (the VRM humanoid's, else the largest node tree).
         bind: ``"inverse_bind"``: the inverse bind matrices placed in the world by the root joint's
             node chain; ``"nodes"``: the joint nodes' world transforms in the default pose.
         skin: which skin.
@@ -161,6 +162,9 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
         table = humanoid_nodes(doc)
         if not doc.gltf.skins and table:  # a humanoid on plain nodes: its hierarchy is the skeleton
             rig = read_node_rig(doc, table["hips"])
+        elif not doc.gltf.skins and doc.gltf.nodes:  # no skin (an animation-only file): the largest node tree
+            sizes = np.bincount([_top(doc.parent, n) for n in range(len(doc.parent))], minlength=len(doc.parent))
+            rig = read_node_rig(doc, int(np.argmax(sizes)))
         else:
             rig = read_rig(doc, skin=skin, bind=bind)
     except GltfError as exc:
@@ -177,6 +181,12 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
         humanoid = {s: names[index[n]] for s, n in humanoid_to_smpl(table).items() if n in index} or None
     return Skeleton(names, joint_parents(rig), positions, str(path), "gltf", units=None, up="y", gltf=rig,
                     humanoid=humanoid)
+
+
+def _top(parent: tuple[int, ...], n: int) -> int:
+    while parent[n] >= 0:
+        n = parent[n]
+    return n
 
 
 # ----------------------------------------------------------------------------- JSON
