@@ -55,7 +55,7 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
 
 @app.command("invert-shape")
 def invert_shape(
-    character: Annotated[Path, typer.Argument(help="Skeleton file: .bvh, .glb/.gltf or .json of named joints.",
+    character: Annotated[Path, typer.Argument(help="Skeleton file: .bvh, .glb/.gltf, .vrm or .json of named joints.",
                                               exists=True, dir_okay=False)],
     out: Annotated[Path, typer.Option("--out", help="Output SHAPE.json (betas, scale, gender, diagnostics).")],
     gender: Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model gender.")]
