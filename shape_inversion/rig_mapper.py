@@ -205,8 +205,8 @@ class _Body:
     score: float
 
 
-def _candidates(tree: _Tree, members: list[int], names: Sequence[str], k: int = 8) -> list[int]:
-    """Up to ``k`` leaves far apart in the tree metric (farthest-point sampling), end bones replaced by parents."""
+def _candidates(tree: _Tree, members: list[int], k: int = 8) -> list[int]:
+    """Up to ``k`` leaves far apart in the tree metric (farthest-point sampling from the root)."""
     leaves = [j for j in members if not tree.children[j]]
     if len(leaves) < 5:
         return leaves
@@ -221,9 +221,9 @@ def _candidates(tree: _Tree, members: list[int], names: Sequence[str], k: int = 
     return picked
 
 
-def _find_bodies(tree: _Tree, members: list[int], names: Sequence[str]) -> list[_Body]:
+def _find_bodies(tree: _Tree, members: list[int]) -> list[_Body]:
     """Every valid assignment of feet, hands and head among the candidate leaves, best first."""
-    cands = _candidates(tree, members, names)
+    cands = _candidates(tree, members)
     P = tree.P
     size = max(float(np.ptp(P[members], axis=0).max()), 1e-12)
     found: dict[tuple, _Body] = {}
@@ -438,8 +438,7 @@ def _assign_sides(tree: _Tree, names: Sequence[str], top: int, pair: tuple[int, 
     return pair if s > 0 else (pair[1], pair[0])
 
 
-def _left_axis(tree: _Tree, feet_chains: list[list[int]], hands: list[int], wrists: list[int],
-               up: np.ndarray) -> np.ndarray | None:
+def _left_axis(tree: _Tree, feet_chains: list[list[int]], up: np.ndarray) -> np.ndarray | None:
     """left = up x forward; forward from the toes (ankle -> toe) else from the thumbs; None if neither tells."""
     P = tree.P
     fwd = np.zeros(3)
@@ -454,7 +453,7 @@ def _left_axis(tree: _Tree, feet_chains: list[list[int]], hands: list[int], wris
 
 
 def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, head_leaf: int, up: np.ndarray,
-               stature: float, notes: list[str]) -> dict[str, int]:
+               stature: float) -> dict[str, int]:
     P = tree.P
     out: dict[str, int] = {}
     spine = tree.chain(pelvis, arms_meet) if arms_meet != pelvis else []
@@ -521,7 +520,7 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
     for r in roots:
         members = tree.subtree(r)
         if len(members) >= 5:
-            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members, names)]
+            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
     if not bodies:
         raise RigMappingError("no humanoid found: no hierarchy has two legs and a spine meeting at a pelvis with two "
                               "arms branching from the spine")
@@ -551,7 +550,7 @@ def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
     legs = [_map_leg(tree, names, body.pelvis, f, up, across(*body.feet), stature) for f in body.feet]
     leg_chains = [tree.chain(body.pelvis, leg.get("foot", leg["ankle"])) for leg in legs]
     left_axis = _left_axis(tree, [c[-2:] if "foot" in leg else [] for c, leg in zip(leg_chains, legs, strict=True)],
-                           list(body.hands), [], up)
+                           up)
     arms_meet = tree.lca(*body.hands)
     arms = [_map_arm(tree, names, arms_meet, x, stature, P[arms_meet], across(*body.hands)) for x in body.hands]
     if left_axis is None:  # no toes: the thumbs point forward in a T/A pose
@@ -573,7 +572,7 @@ def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
     for side, x in zip(("left", "right"), hands_lr, strict=True):
         for role, j in arms[body.hands.index(x)].items():
             out[f"{side}_{role}"] = j
-    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature, notes))
+    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature))
     if "spine3" not in out:
         notes.append(f"the arms branch from the pelvis joint {names[body.pelvis]!r}: no spine joints mapped")
     ordered = {s: out[s] for s in JOINT_NAMES if s in out}

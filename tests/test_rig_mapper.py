@@ -275,3 +275,17 @@ def test_3ds_max_biped_names_with_spaces_parse_and_map(humanoid, tmp_path):
     assert "Bip01 L UpperLeg" in motion.joint_names
     char = read_character(path)
     assert char.joint_map == _expected(table, names, renamed) and char.units_m == pytest.approx(0.01)
+
+
+def test_a_gltf_without_skin_or_humanoid_table_is_read_from_its_node_tree(tmp_path):
+    """An animation-only glTF (Mixamo clips exported by Blender: no skin, no mesh) is its largest node tree."""
+    import pygltflib
+
+    g = pygltflib.GLTF2.load_binary(str(HUMANOID))
+    table = read_skeleton(HUMANOID).humanoid
+    g.extensions, g.extensionsUsed = {}, []  # the VRM table removed: a plain glTF of nodes
+    path = tmp_path / "plain.glb"
+    g.save_binary(str(path))
+    char = read_character(path)
+    assert char.skeleton.humanoid is None and char.rig.name == "auto"
+    assert char.joint_map == table  # mapped by topology to exactly the avatar's own table
