@@ -289,3 +289,27 @@ def test_a_gltf_without_skin_or_humanoid_table_is_read_from_its_node_tree(tmp_pa
     char = read_character(path)
     assert char.skeleton.humanoid is None and char.rig.name == "auto"
     assert char.joint_map == table  # mapped by topology to exactly the avatar's own table
+
+
+def test_several_roots_keep_the_body_hierarchy_for_retargeting(tmp_path):
+    """UE-style extra roots (IK targets) no longer stop ``--character``: the body's hierarchy is kept and named."""
+    import json
+
+    from shape_inversion.bank import BankConfig
+    from shape_inversion.estimator import ShapeEstimator
+    from smplik.body_model import load_body_model
+    from smplik.conventions import JOINT_NAMES
+    from workflows.character import build_character
+    from workflows.layout_examples import smpl_rest
+
+    J = smpl_rest()[0]
+    joints = {n: J[k].tolist() for k, n in enumerate(JOINT_NAMES)}
+    joints |= {"ik_hand_l": J[JOINT_NAMES.index("left_wrist")].tolist(), "ik_foot_r": [0.1, 0.0, 0.1]}
+    path = tmp_path / "roots.json"
+    path.write_text(json.dumps({"units": "m", "joints": joints}))  # the two IK joints are roots of their own
+    char = read_character(path)
+    assert char.rig.root == "pelvis" and len(char.skeleton.names) == 24 and "ik_hand_l" not in char.skeleton.names
+    estimate = ShapeEstimator.build(load_body_model("neutral"), BankConfig(num_samples=2000)).estimate(char.features)
+    custom = build_character(char.skeleton, estimate, rig=char.rig)
+    assert custom.parents[0] == -1 and sum(p < 0 for p in custom.parents) == 1
+    assert any("hierarchy of root joint 'pelvis'" in line for line in char.map_report())
