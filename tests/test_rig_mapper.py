@@ -313,3 +313,123 @@ def test_several_roots_keep_the_body_hierarchy_for_retargeting(tmp_path):
     custom = build_character(char.skeleton, estimate, rig=char.rig)
     assert custom.parents[0] == -1 and sum(p < 0 for p in custom.parents) == 1
     assert any("hierarchy of root joint 'pelvis'" in line for line in char.map_report())
+
+
+# ----------------------------------------------------------------------------- glTF ancestor transforms
+
+
+def _wrapped_gltf(src: Path, out: Path, *, scale: float, z_up: bool, skin: str | None) -> Path:
+    """``src`` re-exported as Blender/Mixamo do: the scene's roots under one armature node with ``scale``
+    (bones then in 1/scale units, e.g. centimetres under 0.01) and, with ``z_up``, a rotation taking the
+    armature's z-up axes to glTF's y-up (the content below it is z-up). Every node keeps its world position.
+
+    ``skin``: None (unskinned nodes, as the source), ``"world"`` (a skin over the skeleton whose inverse bind
+    matrices are in world space, as the glTF spec and Blender's exporter write them) or ``"armature"``
+    (relative to the armature node: FBX2glTF-style files whose bind space is the armature's cm, z-up frame).
+    """
+    import pygltflib
+    from scipy.spatial.transform import Rotation
+
+    from shape_inversion.gltf_io import load_gltf
+
+    g = pygltflib.GLTF2.load_binary(str(src))
+    R = Rotation.from_euler("x", -90, degrees=True) if z_up else Rotation.identity()  # z-up -> y-up
+    for node in g.nodes:
+        if node.translation is not None:
+            node.translation = [float(x) / scale for x in node.translation]
+    roots = list(g.scenes[g.scene].nodes)
+    for r in roots:  # the content below the armature is expressed in its z-up frame
+        node = g.nodes[r]
+        q = Rotation.from_quat(node.rotation) if node.rotation is not None else Rotation.identity()
+        node.rotation = list((R.inv() * q).as_quat())
+        node.translation = list(R.inv().apply(node.translation or [0.0, 0.0, 0.0]))
+    g.nodes.append(pygltflib.Node(name="Armature.001", children=roots, rotation=list(R.as_quat()),
+                                  scale=[scale] * 3))
+    g.scenes[g.scene].nodes = [len(g.nodes) - 1]
+    g.save_binary(str(out))
+    if skin is None:
+        return out
+    doc = load_gltf(out)
+    top = next(n for n in range(len(g.nodes)) if g.nodes[n].name in ("root", "Hips"))  # the first bone
+    joints, stack = [], [top]
+    while stack:
+        n = stack.pop()
+        joints.append(n)
+        stack.extend(g.nodes[n].children or [])
+    ibm = np.linalg.inv(doc.world[joints])  # world space
+    if skin == "armature":
+        ibm = ibm @ doc.world[len(g.nodes) - 1]  # relative to the armature node (bind space = its frame)
+    blob = bytearray(g.binary_blob())
+    while len(blob) % 4:
+        blob.append(0)
+    data = ibm.transpose(0, 2, 1).astype(np.float32).tobytes()  # glTF matrices are column-major
+    g.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(data)))
+    blob.extend(data)
+    g.accessors.append(pygltflib.Accessor(bufferView=len(g.bufferViews) - 1, componentType=5126, count=len(joints),
+                                          type="MAT4"))
+    g.buffers[0].byteLength = len(blob)
+    g.set_binary_blob(bytes(blob))
+    g.skins = [pygltflib.Skin(joints=joints, inverseBindMatrices=len(g.accessors) - 1, skeleton=top)]
+    g.save_binary(str(out))
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_estimator(bodies):
+    from shape_inversion.bank import BankConfig
+    from shape_inversion.estimator import ShapeEstimator
+
+    return ShapeEstimator.build(bodies["neutral"], BankConfig(num_samples=2000))
+
+
+def _exported_joint_world(path: Path, estimator, out: Path) -> dict[str, np.ndarray]:
+    """The example reach pose retargeted onto the character and exported as GLB: joint name -> world position."""
+    import dataclasses
+    import warnings
+
+    from shape_inversion.gltf_io import load_gltf
+    from workflows.character import build_character, smpl_to_custom
+    from workflows.examples_gen import example_poses
+    from workflows.export import posed_character_glb
+
+    char = read_character(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the block figure is a weak inversion (tested elsewhere)
+        cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    pose = dataclasses.replace(example_poses()[1].pose, betas=cc.betas, gender=cc.gender)
+    out.write_bytes(posed_character_glb(cc, [smpl_to_custom(pose, cc)]))
+    doc = load_gltf(out)
+    return {doc.gltf.nodes[n].name: doc.world[n, :3, 3] for n in cc.skeleton.gltf.joint_nodes}
+
+
+@pytest.mark.parametrize("skin", [None, "world", "armature"])
+@pytest.mark.parametrize("z_up", [False, True], ids=["scale0.01", "scale0.01+z-up"])
+@pytest.mark.parametrize("path", [HUMANOID, BLOCKS], ids=lambda p: p.stem[:12])
+def test_an_armature_scaled_and_turned_inverts_like_the_unwrapped_file(tmp_path, small_estimator, path, z_up, skin):
+    """Mixamo/Blender exports: the skeleton under an armature node scaled 0.01 (bones in cm), maybe z-up.
+
+    Same map, same stature, same SMPL-SI scale as the unwrapped file; the exported GLB (scene world frame)
+    puts every joint where the unwrapped file's export does.
+    """
+    import warnings
+
+    wrapped = _wrapped_gltf(path, tmp_path / "wrapped.glb", scale=0.01, z_up=z_up, skin=skin)
+    a, b = read_character(path), read_character(wrapped)
+    assert b.rig.name == "vrm" and b.joint_map == a.joint_map
+    assert (b.skeleton.gltf.skin == 0) == (skin is not None)
+    sk = b.skeleton
+    mapping = map_skeleton(sk.names, sk.parents, sk.positions)  # the mapper alone, the table ignored
+    assert _names_map(sk.names, mapping) == sk.humanoid
+    assert b.units_m == a.units_m == 1.0
+    assert b.head_ankle_height_m == pytest.approx(a.head_ankle_height_m, rel=1e-5)
+    np.testing.assert_allclose(b.features, a.features, atol=1e-5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scale_a, scale_b = small_estimator.estimate(a.features).scale, small_estimator.estimate(b.features).scale
+    assert scale_b == pytest.approx(scale_a, rel=1e-4)
+    if skin == "armature":
+        want = _exported_joint_world(path, small_estimator, tmp_path / "a.glb")
+        got = _exported_joint_world(wrapped, small_estimator, tmp_path / "b.glb")
+        assert set(a.joint_map.values()) <= set(want) & set(got)  # the unskinned file also poses 'Armature'
+        for name in set(want) & set(got):
+            np.testing.assert_allclose(got[name], want[name], atol=1e-5, err_msg=name)
