@@ -28,7 +28,10 @@ Used by every command that takes a character (``invert-shape``, ``scene from-est
    contradict each other, from the rest geometry: left = up x forward, forward from the toes (or
    the thumbs). A side taken from geometry alone is a warning naming the joints.
 
-Doubts (a side from geometry, a chain too short for its joints) are returned as warnings naming the joints.
+Doubts are returned as warnings naming the joints (:func:`map_doubts`, also applied to a preset's or a
+humanoid table's map): a side taken from the geometry; a chain with too few joints for SMPL's (no collar
+between the spine and the shoulder, a spine of two joints for SMPL's three, no neck, no toe, no finger);
+a joint of the spine or neck left unmapped while the rig has one.
 """
 
 from __future__ import annotations
@@ -579,4 +582,84 @@ def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
     if len(set(ordered.values())) != len(ordered):
         dup = [s for s in ordered if list(ordered.values()).count(ordered[s]) > 1]
         raise RigMappingError(f"one joint was given several SMPL roles ({', '.join(dup)})")
+    notes += map_doubts(names, tree.parents, P, ordered)
     return RigMapping(ordered, r, "topology", tuple(notes))
+
+
+# ----------------------------------------------------------------------------- doubts of any map
+
+
+def map_doubts(names: Sequence[str], parents: Sequence[int], positions: np.ndarray,
+               joints: dict[str, int]) -> list[str]:
+    """Doubts about a map (the mapper's, a preset's or a humanoid table's), each naming the joints.
+
+    * a chain with too few joints for SMPL's: no joint between the spine and a shoulder (collar unmapped),
+      a spine of one or two joints between the pelvis and the joint the arms branch from (spine1/spine2
+      unmapped), no joint between that joint and the head (neck unmapped), no toe after an ankle, no
+      finger after a wrist;
+    * a joint of the spine or neck (on the path pelvis -> spine3 -> head) that the map leaves unmapped,
+      unless it sits on a mapped neighbour (a zero-length bone).
+
+    Args:
+        names, parents: (J,) the skeleton; positions: (J, 3) rest positions, any units.
+        joints: SMPL joint name -> index into ``names``.
+    """
+    tree = _Tree(parents, np.asarray(positions, dtype=np.float64))
+    P = tree.P
+    mapped = set(joints.values())
+    role = {j: s for s, j in joints.items()}
+    size = max(float(np.ptp(P, axis=0).max()), 1e-12)
+
+    def q(j: int) -> str:
+        return f"{names[j]!r}" + (f" ({role[j]})" if j in role else "")
+
+    def on_mapped_neighbour(j: int, chain: list[int]) -> bool:
+        k = chain.index(j)
+        near = [chain[i] for i in (k - 1, k + 1) if 0 <= i < len(chain) and chain[i] in mapped]
+        return any(np.linalg.norm(P[j] - P[n]) <= 1e-3 * size for n in near)
+
+    notes: list[str] = []
+    pelvis, spine3, head = joints.get("pelvis"), joints.get("spine3"), joints.get("head")
+    if pelvis is not None and spine3 is not None and tree.is_ancestor(pelvis, spine3) and pelvis != spine3:
+        path = [pelvis] + tree.chain(pelvis, spine3)
+        lacking = [s for s in ("spine1", "spine2") if s not in joints]
+        if lacking:
+            inner = ", ".join(q(j) for j in path[1:-1]) or "none"
+            notes.append(f"the spine {q(pelvis)} -> {q(spine3)} is too short for SMPL's spine1, spine2, spine3 "
+                         f"(joints between: {inner}): {', '.join(lacking)} unmapped")
+        extra = [j for j in path if j not in mapped and not on_mapped_neighbour(j, path)]
+        if extra:
+            notes.append(f"spine joint(s) {', '.join(repr(names[j]) for j in extra)} left unmapped on the spine "
+                         f"{q(pelvis)} -> {q(spine3)}")
+    top = spine3 if spine3 is not None else pelvis
+    if top is not None and head is not None and tree.is_ancestor(top, head) and top != head:
+        path = [top] + tree.chain(top, head)
+        if "neck" not in joints:
+            notes.append(f"no joint between {q(top)} and the head {q(head)}: neck unmapped")
+        extra = [j for j in path if j not in mapped and not on_mapped_neighbour(j, path)]
+        if extra:
+            notes.append(f"neck joint(s) {', '.join(repr(names[j]) for j in extra)} left unmapped between "
+                         f"{q(top)} and {q(head)}")
+    for side in ("left", "right"):
+        shoulder, wrist, ankle = (joints.get(f"{side}_{r}") for r in ("shoulder", "wrist", "ankle"))
+        if shoulder is not None and f"{side}_collar" not in joints:
+            above = tree.parents[shoulder]
+            if above < 0 or above in mapped:
+                notes.append(f"the {side} arm has no joint between the spine"
+                             f"{' ' + q(above) if above >= 0 else ''} and the shoulder {q(shoulder)}: "
+                             f"{side}_collar unmapped")
+            else:
+                notes.append(f"{q(above)} before the {side} shoulder {q(shoulder)} is not mapped: {side}_collar "
+                             "unmapped")
+        for end, smpl, what in ((wrist, f"{side}_hand", "finger"), (ankle, f"{side}_foot", "toe")):
+            if end is None or smpl in joints:
+                continue
+            after = [k for k in tree.children[end] if not _is_end(names[k])]
+            if after:
+                notes.append(f"the {what} joint(s) after the {side} {'wrist' if what == 'finger' else 'ankle'} "
+                             f"{q(end)} ({', '.join(repr(names[k]) for k in after[:3])}) are not mapped: {smpl} "
+                             "unmapped")
+            else:
+                notes.append(f"no {what} joint after the {side} {'wrist' if what == 'finger' else 'ankle'} "
+                             f"{q(end)}: {smpl} unmapped")
+    return notes

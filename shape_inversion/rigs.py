@@ -189,7 +189,10 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
             in_tree = {j for j in range(len(names)) if _root_of(parents, j) == mapping.root}
             root_name = names[mapping.root] if sum(p < 0 for p in parents) > 1 else None
             if complete and set(found) >= set(mapping.joints) and set(found.values()) <= in_tree:
-                return dataclasses.replace(best, root=root_name)
+                from shape_inversion.rig_mapper import map_doubts
+
+                return dataclasses.replace(best, root=root_name,
+                                           warnings=tuple(map_doubts(names, parents, positions, found)))
             pairs = tuple((s, names[j]) for s, j in mapping.joints.items())
             return RigMap("auto", pairs, "matched by topology: " + ", ".join(f"{s}={r}" for s, r in pairs),
                           warnings=mapping.warnings, root=root_name)

@@ -436,7 +436,13 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     elif rig is not None:
         rig_map = load_preset(rig)
     elif skeleton.humanoid and root is None:  # the file's own humanoid table wins
-        rig_map = RigMap("vrm", tuple(skeleton.humanoid.items()), "the file's humanoid bone table (VRM)")
+        from shape_inversion.rig_mapper import map_doubts
+
+        index = {n: k for k, n in enumerate(skeleton.names)}
+        doubts = map_doubts(skeleton.names, skeleton.parents, skeleton.positions,
+                            {s: index[n] for s, n in skeleton.humanoid.items()})
+        rig_map = RigMap("vrm", tuple(skeleton.humanoid.items()), "the file's humanoid bone table (VRM)",
+                         warnings=tuple(doubts))
     else:
         rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
     found, _ = match_joints(rig_map, skeleton.names)

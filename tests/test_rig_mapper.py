@@ -42,7 +42,15 @@ def test_vrm_table_is_read_and_the_mapper_reproduces_it(path):
     assert char.rig.name == "vrm" and char.joint_map == {s: sk.humanoid[s] for s in char.joint_map}
     mapping = map_skeleton(sk.names, sk.parents, sk.positions)  # the table ignored: topology + geometry + names
     assert _names_map(sk.names, mapping) == sk.humanoid
-    assert mapping.warnings == ()
+    assert mapping.warnings == char.rig.warnings == VRM_DOUBTS[path.name]  # the same doubts for table and mapper
+
+
+VRM_DOUBTS = {  # the chains of the two VRM samples that are shorter than SMPL's
+    HUMANOID.name: ("the spine 'hips' (pelvis) -> 'chest' (spine3) is too short for SMPL's spine1, spine2, spine3 "
+                    "(joints between: 'spine' (spine1)): spine2 unmapped",),
+    BLOCKS.name: ("no finger joint after the left wrist 'Hand.L' (left_wrist): left_hand unmapped",
+                  "no finger joint after the right wrist 'Hand.R' (right_wrist): right_hand unmapped"),
+}
 
 
 def test_vrm_extension_and_table_win_over_detection(tmp_path, humanoid):
@@ -433,3 +441,64 @@ def test_an_armature_scaled_and_turned_inverts_like_the_unwrapped_file(tmp_path,
         assert set(a.joint_map.values()) <= set(want) & set(got)  # the unskinned file also poses 'Armature'
         for name in set(want) & set(got):
             np.testing.assert_allclose(got[name], want[name], atol=1e-5, err_msg=name)
+
+
+# ----------------------------------------------------------------------------- doubts name the joints
+
+
+def _insert(names, parents, P, name, parent, child, at):
+    """A joint ``name`` at ``at`` between ``parent`` and its child ``child`` (appended: children may come first)."""
+    names, parents = list(names), list(parents)
+    names.append(name)
+    parents.append(names.index(parent))
+    parents[names.index(child)] = len(names) - 1
+    return names, parents, np.vstack([P, at])
+
+
+def test_an_arm_without_collar_maps_with_a_warning_naming_the_joints(humanoid):
+    names, parents, P, table = list(humanoid[0]), list(humanoid[1]), humanoid[2], humanoid[3]
+    parents[names.index("upper_arm.L")] = names.index("chest")  # shoulder.L removed from the chain
+    names[names.index("shoulder.L")] = "unused_helper"
+    parents[names.index("unused_helper")] = names.index("hips")
+    P = P.copy()
+    P[names.index("unused_helper")] = P[names.index("hips")] + np.array([0.0, -0.2, 0.05])  # a skirt-like helper
+    mapping = map_skeleton(names, parents, P)
+    assert _names_map(names, mapping) == {s: n for s, n in table.items() if s != "left_collar"}
+    assert ("the left arm has no joint between the spine 'chest' (spine3) and the shoulder 'upper_arm.L' "
+            "(left_shoulder): left_collar unmapped") in mapping.warnings
+
+
+def test_extra_spine_and_neck_joints_left_unmapped_are_warned_by_name(humanoid):
+    names, parents, P, table = humanoid
+    at = {n: P[k] for k, n in enumerate(names)}
+    step = (at["chest"] - at["spine"]) / 3
+    n2, p2, P2 = _insert(names, parents, P, "spine.001", "spine", "chest", at["spine"] + step)
+    n2, p2, P2 = _insert(n2, p2, P2, "spine.002", "spine.001", "chest", at["spine"] + 2 * step)
+    n2, p2, P2 = _insert(n2, p2, P2, "neck.001", "neck", "head", (at["neck"] + at["head"]) / 2)
+    mapping = map_skeleton(n2, p2, P2)
+    got = _names_map(n2, mapping)
+    assert {s: got[s] for s in got if not s.startswith("spine") and s != "neck"} == \
+        {s: n for s, n in table.items() if not s.startswith("spine") and s != "neck"}
+    assert got["spine1"] == "spine" and got["spine3"] == "chest" and got["spine2"] in ("spine.001", "spine.002")
+    left_out = ({"spine.001", "spine.002"} - {got["spine2"]}).pop()
+    assert (f"spine joint(s) {left_out!r} left unmapped on the spine 'hips' (pelvis) -> 'chest' (spine3)"
+            in mapping.warnings)
+    neck_left_out = ({"neck", "neck.001"} - {got["neck"]}).pop()
+    assert (f"neck joint(s) {neck_left_out!r} left unmapped between 'chest' (spine3) and 'head' (head)"
+            in mapping.warnings)
+    assert not any("too short" in w for w in mapping.warnings)  # spine2 is mapped now
+
+
+def test_a_preset_map_leaving_a_spine_joint_out_is_warned(tmp_path):
+    """A preset (or a humanoid table) that skips a joint of the rig's spine gets the same doubt."""
+    from workflows.examples_gen import write_mixamo_character
+
+    sk = read_skeleton(write_mixamo_character(tmp_path / "m.bvh"))
+    names, parents, P = list(sk.names), list(sk.parents), sk.positions
+    i_spine2, i_neck = names.index("mixamorig:Spine2"), names.index("mixamorig:Neck")
+    names, parents, P = _insert(names, parents, P, "mixamorig:Spine3", "mixamorig:Spine2", "mixamorig:Neck",
+                                (P[i_spine2] + P[i_neck]) / 2)
+    rig = detect_rig(names, parents, P)
+    assert rig.name == "mixamo"
+    assert ("neck joint(s) 'mixamorig:Spine3' left unmapped between 'mixamorig:Spine2' (spine3) and "
+            "'mixamorig:Head' (head)") in rig.warnings
