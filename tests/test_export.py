@@ -74,11 +74,11 @@ def test_character_scene_after_edit_and_solve_exports_the_solved_pose(demo, tmp_
     bvh = read_bvh(tmp_path / f"{first.name}.bvh")
     source = read_bvh(first.skeleton.path)
     assert bvh.joint_names == source.joint_names and bvh.channels == source.channels  # layout kept
-    assert np.abs(bvh.positions[0] - p_file).max() < MM / char.units_m
+    assert np.abs(bvh.positions[0] - char.file_to_canon_points(p_file)).max() < MM  # the scene's world, metres
     # the edit moved the right wrist: the exported character's wrist follows the solved SMPL wrist
     wrist = char.names.index(char.rig.smpl_to_rig["right_wrist"])
     solved = character_joints(first)[21]
-    assert np.linalg.norm(char.file_to_canon_points(bvh.positions[0, wrist]) - solved) < 0.05
+    assert np.linalg.norm(bvh.positions[0, wrist] - solved) < 0.05
     assert not (tmp_path / f"{first.name}.glb").exists()  # a BVH character has no mesh to export
 
 
@@ -112,8 +112,8 @@ def test_glb_character_exports_its_own_posed_mesh(glb_scene, tmp_path):
     assert np.abs(got - char.file_to_canon_points(p_file)).max() < MM  # the scene's world frame
     mesh = trimesh.load(tmp_path / "hero.glb", force="scene")
     assert sum(len(g.faces) for g in mesh.geometry.values()) == len(smpl_rest()[2])
-    bvh = read_bvh(tmp_path / "hero.bvh")
-    assert np.abs(bvh.positions[0, [bvh.index(n) for n in char.names]] - p_file).max() < MM
+    bvh = read_bvh(tmp_path / "hero.bvh")  # the BVH lines up with the GLB: the scene's world frame
+    assert np.abs(bvh.positions[0, [bvh.index(n) for n in char.names]] - got).max() < MM
 
 
 def test_export_refuses_unknown_formats_and_missing_files(glb_scene, tmp_path):
@@ -235,9 +235,67 @@ def test_bvh_export_keeps_the_source_frames_after_the_pose(tmp_path):
     char = character_from_estimate(src, CharacterOptions(), np.zeros(10), 1.0, "neutral")
     c = SceneCharacter("hero", char.gender, np.zeros(10), 1.0, SkeletonSource.from_options(str(src),
                        CharacterOptions()), (), dataclasses.replace(example_poses()[1].pose, betas=np.zeros(10)))
-    export_scene(Scene((c,)), tmp_path / "out", formats=("bvh",))
+    export_scene(Scene((c,)), tmp_path / "out", formats=("bvh",), bvh_frame="source")
     bvh = read_bvh(tmp_path / "out" / "hero.bvh")
     assert bvh.num_frames == 1 + source.num_frames
     np.testing.assert_allclose(bvh.values[1:], source.values, atol=1e-5)  # the source's own frames, unchanged
     _, p_file = smpl_to_custom(c.pose, char).positions(char)
     assert np.abs(bvh.positions[0] - p_file).max() < MM / char.units_m
+    export_scene(Scene((c,)), tmp_path / "world", formats=("bvh",))  # the default: the scene's world frame
+    world = read_bvh(tmp_path / "world" / "hero.bvh")
+    assert world.num_frames == 1 + source.num_frames and world.channels == source.channels
+    np.testing.assert_allclose(world.positions[0], char.file_to_canon_points(p_file), atol=MM)
+    np.testing.assert_allclose(world.positions[1:], char.file_to_canon_points(source.positions), atol=MM)
+
+
+def _turned_bvh(src, dst, R, units):
+    """The BVH character ``src`` rewritten in other axes (``R``: its axes -> the new file's) and units (metres per
+    unit): the same body, facing another way in its file. Written with smplik's BVH writer (``format_bvh``)."""
+    from smplik.data.bvh import format_bvh, matrix_to_euler_channels
+
+    m = read_bvh(src)
+    k = 0.01 / units  # the source is in centimetres
+    G = R @ m.global_rotations @ R.T
+    local = np.stack([G[:, j] if p < 0 else np.swapaxes(G[:, p], -1, -2) @ G[:, j] for j, p in enumerate(m.parents)],
+                     axis=1)
+    rows = []
+    for j, chans in enumerate(m.channels):
+        order = "".join(c[0] for c in chans if c.endswith("rotation"))
+        angles = dict(zip(order, np.moveaxis(matrix_to_euler_channels(local[:, j], order), -1, 0), strict=True))
+        for c in chans:
+            rows.append(k * (m.local_translations[:, j] @ R.T)[:, "XYZ".index(c[0])] if c.endswith("position")
+                        else angles[c[0]])
+    ends = {p: k * R @ o for p, o in zip(m.end_site_parents, m.end_site_offsets, strict=True)}
+    dst.write_text(format_bvh(m.joint_names, m.parents, k * m.offsets @ R.T, m.channels, np.stack(rows, axis=1),
+                              m.frame_time, ends))
+    return dst
+
+
+def test_bvh_characters_of_a_scene_export_in_one_world_frame(tmp_path):
+    """Two BVH files of one character, the second turned half around, z-up and in metres: exported, their roots
+    (and every joint) line up in the scene's world frame, floor and facing as the GLBs are."""
+    from scipy.spatial.transform import Rotation
+
+    from workflows.examples_gen import write_mixamo_character
+
+    src = write_mixamo_character(tmp_path / "hero.bvh")  # centimetres, y-up, facing +z
+    R = (Rotation.from_euler("x", 90, degrees=True) * Rotation.from_euler("y", 180, degrees=True)).as_matrix()
+    turned = _turned_bvh(src, tmp_path / "turned.bvh", R, units=1.0)  # metres, z-up, facing -y
+    a_char = character_from_estimate(src, CharacterOptions(), np.zeros(10), 1.0, "neutral")
+    b_char = character_from_estimate(turned, CharacterOptions(), np.zeros(10), 1.0, "neutral")
+    assert (a_char.units_m, b_char.units_m) == (0.01, 1.0) and b_char.skeleton.bvh is not None
+    pose = dataclasses.replace(example_poses()[1].pose, betas=np.zeros(10))
+    cs = [SceneCharacter(name, a_char.gender, np.zeros(10), 1.0, SkeletonSource.from_options(str(path),
+          CharacterOptions()), (), pose) for name, path in (("hero", src), ("turned", turned))]
+    export_scene(Scene(tuple(cs)), tmp_path / "out", formats=("bvh",))
+    a, b = read_bvh(tmp_path / "out" / "hero.bvh"), read_bvh(tmp_path / "out" / "turned.bvh")
+    assert a.joint_names == b.joint_names
+    np.testing.assert_allclose(b.positions[0], a.positions[0], atol=MM)  # roots and every joint line up
+    np.testing.assert_allclose(b.global_rotations[0], a.global_rotations[0], atol=1e-5)  # same facing
+    _, p_file = smpl_to_custom(pose, a_char).positions(a_char)
+    np.testing.assert_allclose(a.positions[0], a_char.file_to_canon_points(p_file), atol=MM)  # the scene's world
+    assert a.positions[0, :, 1].min() == pytest.approx(a_char.file_to_canon_points(p_file)[:, 1].min(), abs=MM)
+    # in their own files' frames the two would not line up (the old export)
+    export_scene(Scene(tuple(cs)), tmp_path / "own", formats=("bvh",), bvh_frame="source")
+    a0, b0 = read_bvh(tmp_path / "own" / "hero.bvh"), read_bvh(tmp_path / "own" / "turned.bvh")
+    assert np.abs(a0.positions[0] * 0.01 - b0.positions[0]).max() > 0.5

@@ -184,6 +184,9 @@ def export_cmd(
     scene: Annotated[Path, typer.Argument(help="Scene JSON.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help="Comma-separated: bvh, glb.")] = "bvh,glb",
+    bvh_frame: Annotated[str, typer.Option("--bvh-frame", help="world: every BVH in the scene's world frame "
+                                           "(metres, y-up, lined up with the GLBs); source: each file's own units "
+                                           "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
     from workflows.export import export_scene
@@ -192,7 +195,7 @@ def export_cmd(
     with user_errors():
         loaded = load_scene(scene)
         paths = export_scene(loaded, out, formats=[f for f in format.split(",") if f.strip()],
-                             base_dir=scene.resolve().parent)
+                             base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
     for path in paths:
         say(f"wrote {path}")
     if not paths:

@@ -11,11 +11,12 @@ Per character with a solved pose (:func:`export_scene`):
   nodes posed, its own animation clips kept and the pose added as one more clip (``pose``); an SMPL
   character as a skinned SMPL mesh (its rest mesh, 24 joints, SMPL's skin weights reduced to the four
   largest) posed the same way. Characters read from BVH/JSON have no mesh: BVH only.
-* **One world frame.** Every GLB of a scene is in the scene's world frame (metres, y-up, the scene's
-  floor and facing): a custom character's file gets one extra root node ``smplik_world`` taking its own
-  frame (units, axes) to the scene's, so several exported characters line up in a 3D tool. A BVH
-  keeps its source's units, axes and layout (its root channels place the character in that frame);
-  the pose frames come first, then the source's own MOTION frames.
+* **One world frame.** Every file of a scene is in the scene's world frame (metres, y-up, the scene's
+  floor and facing), so several exported characters line up in a 3D tool: a custom character's GLB gets
+  one extra root node ``smplik_world`` taking its own frame (units, axes) to the scene's; its BVH keeps
+  its source's layout (joints, channels, rotation orders, End Sites) with OFFSETs, rotations and root
+  positions converted to the world frame (``bvh_frame="source"`` keeps the file's own units and axes).
+  The pose frames come first, then the source's own MOTION frames (converted the same way).
 
 Several poses per character (``poses``: a frame sequence) export as one animation. Joint node
 transforms are written as translation/rotation/scale (glTF quaternions ``(x, y, z, w)``).
@@ -56,7 +57,7 @@ class ExportError(ValueError):
 
 def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = ("bvh", "glb"),
                  base_dir: str | Path | None = None, frame_time: float = 1 / 30,
-                 poses: Mapping[str, Sequence[Pose]] | None = None) -> list[Path]:
+                 poses: Mapping[str, Sequence[Pose]] | None = None, bvh_frame: str = "world") -> list[Path]:
     """Write every posed character of ``scene`` to ``out_dir`` as ``formats``; returns the files written.
 
     Args:
@@ -66,6 +67,9 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
         base_dir: folder that relative skeleton paths in the scene are relative to (the scene file's).
         frame_time: seconds per frame of the written animations.
         poses: optional frame sequences per character name (SMPL space) instead of its single pose.
+        bvh_frame: ``"world"`` (default): a custom character's BVH in the scene's world frame (metres, y-up,
+            its floor and facing), lined up with every other character and GLB of the scene; ``"source"``:
+            in its file's own units and axes.
 
     Raises: ExportError / SkeletonError / RigError naming the character and the problem.
     """
@@ -73,6 +77,8 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
         raise ExportError(f"Unknown export format(s) {bad or formats}; choose from {', '.join(FORMATS)}.")
+    if bvh_frame not in ("world", "source"):
+        raise ExportError(f"Unknown BVH frame {bvh_frame!r}; choose 'world' or 'source'.")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     base = Path(base_dir) if base_dir is not None else Path.cwd()
@@ -98,7 +104,7 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
         char = character_from_estimate(path, c.skeleton.options, c.betas, c.scale, c.gender)
         custom = [smpl_to_custom(_with_betas(p, c), char) for p in frames]
         if "bvh" in formats:
-            text = custom_bvh_text(char, custom, frame_time, keep_source_frames=True)
+            text = custom_bvh_text(char, custom, frame_time, keep_source_frames=True, frame=bvh_frame)
             written.append(write_text_atomic(out_dir / f"{stem}.bvh", text))
         if "glb" in formats and char.skeleton.gltf is not None:
             written.append(write_bytes_atomic(out_dir / f"{stem}.glb", posed_character_glb(char, custom, frame_time)))
