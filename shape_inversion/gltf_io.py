@@ -260,8 +260,9 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
     ``bind="inverse_bind"``: ``T_world_joint = T_world_bind @ inv(IBM_joint)``, where ``T_world_bind`` is
     the identity when the IBMs are in world space (Blender's exporter folds the armature's scale and the
     root nodes into them) or the world transform of an ancestor node of the root joint when they are
-    relative to it (an armature scaled 0.01 or a z-up root node left out): whichever puts the joints
-    nearest their nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
+    relative to it (an armature scaled 0.01 or a z-up root node left out), or such an ancestor's frame
+    without its uniform scale (an armature scaled after binding): whichever puts the joints nearest their
+    nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
     """
     gltf = doc.gltf
     skins = gltf.skins or []
@@ -310,6 +311,14 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
         while a >= 0:
             candidates.append(doc.world[a])
             a = doc.parent[a]
+        # an ancestor scaled after binding (an armature scaled 0.01 whose bones were then written in cm, the
+        # IBMs left in the bind-time metres): the same ancestor frame without its uniform scale
+        for B in candidates[1:]:
+            scale = abs(float(np.linalg.det(B[:3, :3]))) ** (1 / 3)
+            if scale > 0 and abs(scale - 1) > 1e-6:
+                unscaled = B.copy()
+                unscaled[:3, :3] /= scale
+                candidates.append(unscaled)
         to_world = min(candidates, key=mismatch)
         T_bind = to_world @ inv
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)

@@ -275,6 +275,18 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
     score += max(0.0, tree.tree_distance(arms_meet, head) / np.mean(arm) - 0.8)  # the neck shorter than an arm
     if min(h[hands[0]], h[hands[1]]) < 0.3 * height:  # hands on the floor: a quadruped's front legs
         return None
+    legs_up = P[pelvis] - (P[feet[0]] + P[feet[1]]) / 2  # along the legs: hands above the knees, the head above
+    hip_height = float(np.linalg.norm(legs_up))
+    if hip_height > 0:
+        legs_up = legs_up / hip_height
+        lift = [float((P[j] - (P[feet[0]] + P[feet[1]]) / 2) @ legs_up) / hip_height for j in (*hands, head)]
+        if min(lift[:2]) < 0.4 or lift[2] < 1.2:  # a quadruped: front paws on the floor, head ahead of the body
+            return None
+    if abs(h[feet[0]] - h[feet[1]]) > 0.25 * height:  # a tail or a raised limb is not the second leg
+        return None
+    d0, d1 = P[feet[0]] - P[pelvis], P[feet[1]] - P[pelvis]
+    if d0 @ d1 < np.cos(np.radians(55)) * np.linalg.norm(d0) * np.linalg.norm(d1):  # legs 55 deg apart: a tail
+        return None
     score += 2.0 * sum(max(0.0, (min(h[feet[0]], h[feet[1]]) - h[x]) / height) for x in hands)  # feet lowest
     score += abs(h[feet[0]] - h[feet[1]]) / height
     score += max(0.0, 0.5 - float((P[pelvis] - P[feet[0]]) @ up) / height)  # the pelvis well above the feet
@@ -323,6 +335,12 @@ def _map_leg(tree: _Tree, names: Sequence[str], pelvis: int, leaf: int, up: np.n
         n = np.linalg.norm(d)
         if n > 1e-6 * stature and -(d @ up) >= 0.8 * n:
             ankle = b
+    # a short last bone down to the chain's end is the foot (heel/sole, Cesium's leg_joint_3 -> leg_joint_5):
+    # the ankle is where it starts, the shin above it being long
+    k = chain.index(ankle)
+    if ankle == chain[-1] and k >= 2 and np.linalg.norm(P[ankle] - P[chain[k - 1]]) < 0.08 * stature \
+            and -float((P[chain[k - 1]] - P[chain[k - 2]]) @ up) >= 0.15 * stature:
+        ankle = chain[k - 1]
     named = [j for j in _named(chain, names, "ankle") if chain.index(j) >= 2]
     if named:
         ankle = named[0]

@@ -355,6 +355,20 @@ def _wrapped_gltf(src: Path, out: Path, *, scale: float, z_up: bool, skin: str |
                                   scale=[scale] * 3))
     g.scenes[g.scene].nodes = [len(g.nodes) - 1]
     g.save_binary(str(out))
+    if skin is None and g.skins:  # the source's own skin: its IBMs follow the bones into 1/scale units
+        doc = load_gltf(out)
+        for sk in g.skins:
+            acc = g.accessors[sk.inverseBindMatrices]
+            view = g.bufferViews[acc.bufferView]
+            ibm = doc.accessor(sk.inverseBindMatrices)
+            ibm[:, :3, :] /= scale  # IBM' = S(1/scale) IBM: the same mesh under joints scaled by `scale`
+            data = ibm.transpose(0, 2, 1).astype(np.float32).tobytes()
+            blob = bytearray(g.binary_blob())
+            start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+            assert view.byteStride in (None, 64) and len(data) == 64 * acc.count
+            blob[start:start + len(data)] = data
+            g.set_binary_blob(bytes(blob))
+        g.save_binary(str(out))
     if skin is None:
         return out
     doc = load_gltf(out)
@@ -502,3 +516,43 @@ def test_a_preset_map_leaving_a_spine_joint_out_is_warned(tmp_path):
     assert rig.name == "mixamo"
     assert ("neck joint(s) 'mixamorig:Spine3' left unmapped between 'mixamorig:Spine2' (spine3) and "
             "'mixamorig:Head' (head)") in rig.warnings
+
+
+# ----------------------------------------------------------------------------- Khronos samples (real glTF files)
+
+RIGGED_FIGURE = RIGS / "RiggedFigure.glb"
+FOX = RIGS / "Fox.glb"
+
+
+def test_collada2gltf_figure_with_numbered_names_under_a_z_up_node_maps_exactly():
+    """Cesium's RiggedFigure: names say no role (``leg_joint_L_5``), the skin sits under a ``Z_UP`` node; the
+    short last leg bone (``leg_joint_L_3`` -> ``_5``, down to the sole) is the foot, not the shin."""
+    char = read_character(RIGGED_FIGURE)
+    sided = {"hip": "leg_joint_{}_1", "knee": "leg_joint_{}_2", "ankle": "leg_joint_{}_3", "foot": "leg_joint_{}_5",
+             "shoulder": "arm_joint_{}_1", "elbow": "arm_joint_{}_2", "wrist": "arm_joint_{}_3"}
+    expected = {"pelvis": "torso_joint_1", "spine1": "torso_joint_2", "spine3": "torso_joint_3",
+                "neck": "neck_joint_1", "head": "neck_joint_2"}
+    expected |= {f"{side}_{role}": name.format(side[0].upper()) for side in ("left", "right")
+                 for role, name in sided.items()}
+    assert char.rig.name == "auto" and char.joint_map == {s: expected[s] for s in char.joint_map}
+    assert set(char.joint_map) == set(expected)
+    assert char.up == "y" and char.units_m == 1.0 and 1.2 < char.head_ankle_height_m / 0.84 < 1.6
+    warnings = "\n".join(char.rig.warnings)
+    assert "'arm_joint_L_1' (left_shoulder): left_collar unmapped" in warnings
+    assert "'leg_joint_L_3' (left_ankle)" not in warnings  # the foot is there
+
+
+def test_collada2gltf_figure_wrapped_again_under_an_armature_scaled_0_01_maps_the_same(tmp_path):
+    wrapped = _wrapped_gltf(RIGGED_FIGURE, tmp_path / "wrapped.glb", scale=0.01, z_up=True, skin=None)
+    a, b = read_character(RIGGED_FIGURE), read_character(wrapped)
+    assert b.joint_map == a.joint_map and b.units_m == a.units_m
+    np.testing.assert_allclose(b.features, a.features, atol=1e-5)
+
+
+def test_a_real_quadruped_is_refused_in_one_line():
+    """The Khronos Fox (front legs named UpperArm/ForeArm/Hand, a tail): no humanoid, one line."""
+    from shape_inversion.rigs import RigError
+
+    with pytest.raises(RigError) as err:
+        read_character(FOX)
+    assert "\n" not in str(err.value) and "no humanoid found" in str(err.value)
