@@ -36,6 +36,7 @@ a joint of the spine or neck left unmapped while the rig has one.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -542,6 +543,15 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
         members = tree.subtree(r)
         if len(members) >= 5:
             bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
+    notes: list[str] = []
+    if not bodies:  # a game rig whose IK-driven feet hang on the root: read each as its shin's child
+        reattached = _reattach_detached_feet(tree, names, roots)
+        if reattached is not None:
+            tree, notes = _Tree(reattached[0], P), reattached[1]
+            for r in roots:
+                members = tree.subtree(r)
+                if len(members) >= 5:
+                    bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
     if not bodies:
         raise RigMappingError("no humanoid found: no hierarchy has two legs and a spine meeting at a pelvis with two "
                               "arms branching from the spine")
@@ -549,11 +559,50 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
     error: RigMappingError | None = None
     for _, _, body in bodies[:20]:  # the best assignment whose chains hold every joint
         try:
-            return _map_body(tree, names, body)
+            mapping = _map_body(tree, names, body)
         except RigMappingError as exc:
             error = error or exc
+        else:
+            return dataclasses.replace(mapping, warnings=tuple(notes) + mapping.warnings) if notes else mapping
     assert error is not None
     raise error
+
+
+def _reattach_detached_feet(tree: _Tree, names: Sequence[str], roots: list[int]) -> tuple[list[int], list[str]] | None:
+    """Parents with each detached foot moved under its shin, and a note per foot; None when there is none.
+
+    Game rigs drive the feet by IK: the foot bone (``Foot.L``) hangs on the root, the leg chain ends at the
+    shin (``UpperLeg.L`` -> ``LowerLeg.L``, a leaf). A foot is the bone hanging on an ancestor of the leg,
+    outside it, that continues the thigh's line from the shin's head by 0.6-1.6 thigh lengths.
+    """
+    P, parents = tree.P, list(tree.parents)
+    moved: dict[int, int] = {}
+    for leaf in (j for j in range(len(parents)) if not tree.children[j] and parents[j] >= 0):
+        thigh = P[leaf] - P[parents[leaf]]
+        length = float(np.linalg.norm(thigh))
+        if length <= 0:
+            continue
+        line = tree.path_to_root(leaf)
+        best, best_cos = None, np.cos(np.radians(25))
+        for f in range(len(parents)):
+            if f in line or f in moved or parents[f] < 0 or parents[f] not in line[2:] or f in roots:
+                continue
+            shin = P[f] - P[leaf]
+            n = float(np.linalg.norm(shin))
+            cos = float(shin @ thigh) / max(n * length, 1e-12)
+            if 0.6 * length <= n <= 1.6 * length and cos >= best_cos:
+                best, best_cos = f, cos
+        if best is not None:
+            moved[best] = leaf
+    if len(moved) != 2:
+        return None
+    notes = []
+    for f, leaf in moved.items():
+        notes.append(f"the ankle {names[f]!r} hangs on {names[parents[f]]!r}, not on the shin {names[leaf]!r} (an "
+                     "IK-driven foot): mapped as the shin's child for the shape; retargeted poses leave it where the "
+                     "IK puts it")
+        parents[f] = leaf
+    return parents, notes
 
 
 def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:

@@ -556,3 +556,16 @@ def test_a_real_quadruped_is_refused_in_one_line():
     with pytest.raises(RigError) as err:
         read_character(FOX)
     assert "\n" not in str(err.value) and "no humanoid found" in str(err.value)
+
+
+def test_ik_driven_feet_hanging_on_the_root_map_with_a_warning(humanoid):
+    """Game rigs (bevy_make_human's main_skeleton.glb, Blender export): the leg chain ends at the shin and the
+    foot bones hang on the root, driven by IK; each foot is read as its shin's child, with a warning."""
+    names, parents, P, table = list(humanoid[0]), list(humanoid[1]), humanoid[2], humanoid[3]
+    for side in "LR":
+        parents[names.index(f"foot.{side}")] = names.index("root")
+    mapping = map_skeleton(names, parents, P)
+    assert _names_map(names, mapping) == table
+    assert ("the ankle 'foot.L' hangs on 'root', not on the shin 'lower_leg.L' (an IK-driven foot): mapped as the "
+            "shin's child for the shape; retargeted poses leave it where the IK puts it") in mapping.warnings
+    assert parents[names.index("foot.L")] == names.index("root")  # the caller's hierarchy is untouched
