@@ -271,6 +271,9 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
     arm = [tree.tree_distance(arms_meet, x) for x in hands]
     if min(leg) <= 0 or min(arm) <= 0:
         return None
+    # two legs part at the pelvis, not at a hand (two fingers of one hand are not two legs)
+    if min(tree.tree_distance(legs_meet, f) for f in feet) < 0.5 * min(leg):
+        return None
     score = abs(leg[0] - leg[1]) / max(leg) + abs(arm[0] - arm[1]) / max(arm)
     score += abs(np.log(np.mean(arm) / np.mean(leg) / 0.85))  # arms about as long as legs (eyes are not arms)
     score += max(0.0, tree.tree_distance(arms_meet, head) / np.mean(arm) - 0.8)  # the neck shorter than an arm
@@ -284,6 +287,8 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
         if min(lift[:2]) < 0.4 or lift[2] < 1.2:  # a quadruped: front paws on the floor, head ahead of the body
             return None
     if abs(h[feet[0]] - h[feet[1]]) > 0.25 * height:  # a tail or a raised limb is not the second leg
+        return None
+    if float((P[pelvis] - P[feet[0]]) @ up) < 0.25 * height:  # no legs below the pelvis (a half-body avatar)
         return None
     d0, d1 = P[feet[0]] - P[pelvis], P[feet[1]] - P[pelvis]
     if d0 @ d1 < np.cos(np.radians(55)) * np.linalg.norm(d0) * np.linalg.norm(d1):  # legs 55 deg apart: a tail

@@ -569,3 +569,33 @@ def test_ik_driven_feet_hanging_on_the_root_map_with_a_warning(humanoid):
     assert ("the ankle 'foot.L' hangs on 'root', not on the shin 'lower_leg.L' (an IK-driven foot): mapped as the "
             "shin's child for the shape; retargeted poses leave it where the IK puts it") in mapping.warnings
     assert parents[names.index("foot.L")] == names.index("root")  # the caller's hierarchy is untouched
+
+
+def _ready_player_me_half_body() -> tuple[list[str], list[int], np.ndarray]:
+    """The skeleton of a Ready Player Me half-body (VR) avatar GLB (``asset.generator: "Ready Player Me"``), as its
+    38 joints read: Hips, Spine, Neck, Head, the eyes, and the hands hanging on the Spine with five 3-joint fingers;
+    no legs, no arm bones (positions in metres, rounded)."""
+    names = ["Hips", "Spine", "Neck", "Head", "LeftEye", "RightEye"]
+    parents = [-1, 0, 1, 2, 3, 3]
+    P = [[0, 0, 0], [0, 0.33, 0], [0, 0.473, 0], [0, 0.564, 0], [0.03, 0.646, 0.055], [-0.03, 0.646, 0.055]]
+    fingers = {"Index": (0.741, 0.773, 0.795, 0.03), "Middle": (0.747, 0.78, 0.803, 0.009),
+               "Ring": (0.744, 0.772, 0.795, -0.01), "Pinky": (0.735, 0.766, 0.783, -0.03),
+               "Thumb": (0.677, 0.703, 0.727, 0.05)}
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        names.append(f"{side}Hand")
+        parents.append(1)
+        P.append([sign * 0.658, 0.33, 0.0])
+        for finger, (*xs, z) in fingers.items():
+            for k, x in enumerate(xs):
+                names.append(f"{side}Hand{finger}{k + 1}")
+                parents.append(names.index(f"{side}Hand") if k == 0 else len(names) - 2)
+                P.append([sign * x, 0.33 - 0.011 * k, z])
+    return names, parents, np.array(P, dtype=float)
+
+
+def test_a_half_body_avatar_is_refused_not_read_with_fingers_as_legs():
+    """Ready Player Me half-body avatars have no legs: two fingers of one hand must not pass for two legs."""
+    names, parents, P = _ready_player_me_half_body()
+    with pytest.raises(RigMappingError) as err:
+        map_skeleton(names, parents, P)
+    assert "no humanoid found" in str(err.value) and "\n" not in str(err.value)
