@@ -599,3 +599,16 @@ def test_a_half_body_avatar_is_refused_not_read_with_fingers_as_legs():
     with pytest.raises(RigMappingError) as err:
         map_skeleton(names, parents, P)
     assert "no humanoid found" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_univrm_vrm0_avatar_with_spaced_names_maps_like_its_table():
+    """A real VRM 0.x export of UniVRM (Unity): a skin of 57 joints named ``Left leg``, ``Left knee``, ..."""
+    path = RIGS / "cryptovoxels.vrm"
+    sk = read_skeleton(path)
+    assert sk.gltf.skin == 0 and sk.humanoid["left_hip"] == "Left leg" and sk.humanoid["left_hand"] == "MiddleFinger1_L"
+    char = read_character(path)
+    assert char.rig.name == "vrm" and char.joint_map == sk.humanoid
+    mapping = map_skeleton(sk.names, sk.parents, sk.positions)  # the table ignored
+    assert _names_map(sk.names, mapping) == sk.humanoid
+    assert mapping.warnings == ("the spine 'Hips' (pelvis) -> 'Chest' (spine3) is too short for SMPL's spine1, "
+                                "spine2, spine3 (joints between: 'Spine' (spine1)): spine2 unmapped",)
