@@ -260,9 +260,11 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
     ``bind="inverse_bind"``: ``T_world_joint = T_world_bind @ inv(IBM_joint)``, where ``T_world_bind`` is
     the identity when the IBMs are in world space (Blender's exporter folds the armature's scale and the
     root nodes into them) or the world transform of an ancestor node of the root joint when they are
-    relative to it (an armature scaled 0.01 or a z-up root node left out), or such an ancestor's frame
-    without its uniform scale (an armature scaled after binding): whichever puts the joints nearest their
-    nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
+    relative to it (an armature scaled 0.01 or a z-up root node left out), the skinned mesh node's world
+    transform (three.js binds there), or such an ancestor's frame without its uniform scale (an armature
+    scaled after binding): among those whose bone lengths match the nodes' (bone lengths do not change
+    with the pose), whichever puts the joints nearest their nodes' default world positions.
+    ``bind="nodes"``: the joint nodes' world matrices in the default pose.
     """
     gltf = doc.gltf
     skins = gltf.skins or []
@@ -304,9 +306,11 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
         def mismatch(B: np.ndarray) -> float:
             return float(np.median(np.linalg.norm((B @ inv)[:, :3, 3] - node_p, axis=-1)))
 
-        # IBMs in world space (Blender) or relative to an ancestor of the skeleton root (the armature, a scale
-        # 0.01 node, a z-up root node left out): every ancestor's world transform is a candidate
-        candidates = [np.eye(4), parent_world]
+        # IBMs in world space (Blender), relative to the skinned mesh's node (three.js binds the skeleton at the
+        # mesh's world transform) or to an ancestor of the skeleton root (the armature, a scale 0.01 node, a z-up
+        # root node left out): each of these world transforms is a candidate
+        meshes = [doc.world[i] for i, node in enumerate(gltf.nodes or []) if node.skin == skin]
+        candidates = [np.eye(4), *meshes[:1], parent_world]
         a = doc.parent[joints[root]]
         while a >= 0:
             candidates.append(doc.world[a])
@@ -319,7 +323,21 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
                 unscaled = B.copy()
                 unscaled[:3, :3] /= scale
                 candidates.append(unscaled)
-        to_world = min(candidates, key=mismatch)
+        # bone lengths do not change with the pose: a candidate must give the nodes' size (the default pose of
+        # an animated file is not the bind pose, so positions alone may favour a collapsed skeleton)
+        index = {n: k for k, n in enumerate(joints)}
+        par = [_joint_parent(doc, n, index) for n in joints]
+        bones = [k for k in range(J) if par[k] >= 0]
+
+        def size_ratio(B: np.ndarray) -> float:
+            P = (B @ inv)[:, :3, 3]
+            lengths = np.array([[np.linalg.norm(P[k] - P[par[k]]), np.linalg.norm(node_p[k] - node_p[par[k]])]
+                                for k in bones]).reshape(-1, 2)
+            ok = (lengths > 1e-9).all(axis=1)
+            return float(np.median(lengths[ok, 0] / lengths[ok, 1])) if ok.any() else 1.0
+
+        sized = [B for B in candidates if abs(np.log(max(size_ratio(B), 1e-12))) < np.log(1.5)]
+        to_world = min(sized or candidates, key=mismatch)
         T_bind = to_world @ inv
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
 

@@ -272,7 +272,7 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
     if min(leg) <= 0 or min(arm) <= 0:
         return None
     # two legs part at the pelvis, not at a hand (two fingers of one hand are not two legs)
-    if min(tree.tree_distance(legs_meet, f) for f in feet) < 0.5 * min(leg):
+    if tree.tree_distance(pelvis, legs_meet) > 0.25 * min(leg):
         return None
     score = abs(leg[0] - leg[1]) / max(leg) + abs(arm[0] - arm[1]) / max(arm)
     score += abs(np.log(np.mean(arm) / np.mean(leg) / 0.85))  # arms about as long as legs (eyes are not arms)

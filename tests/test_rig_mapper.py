@@ -612,3 +612,37 @@ def test_a_univrm_vrm0_avatar_with_spaced_names_maps_like_its_table():
     assert _names_map(sk.names, mapping) == sk.humanoid
     assert mapping.warnings == ("the spine 'Hips' (pelvis) -> 'Chest' (spine3) is too short for SMPL's spine1, "
                                 "spine2, spine3 (joints between: 'Spine' (spine1)): spine2 unmapped",)
+
+
+def test_a_skin_bound_at_a_scaled_mesh_node_with_an_animated_default_pose_reads_the_bind_pose(tmp_path):
+    """three.js's GLTFExporter (RobotExpressive re-exported): the IBMs are relative to the skinned mesh's node
+    (scaled 100), and the default node pose is an animation frame (here the figure turned half around), so the
+    nodes do not show the bind pose. The bind pose must come out at the nodes' size, not 100 x smaller."""
+    import pygltflib
+    from scipy.spatial.transform import Rotation
+
+    from shape_inversion.gltf_io import load_gltf
+
+    g = pygltflib.GLTF2.load_binary(str(RIGGED_FIGURE))
+    doc = load_gltf(RIGGED_FIGURE)
+    skin = g.skins[0]
+    T_joint = doc.world[skin.joints]  # the true bind pose (the sample's nodes are at bind)
+    mesh = next(i for i, n in enumerate(g.nodes) if n.skin == 0)
+    g.nodes[mesh].scale = [100.0, 100.0, 100.0]
+    M = doc.world[mesh] @ np.diag([100.0, 100.0, 100.0, 1.0])  # the mesh node's new world transform
+    ibm = np.linalg.inv(T_joint) @ M  # IBMs relative to the mesh node: M inv(IBM) = T_joint
+    acc = g.accessors[skin.inverseBindMatrices]
+    view = g.bufferViews[acc.bufferView]
+    blob = bytearray(g.binary_blob())
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    data = ibm.transpose(0, 2, 1).astype(np.float32).tobytes()
+    blob[start:start + len(data)] = data
+    g.set_binary_blob(bytes(blob))
+    root = g.nodes[skin.skeleton]  # the default pose: an animation frame, the figure turned around
+    root.rotation = list((Rotation.from_euler("z", 180, degrees=True) * Rotation.from_quat(root.rotation)).as_quat())
+    path = tmp_path / "threejs_export.glb"
+    g.save_binary(str(path))
+    a, b = read_character(RIGGED_FIGURE), read_character(path)
+    assert b.joint_map == a.joint_map and b.units_m == a.units_m == 1.0
+    np.testing.assert_allclose(b.skeleton.positions, a.skeleton.positions, atol=1e-4)
+    np.testing.assert_allclose(b.features, a.features, atol=1e-5)
