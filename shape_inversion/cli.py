@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -18,6 +19,7 @@ from shape_inversion.options import (
     PositionsOption,
     RestOption,
     RigOption,
+    RootOption,
     UnitsOption,
     UpOption,
     character_options_from_cli,
@@ -37,13 +39,15 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
     out["character"] = {
         "source": character.skeleton.source,
         "format": character.skeleton.format,
-        "rest": rest if character.skeleton.format == "bvh" else None,
+        "rest": (character.skeleton.rest or rest) if character.skeleton.format == "bvh" else None,
         "rig": character.rig.name,
         "units_m": character.units_m,
         "units_source": character.units_source,
         "up": character.up,
         "head_ankle_height_m": character.head_ankle_height_m,
-        "joint_map": {s: character.skeleton.names[i] for s, i in character.smpl_joints.items()},
+        "joint_map": character.joint_map,
+        "root": character.rig.root,
+        "map_warnings": list(character.rig.warnings),
     }
     out["diagnostics"]["query_time_s"] = elapsed_s
     return out
@@ -51,7 +55,7 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
 
 @app.command("invert-shape")
 def invert_shape(
-    character: Annotated[Path, typer.Argument(help="Skeleton file: .bvh, .glb/.gltf or .json of named joints.",
+    character: Annotated[Path, typer.Argument(help="Skeleton file: .bvh, .glb/.gltf, .vrm or .json of named joints.",
                                               exists=True, dir_okay=False)],
     out: Annotated[Path, typer.Option("--out", help="Output SHAPE.json (betas, scale, gender, diagnostics).")],
     gender: Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model gender.")]
@@ -60,10 +64,11 @@ def invert_shape(
     map_file: MapOption = None,
     units: UnitsOption = "auto",
     up: UpOption = "auto",
-    rest: RestOption = "frame0",
+    rest: RestOption = "auto",
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    root: RootOption = None,
     render_png: Annotated[Path | None, typer.Option("--render", help="Also write a comparison PNG.")] = None,
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                       "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
@@ -84,22 +89,24 @@ def invert_shape(
     from smplik.body_model import load_body_model
 
     console = Console(stderr=True)
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     try:
         char = read_character(character, options)
         model = load_body_model(gender, model_dir)
         estimator = ShapeEstimator.build(model, BankConfig(num_samples=bank_samples),
                                          EstimatorConfig(refine=refine))
         start = time.perf_counter()
-        estimate = estimator.estimate(char.features)
+        with warnings.catch_warnings():  # its notes are printed below, once
+            warnings.simplefilter("ignore")
+            estimate = estimator.estimate(char.features)
         elapsed = time.perf_counter() - start
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
         raise typer.Exit(code=1) from None
     payload = shape_payload(char, estimate, model, rest=rest, elapsed_s=elapsed)
     payload["character"]["options"] = options.to_dict()
-    if char.rig.name == "auto":  # no preset fitted: say which map was chosen
-        console.print(f"rig auto, {escape(char.rig.description)}", soft_wrap=True)
+    for line in char.map_report():  # the map chosen, and the mapper's doubts
+        console.print(escape(line), soft_wrap=True, highlight=False)
     for note in estimate.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     write_json_atomic(out, payload)

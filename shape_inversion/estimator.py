@@ -70,6 +70,10 @@ class EstimatorConfig:
     """Feature residual (metres) that costs as much as moving one posterior standard deviation."""
     refine_max_evaluations: int = 100
     """Cap on the refinement's least-squares iterations."""
+    weak_residual_m: float = 0.04
+    """A fit whose largest feature residual exceeds this (metres) is reported as weak in ``warnings``."""
+    weak_effective_samples: float = 5.0
+    """A fit resting on fewer effective bank samples than this is reported as weak in ``warnings``."""
     edge_fraction: float = 0.05
     """An estimate within this fraction of the bank's range from its edge is at the edge: a scale there is
     refused (wrong units, or a body the bank does not cover), a beta there is reported in ``warnings``."""
@@ -203,6 +207,10 @@ class ShapeEstimator:
         off = [f"{FEATURE_NAMES[k]} = {query[k]:.3f} m ({ratio_q[k]:.2f} x head-ankle; human range "
                f"{lo[k]:.2f}-{hi[k]:.2f})" for k in range(NUM_FEATURES) if k != 2 and not lo[k] <= ratio_q[k] <= hi[k]]
         size_lo, size_hi = bank_f[:, 2].min(), bank_f[:, 2].max()
+        if not off and not size_lo <= query[2] <= size_hi:  # human proportions, inhuman size: the units
+            return (f"The skeleton has human proportions but its units look wrong: head to ankle is {query[2]:.3f} m "
+                    f"(about {query[2] / 0.84:.2f} m tall; SMPL-SI covers {size_lo:.2f}-{size_hi:.2f} m head to "
+                    "ankle). Try --units (m, cm, mm, in, ft, cmu or metres per unit).")
         if not size_lo <= query[2] <= size_hi:
             off.append(f"{FEATURE_NAMES[2]} = {query[2]:.3f} m (overall size; bank covers {size_lo:.2f}-{size_hi:.2f} "
                        "m: check the units)")
@@ -211,9 +219,9 @@ class ShapeEstimator:
             diff = np.abs(query - bank_f[idx[0, 0]])
             off = [f"{FEATURE_NAMES[k]} = {query[k]:.3f} m (nearest human sample: {bank_f[idx[0, 0], k]:.3f} m)"
                    for k in np.argsort(-diff)[:2]]
-        return (f"The skeleton's proportions are outside the human range covered by SMPL-SI (nearest bank sample "
-                f"{nearest * 1000:.0f} mm away in feature space, limit {self.config.max_nearest_distance * 1000:.0f} "
-                f"mm). Features off: " + "; ".join(off) + ".")
+        return (f"Not a human: the skeleton's proportions are outside the human range covered by SMPL-SI (nearest "
+                f"bank sample {nearest * 1000:.0f} mm away in feature space, limit "
+                f"{self.config.max_nearest_distance * 1000:.0f} mm). Features off: " + "; ".join(off) + ".")
 
     def estimate(self, features: np.ndarray) -> ShapeEstimate:
         """Estimate (beta, scale) from a skeleton's features (6,) in metres.
@@ -248,6 +256,16 @@ class ShapeEstimator:
         residual = self.features_of(betas, scale) - query
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
         notes = self._edge_check(betas, scale, query)
+        max_residual, n_eff = float(np.abs(residual).max()), float(w.sum() ** 2 / (w**2).sum())
+        if max_residual > cfg.weak_residual_m or n_eff < cfg.weak_effective_samples:
+            import warnings
+
+            worst = FEATURE_NAMES[int(np.argmax(np.abs(residual)))]
+            note = (f"weak shape inversion: largest feature residual {max_residual * 1000:.0f} mm ({worst}; limit "
+                    f"{cfg.weak_residual_m * 1000:.0f} mm), {n_eff:.1f} effective samples (limit "
+                    f"{cfg.weak_effective_samples:g}): check the joint map and the rest pose (--rest, --map)")
+            warnings.warn(note, stacklevel=2)
+            notes = (*notes, note)
         return ShapeEstimate(
             betas=betas, scale=scale, gender=self.gender, betas_std=std[:NUM_BETAS], scale_std=float(std[NUM_BETAS]),
             effective_samples=float(w.sum() ** 2 / (w**2).sum()), neighbours_used=int(w.size),

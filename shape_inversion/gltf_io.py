@@ -259,9 +259,12 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
 
     ``bind="inverse_bind"``: ``T_world_joint = T_world_bind @ inv(IBM_joint)``, where ``T_world_bind`` is
     the identity when the IBMs are in world space (Blender's exporter folds the armature's scale and the
-    root nodes into them) or the world transform of the root joint's parent node when they are relative to
-    it (an armature scaled 0.01 or a z-up root node left out): whichever puts the joints nearer their
-    nodes' default world positions. ``bind="nodes"``: the joint nodes' world matrices in the default pose.
+    root nodes into them) or the world transform of an ancestor node of the root joint when they are
+    relative to it (an armature scaled 0.01 or a z-up root node left out), the skinned mesh node's world
+    transform (three.js binds there), or such an ancestor's frame without its uniform scale (an armature
+    scaled after binding): among those whose bone lengths match the nodes' (bone lengths do not change
+    with the pose), whichever puts the joints nearest their nodes' default world positions.
+    ``bind="nodes"``: the joint nodes' world matrices in the default pose.
     """
     gltf = doc.gltf
     skins = gltf.skins or []
@@ -303,10 +306,66 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
         def mismatch(B: np.ndarray) -> float:
             return float(np.median(np.linalg.norm((B @ inv)[:, :3, 3] - node_p, axis=-1)))
 
-        # IBMs in world space (Blender) or relative to the skeleton root's parent (armature/root nodes left out)
-        to_world = min((np.eye(4), parent_world), key=mismatch)
+        # IBMs in world space (Blender), relative to the skinned mesh's node (three.js binds the skeleton at the
+        # mesh's world transform) or to an ancestor of the skeleton root (the armature, a scale 0.01 node, a z-up
+        # root node left out): each of these world transforms is a candidate
+        meshes = [doc.world[i] for i, node in enumerate(gltf.nodes or []) if node.skin == skin]
+        candidates = [np.eye(4), *meshes[:1], parent_world]
+        a = doc.parent[joints[root]]
+        while a >= 0:
+            candidates.append(doc.world[a])
+            a = doc.parent[a]
+        # an ancestor scaled after binding (an armature scaled 0.01 whose bones were then written in cm, the
+        # IBMs left in the bind-time metres): the same ancestor frame without its uniform scale
+        for B in candidates[1:]:
+            scale = abs(float(np.linalg.det(B[:3, :3]))) ** (1 / 3)
+            if scale > 0 and abs(scale - 1) > 1e-6:
+                unscaled = B.copy()
+                unscaled[:3, :3] /= scale
+                candidates.append(unscaled)
+        # bone lengths do not change with the pose: a candidate must give the nodes' size (the default pose of
+        # an animated file is not the bind pose, so positions alone may favour a collapsed skeleton)
+        index = {n: k for k, n in enumerate(joints)}
+        par = [_joint_parent(doc, n, index) for n in joints]
+        bones = [k for k in range(J) if par[k] >= 0]
+
+        def size_ratio(B: np.ndarray) -> float:
+            P = (B @ inv)[:, :3, 3]
+            lengths = np.array([[np.linalg.norm(P[k] - P[par[k]]), np.linalg.norm(node_p[k] - node_p[par[k]])]
+                                for k in bones]).reshape(-1, 2)
+            ok = (lengths > 1e-9).all(axis=1)
+            return float(np.median(lengths[ok, 0] / lengths[ok, 1])) if ok.any() else 1.0
+
+        sized = [B for B in candidates if abs(np.log(max(size_ratio(B), 1e-12))) < np.log(1.5)]
+        to_world = min(sized or candidates, key=mismatch)
         T_bind = to_world @ inv
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
+
+
+def read_node_rig(doc: GltfFile, node: int) -> GltfRig:
+    """A skeleton of plain nodes (no skin): the whole hierarchy holding ``node``, in its default pose.
+
+    For a humanoid defined on nodes only (a VRM whose humanoid table names unskinned nodes).
+    ``skin`` is -1; the bind pose is the nodes' world transforms.
+    """
+    top = node
+    while doc.parent[top] >= 0:
+        top = doc.parent[top]
+    members, stack = [], [top]
+    while stack:
+        n = stack.pop()
+        members.append(n)
+        stack.extend(doc.gltf.nodes[n].children or [])
+    index = set(members)
+    depth = {}
+    for n in members:
+        d, p = 0, doc.parent[n]
+        while p >= 0 and p in index:
+            d, p = d + 1, doc.parent[p]
+        depth[n] = d
+    joints = tuple(sorted(members, key=lambda n: (depth[n], n)))
+    world = doc.world[list(joints)].copy()
+    return GltfRig(doc, -1, joints, tuple(range(len(joints))), np.linalg.inv(world), np.eye(4), world)
 
 
 def _joint_parent(doc: GltfFile, node: int, index: dict[int, int]) -> int:

@@ -7,7 +7,7 @@ with the ``Annotated`` aliases below (``RigOption``, ``MapOption``, ...) and bui
 with :func:`character_options_from_cli`::
 
     def cmd(character: Path, rig: RigOption = None, map_file: MapOption = None, units: UnitsOption = "auto",
-            up: UpOption = "auto", rest: RestOption = "frame0", bind: BindOption = "inverse_bind",
+            up: UpOption = "auto", rest: RestOption = "auto", bind: BindOption = "inverse_bind",
             positions: PositionsOption = "auto", max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS):
         options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
 """
@@ -24,7 +24,7 @@ import typer
 from smplik.limits import DEFAULT_MAX_JOINTS
 from smplik.units import UNIT_NAMES, parse_units
 
-RestSource = Literal["frame0", "offsets"]
+RestSource = Literal["auto", "frame0", "offsets"]
 BindSource = Literal["inverse_bind", "nodes"]
 PositionMode = Literal["auto", "replace", "add"]
 
@@ -45,21 +45,24 @@ class CharacterOptions:
     """``auto`` (from the stature), a unit name (m, dm, cm, mm, in, ft, cmu) or metres per unit."""
     up: str = "auto"
     """``auto`` or the file's up axis (``y``, ``z``, ``-z``, ...)."""
-    rest: RestSource = "frame0"
-    """BVH rest pose: frame 0 through forward kinematics, or the zero-rotation OFFSETs."""
+    rest: RestSource = "auto"
+    """BVH rest pose: frame 0 through forward kinematics, the zero-rotation OFFSETs, or ``auto`` (frame 0 when
+    it is a rest pose, else the OFFSETs; see :func:`shape_inversion.skeleton_io.read_character`)."""
     bind: BindSource = "inverse_bind"
     """glTF bind pose: the inverse bind matrices, or the joint nodes' default transforms."""
     positions: PositionMode = "auto"
     """BVH non-root position channels: replace the OFFSET (BVH convention), add to it (MakeHuman), or auto."""
     max_joints: int = DEFAULT_MAX_JOINTS
     """Refuse files with more joints than this."""
+    root: str | None = None
+    """With several root joints: the name of the one whose hierarchy is the character (None: chosen)."""
 
     def __post_init__(self) -> None:
         def bad(option: str, value: Any, expected: str) -> CharacterOptionsError:
             return CharacterOptionsError(f"character option {option}: {str(value)[:60]!r} is invalid; "
                                          f"expected {expected}")
 
-        for name in ("rig", "map"):
+        for name in ("rig", "map", "root"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, str):
                 raise bad(name, value, "a string or null")
@@ -76,7 +79,7 @@ class CharacterOptions:
         if not isinstance(self.up, str) or self.up.strip().lower().lstrip("+-") not in ("auto", "x", "y", "z") \
                 or self.up.strip().lower() in ("-auto", "+auto"):
             raise bad("up", self.up, "auto, x, y, z, optionally signed (-z)")
-        for name, allowed in (("rest", ("frame0", "offsets")), ("bind", ("inverse_bind", "nodes")),
+        for name, allowed in (("rest", ("auto", "frame0", "offsets")), ("bind", ("inverse_bind", "nodes")),
                               ("positions", ("auto", "replace", "add"))):
             if getattr(self, name) not in allowed:
                 raise bad(name, getattr(self, name), " or ".join(allowed))
@@ -103,19 +106,24 @@ MapOption = Annotated[Path | None, typer.Option("--map", help="JSON map {smpl_jo
 UnitsOption = Annotated[str, typer.Option("--units", help=f"Character units: auto, {', '.join(UNIT_NAMES)}, or "
                                           "metres per unit.")]
 UpOption = Annotated[str, typer.Option("--up", help="Character up axis: auto, or x, y, z, -z, ...")]
-RestOption = Annotated[str, typer.Option("--rest", help="BVH rest pose: frame0 or offsets.")]
+RestOption = Annotated[str, typer.Option("--rest", help="BVH rest pose: auto (frame 0 when it is a rest pose, "
+                                         "else the OFFSETs), frame0 or offsets.")]
 BindOption = Annotated[str, typer.Option("--bind", help="glTF bind pose: inverse_bind or nodes.")]
 PositionsOption = Annotated[str, typer.Option("--positions", help="BVH non-root position channels: auto, replace "
                                               "(BVH convention, Mixamo/Rokoko) or add (MakeHuman).")]
 MaxJointsOption = Annotated[int, typer.Option("--max-joints", help="Refuse character files with more joints.")]
+RootOption = Annotated[str | None, typer.Option("--root", help="Character with several root joints: the root "
+                                                "joint whose hierarchy to use (default: the one holding the body).")]
 
 
 def character_options_from_cli(rig: str | None = None, map_file: Path | None = None, units: str = "auto",
-                               up: str = "auto", rest: str = "frame0", bind: str = "inverse_bind",
-                               positions: str = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> CharacterOptions:
+                               up: str = "auto", rest: str = "auto", bind: str = "inverse_bind",
+                               positions: str = "auto", max_joints: int = DEFAULT_MAX_JOINTS,
+                               root: str | None = None) -> CharacterOptions:
     """:class:`CharacterOptions` from the CLI options above; raises :class:`typer.BadParameter` naming the option."""
     try:
         return CharacterOptions(rig=rig, map=None if map_file is None else str(map_file), units=units, up=up,
-                                rest=rest, bind=bind, positions=positions, max_joints=max_joints)  # type: ignore[arg-type]
+                                rest=rest, bind=bind, positions=positions, max_joints=max_joints,  # type: ignore[arg-type]
+                                root=root)
     except CharacterOptionsError as exc:
         raise typer.BadParameter(str(exc)) from None

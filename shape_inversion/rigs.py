@@ -18,6 +18,7 @@ object. Rig names match exactly first, then case-insensitively with any ``namesp
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -50,6 +51,10 @@ class RigMap:
     description: str = ""
     units: float | None = None
     up: str | None = None
+    warnings: tuple[str, ...] = ()
+    """Doubts of the rig mapper, each naming the joints concerned."""
+    root: str | None = None
+    """The root joint of the hierarchy the map uses (rigs with several roots)."""
 
     @property
     def smpl_to_rig(self) -> dict[str, str]:
@@ -141,38 +146,74 @@ def missing_message(rig: RigMap, found: Mapping[str, int], source: str = "the sk
             f"{', '.join(parts)}. Pass --map with a file mapping these SMPL joints to your rig's names.")
 
 
-def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None) -> RigMap:
-    """The preset that best matches the joint ``names``; else, with ``parents``, a map matched by name and topology.
-
-    Preset score: required joints found, then exact matches, then all mapped joints found. When no
-    preset provides every required joint, :func:`smplik.data.rig_names.match_humanoid` matches the
-    names across the common naming schemes and checks the match against the hierarchy; the map it
-    chose is the returned :class:`RigMap` named ``"auto"`` (its ``description`` lists it).
-
-    Raises:
-        RigError: neither works (names the closest preset and what it lacks, and why name matching failed).
-    """
-    names = list(names)
+def _best_preset(names: list[str]) -> tuple[RigMap, dict[str, int]]:
+    """The preset finding the most joints (then the most exact names), with what it found."""
     scored = []
     for preset in available_presets():
         rig = load_preset(preset)
         found, n_exact = match_joints(rig, names)
         n_required = len(REQUIRED_JOINTS) - len(missing_required(rig, found))
-        scored.append(((n_required, n_exact, len(found)), rig, found))
+        scored.append(((n_required, len(found), n_exact), rig, found))
     scored.sort(key=lambda t: t[0], reverse=True)
-    (n_required, _, _), best, found = scored[0]
-    if n_required < len(REQUIRED_JOINTS):
-        why = "no hierarchy given"
-        if parents is not None:
-            try:
-                matched = match_humanoid(names, parents, REQUIRED_JOINTS)
-                pairs = tuple((s, names[matched[s]]) for s in JOINT_NAMES if s in matched)
-                return RigMap("auto", pairs, "matched by name and topology: "
-                              + ", ".join(f"{s}={r}" for s, r in pairs))
-            except NameMatchError as exc:
-                why = str(exc)
-        sample = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
-        raise RigError(f"Could not detect the rig from the joint names ({sample}); presets: "
-                       f"{', '.join(available_presets())}; name matching: {why}. Closest preset: "
-                       + missing_message(best, found) + " Or choose a preset with --rig.")
-    return best
+    return scored[0][1], scored[0][2]
+
+
+def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, positions=None, *,
+               root: str | None = None) -> RigMap:
+    """The map of a skeleton's joints to SMPL's: the rig mapper's, or a preset's when that is as complete.
+
+    With ``parents`` and ``positions`` (J, 3), :func:`shape_inversion.rig_mapper.map_skeleton` maps the
+    skeleton by topology, geometry and names (``root`` picks the hierarchy); a preset is chosen only
+    when it finds every required joint and every SMPL joint the mapper maps (and, with several roots,
+    only joints of the mapper's hierarchy). The mapper's map is a :class:`RigMap` named
+    ``"auto"`` whose ``description`` lists it and whose ``warnings`` hold its doubts. Without positions,
+    the best preset, else :func:`smplik.data.rig_names.match_humanoid` (names checked against the
+    hierarchy).
+
+    Raises:
+        RigError: nothing works (names the closest preset and what it lacks, and why the mapper failed).
+    """
+    from shape_inversion.rig_mapper import RigMappingError, map_skeleton
+
+    names = list(names)
+    best, found = _best_preset(names)
+    complete = not missing_required(best, found)
+    why = "no hierarchy given"
+    if parents is not None and positions is not None:
+        try:
+            mapping = map_skeleton(names, parents, positions, root=root)
+        except RigMappingError as exc:
+            why = f"rig mapper: {exc}"
+        else:
+            in_tree = {j for j in range(len(names)) if _root_of(parents, j) == mapping.root}
+            root_name = names[mapping.root] if sum(p < 0 for p in parents) > 1 else None
+            if complete and set(found) >= set(mapping.joints) and set(found.values()) <= in_tree:
+                from shape_inversion.rig_mapper import map_doubts
+
+                return dataclasses.replace(best, root=root_name,
+                                           warnings=tuple(map_doubts(names, parents, positions, found)))
+            pairs = tuple((s, names[j]) for s, j in mapping.joints.items())
+            return RigMap("auto", pairs, "matched by topology: " + ", ".join(f"{s}={r}" for s, r in pairs),
+                          warnings=mapping.warnings, root=root_name)
+        if root is not None:
+            raise RigError(f"Could not map the skeleton under --root {root!r}: {why}")
+    if complete:
+        return best
+    if parents is not None:
+        try:
+            matched = match_humanoid(names, parents, REQUIRED_JOINTS)
+            pairs = tuple((s, names[matched[s]]) for s in JOINT_NAMES if s in matched)
+            return RigMap("auto", pairs, "matched by name and topology: "
+                          + ", ".join(f"{s}={r}" for s, r in pairs))
+        except NameMatchError as exc:
+            why = f"{why}; name matching: {exc}"
+    sample = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
+    raise RigError(f"Could not detect the rig from the joint names ({sample}); presets: "
+                   f"{', '.join(available_presets())}; {why}. Closest preset: "
+                   + missing_message(best, found) + " Or choose a preset with --rig.")
+
+
+def _root_of(parents: Sequence[int], j: int) -> int:
+    while parents[j] >= 0:
+        j = parents[j]
+    return j

@@ -26,6 +26,7 @@ sign, along which the head is farthest from the ankles.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from shape_inversion.features import named_joints_to_features
-from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_rig
+from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_node_rig, read_rig
 from shape_inversion.options import BindSource, CharacterOptions, RestSource
 from shape_inversion.rigs import RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
 from smplik.conventions import JOINT_NAMES, PARENTS
@@ -72,6 +73,7 @@ class Skeleton:
             (BVH: frame 0's, or identity); None means identity.
         rest_translations: (J, 3) the BVH local translations of the rest pose (file units).
         gltf: the glTF node tree and skin (glTF skeletons).
+        humanoid: SMPL joint -> joint name from the file's own humanoid bone table (VRM 0.x / 1.0).
     """
 
     names: tuple[str, ...]
@@ -85,6 +87,10 @@ class Skeleton:
     rest_rotations: np.ndarray | None = field(default=None, repr=False)
     rest_translations: np.ndarray | None = field(default=None, repr=False)
     gltf: GltfRig | None = field(default=None, repr=False)
+    humanoid: dict[str, str] | None = None
+    """The file's own humanoid table (VRM): SMPL joint name -> joint name."""
+    rest: str | None = None
+    """BVH: the rest pose used, ``"frame0"`` or ``"offsets"`` (with why, when chosen by ``rest="auto"``)."""
 
 
 # ----------------------------------------------------------------------------- BVH
@@ -97,15 +103,16 @@ def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: 
     Args:
         source: a path, or the BVH text itself (anything containing ``HIERARCHY``).
         rest: ``"frame0"``: forward kinematics of the first MOTION frame (position channels per
-            ``position_mode``); ``"offsets"``: the zero-rotation OFFSET pose.
+            ``position_mode``); ``"offsets"``: the zero-rotation OFFSET pose; ``"auto"``: frame 0 when the
+            file has frames (:func:`read_character` then checks that it is a rest pose).
         position_mode, max_joints: see :func:`smplik.data.bvh.read_bvh`.
 
     Returns: a :class:`Skeleton` (end sites are not joints) holding the parsed motion in ``bvh``.
 
     Raises: SkeletonError on malformed files, or ``rest="frame0"`` with no frame.
     """
-    if rest not in ("frame0", "offsets"):
-        raise SkeletonError(f"Unknown rest source {rest!r}; expected 'frame0' or 'offsets'.")
+    if rest not in ("auto", "frame0", "offsets"):
+        raise SkeletonError(f"Unknown rest source {rest!r}; expected 'auto', 'frame0' or 'offsets'.")
     try:
         if isinstance(source, str) and "HIERARCHY" in source:
             motion = parse_bvh(source, position_mode=position_mode, max_joints=max_joints)
@@ -113,6 +120,11 @@ def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: 
             motion = bvh_read(source, position_mode=position_mode, max_joints=max_joints)
     except BVHError as exc:
         raise SkeletonError(str(exc)) from None
+    return bvh_skeleton(motion, ("frame0" if motion.num_frames else "offsets") if rest == "auto" else rest)
+
+
+def bvh_skeleton(motion: BVHMotion, rest: str) -> Skeleton:
+    """The :class:`Skeleton` of a parsed BVH file in the rest pose ``"frame0"`` or ``"offsets"``."""
     if rest == "frame0":
         if motion.num_frames == 0:
             raise SkeletonError(f"{motion.name}: no MOTION frame for rest='frame0'; use rest='offsets'.")
@@ -122,7 +134,7 @@ def read_bvh(source: str | Path, rest: RestSource = "frame0", *, position_mode: 
         R_rest, positions = motion.rest_pose()
         t_rest = motion.offsets.copy()
     return Skeleton(motion.joint_names, motion.parents, positions, motion.name, "bvh", bvh=motion,
-                    rest_rotations=R_rest, rest_translations=t_rest)
+                    rest_rotations=R_rest, rest_translations=t_rest, rest=rest)
 
 
 # ----------------------------------------------------------------------------- glTF
@@ -132,7 +144,8 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
     """Read the joints of a glTF/GLB skin in its bind pose, in world space (:mod:`shape_inversion.gltf_io`).
 
     Args:
-        path: ``.glb`` or ``.gltf`` file (external buffers inside its folder).
+        path: ``.glb``, ``.gltf`` or ``.vrm`` file (external buffers inside its folder). A file without a
+            skin is read from its node hierarchy (the VRM humanoid's, else the largest node tree).
         bind: ``"inverse_bind"``: the inverse bind matrices placed in the world by the root joint's
             node chain; ``"nodes"``: the joint nodes' world transforms in the default pose.
         skin: which skin.
@@ -141,8 +154,18 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
     """
     if bind not in ("inverse_bind", "nodes"):
         raise SkeletonError(f"Unknown bind source {bind!r}; expected 'inverse_bind' or 'nodes'.")
+    from shape_inversion.vrm import humanoid_nodes, humanoid_to_smpl
+
     try:
-        rig = read_rig(load_gltf(path), skin=skin, bind=bind)
+        doc = load_gltf(path)
+        table = humanoid_nodes(doc)
+        if not doc.gltf.skins and table:  # a humanoid on plain nodes: its hierarchy is the skeleton
+            rig = read_node_rig(doc, table["hips"])
+        elif not doc.gltf.skins and doc.gltf.nodes:  # no skin (an animation-only file): the largest node tree
+            sizes = np.bincount([_top(doc.parent, n) for n in range(len(doc.parent))], minlength=len(doc.parent))
+            rig = read_node_rig(doc, int(np.argmax(sizes)))
+        else:
+            rig = read_rig(doc, skin=skin, bind=bind)
     except GltfError as exc:
         raise SkeletonError(str(exc)) from None
     nodes = rig.doc.gltf.nodes
@@ -151,7 +174,18 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
         dup = next(n for n in names if names.count(n) > 1)
         raise SkeletonError(f"{path}: duplicate joint name {dup!r} in skin #{skin}")
     positions = rig.T_world_joint_bind[:, :3, 3].copy()
-    return Skeleton(names, joint_parents(rig), positions, str(path), "gltf", units=None, up="y", gltf=rig)
+    humanoid = None
+    if table:
+        index = {n: k for k, n in enumerate(rig.joint_nodes)}
+        humanoid = {s: names[index[n]] for s, n in humanoid_to_smpl(table).items() if n in index} or None
+    return Skeleton(names, joint_parents(rig), positions, str(path), "gltf", units=None, up="y", gltf=rig,
+                    humanoid=humanoid)
+
+
+def _top(parent: tuple[int, ...], n: int) -> int:
+    while parent[n] >= 0:
+        n = parent[n]
+    return n
 
 
 # ----------------------------------------------------------------------------- JSON
@@ -196,22 +230,56 @@ def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_M
 
 def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind",
                   positions: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
-    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``, ``.json``."""
+    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``/``.vrm``, ``.json``.
+
+    BVH ``rest="auto"`` reads frame 0 (the OFFSETs when the file has no frame); :func:`read_character`
+    then decides between frame 0 and the OFFSETs.
+    """
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":
         return read_bvh(Path(path), rest=rest, position_mode=positions, max_joints=max_joints)
-    if suffix in (".glb", ".gltf"):
+    if suffix in (".glb", ".gltf", ".vrm"):  # a VRM file is a GLB with a humanoid table
         return read_gltf(path, bind=bind)
     if suffix == ".json":
         return read_joint_json(path, max_joints=max_joints)
-    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf or .json.")
+    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf, .vrm or .json.")
 
 
 def read_character(path: str | Path, options: CharacterOptions | None = None) -> Character:
     """Read ``path`` and map it to SMPL as ``options`` say (one call for every command taking a character)."""
     o = CharacterOptions() if options is None else options
     skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
-    return prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up)
+    char = prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
+    if o.rest == "auto" and skeleton.bvh is not None and skeleton.rest == "frame0":
+        offsets = bvh_skeleton(skeleton.bvh, "offsets")
+        bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(
+            prepare_character(offsets, rig=char.rig, units=char.units_m).positions, char.smpl_joints)
+        if bend_off + 10.0 < bend0:  # frame 0 is motion, not a rest pose: the OFFSETs define the skeleton
+            char = prepare_character(offsets, rig=char.rig, map_file=None, units=o.units, up=o.up, root=o.root)
+            why = (f"offsets (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the "
+                   f"OFFSET pose {bend_off:.0f} deg)")
+        else:
+            why = f"frame0 (frame 0 is a rest pose: {bend0:.0f} deg of bend; the OFFSET pose {bend_off:.0f} deg)"
+        char = dataclasses.replace(char, skeleton=dataclasses.replace(char.skeleton, rest=why))
+    return char
+
+
+def rest_bend_deg(positions: np.ndarray, found: Mapping[str, int]) -> float:
+    """How far a pose is from a rest pose (T or A): degrees of bend at knees, elbows and along the spine,
+    plus the angle between the two legs. positions (J, 3); ``found`` SMPL joint -> index."""
+    def angle(a: str, b: str, c: str) -> float:
+        if not all(k in found for k in (a, b, c)):
+            return 0.0
+        u, v = positions[found[b]] - positions[found[a]], positions[found[c]] - positions[found[b]]
+        return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v)), u @ v)))
+
+    total = sum(angle(f"{s}_{a}", f"{s}_{b}", f"{s}_{c}") for s in ("left", "right")
+                for a, b, c in (("hip", "knee", "ankle"), ("shoulder", "elbow", "wrist")))
+    total += angle("pelvis", "spine3", "head")
+    if all(f"{s}_{j}" in found for s in ("left", "right") for j in ("hip", "ankle")):
+        legs = [positions[found[f"{s}_ankle"]] - positions[found[f"{s}_hip"]] for s in ("left", "right")]
+        total += float(np.degrees(np.arctan2(np.linalg.norm(np.cross(*legs)), legs[0] @ legs[1])))
+    return total
 
 
 # ----------------------------------------------------------------------------- units, axes, mapping
@@ -267,6 +335,22 @@ class Character:
     R_canon_file: np.ndarray = field(default_factory=lambda: np.eye(3))
     shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
+    @property
+    def joint_map(self) -> dict[str, str]:
+        """SMPL joint -> joint name of the map used (SMPL order)."""
+        return {s: self.skeleton.names[i] for s, i in self.smpl_joints.items()}
+
+    def map_report(self) -> list[str]:
+        """Lines saying which map was chosen (rig, hierarchy, every pair) and the mapper's doubts."""
+        how = {"auto": "mapped by topology, geometry and names", "vrm": "the file's humanoid table"}.get(
+            self.rig.name, "preset")
+        root = f", hierarchy of root joint {self.rig.root!r}" if self.rig.root else ""
+        pairs = ", ".join(f"{s}={n}" for s, n in self.joint_map.items())
+        lines = [f"rig {self.rig.name} ({how}{root}): {pairs}"] + [f"warning: {w}" for w in self.rig.warnings]
+        if self.skeleton.format == "bvh" and self.skeleton.rest:
+            lines.append(f"rest pose: {self.skeleton.rest}")
+        return lines
+
     def joint(self, smpl_name: str) -> np.ndarray:
         """Position (3,) of a mapped SMPL joint, metres."""
         return self.positions[self.smpl_joints[smpl_name]]
@@ -297,8 +381,38 @@ def _detect_units(height_units: float, hints: list[float | None]) -> tuple[float
     return UNIT_NAMES[detect_units(height_units / HEAD_ANKLE_PER_STATURE)], "detected"
 
 
+def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
+    """The joints ``keep`` (a whole hierarchy, parents first) of ``skeleton``, re-indexed."""
+    index = {j: k for k, j in enumerate(keep)}
+    parents = tuple(index.get(skeleton.parents[j], -1) for j in keep)
+
+    def take(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else a[keep]
+
+    gltf = skeleton.gltf
+    if gltf is not None:
+        gltf = dataclasses.replace(gltf, joint_nodes=tuple(gltf.joint_nodes[j] for j in keep),
+                                   skin_order=tuple(gltf.skin_order[j] for j in keep),
+                                   inverse_bind=gltf.inverse_bind[keep],
+                                   T_world_joint_bind=gltf.T_world_joint_bind[keep])
+    names = tuple(skeleton.names[j] for j in keep)
+    humanoid = None if skeleton.humanoid is None else {s: n for s, n in skeleton.humanoid.items() if n in names}
+    return Skeleton(names, parents, skeleton.positions[keep], skeleton.source, skeleton.format,
+                    skeleton.units, skeleton.up, None if skeleton.bvh is None or len(keep) == len(skeleton.names)
+                    else skeleton.bvh, take(skeleton.rest_rotations), take(skeleton.rest_translations), gltf, humanoid,
+                    skeleton.rest)
+
+
+def _hierarchy(parents: tuple[int, ...], root: int) -> list[int]:
+    keep = {root}
+    for j, p in enumerate(parents):  # parents are listed before children
+        if p in keep:
+            keep.add(j)
+    return sorted(keep)
+
+
 def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, map_file: str | Path | None = None,
-                      units: str | float = "auto", up: str = "auto") -> Character:
+                      units: str | float = "auto", up: str = "auto", root: str | None = None) -> Character:
     """Map ``skeleton`` to SMPL joints, convert to metres and to smplik's frame.
 
     Args:
@@ -319,9 +433,28 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
         rig_map = rig
     elif rig is not None:
         rig_map = load_preset(rig)
+    elif skeleton.humanoid and root is None:  # the file's own humanoid table wins
+        from shape_inversion.rig_mapper import map_doubts
+
+        index = {n: k for k, n in enumerate(skeleton.names)}
+        doubts = map_doubts(skeleton.names, skeleton.parents, skeleton.positions,
+                            {s: index[n] for s, n in skeleton.humanoid.items()})
+        rig_map = RigMap("vrm", tuple(skeleton.humanoid.items()), "the file's humanoid bone table (VRM)",
+                         warnings=tuple(doubts))
     else:
-        rig_map = detect_rig(skeleton.names, skeleton.parents)
+        rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
     found, _ = match_joints(rig_map, skeleton.names)
+    roots = [j for j, p in enumerate(skeleton.parents) if p < 0]
+    if len(roots) > 1 and "pelvis" in found:  # several roots: keep the hierarchy holding the body
+        top = found["pelvis"]
+        while skeleton.parents[top] >= 0:
+            top = skeleton.parents[top]
+        if root is not None and root in skeleton.names:
+            top = skeleton.names.index(root)
+        skeleton = subset_skeleton(skeleton, _hierarchy(skeleton.parents, top))
+        if rig_map.root != skeleton.names[0]:
+            rig_map = dataclasses.replace(rig_map, root=skeleton.names[0])
+        found, _ = match_joints(rig_map, skeleton.names)
     from shape_inversion.rigs import missing_required
 
     if missing_required(rig_map, found):

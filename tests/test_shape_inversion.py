@@ -127,10 +127,12 @@ def test_recovers_in_range_body(fake_estimator):
 
 
 def test_out_of_range_raises(fake_estimator):
-    with pytest.raises(ShapeInversionError, match="outside the human range.*right_elbow-right_wrist"):
+    with pytest.raises(ShapeInversionError, match="^Not a human: .*outside the human range.*right_elbow-right_wrist"):
         fake_estimator.estimate(np.array([0.4, 0.4, 1.5, 0.9, 0.25, 0.9]))
-    with pytest.raises(ShapeInversionError, match="check the units"):
-        fake_estimator.estimate(np.array([40.0, 40, 150, 70, 25, 25]))
+    with pytest.raises(ShapeInversionError, match="human proportions but its units look wrong.*Try --units"):
+        fake_estimator.estimate(np.array([40.0, 40, 150, 70, 25, 25]))  # a human in centimetres read as metres
+    with pytest.raises(ShapeInversionError, match="^Not a human: .*check the units"):  # both: proportions first
+        fake_estimator.estimate(np.array([40.0, 40, 150, 90, 25, 90]))
     with pytest.raises(ShapeInversionError, match="Degenerate"):
         fake_estimator.estimate(np.array([0.0, 0.4, 1.5, 0.7, 0.25, 0.25]))
 

@@ -116,3 +116,26 @@ def test_gvhmr_scene_records_the_intrinsics_and_image_size(tmp_path, cli):
     assert cli(w.path, "--out", tmp_path / "o", "--no-previews", "--max-effectors", 2).exit_code == 0
     cam = json.loads((tmp_path / "o" / "scene.json").read_text())["camera"]
     assert cam["focal_rule"] == "intrinsics" and cam["image_size"] == [640, 480]
+
+
+def test_character_matched_by_names_not_a_preset_goes_through_from_estimate(tmp_path, cli):
+    """Regression (#23): a rig no preset fits (``rig auto``) made ``--character`` raise TypeError (Path(None))."""
+    from workflows.examples_gen import write_mixamo_character
+
+    src = write_mixamo_character(tmp_path / "mixamo.bvh", prefix="").read_text()
+    for old, new in (("Left", "l"), ("Right", "r"), ("Hips", "hip")):  # DAZ-like names: lUpLeg, rForeArm, hip
+        src = src.replace(old, new)
+    (tmp_path / "daz_like.bvh").write_text(src)
+    aa, transl, betas = people(seed=3, n=1, **framing("romp"))
+    w = write_romp(tmp_path, aa, transl, betas)
+    result = cli(w.path, "--out", tmp_path / "out", "--character", tmp_path / "daz_like.bvh", "--no-previews",
+                 "--max-effectors", 2)
+    assert result.exit_code == 0, result.output
+    assert "Traceback" not in result.output
+    scene = load_scene(tmp_path / "out" / "scene.json")
+    skeleton = scene.characters[0].skeleton
+    assert skeleton is not None and skeleton.map is None and skeleton.rig is None  # re-read re-detects the map
+    raw = json.loads((tmp_path / "out" / "scene.json").read_text())
+    joint_map = raw["characters"][0]["skeleton"]["joint_map"]
+    assert joint_map["left_hip"] == "lUpLeg" and joint_map["pelvis"] == "hip" and len(joint_map) == 24
+    assert (tmp_path / "out" / "person_0.bvh").is_file() or list((tmp_path / "out").glob("*.bvh"))

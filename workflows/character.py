@@ -325,65 +325,98 @@ def custom_to_smpl(custom: CustomPose, char: CustomCharacter) -> Pose:
 # ----------------------------------------------------------------------------- BVH export
 
 
-def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30) -> str:
-    """BVH text of the custom hierarchy (its own offsets, file units/axes) with one frame per pose.
+BvhFrame = str
+"""``"source"``: the source file's units and axes; ``"world"``: the scene's world frame (metres, y-up, its floor
+and facing: ``p_world = units * C p_file - shift``)."""
 
-    A BVH character keeps its source file's layout: the same joints, OFFSETs, End Sites, channels
-    and rotation order per joint; the source's own rest rotations (``rest="frame0"``) are put back
+
+def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30, *,
+                    keep_source_frames: bool = False, frame: BvhFrame = "source") -> str:
+    """BVH text of the custom hierarchy with one frame per pose.
+
+    A BVH character keeps its source file's layout: the same joints, End Sites, channels and rotation
+    order per joint; the source's own rest rotations (``rest="frame0"``) are put back
     (``R_src_world = R_world @ R_rest_world``), non-root position channels keep their rest values and
     the root's carry the root position. Joints with fewer than three rotation channels keep only
     those axes of their rotation. Other characters get ``Xposition Yposition Zposition Zrotation
     Yrotation Xrotation`` on the root and ``Zrotation Yrotation Xrotation`` elsewhere (intrinsic,
-    degrees; see :mod:`smplik.data.bvh`).
+    degrees; see :mod:`smplik.data.bvh`). ``keep_source_frames``: a BVH source's own MOTION frames follow
+    the pose frames (its clip is kept; the pose frames come first).
+
+    ``frame="source"``: OFFSETs, positions and rotations in the file's own units and axes.
+    ``frame="world"``: everything in the scene's world frame (metres, y-up, the scene's floor and facing),
+    as the GLB export: OFFSETs ``units * C o``, global rotations ``C G C^T``, root ``units * C p - shift``
+    (the source's own frames converted the same way), so that every character of a scene lines up.
     """
     if len(poses) == 0:
         raise ValueError("At least one pose is needed to write a BVH file.")
+    if frame not in ("source", "world"):
+        raise ValueError(f"Unknown BVH frame {frame!r}; expected 'source' or 'world'.")
+    s, C, shift = (char.units_m, char.C_canon_file, char.shift) if frame == "world" else (1.0, np.eye(3), np.zeros(3))
     motion = char.skeleton.bvh
     if motion is not None and motion.joint_names == char.names:
-        return _source_layout_bvh(char, motion, poses, frame_time)
+        return _source_layout_bvh(char, motion, poses, frame_time, keep_source_frames, (s, C, shift))
     K = len(char.parents)
     channels = [ROOT_CHANNELS if par < 0 else JOINT_CHANNELS for par in char.parents]
     rows = []
     for pose in poses:
-        euler = matrix_to_euler_channels(pose.local_rotations, "ZYX")  # (K, 3)
-        row = [pose.root_position, euler[0]] + [euler[k] for k in range(1, K)]
+        R, p = pose.positions(char)
+        G = C @ R @ C.T
+        local = np.stack([G[k] if par < 0 else G[par].T @ G[k] for k, par in enumerate(char.parents)])
+        euler = matrix_to_euler_channels(local, "ZYX")  # (K, 3)
+        row = [s * C @ p[0] - shift, euler[0]] + [euler[k] for k in range(1, K)]
         rows.append(np.concatenate(row))
-    offsets = char.offsets.copy()
+    offsets = s * char.offsets @ C.T
     offsets[0] = 0.0  # the root's position channels replace its OFFSET
-    return format_bvh(char.names, char.parents, offsets, channels, np.stack(rows), frame_time,
-                      char.end_sites or None)
+    end_sites = {k: s * C @ o for k, o in char.end_sites.items()} or None
+    return format_bvh(char.names, char.parents, offsets, channels, np.stack(rows), frame_time, end_sites)
 
 
-def _source_layout_bvh(char: CustomCharacter, motion, poses: Sequence[CustomPose], frame_time: float) -> str:
+def _channel_rows(parents: Sequence[int], channels, offsets: np.ndarray, add: bool, G: np.ndarray,
+                  p_root: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """MOTION rows (T, C) of a BVH layout from global rotations G (T, J, 3, 3), root positions (T, 3) and local
+    translations t (T, J, 3) (non-root position channels: ``t - offset`` when ``add``, else ``t``)."""
+    T = len(G)
+    local = np.stack([G[:, k] if par < 0 else np.swapaxes(G[:, par], -1, -2) @ G[:, k]
+                      for k, par in enumerate(parents)], axis=1)
+    cols = []
+    for k, (par, chans) in enumerate(zip(parents, channels, strict=True)):
+        order = "".join(c[0] for c in chans if c.endswith("rotation"))
+        angles = {}
+        if order:
+            full = order + "".join(a for a in "XYZ" if a not in order)
+            angles = dict(zip(full, np.moveaxis(matrix_to_euler_channels(local[:, k], full), -1, 0), strict=True))
+        for c in chans:
+            axis = "XYZ".index(c[0])
+            if c.endswith("position"):
+                cols.append(p_root[:, axis] if par < 0 else t[:, k, axis] - (offsets[k, axis] if add else 0.0))
+            else:
+                cols.append(angles[c[0]])
+    return np.stack(cols, axis=1) if cols else np.zeros((T, 0))
+
+
+def _source_layout_bvh(char: CustomCharacter, motion, poses: Sequence[CustomPose], frame_time: float,
+                       keep_source_frames: bool, to_out: tuple[float, np.ndarray, np.ndarray]) -> str:
+    s, C, shift = to_out
     R0 = char.skeleton.rest_rotations
     t_rest = char.skeleton.rest_translations
-    rows = []
-    for pose in poses:
-        R, p = pose.positions(char)
-        G = R @ R0  # the source convention's world rotations
-        row: list[float] = []
-        for k, (par, chans) in enumerate(zip(char.parents, motion.channels, strict=True)):
-            local = G[k] if par < 0 else G[par].T @ G[k]
-            order = "".join(c[0] for c in chans if c.endswith("rotation"))
-            angles = {}
-            if len(order) == 3:
-                angles = dict(zip(order, matrix_to_euler_channels(local, order), strict=True))
-            elif order:
-                full = order + "".join(a for a in "XYZ" if a not in order)
-                angles = dict(zip(full, matrix_to_euler_channels(local, full), strict=True))
-            for c in chans:
-                axis = "XYZ".index(c[0])
-                if c.endswith("position"):
-                    if par < 0:
-                        row.append(p[0, axis])
-                    else:
-                        delta = motion.offsets[k, axis] if motion.position_mode == "add" else 0.0
-                        row.append(t_rest[k, axis] - delta)
-                else:
-                    row.append(angles[c[0]])
-        rows.append(row)
-    end_sites = dict(zip(motion.end_site_parents, motion.end_site_offsets, strict=True))
-    return format_bvh(motion.joint_names, motion.parents, motion.offsets, motion.channels, np.asarray(rows),
+    add = motion.position_mode == "add"
+    offsets = s * motion.offsets @ C.T
+    Rp = np.stack([pose.positions(char)[0] for pose in poses])  # (T, J, 3, 3) file axes
+    p_root = np.stack([pose.positions(char)[1][0] for pose in poses])
+    G = C @ (Rp @ R0) @ C.T  # the source convention's world rotations, output axes
+    values = _channel_rows(char.parents, motion.channels, offsets, add, G, s * p_root @ C.T - shift,
+                           np.broadcast_to(s * t_rest @ C.T, (len(poses), *t_rest.shape)))
+    end_sites = {j: s * C @ o for j, o in zip(motion.end_site_parents, motion.end_site_offsets, strict=True)}
+    if keep_source_frames and motion.num_frames:
+        if s == 1.0 and np.array_equal(C, np.eye(3)) and not shift.any():
+            source = motion.values  # the source's own frames, unchanged
+        else:
+            source = _channel_rows(char.parents, motion.channels, offsets, add, C @ motion.global_rotations @ C.T,
+                                   s * motion.positions[:, 0] @ C.T - shift, s * motion.local_translations @ C.T)
+        values = np.concatenate([values, source], axis=0)
+        frame_time = motion.frame_time  # one clock for the pose frames and the source's clip
+    return format_bvh(motion.joint_names, motion.parents, offsets, motion.channels, values,
                       frame_time, end_sites or None)
 
 

@@ -15,6 +15,7 @@ from shape_inversion.options import (
     PositionsOption,
     RestOption,
     RigOption,
+    RootOption,
     UnitsOption,
     UpOption,
     character_options_from_cli,
@@ -70,10 +71,11 @@ def from_estimate_cmd(
     map_file: MapOption = None,
     units: UnitsOption = "auto",
     up: UpOption = "auto",
-    rest: RestOption = "frame0",
+    rest: RestOption = "auto",
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    root: RootOption = None,
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per person.")] = 8,
     threshold: Annotated[float, typer.Option("--threshold", min=0.0, help="Stop below this error (m).")] = 0.02,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
@@ -105,7 +107,7 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
     if space not in (None, "camera", "world"):
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
         task = bar.add_task("effector recovery", total=None)
@@ -121,6 +123,11 @@ def from_estimate_cmd(
                                 space=space, focal=focal, progress=progress)
     for note in outputs.notes:
         say(note)
+    if outputs.character is not None:  # the map chosen, the mapper's and SMPL-SI's doubts
+        for line in outputs.character.character.map_report():
+            say(line)
+        for note in outputs.character.estimate.warnings:
+            say(f"warning: {note}")
     for r in outputs.results:
         errs = ", ".join(f"{e * 1000:.0f}" for e in r.recovery.errors)
         say(f"{r.name}: {len(r.recovery.effectors)} effectors, error after each (mm): {errs}; "
@@ -187,6 +194,9 @@ def export_cmd(
     scene: Annotated[Path, typer.Argument(help="Scene JSON.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help="Comma-separated: bvh, glb.")] = "bvh,glb",
+    bvh_frame: Annotated[str, typer.Option("--bvh-frame", help="world: every BVH in the scene's world frame "
+                                           "(metres, y-up, lined up with the GLBs); source: each file's own units "
+                                           "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
     from workflows.export import export_scene
@@ -195,7 +205,7 @@ def export_cmd(
     with user_errors():
         loaded = load_scene(scene)
         paths = export_scene(loaded, out, formats=[f for f in format.split(",") if f.strip()],
-                             base_dir=scene.resolve().parent)
+                             base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
     for path in paths:
         say(f"wrote {path}")
     if not paths:

@@ -8,9 +8,15 @@ Per character with a solved pose (:func:`export_scene`):
   24-joint SMPL skeleton (its ``scale * J(betas)`` OFFSETs, metres, y-up; root ``Xposition
   Yposition Zposition Zrotation Yrotation Xrotation``, other joints ``Zrotation Yrotation Xrotation``).
 * **GLB** ``<name>.glb``: a glTF/GLB character's own file (mesh, materials, skin) with its joint
-  nodes posed and the pose as a one-frame animation; an SMPL character as a skinned SMPL mesh
-  (its rest mesh, 24 joints, SMPL's skin weights reduced to the four largest) posed the same way.
-  Characters read from BVH/JSON have no mesh: BVH only.
+  nodes posed, its own animation clips kept and the pose added as one more clip (``pose``); an SMPL
+  character as a skinned SMPL mesh (its rest mesh, 24 joints, SMPL's skin weights reduced to the four
+  largest) posed the same way. Characters read from BVH/JSON have no mesh: BVH only.
+* **One world frame.** Every file of a scene is in the scene's world frame (metres, y-up, the scene's
+  floor and facing), so several exported characters line up in a 3D tool: a custom character's GLB gets
+  one extra root node ``smplik_world`` taking its own frame (units, axes) to the scene's; its BVH keeps
+  its source's layout (joints, channels, rotation orders, End Sites) with OFFSETs, rotations and root
+  positions converted to the world frame (``bvh_frame="source"`` keeps the file's own units and axes).
+  The pose frames come first, then the source's own MOTION frames (converted the same way).
 
 Several poses per character (``poses``: a frame sequence) export as one animation. Joint node
 transforms are written as translation/rotation/scale (glTF quaternions ``(x, y, z, w)``).
@@ -51,7 +57,7 @@ class ExportError(ValueError):
 
 def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = ("bvh", "glb"),
                  base_dir: str | Path | None = None, frame_time: float = 1 / 30,
-                 poses: Mapping[str, Sequence[Pose]] | None = None) -> list[Path]:
+                 poses: Mapping[str, Sequence[Pose]] | None = None, bvh_frame: str = "world") -> list[Path]:
     """Write every posed character of ``scene`` to ``out_dir`` as ``formats``; returns the files written.
 
     Args:
@@ -61,6 +67,9 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
         base_dir: folder that relative skeleton paths in the scene are relative to (the scene file's).
         frame_time: seconds per frame of the written animations.
         poses: optional frame sequences per character name (SMPL space) instead of its single pose.
+        bvh_frame: ``"world"`` (default): a custom character's BVH in the scene's world frame (metres, y-up,
+            its floor and facing), lined up with every other character and GLB of the scene; ``"source"``:
+            in its file's own units and axes.
 
     Raises: ExportError / SkeletonError / RigError naming the character and the problem.
     """
@@ -68,6 +77,8 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
         raise ExportError(f"Unknown export format(s) {bad or formats}; choose from {', '.join(FORMATS)}.")
+    if bvh_frame not in ("world", "source"):
+        raise ExportError(f"Unknown BVH frame {bvh_frame!r}; choose 'world' or 'source'.")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     base = Path(base_dir) if base_dir is not None else Path.cwd()
@@ -93,7 +104,8 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
         char = character_from_estimate(path, c.skeleton.options, c.betas, c.scale, c.gender)
         custom = [smpl_to_custom(_with_betas(p, c), char) for p in frames]
         if "bvh" in formats:
-            written.append(write_text_atomic(out_dir / f"{stem}.bvh", custom_bvh_text(char, custom, frame_time)))
+            text = custom_bvh_text(char, custom, frame_time, keep_source_frames=True, frame=bvh_frame)
+            written.append(write_text_atomic(out_dir / f"{stem}.bvh", text))
         if "glb" in formats and char.skeleton.gltf is not None:
             written.append(write_bytes_atomic(out_dir / f"{stem}.glb", posed_character_glb(char, custom, frame_time)))
     return written
@@ -263,7 +275,11 @@ def _animate(gltf, add, node_ids: Sequence[int], translations: np.ndarray, quats
             samplers.append(pygltflib.AnimationSampler(input=times, output=out, interpolation="LINEAR"))
             channels.append(pygltflib.AnimationChannel(
                 sampler=len(samplers) - 1, target=pygltflib.AnimationChannelTarget(node=n, path=path)))
-    gltf.animations = [pygltflib.Animation(name="pose", samplers=samplers, channels=channels)]
+    kept = list(gltf.animations or [])  # the source's own clips stay; the pose is one more clip
+    names = {a.name for a in kept}
+    name = "pose" if "pose" not in names else next(f"pose_{k}" for k in range(1, len(names) + 2)
+                                                   if f"pose_{k}" not in names)
+    gltf.animations = kept + [pygltflib.Animation(name=name, samplers=samplers, channels=channels)]
 
 
 # ----------------------------------------------------------------------------- glTF characters
@@ -327,7 +343,30 @@ def posed_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], fram
             else:
                 world[n] = W_par @ local[n]
     _animate(gltf, add, list(rig.joint_nodes), trans, quats, scales, frame_time)
+    _put_in_world(gltf, char)
     return out.glb(gltf)
+
+
+def _put_in_world(gltf, char: CustomCharacter) -> None:
+    """Parent the default scene's root nodes to one node ``smplik_world`` taking the file's frame to the scene's.
+
+    ``p_world = units * C p_file - shift`` (:class:`~workflows.character.CustomCharacter`): every character
+    of a scene then lands in the scene's one world frame (metres, y-up, the scene's floor and facing),
+    so several exported GLBs line up in a 3D tool.
+    """
+    import pygltflib
+
+    M = np.eye(4)
+    M[:3, :3] = char.units_m * char.C_canon_file
+    M[:3, 3] = -char.shift
+    scenes = gltf.scenes or [pygltflib.Scene(nodes=[n for n in range(len(gltf.nodes)) if not any(
+        n in (m.children or []) for m in gltf.nodes)])]
+    k = gltf.scene if gltf.scene is not None else 0
+    roots = list(scenes[k].nodes or [])
+    gltf.nodes.append(pygltflib.Node(name="smplik_world", matrix=[float(x) for x in M.T.reshape(-1)],
+                                     children=roots))
+    scenes[k].nodes = [len(gltf.nodes) - 1]
+    gltf.scenes, gltf.scene = scenes, k
 
 
 def _parents_first(parent: Sequence[int]) -> list[int]:

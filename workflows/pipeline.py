@@ -142,6 +142,7 @@ class EstimateOutputs:
     results: tuple[PersonResult, ...]
     notes: tuple[str, ...] = ()
     """One-line remarks for the user (e.g. an ``--image`` that could not be overlaid)."""
+    character: CustomCharacter | None = None
 
     @property
     def all_files(self) -> tuple[Path, ...]:
@@ -211,11 +212,13 @@ def from_estimate(
         character = load_character(character_path, options)
         from shape_inversion.rigs import available_presets
 
-        if options.map is None and character.rig.name in available_presets():  # a re-read skips detection
-            options = dataclasses.replace(options, rig=character.rig.name)
-        else:
+        if options.map is not None:
             options = dataclasses.replace(options, map=str(Path(options.map).resolve()))
-        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
+        elif character.rig.name in available_presets():  # a re-read skips detection
+            options = dataclasses.replace(options, rig=character.rig.name)
+        # else: mapped by the rig mapper (rig None), which maps a re-read identically
+        joint_map = {s: character.names[k] for s, k in character.character.smpl_joints.items()}
+        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options, joint_map)
     image_ref = str(Path(image_path).resolve()) if image_path is not None else None
     scene, person_results = scene_from_people(people, solver, config=config, character=character, skeleton=skeleton,
                                               source=str(Path(results_path).resolve()), image=image_ref,
@@ -244,7 +247,7 @@ def from_estimate(
                 img = render_custom_character(character, r.custom_pose, c)
                 preview_paths.append(save_png(img, out_dir / f"{r.name}_character.png"))
     return EstimateOutputs(scene_path, tuple(preview_paths), tuple(plot_paths), tuple(bvh_paths),
-                           tuple(person_results), notes)
+                           tuple(person_results), notes, character)
 
 
 def _overlay_camera(people: list[EstimatedPerson], results_path: str | Path, image_path: str | Path | None,

@@ -17,8 +17,9 @@ Format ``smplik-scene``, version :data:`SCENE_VERSION`::
           "betas": [10 numbers],
           "scale": 1.0,
           "skeleton": null | {"path": "hero.bvh", "rig": "mixamo" | null, "map": null, "units": "auto",
-                               "up": "auto", "rest": "frame0", "bind": "inverse_bind", "positions": "auto",
-                               "max_joints": 10000},     # the character options (all but path optional)
+                               "up": "auto", "rest": "auto", "bind": "inverse_bind", "positions": "auto",
+                               "max_joints": 10000, "root": null,   # the character options (all but path optional)
+                               "joint_map": {"pelvis": "Hips", ...}},  # the map used (a record)
           "effectors": [{"joint": "left_wrist", "type": "position", "value": [x, y, z], "tolerance": 0.0}, ...],
           "pose": {"global_orient": [...], "body_pose": [...], "transl": [...], "betas": [...], "gender": ...}
         }
@@ -94,20 +95,25 @@ class SkeletonSource:
     map: str | None = None
     units: str = "auto"
     up: str = "auto"
-    rest: str = "frame0"
+    rest: str = "auto"
     bind: str = "inverse_bind"
     positions: str = "auto"
     max_joints: int = DEFAULT_MAX_JOINTS
+    root: str | None = None
+    joint_map: dict[str, str] | None = None
+    """The SMPL joint -> rig joint map the character was read with (a record; re-reading maps it again)."""
 
     @classmethod
-    def from_options(cls, path: str, options: CharacterOptions) -> SkeletonSource:
-        return cls(path, **options.to_dict())
+    def from_options(cls, path: str, options: CharacterOptions,
+                     joint_map: Mapping[str, str] | None = None) -> SkeletonSource:
+        return cls(path, **options.to_dict(), joint_map=None if joint_map is None else dict(joint_map))
 
     @property
     def options(self) -> CharacterOptions:
         """The character options (validated)."""
         data = dataclasses.asdict(self)
         data.pop("path")
+        data.pop("joint_map")
         return CharacterOptions.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -217,10 +223,14 @@ def _character(data: Any, path: str) -> SceneCharacter:
         _check_keys(sk, _field_names(SkeletonSource), f"{path}.skeleton")
         sk_path = _expect(sk.get("path"), str, f"{path}.skeleton.path", "a string")
         try:
-            options = CharacterOptions.from_dict({k: v for k, v in sk.items() if k != "path"})
+            options = CharacterOptions.from_dict({k: v for k, v in sk.items() if k not in ("path", "joint_map")})
         except (ValueError, TypeError) as exc:
             raise SceneError(f"{path}.skeleton: {exc}") from None
-        skeleton = SkeletonSource.from_options(sk_path, options)
+        joint_map = sk.get("joint_map")
+        if joint_map is not None and not (isinstance(joint_map, Mapping) and all(
+                isinstance(k, str) and isinstance(v, str) for k, v in joint_map.items())):
+            raise SceneError(f"{path}.skeleton.joint_map: expected null or an object of SMPL joint -> rig joint names.")
+        skeleton = SkeletonSource.from_options(sk_path, options, joint_map)
     effs = _expect(data.get("effectors", []), list, f"{path}.effectors", "a list")
     if len(effs) > MAX_EFFECTORS:
         raise SceneError(f"{path}.effectors: has {len(effs)} effectors; at most {MAX_EFFECTORS} are accepted.")

@@ -35,8 +35,9 @@ SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar=
 BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH files (searched recursively).")]
 AmassOpt = Annotated[Path | None, typer.Option("--amass", help="Folder of AMASS .npz files (searched recursively).")]
 FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source).")]
-PresetOpt = Annotated[str, typer.Option("--preset", help="BVH rig preset for retargeting (cmu, mixamo, unity, "
-                                        "unreal, makehuman: the registry in smplik/data/presets).")]
+PresetOpt = Annotated[str, typer.Option("--preset", help="BVH rig preset for retargeting: auto (each clip mapped "
+                                        "by the rig mapper; no map needed), or cmu, mixamo, unity, unreal, "
+                                        "makehuman (smplik/data/presets), or a JSON file.")]
 DtypeOpt = Annotated[StorageDtype, typer.Option("--dtype", help="Storage dtype of the cached rotations.")]
 SkipOpt = Annotated[bool, typer.Option("--skip-unassigned", help="Leave out clips of no split instead of failing.")]
 ModelDirOpt = Annotated[Path | None, typer.Option("--model-dir", help="Real SMPL files for AMASS's rest pelvis "
@@ -50,7 +51,7 @@ def build(
     bvh: BvhOpt = None,
     amass: AmassOpt = None,
     fps: FpsOpt = 30.0,
-    preset: PresetOpt = "cmu",
+    preset: PresetOpt = "auto",
     dtype: DtypeOpt = StorageDtype.float32,
     skip_unassigned: SkipOpt = False,
     model_dir: ModelDirOpt = None,

@@ -220,6 +220,8 @@ def _parse_hierarchy(tk: _Tokens, max_joints: int):
         name, line = tk.next("a joint name")
         if name in ("{", "}"):
             raise tk.error(f"missing joint name before {name!r}", line)
+        while tk.pos < len(tk.tokens) and tk.tokens[tk.pos][1] == line and tk.tokens[tk.pos][0] != "{":
+            name += " " + tk.next("a joint name")[0]  # 3ds Max names: "JOINT Bip01 L Thigh"
         if name in seen:
             raise tk.error(f"duplicate joint name {name!r}", line)
         if len(names) >= max_joints:

@@ -271,12 +271,13 @@ def _rest_pelvis_fn(body_models: Any) -> Callable[[np.ndarray | None, Gender | N
     return rest_pelvis
 
 
-def read_source(source: ClipSource, *, preset: str = "cmu", body_models: Any = None) -> PoseSequence:
+def read_source(source: ClipSource, *, preset: str = "auto", body_models: Any = None) -> PoseSequence:
     """Read one clip as y-up SMPL poses.
 
     Args:
         source: the clip.
-        preset: BVH rig preset for :func:`smplik.data.retarget.retarget_bvh`.
+        preset: BVH rig preset for :func:`smplik.data.retarget.retarget_bvh` (``"auto"``: the rig mapper
+            maps each clip, :func:`smplik.data.retarget.auto_preset`).
         body_models: a :class:`smplik.body_model.BodyModelSet` giving AMASS's rest pelvis for the
             z-up -> y-up translation (see :mod:`smplik.data.amass`); None assumes ``J0 = 0``.
 
@@ -331,7 +332,7 @@ def build_cache(
     fps: float,
     split: SplitSpec | str | Path | None,
     out: str | Path,
-    preset: str = "cmu",
+    preset: str = "auto",
     dtype: Literal["float16", "float32"] = "float32",
     body_models: Any = None,
     skip_unassigned: bool = False,

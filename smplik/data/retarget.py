@@ -159,6 +159,32 @@ def resolve_joint_names(wanted: dict[str, str], names: tuple[str, ...]) -> dict[
     return out
 
 
+def auto_preset(motion: BVHMotion) -> RetargetPreset:
+    """The preset of a BVH clip found by the rig mapper (``preset="auto"``; no hand-written map).
+
+    The skeleton is mapped by :func:`shape_inversion.rigs.detect_rig` (topology, geometry and names;
+    a built-in preset when it is as complete) on the zero-rotation OFFSET pose; a built-in preset is
+    used as is; otherwise units and up come from :func:`shape_inversion.skeleton_io.prepare_character`
+    (stature-based detection), the rest pose is chosen per clip (``rest="auto"``) and no frame is
+    dropped (``motion_start`` 0). Raises :class:`RetargetError` naming the clip when it is not a humanoid.
+    """
+    from shape_inversion.rigs import RigError, detect_rig
+    from shape_inversion.skeleton_io import Skeleton, SkeletonError, prepare_character
+
+    _, positions = motion.rest_pose()
+    try:
+        rig = detect_rig(motion.joint_names, motion.parents, positions)
+        if rig.name in preset_names():
+            return load_preset(rig.name)
+        char = prepare_character(Skeleton(motion.joint_names, motion.parents, positions, motion.name, "bvh"), rig=rig)
+    except (RigError, SkeletonError) as exc:
+        raise RetargetError(f"{motion.name}: no rig map found ({exc})") from None
+    if char.up not in ("y", "z"):
+        raise RetargetError(f"{motion.name}: up axis {char.up} is not supported for training data (y or z)")
+    return RetargetPreset(name=f"auto ({motion.name})", joints=char.joint_map, units=char.units_m,
+                          up=char.up, rest="auto")  # type: ignore[arg-type]
+
+
 def load_preset(preset: str | Path | dict[str, Any] | RetargetPreset) -> RetargetPreset:
     """A preset by built-in name (``"cmu"``), JSON file path, dict, or as is."""
     if isinstance(preset, RetargetPreset):
@@ -359,7 +385,8 @@ def retarget_bvh(
 
     Args:
         path_or_motion: a BVH path or a parsed :class:`BVHMotion`.
-        preset: built-in preset name, JSON path, dict, or :class:`RetargetPreset`.
+        preset: ``"auto"`` (:func:`auto_preset`: the rig mapper), a built-in preset name, JSON path, dict,
+            or :class:`RetargetPreset`.
         gender: body model whose rest skeleton ``J(betas)`` receives the motion.
         betas: (10,) shape; zeros by default.
         fps: output frame rate (resampled; the source's rest frames are kept); None keeps the source's.
@@ -375,7 +402,7 @@ def retarget_bvh(
     from smplik.body_model import load_body_model
 
     motion = path_or_motion if isinstance(path_or_motion, BVHMotion) else read_bvh(path_or_motion)
-    preset = load_preset(preset)
+    preset = auto_preset(motion) if isinstance(preset, str) and preset == "auto" else load_preset(preset)
     gender = Gender.parse(gender)
     model = load_body_model(gender, model_dir)
     betas_np = check_betas(betas)

@@ -104,7 +104,8 @@ def _depths(parents: Sequence[int]) -> list[int]:
     return depth
 
 
-def _is_ancestor(a: int, b: int, parents: Sequence[int]) -> bool:
+def is_ancestor(a: int, b: int, parents: Sequence[int]) -> bool:
+    """Whether joint ``a`` is a proper ancestor of joint ``b``."""
     p = parents[b]
     while p >= 0:
         if p == a:
@@ -150,7 +151,7 @@ def match_humanoid(names: Sequence[str], parents: Sequence[int],
         if wrist is not None and hand is not None:
             roles["hand"] = hand
         elif roles["wrist"] is not None:
-            fingers = [j for j in cands.get((side, "finger"), []) if _is_ancestor(roles["wrist"], j, parents)]
+            fingers = [j for j in cands.get((side, "finger"), []) if is_ancestor(roles["wrist"], j, parents)]
             if fingers:
                 roles["hand"] = fingers[0]
         for role, j in roles.items():
@@ -159,14 +160,14 @@ def match_humanoid(names: Sequence[str], parents: Sequence[int],
     neck, head = first(None, "neck"), first(None, "head")
     if head is not None:
         found["head"] = head
-        necks = [j for j in cands.get((None, "neck"), []) if _is_ancestor(j, head, parents)]
+        necks = [j for j in cands.get((None, "neck"), []) if is_ancestor(j, head, parents)]
         if necks:
             found["neck"] = necks[-1]  # the one just below the head (CMU: Neck1)
     elif neck is not None:
         found["neck"] = neck
     top = found.get("neck", found.get("head"))
-    spine = [j for j in cands.get((None, "spine"), []) if top is None or _is_ancestor(j, top, parents)]
-    spine = [j for j in spine if _is_ancestor(found["pelvis"], j, parents)]
+    spine = [j for j in cands.get((None, "spine"), []) if top is None or is_ancestor(j, top, parents)]
+    spine = [j for j in spine if is_ancestor(found["pelvis"], j, parents)]
     if spine:
         found["spine1"] = spine[0]
         found["spine3"] = spine[-1]
@@ -185,17 +186,17 @@ def _check_topology(found: dict[str, int], names: Sequence[str], parents: Sequen
         for chain in chains:
             present = [f"{side}_{r}" for r in chain if f"{side}_{r}" in found]
             for a, b in zip(present, present[1:], strict=False):
-                if not _is_ancestor(found[a], found[b], parents):
+                if not is_ancestor(found[a], found[b], parents):
                     raise NameMatchError(f"name match contradicts the hierarchy: {a} = {names[found[a]]!r} is not "
                                          f"an ancestor of {b} = {names[found[b]]!r}")
     for a, b in (("neck", "head"), ("pelvis", "left_hip"), ("pelvis", "right_hip")):
-        if a in found and b in found and found[a] != found[b] and not _is_ancestor(found[a], found[b], parents):
+        if a in found and b in found and found[a] != found[b] and not is_ancestor(found[a], found[b], parents):
             raise NameMatchError(f"name match contradicts the hierarchy: {a} = {names[found[a]]!r} is not an "
                                  f"ancestor of {b} = {names[found[b]]!r}")
     for role in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist"):
         left, right = found.get(f"left_{role}"), found.get(f"right_{role}")
         if left is not None and right is not None and (
-                left == right or _is_ancestor(left, right, parents) or _is_ancestor(right, left, parents)):
+                left == right or is_ancestor(left, right, parents) or is_ancestor(right, left, parents)):
             raise NameMatchError(f"name match contradicts the hierarchy: left_{role} = {names[left]!r} and "
                                  f"right_{role} = {names[right]!r} are on one chain")
     assert set(found) <= set(JOINT_NAMES)
