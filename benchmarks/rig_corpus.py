@@ -218,7 +218,7 @@ def main() -> None:
         base = next((b for b in bases if b.is_file()), None)
         if base is not None:
             for name, limbs in (("long_arms", {"left_shoulder": 2.5, "right_shoulder": 2.5}),
-                                ("stub_legs", {"left_hip": 0.3, "right_hip": 0.3})):
+                                ("stub_legs", {"left_hip": 0.15, "right_hip": 0.15})):
                 row = run_non_humanoid(name, base, limbs, estimator)
                 non_human.append(row)
                 print(f"{'PASS' if row['passed'] else 'FAIL'} non-human {name:<18} "

@@ -14,8 +14,10 @@ Choices, documented because the paper leaves them open:
   relative to the nearest sample (``exp(-(d^2 - d_min^2) / 2h^2)``), so they never underflow.
 * **Out of range.** When the nearest sample is farther than ``max_nearest_distance`` (default
   ``0.15 m = 7.5 h``: every kernel weight is below ``exp(-28)``), the proportions are outside the
-  human range the bank covers and :class:`ShapeInversionError` is raised, naming the features
-  whose scale-free ratio (feature / head-ankle distance) falls outside the bank's range. For
+  human range the bank covers: up to ``max_stylised_distance`` (``0.30 m``; a stylised character,
+  e.g. legs 0.6 x a human's) the estimate is the nearest human body with a warning saying so; beyond
+  it :class:`ShapeInversionError` is raised, naming the features whose scale-free ratio (feature /
+  head-ankle distance) falls outside the bank's range. For
   scale: held-out in-range bodies have their nearest sample within ~2.5 h (99 %); real CMU
   skeletons reach 6 h (subject 05: long shins, and forearms shortened by the cgspeed layout);
   a forearm twice the human length is ~30 h away.
@@ -63,7 +65,11 @@ class EstimatorConfig:
     min_relative_weight: float = 1e-6
     """Neighbours whose weight relative to the nearest one is below this are ignored."""
     max_nearest_distance: float = 0.15
-    """Raise :class:`ShapeInversionError` when the nearest sample is farther (metres; 7.5 h)."""
+    """Beyond this distance of the nearest sample (metres; 7.5 h) the proportions are outside the human range:
+    the estimate is the nearest human body, reported as approximate in ``warnings`` (a stylised character)."""
+    max_stylised_distance: float = 0.30
+    """Raise :class:`ShapeInversionError` when the nearest sample is farther than this (metres; 15 h): not a
+    human, or wrong units."""
     refine: bool = False
     """Polish the kernel mean so that its features match the query to ~tol (see module docstring)."""
     refine_tolerance_m: float = 0.001
@@ -221,7 +227,8 @@ class ShapeEstimator:
                    for k in np.argsort(-diff)[:2]]
         return (f"Not a human: the skeleton's proportions are outside the human range covered by SMPL-SI (nearest "
                 f"bank sample {nearest * 1000:.0f} mm away in feature space, limit "
-                f"{self.config.max_nearest_distance * 1000:.0f} mm). Features off: " + "; ".join(off) + ".")
+                f"{max(self.config.max_stylised_distance, self.config.max_nearest_distance) * 1000:.0f} mm). "
+                "Features off: " + "; ".join(off) + ".")
 
     def estimate(self, features: np.ndarray) -> ShapeEstimate:
         """Estimate (beta, scale) from a skeleton's features (6,) in metres.
@@ -239,8 +246,17 @@ class ShapeEstimator:
         k = min(cfg.max_neighbours, len(self.bank))
         dist, idx = self.tree.query(query[None], k=k)
         dist, idx = dist[0], idx[0]
-        if dist[0] > cfg.max_nearest_distance:
+        if dist[0] > max(cfg.max_stylised_distance, cfg.max_nearest_distance):
             raise ShapeInversionError(self._out_of_range_message(query, float(dist[0])))
+        stylised = ()
+        if dist[0] > cfg.max_nearest_distance:  # a stylised human: the nearest human body, said to be approximate
+            import warnings
+
+            note = (f"stylised proportions outside SMPL's human range (nearest human sample {dist[0] * 1000:.0f} mm "
+                    f"away in feature space, human range {cfg.max_nearest_distance * 1000:.0f} mm): the shape is the "
+                    "nearest human body, so bone lengths will differ from the character's")
+            warnings.warn(note, stacklevel=2)
+            stylised = (note,)
         w = np.exp(-0.5 * (dist**2 - dist[0] ** 2) / cfg.bandwidth**2)
         keep = w >= cfg.min_relative_weight
         w, idx = w[keep], idx[keep]
@@ -255,7 +271,7 @@ class ShapeEstimator:
         betas, scale = mean[:NUM_BETAS], float(mean[NUM_BETAS])
         residual = self.features_of(betas, scale) - query
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        notes = self._edge_check(betas, scale, query)
+        notes = (*stylised, *self._edge_check(betas, scale, query))
         max_residual, n_eff = float(np.abs(residual).max()), float(w.sum() ** 2 / (w**2).sum())
         if max_residual > cfg.weak_residual_m or n_eff < cfg.weak_effective_samples:
             import warnings

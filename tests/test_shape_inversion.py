@@ -126,6 +126,27 @@ def test_recovers_in_range_body(fake_estimator):
         assert len(payload["betas"]) == NUM_BETAS and "effective_samples" in payload["diagnostics"]
 
 
+def test_stylised_proportions_fit_the_nearest_human_with_a_warning(fake_estimator):
+    """Legs 0.3 x the rest body's (a stylised character): outside the human range but within the stylised band,
+    so the estimate is the nearest human body and says so; the same legs at 0.05 x are refused."""
+    f = joints_to_features(_fake_model().rest_joints(torch.zeros(NUM_BETAS))).numpy().astype(float)
+
+    def short_legs(k: float) -> np.ndarray:
+        g = f.copy()
+        g[2] -= (1 - k) * (g[0] + g[1])  # head-ankle shrinks by what the legs lose
+        g[:2] *= k
+        return g
+
+    cfg = fake_estimator.config
+    with pytest.warns(UserWarning, match="stylised proportions"):
+        est = fake_estimator.estimate(short_legs(0.3))
+    assert cfg.max_nearest_distance < est.nearest_distance_m <= cfg.max_stylised_distance
+    assert any(w.startswith("stylised proportions") for w in est.warnings)
+    assert np.all(np.isfinite(est.betas)) and est.scale > 0
+    with pytest.raises(ShapeInversionError, match="^Not a human: .*limit 300 mm"):
+        fake_estimator.estimate(short_legs(0.05))
+
+
 def test_out_of_range_raises(fake_estimator):
     with pytest.raises(ShapeInversionError, match="^Not a human: .*outside the human range.*right_elbow-right_wrist"):
         fake_estimator.estimate(np.array([0.4, 0.4, 1.5, 0.9, 0.25, 0.9]))
