@@ -538,9 +538,11 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
 
 def export_animation(animation: Animation, out_dir: str | Path, formats: Sequence[str] = ("bvh",),
                      base_dir: str | Path | None = None) -> list[Path]:
-    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.export.export_scene`)."""
+    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.export.export_scene`): the
+    clip's frames only, in the animation's world frame (metres, y-up), like every scene export."""
     from workflows.animation_io import scene_of
     from workflows.export import export_scene
 
     return export_scene(scene_of(animation), out_dir, formats=formats, frame_time=1.0 / animation.fps,
-                        poses={t.name: t.poses() for t in animation.tracks}, base_dir=base_dir)
+                        poses={t.name: t.poses() for t in animation.tracks}, base_dir=base_dir,
+                        keep_source_frames=False)

@@ -57,7 +57,8 @@ class ExportError(ValueError):
 
 def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = ("bvh", "glb"),
                  base_dir: str | Path | None = None, frame_time: float = 1 / 30,
-                 poses: Mapping[str, Sequence[Pose]] | None = None, bvh_frame: str = "world") -> list[Path]:
+                 poses: Mapping[str, Sequence[Pose]] | None = None, bvh_frame: str = "world",
+                 keep_source_frames: bool = True) -> list[Path]:
     """Write every posed character of ``scene`` to ``out_dir`` as ``formats``; returns the files written.
 
     Args:
@@ -70,6 +71,8 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
         bvh_frame: ``"world"`` (default): a custom character's BVH in the scene's world frame (metres, y-up,
             its floor and facing), lined up with every other character and GLB of the scene; ``"source"``:
             in its file's own units and axes.
+        keep_source_frames: a BVH character's own MOTION frames follow the exported ones (a scene's pose);
+            False for an animation, whose frames are the whole clip.
 
     Raises: ExportError / SkeletonError / RigError naming the character and the problem.
     """
@@ -104,7 +107,8 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
         char = character_from_estimate(path, c.skeleton.options, c.betas, c.scale, c.gender)
         custom = [smpl_to_custom(_with_betas(p, c), char) for p in frames]
         if "bvh" in formats:
-            text = custom_bvh_text(char, custom, frame_time, keep_source_frames=True, frame=bvh_frame)
+            text = custom_bvh_text(char, custom, frame_time, keep_source_frames=keep_source_frames,
+                                   frame=bvh_frame)
             written.append(write_text_atomic(out_dir / f"{stem}.bvh", text))
         if "glb" in formats and char.skeleton.gltf is not None:
             written.append(write_bytes_atomic(out_dir / f"{stem}.glb", posed_character_glb(char, custom, frame_time)))
