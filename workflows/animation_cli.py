@@ -14,6 +14,7 @@ from shape_inversion.options import (
     PositionsOption,
     RestOption,
     RigOption,
+    RootOption,
     UnitsOption,
     UpOption,
     character_options_from_cli,
@@ -38,10 +39,11 @@ def animate_cmd(
     map_file: MapOption = None,
     units: UnitsOption = "auto",
     up: UpOption = "auto",
-    rest: RestOption = "frame0",
+    rest: RestOption = "auto",
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    root: RootOption = None,
     smoothing: Annotated[str, typer.Option("--smoothing", help="one_euro, savgol or none.")] = "one_euro",
     foot_lock: Annotated[bool, typer.Option("--foot-lock/--no-foot-lock", help="Lock feet in contact.")] = True,
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
@@ -70,7 +72,7 @@ def animate_cmd(
     from workflows.motion_clean import CleanConfig
     from workflows.recovery import RecoveryConfig
 
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, foot_lock=foot_lock),  # type: ignore[arg-type]

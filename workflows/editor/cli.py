@@ -17,6 +17,7 @@ from shape_inversion.options import (
     PositionsOption,
     RestOption,
     RigOption,
+    RootOption,
     UnitsOption,
     UpOption,
     character_options_from_cli,
@@ -53,10 +54,11 @@ def edit_cmd(
     map_file: MapOption = None,
     units: UnitsOption = "auto",
     up: UpOption = "auto",
-    rest: RestOption = "frame0",
+    rest: RestOption = "auto",
     bind: BindOption = "inverse_bind",
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
+    root: RootOption = None,
     output_dir: Annotated[list[Path] | None, typer.Option(
         "--output-dir", help="A folder Save and Export may also write in (repeatable; default: only the scene's "
                              "folder).")] = None,
@@ -87,7 +89,7 @@ def edit_cmd(
     if character is not None:
         from workflows.character import load_character
 
-        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
         try:
             custom = load_character(character, options)
         except (ValueError, OSError) as exc:
