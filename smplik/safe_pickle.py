@@ -218,6 +218,89 @@ def _frombuffer_function() -> Any:
     return _frombuffer
 
 
+_STORAGE_DTYPES = {"FloatStorage": np.float32, "DoubleStorage": np.float64, "HalfStorage": np.float16,
+                   "LongStorage": np.int64, "IntStorage": np.int32, "ShortStorage": np.int16, "CharStorage": np.int8,
+                   "ByteStorage": np.uint8, "BoolStorage": np.bool_}
+"""torch's legacy storage classes (as ``torch.save(storage)`` names them) and the numpy dtypes of their data."""
+
+
+class _StorageRecordUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc]
+    """Reads the one record of a legacy ``torch.save(storage)`` stream: torch's storage class names become numpy
+    dtypes and the persistent id ``('storage', dtype, key, location, numel, view)`` is returned as a tuple."""
+
+    dispatch = None  # set below (the restricted table)
+
+    def find_class(self, module: str, name: str) -> Any:
+        if module == "torch" and name in _STORAGE_DTYPES:
+            return np.dtype(_STORAGE_DTYPES[name])
+        return allowed_global(module, name)
+
+    def persistent_load(self, pid: Any) -> Any:
+        if not (isinstance(pid, tuple) and len(pid) >= 5 and pid[0] == "storage" and isinstance(pid[1], np.dtype)
+                and isinstance(pid[2], str)):
+            raise UnsafePickleError(f"Refusing a torch storage record {pid!r:.80} in a pickle.")
+        return pid
+
+    def _instantiate(self, klass: Any, args: Any) -> None:
+        _check_call(klass, tuple(args))
+        super()._instantiate(klass, args)
+
+
+def storage_bytes_to_array(data: bytes) -> np.ndarray:
+    """The flat array of a pickled torch storage (``torch.storage._load_from_bytes``'s argument: a legacy
+    ``torch.save`` of one storage), parsed without torch and without allocating more than ``data`` holds.
+
+    The stream is: magic number, protocol version, system info (three small pickles), the storage record
+    (a persistent id naming the class, i.e. the dtype), the list of storage keys, then per key an 8-byte
+    little-endian element count and the raw little-endian elements.
+
+    Raises:
+        UnsafePickleError: any other layout, class or byte order.
+    """
+    fh = io.BytesIO(bytes(data))
+    try:
+        magic = RestrictedUnpickler(fh).load()
+        RestrictedUnpickler(fh).load()  # protocol version
+        info = RestrictedUnpickler(fh).load()
+        if magic != 0x1950A86A20F9469CFC6C or not isinstance(info, dict) or not info.get("little_endian", False):
+            raise UnsafePickleError("Refusing a torch storage that is not a little-endian legacy torch.save stream.")
+        unpickler = _StorageRecordUnpickler(fh)
+        record = unpickler.load()
+        keys = RestrictedUnpickler(fh).load()
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, IndexError, KeyError, AttributeError) as exc:
+        if isinstance(exc, UnsafePickleError):
+            raise
+        raise UnsafePickleError(f"Refusing a corrupt torch storage in a pickle ({type(exc).__name__}).") from None
+    if not (isinstance(record, tuple) and len(record) >= 5 and isinstance(keys, list) and keys == [record[2]]):
+        raise UnsafePickleError("Refusing a torch storage record that does not hold exactly one storage.")
+    dtype: np.dtype = record[1]
+    count = int.from_bytes(fh.read(8), "little", signed=True)
+    raw = fh.read()
+    if count < 0 or count * dtype.itemsize != len(raw):
+        raise UnsafePickleError(f"Refusing a torch storage declaring {count} elements but holding {len(raw)} bytes.")
+    return np.frombuffer(raw, dtype=dtype.newbyteorder("<")).astype(dtype)
+
+
+def rebuild_tensor_as_array(storage: Any, offset: Any, size: Any, stride: Any, *_: Any) -> np.ndarray:
+    """``torch._utils._rebuild_tensor_v2(storage, offset, size, stride, requires_grad, hooks[, metadata])`` as a
+    numpy array (a copy), every index checked to lie inside ``storage`` (a flat array from
+    :func:`storage_bytes_to_array`) and the result's size checked before it is allocated."""
+    ints = lambda v: isinstance(v, tuple) and all(type(n) is int and n >= 0 for n in v)  # noqa: E731
+    if not (isinstance(storage, np.ndarray) and storage.ndim == 1 and type(offset) is int and offset >= 0
+            and ints(size) and ints(stride) and len(size) == len(stride)):
+        raise UnsafePickleError("Refusing a torch tensor with an invalid storage, offset, size or stride in a pickle.")
+    _check_declared(size, storage.dtype.itemsize)
+    if any(n == 0 for n in size):
+        return np.zeros(size, storage.dtype)
+    last = offset + sum((n - 1) * s for n, s in zip(size, stride, strict=True))
+    if last >= storage.shape[0]:
+        raise UnsafePickleError(f"Refusing a torch tensor of size {size} reaching element {last} of a storage of "
+                                f"{storage.shape[0]} in a pickle.")
+    view = np.lib.stride_tricks.as_strided(storage[offset:], shape=size,
+                                           strides=tuple(s * storage.dtype.itemsize for s in stride), writeable=False)
+    return np.array(view)
+
+
 _BUILTINS = {"dict", "list", "tuple", "set", "frozenset", "bytearray", "bytes", "complex", "slice",
              "int", "float", "str", "bool", "object"}
 _NUMPY_MODULES = {"numpy", "numpy.core.multiarray", "numpy._core.multiarray", "numpy.core.numeric",
@@ -252,6 +335,10 @@ def allowed_global(module: str, name: str) -> Any:
         return _reconstructor
     if module == "chumpy" or module.startswith("chumpy."):
         return ChumpyStub
+    if (module, name) == ("torch._utils", "_rebuild_tensor_v2"):
+        return rebuild_tensor_as_array
+    if (module, name) == ("torch.storage", "_load_from_bytes"):
+        return storage_bytes_to_array
     if module.startswith("scipy.sparse") and name in _SPARSE:
         import scipy.sparse
 
@@ -307,7 +394,11 @@ def _check_call(func: Any, args: Any, kwargs: Any = None) -> None:
         if args and args[0] not in (None, list, dict, set, tuple, int, float, str):
             raise UnsafePickleError("Refusing collections.defaultdict with a custom factory in a pickle.")
         return
-    if func in (np.dtype, ma.scalar, _frombuffer_function(), _encode_latin1, _reconstructor,
+    if func is storage_bytes_to_array:
+        if len(args) != 1 or not isinstance(args[0], (bytes, bytearray)):
+            raise UnsafePickleError("Refusing torch.storage._load_from_bytes of anything but bytes in a pickle.")
+        return
+    if func in (np.dtype, ma.scalar, _frombuffer_function(), _encode_latin1, _reconstructor, rebuild_tensor_as_array,
                 int, float, str, complex, slice, bool):
         return
     if isinstance(func, type) and issubclass(func, np.dtype):
@@ -369,6 +460,9 @@ class RestrictedUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc
 
     dispatch = _restricted_dispatch(pickle._Unpickler.dispatch)  # type: ignore[attr-defined]
 
+    def persistent_load(self, pid: Any) -> Any:
+        raise UnsafePickleError(f"Refusing a persistent id {pid!r:.60} in a pickle.")
+
     def find_class(self, module: str, name: str) -> Any:
         return allowed_global(module, name)
 
@@ -381,6 +475,9 @@ class RestrictedUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc
         obj = super().load()
         check_object_graph(obj)
         return obj
+
+
+_StorageRecordUnpickler.dispatch = RestrictedUnpickler.dispatch
 
 
 def loads_restricted(data: bytes, *, encoding: str = "ASCII") -> Any:
@@ -530,3 +627,34 @@ def read_npz(path: str | Path, *, allow_objects: bool = True) -> dict[str, Any]:
             UnicodeDecodeError, NotImplementedError, zlib.error) as exc:
         raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {str(exc)[:200]}).") from None
     return out
+
+
+def read_npy(path: str | Path) -> Any:
+    """One ``.npy`` file: a numeric array as ``np.load(allow_pickle=False)`` reads it, or the object an object
+    array holds (``np.save(path, a_dict)``, e.g. TRAM's ``hps_track_*.npy`` dicts of torch tensors, whose
+    tensors become numpy arrays) through :class:`RestrictedUnpickler`, never plain pickle.
+
+    Raises:
+        UnsafePickleError: a refused global in the object array (named).
+        ValueError: a missing or corrupt file (named).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"File not found: {path}")
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                      else np.lib.format.read_array_header_2_0)
+            _, _, dtype = header(fh, max_header_size=10000)
+            if not dtype.hasobject:
+                fh.seek(0)
+                return np.load(fh, allow_pickle=False)
+            value = RestrictedUnpickler(fh, encoding="latin1").load()
+    except UnsafePickleError as exc:
+        raise UnsafePickleError(f"{path}: {exc}") from None
+    except _READ_ERRORS as exc:
+        raise ValueError(f"{path}: not a readable .npy ({type(exc).__name__}: {str(exc)[:200]}).") from None
+    if isinstance(value, np.ndarray) and value.shape == () and value.dtype.hasobject:
+        value = value.item()
+    return value

@@ -11,6 +11,7 @@ camera, without smplik's conversion code.
 
 from __future__ import annotations
 
+import json
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
@@ -477,3 +478,57 @@ def write_glamr(folder: Path, aa, transl, betas, *, frames: int = 3) -> tuple[Wr
     with open(path, "wb") as fh:
         pickle.dump(data, fh)
     return Written(path, f, cx, cy, fmt="glamr"), T_wc
+
+
+def write_tram(folder: Path, aa, transl, betas, *, focal: float = 900.0, starts: tuple[int, ...] = (0, 1),
+               frames: int = 3) -> tuple[Written, list[Path]]:
+    """TRAM: ``scripts/estimate_humans.py`` ``np.save(f'{hps_folder}/hps_track_{k}.npy', results)`` with the dict of
+    torch tensors of ``lib/models/hmr_vimo.py`` ``HMR_VIMO.inference`` (``pred_rotmat (T, 24, 3, 3)``, ``pred_trans
+    (T, 1, 3)``, ...), and ``scripts/estimate_camera.py`` ``np.save(f'{seq_folder}/camera.npy', camera)``.
+    Person k's track starts at video frame ``starts[k]``; every row repeats the person's pose."""
+    seq = folder / "results" / "example_video"
+    (seq / "hps").mkdir(parents=True, exist_ok=True)
+    R = torch.as_tensor(_R(aa), dtype=torch.float32)
+    paths = []
+    for k in range(aa.shape[0]):
+        frame = torch.arange(starts[k], starts[k] + frames)
+        results = {"pred_cam": torch.rand(frames, 3), "pred_pose": torch.zeros(frames, 144),
+                   "pred_shape": torch.as_tensor(betas[k], dtype=torch.float32).expand(frames, 10).clone(),
+                   "pred_rotmat": R[k].expand(frames, 24, 3, 3).clone(),
+                   "pred_trans": torch.as_tensor(transl[k], dtype=torch.float32).expand(frames, 1, 3).clone(),
+                   "frame": frame}
+        paths.append(seq / "hps" / f"hps_track_{k}.npy")
+        np.save(paths[-1], results)
+    cam_int = np.array([focal, focal, IMAGE_W / 2, IMAGE_H / 2])
+    np.save(seq / "camera.npy", {"pred_cam_R": np.tile(np.eye(3), (frames, 1, 1)), "pred_cam_T": np.zeros((frames, 3)),
+                                 "img_focal": cam_int[0], "img_center": cam_int[2:]})
+    return Written(paths[0], focal, IMAGE_W / 2, IMAGE_H / 2, fmt="tram"), paths
+
+
+SMPLERX_FOCAL, SMPLERX_INPUT = (5000.0, 5000.0), (256, 192)
+"""SMPLer-X's ``cfg.focal`` and ``cfg.input_body_shape`` (``main/config.py``), which scale to each person's box."""
+
+
+def write_smplerx(folder: Path, aa, transl, betas, boxes: list[tuple[float, float, float, float]], *,
+                  frame: int = 1, meta: bool = True) -> tuple[list[Path], list[Written]]:
+    """SMPLer-X ``main/inference.py``: per person ``np.savez(smplx/{frame:05}_{bbox_id}.npz, **smplx_pred)`` and
+    ``meta/{frame:05}_{bbox_id}.json`` (``focal``, ``princpt`` scaled from ``cfg.focal`` to the box ``bbox``
+    (x, y, w, h)). ``transl`` is the SMPL-X ``cam_trans`` in that person's own camera."""
+    (folder / "smplx").mkdir(parents=True, exist_ok=True)
+    (folder / "meta").mkdir(parents=True, exist_ok=True)
+    paths, cams = [], []
+    for i, (x, y, w, h) in enumerate(boxes):
+        pred = {"global_orient": aa[i, :1].reshape(-1, 3), "body_pose": aa[i, 1:22].reshape(-1, 3),
+                "left_hand_pose": np.zeros((15, 3)), "right_hand_pose": np.zeros((15, 3)), "jaw_pose": np.zeros((1, 3)),
+                "leye_pose": np.zeros((1, 3)), "reye_pose": np.zeros((1, 3)), "betas": betas[i].reshape(-1, 10),
+                "expression": np.zeros((1, 10)), "transl": transl[i].reshape(-1, 3)}
+        paths.append(folder / "smplx" / f"{frame:05}_{i}.npz")
+        np.savez(paths[-1], **{k: v.astype(np.float32) for k, v in pred.items()})
+        focal = [SMPLERX_FOCAL[0] / SMPLERX_INPUT[1] * w, SMPLERX_FOCAL[1] / SMPLERX_INPUT[0] * h]
+        princpt = [SMPLERX_INPUT[1] / 2 / SMPLERX_INPUT[1] * w + x, SMPLERX_INPUT[0] / 2 / SMPLERX_INPUT[0] * h + y]
+        if meta:
+            (folder / "meta" / f"{frame:05}_{i}.json").write_text(json.dumps(
+                {"focal": focal, "princpt": princpt, "bbox": [x, y, w, h], "bbox_mmdet": [x, y, w, h], "bbox_id": i,
+                 "img_path": f"frames/{frame:06d}.jpg"}, indent=4))
+        cams.append(Written(paths[-1], float(np.mean(focal)), princpt[0], princpt[1], family="smplx", fmt="smplerx"))
+    return paths, cams

@@ -91,9 +91,9 @@ def test_pose_array_without_a_root_and_pickled_npy_are_one_line(tmp_path):
         read_estimate(path)
     with pytest.raises(EstimateFormatError, match="root rotation is missing"):
         read_estimate(path, format="pose_array")
-    obj = tmp_path / "dict.npy"
+    obj = tmp_path / "dict.npy"  # a saved dict goes through the restricted unpickler, then the closest-format hint
     np.save(obj, {"pose": np.zeros(3)}, allow_pickle=True)
-    with pytest.raises(EstimateFormatError, match="allow_pickle"):
+    with pytest.raises(EstimateFormatError, match=r"top-level keys: pose\); closest: wham"):
         read_estimate(obj)
 
 
@@ -125,3 +125,85 @@ def test_glamr_camera_and_world_spaces(tmp_path):
         np.testing.assert_allclose(our_joints(p)[0], R_YUP_ZUP.apply(pelvis_w[:, i]), atol=1e-4)
     with pytest.raises(EstimateFormatError, match="no person has frame 5"):
         read_estimate(w.path, frame=5)
+
+
+def test_tram_tracks_and_camera_are_read_through_the_restricted_loader(tmp_path):
+    from estimator_fixtures import producer_pixels, write_tram
+
+    aa, transl, betas = people(seed=7, n=2, depth=900.0 * 1.7 / 200.0, focal=900.0)
+    w, paths = write_tram(tmp_path, aa, transl, betas)
+    from workflows.estimators import _load_raw
+
+    assert detect_format(_load_raw(paths[1], False, 1 << 30)) == "tram"  # np.save of a dict of torch tensors
+    first = read_estimate(paths[1], frame=0)  # any track file of the folder gives every track of the frame
+    assert [p.person_id for p in first] == ["0"]
+    both = read_estimate(w.path, frame=1)
+    assert [p.person_id for p in both] == ["0", "1"]
+    cam = both[0].camera
+    assert cam.focal_px == pytest.approx(900.0) and cam.image_size == (640, 480) and cam.focal_rule == "intrinsics"
+    err = np.linalg.norm(overlay_pixels(both) - producer_pixels(w, aa, transl), axis=-1)
+    assert err[:, 0].max() < 1e-3 and err[:, 1].max() < 2.0, err  # pelvis exactly, head within the body's proportions
+    np.testing.assert_allclose(both[1].body_pose, aa[1, 1:], atol=1e-4)
+    with pytest.raises(EstimateFormatError, match="no TRAM track .* has frame 9"):
+        read_estimate(w.path, frame=9)
+    (w.path.parent.parent / "camera.npy").unlink()
+    with pytest.warns(EstimateNote, match="no TRAM camera.npy"):
+        assert read_estimate(w.path, frame=1)[0].camera.focal_px is None
+
+
+def test_npy_pickles_still_refuse_code(tmp_path):
+    import pickle
+
+    from workflows.safe_pickle import UnsafePickleError
+
+    class Evil:
+        def __reduce__(self):
+            return (print, ("pwned",))
+
+    path = tmp_path / "hps_track_0.npy"
+    np.save(path, {"pred_rotmat": Evil()}, allow_pickle=True)
+    with pytest.raises(UnsafePickleError, match="builtins.print"):
+        read_estimate(path)
+    assert pickle  # the module is used by np.save above
+
+
+@pytest.mark.parametrize("meta", [True, False])
+def test_smplerx_people_of_a_frame_share_the_first_persons_camera(tmp_path, meta):
+    from estimator_fixtures import producer_pixels, write_smplerx
+
+    boxes = [(100.0, 80.0, 180.0, 240.0), (380.0, 60.0, 210.0, 280.0)]  # each person's own camera (its box)
+    focals = [5000.0 / 256.0 * h for *_, h in boxes]
+    aa, transl, betas = people(seed=8, n=2)
+    for i, f in enumerate(focals):  # 200 px tall, near its box centre
+        transl[i] = [0.05 * (-1) ** i, 0.1, f * 1.7 / 200.0]
+    betas[1, :3] = [0.5, -0.3, 0.2]
+    paths, cams = write_smplerx(tmp_path, aa, transl, betas, boxes, meta=meta)
+    from workflows.estimators import _load_raw
+
+    assert detect_format(_load_raw(paths[1], False, 1 << 30)) == "smplerx"
+    if not meta:
+        with pytest.warns(EstimateNote, match="no SMPLer-X meta json"):
+            found = read_estimate(paths[1])
+        assert found[0].camera.focal_px is None
+        return
+    found = read_estimate(paths[1])  # any person's file gives every person of its frame
+    assert [p.person_id for p in found] == ["0", "1"] and found[0].frame == "1"
+    assert found[0].camera.focal_px == pytest.approx(cams[0].f)
+    for i, p in enumerate(found):  # each person where its own camera draws it, through the scene's one camera
+        own = producer_pixels(cams[i], aa[i:i + 1], transl[i:i + 1])[0]
+        err = np.linalg.norm(overlay_pixels([found[0], p])[1] - own, axis=-1)
+        assert err[0] < 1e-3 and err[1] < 0.03 * 200, (i, err)
+    assert [p.person_id for p in read_estimate(paths[0], frame=1)] == ["0", "1"]
+    with pytest.raises(EstimateFormatError, match="no SMPLer-X file 00004"):
+        read_estimate(paths[0], frame=4)
+
+
+def test_meshes_from_demos_that_save_only_meshes_say_so(tmp_path):
+    obj = tmp_path / "img_0.obj"
+    obj.write_text("v 0 0 0\n")
+    with pytest.raises(EstimateFormatError, match="no SMPL parameters.*CameraHMR"):
+        read_estimate(obj)
+    verts = tmp_path / "img.npy"  # Multi-HMR demo.py --save_mesh: np.save of the people's SMPL-X vertices
+    np.save(verts, np.zeros((2, 10475, 3), np.float32))
+    with pytest.raises(EstimateFormatError, match=r"\(2, 10475, 3\) holds SMPL-X mesh vertices"):
+        read_estimate(verts)

@@ -10,10 +10,12 @@ from smplik.safe_pickle import (
     UnsafePickleError,
     allowed_global,
     load_pickle,
+    read_npy,
     read_npz,
 )
 
-__all__ = ["TRUST_HINT", "RestrictedUnpickler", "UnsafePickleError", "allowed_global", "load_npz", "load_pickle"]
+__all__ = ["TRUST_HINT", "RestrictedUnpickler", "UnsafePickleError", "allowed_global", "load_npz", "load_pickle",
+           "read_npy"]
 
 load_npz = read_npz
 """Every array of an estimator ``.npz``; object arrays through the restricted unpickler."""

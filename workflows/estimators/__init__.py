@@ -37,6 +37,8 @@ from workflows.estimators import (
     pymafx,
     romp,
     sam3d,
+    smplerx,
+    tram,
     vibe,
     wham,
 )
@@ -50,14 +52,16 @@ from workflows.estimators.base import (
 )
 
 FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
-                     "amass", "sam3d", "easymocap", "plain", "pose_array"]
+                     "amass", "sam3d", "easymocap", "tram", "smplerx", "plain", "pose_array"]
 FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
-                            "amass", "sam3d", "easymocap", "plain", "pose_array")
+                            "amass", "sam3d", "easymocap", "tram", "smplerx", "plain", "pose_array")
 _MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx, "vibe": vibe,
             "gvhmr": gvhmr, "glamr": glamr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "easymocap": easymocap,
-            "plain": plain, "pose_array": pose_array}
-_DETECT_ORDER = (romp, hybrik, gvhmr, glamr, aist, sam3d, phalp, wham, pymafx, vibe, amass_params, easymocap, plain,
-                 pose_array)
+            "tram": tram, "smplerx": smplerx, "plain": plain, "pose_array": pose_array}
+_DETECT_ORDER = (romp, hybrik, gvhmr, glamr, aist, sam3d, phalp, wham, pymafx, vibe, amass_params, easymocap, tram,
+                 smplerx, plain, pose_array)
+_PATH_READERS = (amass_params, tram, smplerx)
+"""Readers that need the file's path (sibling files: other tracks or people, the camera or meta file)."""
 SIGNATURES: dict[str, tuple[str, ...]] = {
     "romp": ("smpl_thetas", "smpl_betas", "cam_trans"), "hybrik": ("pred_thetas", "pred_betas", "transl"),
     "phalp": ("smpl", "camera"), "wham": ("pose", "trans", "betas"), "pymafx": ("pose", "betas", "orig_cam_t"),
@@ -65,9 +69,16 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "gvhmr": ("smpl_params_incam", "smpl_params_global", "K_fullimg"), "glamr": ("person_data", "cam_pose"),
     "aist": ("smpl_poses", "smpl_trans", "smpl_scaling"), "amass": ("poses", "trans", "betas"),
     "sam3d": ("pred_joint_coords", "pred_cam_t"), "easymocap": ("id", "Rh", "Th", "poses", "shapes"),
+    "tram": ("pred_rotmat", "pred_trans", "pred_shape", "frame"), "smplerx": smplerx.KEYS,
     "plain": ("global_orient", "body_pose", "transl", "betas")}
 """The keys that identify each format (in a person's record for per-person layouts), for the closest-format hint."""
 SUFFIXES = (".npz", ".npy", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
+MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl")
+MESH_HINT = ("a mesh holds no SMPL parameters (CameraHMR's and TokenHMR's demo.py and Multi-HMR's --save_mesh write "
+             "only meshes); run the estimator's parameter output instead (TokenHMR: track.py writes a PHALP .pkl, "
+             "read as phalp), see docs/estimators.md.")
+MESH_VERTICES = {6890: "SMPL", 10475: "SMPL-X"}
+"""Vertex counts of the body meshes some demos save as bare arrays (Multi-HMR ``demo.py --save_mesh``: SMPL-X)."""
 MAX_BYTES = 1 << 30
 """Default cap (1 GiB) on the uncompressed size of an estimator file's data."""
 
@@ -123,9 +134,11 @@ def _load_torch(path: Path) -> Any:
 
 
 def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
-    from workflows.safe_pickle import UnsafePickleError, load_npz, load_pickle
+    from workflows.safe_pickle import UnsafePickleError, load_npz, load_pickle, read_npy
 
     suffix = path.suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        raise EstimateFormatError(f"{path}: {MESH_HINT}")
     if suffix not in SUFFIXES:
         raise EstimateFormatError(f"{path}: unsupported file type {suffix!r} (expected {', '.join(SUFFIXES)}).")
     if suffix in (".npz", ".pt", ".pth"):
@@ -141,8 +154,8 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
             return load_npz(path)
         if suffix in (".pt", ".pth"):
             return _load_torch(path)
-        if suffix == ".npy":  # never pickles: an object array (a saved dict) is refused with one line
-            return np.load(path, allow_pickle=False)
+        if suffix == ".npy":  # an object array (a saved dict, e.g. TRAM's) through the restricted unpickler
+            return read_npy(path)
         if suffix == ".json":
             try:
                 return json.loads(path.read_text(encoding="utf-8"))
@@ -196,6 +209,8 @@ def _record_keys(data: Any) -> set[str]:
 def closest_format(data: Any) -> str:
     """One sentence naming the format whose identifying keys (:data:`SIGNATURES`) ``data`` shares most, and
     the keys it lacks; or, sharing none, the formats known."""
+    if isinstance(data, np.ndarray) and data.ndim >= 2 and data.shape[-1] == 3 and data.shape[-2] in MESH_VERTICES:
+        return (f"an array of shape {data.shape} holds {MESH_VERTICES[data.shape[-2]]} mesh vertices: {MESH_HINT}")
     if isinstance(data, np.ndarray):
         return (f"an array of shape {data.shape}: the pose_array format needs (T, 72 | 156 | 165) floats "
                 f"(axis-angle, root first).")
@@ -256,10 +271,10 @@ def people_from_data(data: Any, *, source: str, format: FormatName = "auto", fra
     if solver is not None and module is sam3d:
         kwargs["solver"] = solver
     try:
-        if module is amass_params:
+        if module in _PATH_READERS:
             if path is None:
-                raise EstimateFormatError(f"{source}: the amass reader reads files only.")
-            people = amass_params.read(path, data, **kwargs)
+                raise EstimateFormatError(f"{source}: the {name} reader reads files only.")
+            people = module.read(path, data, **kwargs)
         else:
             people = module.from_data(data, source=source, **kwargs)
     except EstimateFormatError:
