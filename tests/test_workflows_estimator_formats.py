@@ -207,3 +207,35 @@ def test_meshes_from_demos_that_save_only_meshes_say_so(tmp_path):
     np.save(verts, np.zeros((2, 10475, 3), np.float32))
     with pytest.raises(EstimateFormatError, match=r"\(2, 10475, 3\) holds SMPL-X mesh vertices"):
         read_estimate(verts)
+
+
+REAL_LAYOUTS = {"vibe": ("vibe_output.pkl", "pare_output.pkl"), "easymocap": ("smpl/*.json",),
+                "glamr": ("*.pkl",), "tram": ("hps/hps_track_*.npy",), "smplerx": ("smplx/*.npz",)}
+"""Where each producer's real outputs sit under ``real_estimators_dir()/<format>*/`` (any depth)."""
+
+
+def _first_frame(data, fmt: str) -> int:
+    if fmt == "tram":
+        return int(np.asarray(data["frame"]).reshape(-1)[0])
+    if fmt == "vibe":
+        return int(np.asarray(next(iter(data.values()))["frame_ids"]).reshape(-1)[0])
+    return 0
+
+
+@pytest.mark.parametrize("fmt", sorted(REAL_LAYOUTS))
+def test_real_outputs_are_detected_and_read_when_present(fmt):
+    """Real files kept outside the repository (``$SMPLIK_REAL_ESTIMATORS/<format>*/``): detected with no
+    --format, read at their first frame, every person placed finitely."""
+    from smplik.paths import real_estimators_dir
+    from workflows.estimators import _load_raw
+
+    root = real_estimators_dir()
+    files = sorted({p for d in root.glob(f"{fmt}*") if d.is_dir() for pat in REAL_LAYOUTS[fmt]
+                    for p in d.rglob(pat)})[:5]
+    if not files:
+        pytest.skip(f"no real {fmt} output under {root}/{fmt}*/ (set $SMPLIK_REAL_ESTIMATORS)")
+    for path in files:
+        data = _load_raw(path, False, 1 << 30)
+        assert detect_format(data) == fmt, path
+        found = read_estimate(path, frame=_first_frame(data, fmt))
+        assert found and all(np.isfinite(p.transl).all() and np.isfinite(p.body_pose).all() for p in found), path
