@@ -13,7 +13,7 @@ over the video's frames (``frames = arange(max_len)``, invisible frames in-fille
   as up), turned into smplik's y-up world here.
 
 ``space``: ``"world"`` (default, GLAMR's point) or ``"camera"``. ``--frame N`` is row N of every person
-that has one. Arrays must be numpy (a pickle holding torch tensors is refused by the restricted loader).
+that has one. Torch tensors in the pickle are rebuilt as numpy arrays by the restricted loader.
 """
 
 from __future__ import annotations
