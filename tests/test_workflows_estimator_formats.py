@@ -1,9 +1,11 @@
-"""Readers added for issue 26: VIBE / PARE, EasyMocap SMPL json, bare pose arrays; the closest-format hint."""
+"""Readers added for issue 26: VIBE / PARE, EasyMocap SMPL json, bare pose arrays, TRAM, SMPLer-X; the closest-format
+hint; demos that save only meshes; pickled torch tensors in ``.npy``."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from estimator_fixtures import (
     FOCAL,
     our_joints,
@@ -152,8 +154,6 @@ def test_tram_tracks_and_camera_are_read_through_the_restricted_loader(tmp_path)
 
 
 def test_npy_pickles_still_refuse_code(tmp_path):
-    import pickle
-
     from workflows.safe_pickle import UnsafePickleError
 
     class Evil:
@@ -164,7 +164,6 @@ def test_npy_pickles_still_refuse_code(tmp_path):
     np.save(path, {"pred_rotmat": Evil()}, allow_pickle=True)
     with pytest.raises(UnsafePickleError, match="builtins.print"):
         read_estimate(path)
-    assert pickle  # the module is used by np.save above
 
 
 @pytest.mark.parametrize("meta", [True, False])
@@ -239,3 +238,43 @@ def test_real_outputs_are_detected_and_read_when_present(fmt):
         assert detect_format(data) == fmt, path
         found = read_estimate(path, frame=_first_frame(data, fmt))
         assert found and all(np.isfinite(p.transl).all() and np.isfinite(p.body_pose).all() for p in found), path
+
+
+def test_pickled_torch_tensors_are_checked_before_anything_is_allocated(tmp_path):
+    """A pickled tensor is rebuilt from its own bytes: a size/stride reaching outside its storage, a size
+    beyond the input limits (stride 0) or a storage holding fewer bytes than it declares is refused."""
+    import collections
+    import warnings
+
+    from workflows.estimators import _load_raw
+    from workflows.safe_pickle import UnsafePickleError
+
+    with warnings.catch_warnings():  # TypedStorage's deprecation: the pickle format torch itself writes
+        warnings.simplefilter("ignore")
+        storage_bytes = torch.arange(4.0).storage().__reduce__()[1][0]
+
+    class Storage:
+        def __reduce__(self):
+            return (torch.storage._load_from_bytes, (self.data,))
+
+    class Tensor:
+        def __init__(self, data, size, stride):
+            storage = Storage()
+            storage.data = data
+            self.args = (storage, 0, size, stride, False, collections.OrderedDict())
+
+        def __reduce__(self):
+            return (torch._utils._rebuild_tensor_v2, self.args)
+
+    def read(size, stride, data=storage_bytes):
+        path = tmp_path / "x.npy"
+        np.save(path, {"t": Tensor(data, size, stride)}, allow_pickle=True)
+        return _load_raw(path, False, 1 << 30)["t"]
+
+    np.testing.assert_array_equal(read((2, 2), (1, 2)), [[0.0, 2.0], [1.0, 3.0]])  # a transposed view, copied
+    with pytest.raises(UnsafePickleError, match="reaching element 7 of a storage of 4"):
+        read((8,), (1,))
+    with pytest.raises(UnsafePickleError):
+        read((10**10,), (0,))
+    with pytest.raises(UnsafePickleError, match="declaring 4 elements but holding 8 bytes"):
+        read((2,), (1,), storage_bytes[:-8])
