@@ -30,6 +30,8 @@ from estimator_fixtures import (
     write_hybrik,
     write_romp,
     write_sam3d,
+    write_smplerx,
+    write_tram,
 )
 
 from workflows.estimators import EstimatedPerson, EstimateFormatError, _load_raw, people_from_data, read_estimate
@@ -55,6 +57,9 @@ def _fixtures(tmp_path):
     files["amass"] = write_amass(tmp_path / "amass", aa, transl)
     (tmp_path / "sam3d").mkdir()
     files["sam3d"] = write_sam3d(tmp_path / "sam3d", aa[:2], transl[:2])[0].path
+    files["tram"] = write_tram(tmp_path / "tram", aa[:2], transl[:2], np.zeros((2, 10)))[1][0]
+    files["smplerx"] = write_smplerx(tmp_path / "smplerx", aa[:2], transl[:2], np.zeros((2, 10)),
+                                     [(100.0, 80.0, 180.0, 240.0), (380.0, 60.0, 210.0, 280.0)])[0][1]
     return files
 
 
@@ -128,7 +133,7 @@ def test_data_level_mutations_of_every_reader(tmp_path):
             mutated = _mutate(raw, rng)
             if mutated is None:
                 continue
-            counts[_check(lambda m=mutated, s=str(path): people_from_data(m, source=s, space="camera"))] += 1
+            counts[_check(lambda m=mutated, p=path: people_from_data(m, source=str(p), space="camera", path=p))] += 1
         outcomes[fmt] = counts
         assert counts["error"] > 0, (fmt, counts)  # the mutations do reach the checks
     assert len(outcomes) == len(files) - 1
