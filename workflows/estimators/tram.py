@@ -6,8 +6,9 @@ dict of **torch tensors** that ``lib/models/hmr_vimo.py`` ``HMR_VIMO.inference``
 
 * ``pred_rotmat (T, 24, 3, 3)`` SMPL rotations (root first, OpenCV camera frame); ``pred_pose (T, 144)``
   the same as 6D; ``pred_shape (T, 10)`` betas; ``pred_cam (T, 3)`` crop weak-perspective camera;
-* ``pred_trans (T, 1, 3)``: ``get_trans``'s full-image camera translation, added to the SMPL output
-  (``self.smpl.query``, no ``transl``), i.e. smplx's ``transl`` of SMPL;
+* ``pred_trans (T, 1, 3)``: ``get_trans``'s full-image camera translation, smplx's ``transl`` of SMPL
+  (``lib/pipeline/visualization.py`` ``visualize_tram`` renders ``smpl(..., betas=mean shape,
+  transl=pred_trans.squeeze())``; the track's mean ``pred_shape`` is used here too);
 * ``frame (T,)``: the video frame of each row.
 
 ``scripts/estimate_camera.py`` saves ``np.save(f'{seq_folder}/camera.npy', camera)`` with ``img_focal``
@@ -40,11 +41,14 @@ def matches(data: Any) -> bool:
     return isinstance(data, dict) and "pred_rotmat" in data and "pred_trans" in data
 
 
-def _camera(seq_folder: Path, source: str) -> base.CameraInfo:
+def _camera(track_folder: Path, source: str) -> base.CameraInfo:
+    """The camera of ``<seq>/camera.npy`` (TRAM's layout: the track files sit in ``<seq>/hps/``), else of a
+    ``camera.npy`` beside the track files."""
     from workflows.estimators.pose_array import EstimateNote
     from workflows.safe_pickle import read_npy
 
-    path = seq_folder / "camera.npy"
+    path = next((p for p in (track_folder.parent / "camera.npy", track_folder / "camera.npy") if p.is_file()),
+                track_folder.parent / "camera.npy")
     if not path.is_file():
         warnings.warn(f"{source}: no TRAM camera.npy at {path}; the focal length is unknown, a 60-degree field "
                       "of view is assumed for overlays.", EstimateNote, stacklevel=3)
@@ -79,8 +83,8 @@ def _row(data: Any, frame: int, where: str) -> tuple[np.ndarray, np.ndarray, np.
     hit = np.nonzero(frames == frame)[0]
     if hit.size == 0:
         return None
-    r = int(hit[0])
-    return base.rotations_to_axis_angle(R[r]), trans[r], shape[r]
+    r = int(hit[0])  # the track's mean shape, as TRAM's own renderer (lib/pipeline/visualization.py) uses it
+    return base.rotations_to_axis_angle(R[r]), trans[r], shape.mean(axis=0)
 
 
 def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.MAX_PEOPLE
@@ -104,7 +108,7 @@ def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.
         ids.append(str(int(m.group(1))) if (m := _TRACK.search(f.name)) else "0")
     if not ids:
         raise EstimateFormatError(f"{source}: no TRAM track of {path.parent} has frame {frame}.")
-    camera = _camera(path.parent.parent if match else path.parent, source)
+    camera = _camera(path.parent, source)
     return base.make_people(np.stack(poses), np.stack(transl), np.stack(betas), frame_of_reference="camera",
                             translation_kind="transl", camera=camera, person_ids=ids, frames=[str(frame)] * len(ids),
                             source=f"{source} (tram)", max_people=max_people)
