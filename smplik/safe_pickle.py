@@ -222,6 +222,7 @@ _STORAGE_DTYPES = {"FloatStorage": np.float32, "DoubleStorage": np.float64, "Hal
                    "LongStorage": np.int64, "IntStorage": np.int32, "ShortStorage": np.int16, "CharStorage": np.int8,
                    "ByteStorage": np.uint8, "BoolStorage": np.bool_}
 """torch's legacy storage classes (as ``torch.save(storage)`` names them) and the numpy dtypes of their data."""
+_STORAGE_NUMPY = tuple(np.dtype(t) for t in _STORAGE_DTYPES.values())
 
 
 class _StorageRecordUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc]
@@ -237,7 +238,7 @@ class _StorageRecordUnpickler(pickle._Unpickler):  # type: ignore[name-defined, 
 
     def persistent_load(self, pid: Any) -> Any:
         if not (isinstance(pid, tuple) and len(pid) >= 5 and pid[0] == "storage" and isinstance(pid[1], np.dtype)
-                and isinstance(pid[2], str)):
+                and pid[1] in _STORAGE_NUMPY and isinstance(pid[2], str)):
             raise UnsafePickleError(f"Refusing a torch storage record {pid!r:.80} in a pickle.")
         return pid
 

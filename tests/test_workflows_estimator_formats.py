@@ -278,3 +278,46 @@ def test_pickled_torch_tensors_are_checked_before_anything_is_allocated(tmp_path
         read((10**10,), (0,))
     with pytest.raises(UnsafePickleError, match="declaring 4 elements but holding 8 bytes"):
         read((2,), (1,), storage_bytes[:-8])
+
+
+def test_cli_format_choices_are_the_readers():
+    from workflows.cli import FORMATS as CLI_FORMATS
+    from workflows.estimators import FORMATS
+
+    assert CLI_FORMATS == ("auto", *FORMATS)
+
+
+def test_from_estimate_reads_tram_and_smplerx_as_a_new_user_would(tmp_path, monkeypatch, best_solver):
+    """No options: detected, one character per person, the producer's camera recorded; --format forces;
+    a mesh is one line with exit code 1."""
+    from estimator_fixtures import write_smplerx, write_tram
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.scene import load_scene
+
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+
+    def run(*args):
+        return CliRunner().invoke(cli_module.scene_app, ["from-estimate", *map(str, args), "--no-previews",
+                                                         "--max-effectors", "3"])
+
+    aa, transl, betas = people(seed=9, n=2, depth=900.0 * 1.7 / 200.0, focal=900.0)
+    _, paths = write_tram(tmp_path / "tram", aa, transl, betas)
+    result = run(paths[0], "--frame", 1, "--out", tmp_path / "o_tram")
+    assert result.exit_code == 0, result.output
+    scene = load_scene(tmp_path / "o_tram" / "scene.json")
+    assert [c.name for c in scene.characters] == ["person_0", "person_1"]
+    assert scene.camera.focal_px == pytest.approx(900.0) and scene.camera.focal_rule == "intrinsics"
+    smplerx_paths, _ = write_smplerx(tmp_path / "sx", aa, transl, betas, [(100.0, 80.0, 180.0, 240.0),
+                                                                          (380.0, 60.0, 210.0, 280.0)])
+    for args in ((), ("--format", "smplerx")):
+        result = run(smplerx_paths[0], *args, "--out", tmp_path / f"o_sx{len(args)}")
+        assert result.exit_code == 0, result.output
+        assert len(load_scene(tmp_path / f"o_sx{len(args)}" / "scene.json").characters) == 2
+    result = run(paths[0], "--format", "smplerx", "--out", tmp_path / "o_bad")
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert result.exit_code == 1 and len(lines) == 1 and "SMPLer-X" in lines[0], result.output
+    (tmp_path / "m.obj").write_text("v 0 0 0\n")
+    result = run(tmp_path / "m.obj", "--out", tmp_path / "o_obj")
+    assert result.exit_code == 1 and "no SMPL parameters" in result.output, result.output
