@@ -278,6 +278,10 @@ def test_pickled_torch_tensors_are_checked_before_anything_is_allocated(tmp_path
         read((10**10,), (0,))
     with pytest.raises(UnsafePickleError, match="declaring 4 elements but holding 8 bytes"):
         read((2,), (1,), storage_bytes[:-8])
+    import joblib  # the same tensors inside a joblib pickle (e.g. a results dict dumped without .numpy())
+
+    joblib.dump({"t": torch.arange(6.0).reshape(2, 3)}, tmp_path / "x.pkl", compress=3)
+    np.testing.assert_array_equal(_load_raw(tmp_path / "x.pkl", False, 1 << 30)["t"], np.arange(6.0).reshape(2, 3))
 
 
 def test_cli_format_choices_are_the_readers():
