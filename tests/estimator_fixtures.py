@@ -481,11 +481,13 @@ def write_glamr(folder: Path, aa, transl, betas, *, frames: int = 3) -> tuple[Wr
 
 
 def write_tram(folder: Path, aa, transl, betas, *, focal: float = 900.0, starts: tuple[int, ...] = (0, 1),
-               frames: int = 3) -> tuple[Written, list[Path]]:
+               frames: int = 3, cam_R: np.ndarray | None = None, cam_T: np.ndarray | None = None
+               ) -> tuple[Written, list[Path]]:
     """TRAM: ``scripts/estimate_humans.py`` ``np.save(f'{hps_folder}/hps_track_{k}.npy', results)`` with the dict of
     torch tensors of ``lib/models/hmr_vimo.py`` ``HMR_VIMO.inference`` (``pred_rotmat (T, 24, 3, 3)``, ``pred_trans
     (T, 1, 3)``, ...), and ``scripts/estimate_camera.py`` ``np.save(f'{seq_folder}/camera.npy', camera)``.
-    Person k's track starts at video frame ``starts[k]``; every row repeats the person's pose."""
+    Person k's track starts at video frame ``starts[k]``; every row repeats the person's pose. ``cam_R (F, 3, 3)``,
+    ``cam_T (F, 3)``: the SLAM camera-to-world trajectory (default: identity)."""
     seq = folder / "results" / "example_video"
     (seq / "hps").mkdir(parents=True, exist_ok=True)
     R = torch.as_tensor(_R(aa), dtype=torch.float32)
@@ -500,8 +502,11 @@ def write_tram(folder: Path, aa, transl, betas, *, focal: float = 900.0, starts:
         paths.append(seq / "hps" / f"hps_track_{k}.npy")
         np.save(paths[-1], results)
     cam_int = np.array([focal, focal, IMAGE_W / 2, IMAGE_H / 2])
-    np.save(seq / "camera.npy", {"pred_cam_R": np.tile(np.eye(3), (frames, 1, 1)), "pred_cam_T": np.zeros((frames, 3)),
-                                 "img_focal": cam_int[0], "img_center": cam_int[2:]})
+    n_frames = max(starts) + frames
+    cam_R = np.tile(np.eye(3), (n_frames, 1, 1)) if cam_R is None else cam_R
+    cam_T = np.zeros((n_frames, 3)) if cam_T is None else cam_T
+    np.save(seq / "camera.npy", {"pred_cam_R": cam_R, "pred_cam_T": cam_T, "img_focal": cam_int[0],
+                                 "img_center": cam_int[2:]})
     return Written(paths[0], focal, IMAGE_W / 2, IMAGE_H / 2, fmt="tram"), paths
 
 

@@ -153,6 +153,30 @@ def test_tram_tracks_and_camera_are_read_through_the_restricted_loader(tmp_path)
         assert read_estimate(w.path, frame=1)[0].camera.focal_px is None
 
 
+def test_tram_world_follows_its_slam_trajectory(tmp_path):
+    """``--space world``: TRAM's renderer puts a body at ``pred_cam_R[f] @ x + pred_cam_T[f]`` (OpenCV axes), turned
+    y-up here like every camera frame."""
+    from estimator_fixtures import write_tram
+
+    from workflows.estimators.base import M_WORLD_CAMERA
+
+    aa, transl, betas = people(seed=10, n=2, depth=4.0, focal=900.0)
+    cam_R = Rotation.from_rotvec(np.random.default_rng(3).normal(0, 0.6, (4, 3))).as_matrix()
+    cam_T = np.random.default_rng(4).normal(0, 2.0, (4, 3))
+    w, _ = write_tram(tmp_path, aa, transl, betas, cam_R=cam_R, cam_T=cam_T)
+    world = read_estimate(w.path, frame=2, space="world")
+    assert [p.person_id for p in world] == ["0", "1"] and world[0].camera is None
+    pelvis_cam = producer_joints(aa, transl)[:, 0]
+    for i, p in enumerate(world):
+        np.testing.assert_allclose(our_joints(p)[0], M_WORLD_CAMERA @ (cam_R[2] @ pelvis_cam[i] + cam_T[2]), atol=1e-4)
+        R_root = Rotation.from_rotvec(p.global_orient).as_matrix()
+        np.testing.assert_allclose(R_root, M_WORLD_CAMERA @ cam_R[2] @ Rotation.from_rotvec(aa[i, 0]).as_matrix(),
+                                   atol=1e-5)
+    (w.path.parent.parent / "camera.npy").unlink()
+    with pytest.raises(EstimateFormatError, match="--space world needs TRAM's camera.npy"), pytest.warns(EstimateNote):
+        read_estimate(w.path, frame=2, space="world")
+
+
 def test_npy_pickles_still_refuse_code(tmp_path):
     from workflows.safe_pickle import UnsafePickleError
 

@@ -90,8 +90,9 @@ def from_estimate_cmd(
                                             "the frame than this.")] = 100,
     max_bytes: Annotated[int, typer.Option("--max-bytes", min=1, help="Refuse estimator files whose data is "
                                            "larger than this uncompressed (bytes).")] = 1 << 30,
-    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR / GLAMR: 'camera' or 'world' "
-                                              "output (default: WHAM, GLAMR world; GVHMR camera).")] = None,
+    space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR / GLAMR / TRAM: 'camera' or "
+                                              "'world' output (default: WHAM, GLAMR world; GVHMR, TRAM "
+                                              "camera).")] = None,
     focal: Annotated[float | None, typer.Option("--focal", min=0.0, help="Focal length (pixels of --image) for "
                                                 "the overlay; gives a camera to files without one.")] = None,
     checkpoint: Checkpoint = None,

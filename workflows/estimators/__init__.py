@@ -236,8 +236,8 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
             by the estimator's track id (``person_id``).
         max_people: refuse more people than this in the frame.
         max_bytes: refuse files whose (uncompressed) data is larger.
-        space: for WHAM, GVHMR and GLAMR, ``"camera"`` or ``"world"`` output (default: WHAM and GLAMR world,
-            GVHMR camera).
+        space: for WHAM, GVHMR, GLAMR and TRAM, ``"camera"`` or ``"world"`` output (default: WHAM and GLAMR world,
+            GVHMR and TRAM camera).
         solver: for SAM-3D-Body (not SMPL), the :class:`smplik.solver.IKSolver` that fits the SMPL pose
             (default: the shipped model).
 
@@ -266,7 +266,7 @@ def people_from_data(data: Any, *, source: str, format: FormatName = "auto", fra
     name = detect_format(data) if format == "auto" else format
     module = _MODULES[name]
     kwargs: dict[str, Any] = {"frame": int(frame), "max_people": max_people}
-    if space is not None and module in (wham, gvhmr, glamr):
+    if space is not None and module in (wham, gvhmr, glamr, tram):
         kwargs["space"] = space
     if solver is not None and module is sam3d:
         kwargs["solver"] = solver

@@ -13,7 +13,13 @@ dict of **torch tensors** that ``lib/models/hmr_vimo.py`` ``HMR_VIMO.inference``
 
 ``scripts/estimate_camera.py`` saves ``np.save(f'{seq_folder}/camera.npy', camera)`` with ``img_focal``
 (pixels) and ``img_center`` (the principal point; the image is taken to be twice its size), plus the
-SLAM trajectory ``pred_cam_R``/``pred_cam_T`` (not used: the people are read in the camera frame).
+metric SLAM trajectory ``pred_cam_R (F, 3, 3)``/``pred_cam_T (F, 3)``, camera to world per video frame
+(``visualize_tram`` draws ``pred_cam_R[frame] @ vertices + pred_cam_T[frame]``).
+
+``space``: ``"camera"`` (default; the overlay camera) or ``"world"``: TRAM's SLAM world, whose axes are
+the first frame's OpenCV camera axes, turned y-up like every camera frame (180 degrees about x). TRAM's
+own renderer then levels the floor with a fit to all meshes (``fit_to_ground_easy``), which needs the
+meshes and is not applied: "up" is the first frame's camera up.
 
 Both files are ``np.save`` of a dict, i.e. pickles: they are read by the restricted unpickler
 (:func:`smplik.safe_pickle.read_npy`), which rebuilds torch tensors as numpy arrays without torch.
@@ -26,10 +32,12 @@ from __future__ import annotations
 import re
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from smplik.conventions import Gender
 from workflows.estimators import base
 from workflows.estimators.base import EstimatedPerson, EstimateFormatError
 
@@ -41,7 +49,7 @@ def matches(data: Any) -> bool:
     return isinstance(data, dict) and "pred_rotmat" in data and "pred_trans" in data
 
 
-def _camera(track_folder: Path, source: str) -> base.CameraInfo:
+def _camera(track_folder: Path, source: str) -> tuple[base.CameraInfo, dict | None, Path]:
     """The camera of ``<seq>/camera.npy`` (TRAM's layout: the track files sit in ``<seq>/hps/``), else of a
     ``camera.npy`` beside the track files."""
     from workflows.estimators.pose_array import EstimateNote
@@ -52,7 +60,7 @@ def _camera(track_folder: Path, source: str) -> base.CameraInfo:
     if not path.is_file():
         warnings.warn(f"{source}: no TRAM camera.npy at {path}; the focal length is unknown, a 60-degree field "
                       "of view is assumed for overlays.", EstimateNote, stacklevel=3)
-        return base.CameraInfo()
+        return base.CameraInfo(), None, path
     cam = read_npy(path)
     where = str(path)
     focal = base.scalar(base.require(cam, "img_focal", where), "img_focal", where)
@@ -62,7 +70,23 @@ def _camera(track_folder: Path, source: str) -> base.CameraInfo:
     if not 0 < focal < 1e6:
         raise EstimateFormatError(f"{where}: 'img_focal' must be a positive focal length in pixels, got {focal}.")
     return base.CameraInfo(focal, (round(2 * center[0]), round(2 * center[1])),
-                           principal_px=(float(center[0]), float(center[1])), focal_rule="intrinsics")
+                           principal_px=(float(center[0]), float(center[1])), focal_rule="intrinsics"), cam, path
+
+
+def _world_pose(pose: np.ndarray, pelvis_cam: np.ndarray, cam: dict, frame: int, where: str
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame root (24, 3 axis-angle) and pelvis (3,) -> TRAM's SLAM world at video ``frame`` (OpenCV
+    axes, as the camera frame; :func:`base.make_people` turns them y-up)."""
+    R_all = base.finite(base.require(cam, "pred_cam_R", where), "pred_cam_R", where)
+    T_all = base.finite(base.require(cam, "pred_cam_T", where), "pred_cam_T", where)
+    if R_all.ndim != 3 or R_all.shape[1:] != (3, 3) or T_all.reshape(-1, 3).shape[0] != R_all.shape[0]:
+        raise EstimateFormatError(f"{where}: 'pred_cam_R' (F, 3, 3) and 'pred_cam_T' (F, 3) expected, got "
+                                  f"{R_all.shape} and {T_all.shape}.")
+    if not 0 <= frame < R_all.shape[0]:
+        raise EstimateFormatError(f"{where}: the camera trajectory has {R_all.shape[0]} frames; no frame {frame}.")
+    R_world_cam = R_all[frame]
+    root = base.rotations_to_axis_angle((R_world_cam @ Rotation.from_rotvec(pose[0]).as_matrix())[None])
+    return np.concatenate([root, pose[1:]]), R_world_cam @ pelvis_cam + T_all.reshape(-1, 3)[frame]
 
 
 def _row(data: Any, frame: int, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -87,8 +111,8 @@ def _row(data: Any, frame: int, where: str) -> tuple[np.ndarray, np.ndarray, np.
     return base.rotations_to_axis_angle(R[r]), trans[r], shape.mean(axis=0)
 
 
-def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.MAX_PEOPLE
-         ) -> list[EstimatedPerson]:
+def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.MAX_PEOPLE,
+         space: Literal["camera", "world"] = "camera") -> list[EstimatedPerson]:
     """Every track of ``path``'s folder that covers video ``frame`` (see the module docstring)."""
     from workflows.safe_pickle import read_npy
 
@@ -108,7 +132,17 @@ def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.
         ids.append(str(int(m.group(1))) if (m := _TRACK.search(f.name)) else "0")
     if not ids:
         raise EstimateFormatError(f"{source}: no TRAM track of {path.parent} has frame {frame}.")
-    camera = _camera(path.parent, source)
-    return base.make_people(np.stack(poses), np.stack(transl), np.stack(betas), frame_of_reference="camera",
-                            translation_kind="transl", camera=camera, person_ids=ids, frames=[str(frame)] * len(ids),
-                            source=f"{source} (tram)", max_people=max_people)
+    camera, cam, cam_path = _camera(path.parent, source)
+    pose, translation, shape = np.stack(poses), np.stack(transl), np.stack(betas)
+    kind: base.TranslationKind = "transl"
+    if space == "world":
+        if cam is None:
+            raise EstimateFormatError(f"{source}: --space world needs TRAM's camera.npy (its SLAM trajectory) at "
+                                      f"{cam_path}.")
+        pelvis = translation + base.estimator_rest_pelvis(shape, Gender.NEUTRAL, "smpl")
+        for i in range(len(ids)):
+            pose[i], pelvis[i] = _world_pose(pose[i], pelvis[i], cam, frame, str(cam_path))
+        translation, kind = pelvis, "pelvis"
+    return base.make_people(pose, translation, shape, frame_of_reference="camera", translation_kind=kind,
+                            camera=camera if space != "world" else None, person_ids=ids,
+                            frames=[str(frame)] * len(ids), source=f"{source} (tram)", max_people=max_people)
