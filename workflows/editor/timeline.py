@@ -1,4 +1,5 @@
-"""The editor's timeline model for animations (plain Python; the viser wiring is still to come).
+"""The editor's timeline model for animations (plain Python; :mod:`workflows.editor.timeline_app` wires it to
+the browser).
 
 :class:`AnimationTimeline` holds an :class:`~workflows.animation.Animation` and what a timeline shows and
 does: the current source frame (scrub, step for playback at the source frame rate, jump between
@@ -39,6 +40,27 @@ class AnimationTimeline:
         from workflows.animation_io import load_animation
 
         return cls(load_animation(path), solver, path=path, **kwargs)
+
+    @classmethod
+    def open_if_animation(cls, path: str | Path, solver: Any, **kwargs: Any) -> AnimationTimeline | None:
+        """The timeline of ``path`` when it is a ``smplik-animation`` file; None for anything else (a scene,
+        or a file the scene reader should report on). An invalid animation file: one-line
+        :class:`~workflows.animation_io.AnimationFileError` naming the file and JSON path."""
+        from smplik.validation import read_json
+        from workflows.animation_io import ANIMATION_FORMAT, AnimationFileError, animation_from_dict
+
+        try:
+            data = read_json(path, AnimationFileError, what="animation file")
+        except AnimationFileError:
+            return None
+        if not isinstance(data, dict) or data.get("format") != ANIMATION_FORMAT:
+            return None
+        return cls(animation_from_dict(data, source=str(path)), solver, path=path, **kwargs)
+
+    @property
+    def path(self) -> Path | None:
+        """The file :meth:`save` writes by default (the file opened, then the last one saved)."""
+        return self._path
 
     @property
     def animation(self) -> Animation:
