@@ -238,7 +238,7 @@ def test_smplik_edit_recognises_animation_files(animation_file, best_solver, mon
     from typer.testing import CliRunner
 
     import workflows.cli as cli_module
-    from smplik.cli import app as cli_app
+    from smplik.cli.main import app as cli_app
     from workflows.editor.timeline import AnimationTimeline
 
     assert AnimationTimeline.open_if_animation(animation_file, best_solver).frames == range(FRAMES)
