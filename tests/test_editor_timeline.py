@@ -284,3 +284,17 @@ def test_timeline_controls_in_headless_chromium(app):
             wait_for(lambda: not app.playing, "playback paused")
         finally:
             browser.close()
+
+
+def test_an_edit_on_any_frame_makes_it_a_keyframe(app):
+    tl = app.timeline
+    frame = next(f for f in tl.frames if f not in tl.keyframes() and 2 < f < FRAMES - 3)
+    app.goto(frame)
+    assert app.state.character().effectors == ()  # not a keyframe: no handles until one is added
+    _drag_left_wrist_at(app, frame)
+    user_event(app.apply_button)
+    assert frame in tl.keyframes() and str(frame) in app.keyframe_dropdown.options
+    assert app.keyframe_dropdown.value == str(frame)
+    assert float(frame) in [m.value for m in app.frame_slider._marks]  # the slider's keyframe ticks
+    key = next(k for k in tl.animation.tracks[0].keyframes if k.frame == frame)
+    assert [e.joint_name for e in key.effectors] == ["left_wrist"]

@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import viser
 
 from workflows.editor.app import EditorApp
@@ -60,6 +61,28 @@ class AnimationEditorApp(EditorApp):
 
     # ------------------------------------------------------------------------- GUI
 
+    def _build_static(self) -> None:
+        """The floor, and the first view facing the active character at the first frame (an animation has no
+        backdrop photo)."""
+        super()._build_static()
+        view = self.state.view()
+        forward = view.R_world[0] @ np.array([0.0, 0.0, 1.0])  # SMPL faces +z at rest
+        forward[1] = 0.0
+        if np.linalg.norm(forward) < 1e-6:
+            return
+        forward /= np.linalg.norm(forward)
+        centre = view.joints[0]
+        cam = self.server.initial_camera
+        cam.position = tuple(float(v) for v in centre + 3.6 * forward + [0.0, 0.5, 0.0])
+        cam.look_at = (float(centre[0]), float(centre[1]) - 0.1, float(centre[2]))
+
+    def _frame_marks(self) -> tuple[Any, ...]:
+        """Frame slider marks: the first and last frame labelled, a tick at every keyframe."""
+        frames = self.timeline.frames
+        ends = {frames.start: str(frames.start), frames.stop - 1: str(frames.stop - 1)}
+        return tuple((float(f), ends[f]) for f in ends) + tuple(
+            float(k) for k in self.timeline.keyframes() if k not in ends)
+
     def _build_gui(self, save_path: str, export_dir: str) -> None:
         gui = self.server.gui
         tl = self.timeline
@@ -68,7 +91,9 @@ class AnimationEditorApp(EditorApp):
             self.frame_md = gui.add_markdown(self._frame_text())
             self.play_button = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY,
                                               hint=f"Play at the source frame rate ({tl.animation.fps:g} frames/s).")
-            self.frame_slider = gui.add_slider("Frame", frames.start, frames.stop - 1, 1, tl.frame)
+            self.frame_slider = gui.add_slider("Frame", frames.start, frames.stop - 1, 1, tl.frame,
+                                               marks=self._frame_marks(), hint="Ticks: keyframes.")
+            self._marked = tuple(tl.keyframes())
             self.prev_key_button = gui.add_button("Previous keyframe", icon=viser.Icon.PLAYER_TRACK_PREV)
             self.next_key_button = gui.add_button("Next keyframe", icon=viser.Icon.PLAYER_TRACK_NEXT)
             self.keyframe_dropdown = gui.add_dropdown("Keyframe", self._keyframe_options(),
@@ -110,6 +135,11 @@ class AnimationEditorApp(EditorApp):
         super()._sync_gui()
         tl = self.timeline
         self.frame_slider.value = tl.frame
+        if tuple(tl.keyframes()) != self._marked:  # an apply made a keyframe: tick it (viser has no public
+            from viser._gui_api import _build_slider_marks  # setter for slider marks)
+
+            self.frame_slider._marks = _build_slider_marks(self._frame_marks())
+            self._marked = tuple(tl.keyframes())
         self.keyframe_dropdown.options = self._keyframe_options()
         self.keyframe_dropdown.value = self._keyframe_value()
         self.window_slider.value = min(tl.window, MAX_WINDOW)
