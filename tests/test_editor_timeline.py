@@ -256,45 +256,21 @@ def test_smplik_edit_recognises_animation_files(animation_file, best_solver, mon
 
 
 def test_timeline_controls_in_headless_chromium(app):
-    from tests.test_editor_browser import CHROMIUM, CHROMIUM_ARGS, IN_CI, WAIT_S, wait_for
+    from tests.test_editor_browser import CHROMIUM, IN_CI, editor_page, wait_for
 
     if not IN_CI and not Path(CHROMIUM).is_file():
         pytest.skip("Debian chromium is not installed (apt-get install -y chromium); CI installs it")
-    from playwright.sync_api import sync_playwright
-
     tl = app.timeline
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=30_000)
-        try:
-            page = browser.new_page(viewport={"width": 1100, "height": 800})
-            page.set_default_timeout(WAIT_S * 1000)
-            page.goto(app.url)
-            page.wait_for_selector("canvas")
-            for name in ("Play", "Previous keyframe", "Next keyframe", "Apply", "Save"):
-                page.get_by_role("button", name=name).wait_for()
-            assert page.get_by_text("Blend window").count() >= 1 and page.get_by_text("Keyframe").count() >= 1
-            close = page.locator(".mantine-Notification-closeButton")
-            if close.count():
-                close.first.click()  # the "software WebGL" notice of a GPU-less machine
-            page.get_by_role("button", name="Next keyframe").click()
-            wait_for(lambda: tl.frame == tl.keyframes()[1], "the next keyframe on the server")
-            page.get_by_role("button", name="Play").click()
-            wait_for(lambda: app.playing, "playback on the server")
-            page.get_by_role("button", name="Pause").click()
-            wait_for(lambda: not app.playing, "playback paused")
-        finally:
-            browser.close()
-
-
-def test_an_edit_on_any_frame_makes_it_a_keyframe(app):
-    tl = app.timeline
-    frame = next(f for f in tl.frames if f not in tl.keyframes() and 2 < f < FRAMES - 3)
-    app.goto(frame)
-    assert app.state.character().effectors == ()  # not a keyframe: no handles until one is added
-    _drag_left_wrist_at(app, frame)
-    user_event(app.apply_button)
-    assert frame in tl.keyframes() and str(frame) in app.keyframe_dropdown.options
-    assert app.keyframe_dropdown.value == str(frame)
-    assert float(frame) in [m.value for m in app.frame_slider._marks]  # the slider's keyframe ticks
-    key = next(k for k in tl.animation.tracks[0].keyframes if k.frame == frame)
-    assert [e.joint_name for e in key.effectors] == ["left_wrist"]
+    with editor_page(app.url, height=800) as page:
+        for name in ("Play", "Previous keyframe", "Next keyframe", "Apply", "Save"):
+            page.get_by_role("button", name=name).wait_for()
+        assert page.get_by_text("Blend window").count() >= 1 and page.get_by_text("Keyframe").count() >= 1
+        close = page.locator(".mantine-Notification-closeButton")
+        if close.count():
+            close.first.click()  # the "software WebGL" notice of a GPU-less machine
+        page.get_by_role("button", name="Next keyframe").click()
+        wait_for(lambda: tl.frame == tl.keyframes()[1], "the next keyframe on the server")
+        page.get_by_role("button", name="Play").click()
+        wait_for(lambda: app.playing, "playback on the server")
+        page.get_by_role("button", name="Pause").click()
+        wait_for(lambda: not app.playing, "playback paused")

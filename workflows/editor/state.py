@@ -101,7 +101,22 @@ def _rebase(name: str | None, old_dir: Path | None, new_dir: Path) -> str | None
     return str((old_dir / name).resolve())
 
 
-class EditorState:
+class UndoStacks:
+    """``can_undo`` / ``can_redo`` of an editable model keeping past and undone states in ``_undo`` / ``_redo``."""
+
+    _undo: list[Any]
+    _redo: list[Any]
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._redo)
+
+
+class EditorState(UndoStacks):
     """The editor's model (see the module docstring).
 
     Args:
@@ -185,14 +200,6 @@ class EditorState:
     @property
     def refine(self) -> bool:
         return self._now.refine
-
-    @property
-    def can_undo(self) -> bool:
-        return bool(self._undo)
-
-    @property
-    def can_redo(self) -> bool:
-        return bool(self._redo)
 
     def character(self, index: int | None = None) -> SceneCharacter:
         """The character at ``index`` (default: the active one)."""

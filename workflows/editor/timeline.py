@@ -17,10 +17,11 @@ from typing import Any
 
 from smplik.effectors import Effector
 from workflows.animation import Animation, AnimationError
+from workflows.editor.state import UndoStacks
 from workflows.scene import Scene
 
 
-class AnimationTimeline:
+class AnimationTimeline(UndoStacks):
     """An animation being edited on a timeline (see the module docstring)."""
 
     def __init__(self, animation: Animation, solver: Any, *, window: int = 10, path: str | Path | None = None
@@ -92,12 +93,13 @@ class AnimationTimeline:
         """Seconds per frame when playing (the source frame rate)."""
         return 1.0 / self._animation.fps
 
-    def set_frame(self, frame: int) -> None:
-        """Scrub to a source frame (an error outside :attr:`frames`)."""
+    def set_frame(self, frame: int) -> int:
+        """Scrub to a source frame (an error outside :attr:`frames`); returns it."""
         if frame not in self.frames:
             raise AnimationError(f"frame {frame} is outside the animation's frames {self.frames.start}.."
                                  f"{self.frames.stop - 1}.")
         self._frame = int(frame)
+        return self._frame
 
     def step(self, count: int = 1) -> int:
         """Advance by ``count`` frames, wrapping around (playback); returns the new frame."""
@@ -142,14 +144,6 @@ class AnimationTimeline:
                 self.apply(c.name, c.effectors)
                 changed.append(c.name)
         return changed
-
-    @property
-    def can_undo(self) -> bool:
-        return bool(self._undo)
-
-    @property
-    def can_redo(self) -> bool:
-        return bool(self._redo)
 
     def undo(self) -> bool:
         if not self._undo:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -179,15 +180,17 @@ class AnimationEditorApp(EditorApp):
                 return
             if frame not in self.timeline.frames:
                 self.timeline.set_frame(frame)  # the one-line error, before anything is applied
-            self.apply()
-            self.timeline.set_frame(frame)
-            self._show_frame()
+            self._move(lambda: self.timeline.set_frame(frame))
 
     def jump_keyframe(self, direction: int) -> int:
         """Go to the next (1) or previous (-1) keyframe; returns the frame shown."""
+        return self._move(lambda: self.timeline.next_keyframe(direction))
+
+    def _move(self, move: Callable[[], int]) -> int:
+        """Apply the frame's edits, move the timeline (``move`` returns the new frame) and show that frame."""
         with self._lock:
             self.apply()
-            frame = self.timeline.next_keyframe(direction)
+            frame = move()
             self._show_frame()
             return frame
 
@@ -239,11 +242,7 @@ class AnimationEditorApp(EditorApp):
 
     def play_step(self, count: int = 1) -> int:
         """Advance ``count`` frames (wrapping at the end) and show the frame; one playback tick."""
-        with self._lock:
-            self.apply()
-            frame = self.timeline.step(count)
-            self._show_frame()
-            return frame
+        return self._move(lambda: self.timeline.step(count))
 
     def toggle_play(self) -> None:
         """The Play/Pause button."""
