@@ -238,14 +238,31 @@ def test_smplik_edit_recognises_animation_files(animation_file, best_solver, mon
     from typer.testing import CliRunner
 
     import workflows.cli as cli_module
+    import workflows.editor.cli as editor_cli
     from smplik.cli.main import app as cli_app
+    from workflows.editor.app import EditorApp
     from workflows.editor.timeline import AnimationTimeline
+    from workflows.editor.timeline_app import AnimationEditorApp
 
     assert AnimationTimeline.open_if_animation(animation_file, best_solver).frames == range(FRAMES)
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps({"format": "smplik-scene", "version": 1, "characters": []}))
     assert AnimationTimeline.open_if_animation(scene, best_solver) is None
     monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    served = []
+
+    def serve(editor, host):  # instead of serving until Ctrl+C: record the editor and stop it
+        served.append(editor)
+        editor.stop()
+
+    monkeypatch.setattr(editor_cli, "_serve", serve)
+    res = CliRunner().invoke(cli_app, ["edit", str(animation_file), "--port", "0"])
+    assert res.exit_code == 0, res.output
+    assert isinstance(served[-1], AnimationEditorApp) and served[-1].timeline.frames == range(FRAMES)
+    assert served[-1].timeline.path == animation_file
+    res = CliRunner().invoke(cli_app, ["edit", str(tmp_path / "new.json"), "--port", "0"])  # scenes: as before
+    assert res.exit_code == 0, res.output
+    assert type(served[-1]) is EditorApp and len(served[-1].state.scene.characters) == 1
     res = CliRunner().invoke(cli_app, ["edit", str(animation_file), "--character", str(tmp_path / "x.bvh")])
     assert res.exit_code == 1 and "is an animation: --character applies to scenes" in res.output
     bad = json.loads(animation_file.read_text())
