@@ -123,6 +123,11 @@ def test_playback_steps_at_the_source_rate_and_never_holds_the_server(app):
     thread = app._play_thread
     assert thread.daemon and thread is not threading.current_thread() and thread.is_alive()
     user_event(app.frame_slider, 20)  # served while playing (no assertion on which frame playback reached)
+    from tests.test_editor_access import ws_attempt
+
+    port = app.port  # a browser connecting while it plays gets the scene: the server is not held
+    assert ws_attempt(f"ws://127.0.0.1:{port}/?token={app.access.token}", f"http://127.0.0.1:{port}") == "open"
+    assert app.playing and thread.is_alive()
     user_event(app.play_button)  # Pause
     assert not app.playing and app.play_button.label == "Play"
     thread.join(timeout=60)  # a hang guard only
