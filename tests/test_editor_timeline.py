@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from animation_fixtures import video_motion, write_gvhmr_video
+from animation_fixtures import video_motion, write_gvhmr_video, write_phalp_video
 
 from workflows.animation_io import load_animation
 
@@ -275,6 +275,44 @@ def test_smplik_edit_recognises_animation_files(animation_file, best_solver, mon
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     res = CliRunner().invoke(cli_app, ["edit", str(tmp_path / "bad.json")])
     assert res.exit_code == 1 and "tracks[0].first_frame" in res.output and "Traceback" not in res.output
+
+
+def test_two_tracks_one_starting_later(best_solver, tmp_path, monkeypatch):
+    """PHALP tracks 3 (frames 0..11) and 8 (from frame 4): track 8 is hidden before it starts, and an edit of
+    track 8 changes only track 8."""
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.cli import scene_app
+    from workflows.editor.timeline import AnimationTimeline
+    from workflows.editor.timeline_app import AnimationEditorApp
+
+    a, t = video_motion(12, seed=4, fmt="phalp")
+    b, u = video_motion(12, seed=5, fmt="phalp", x=0.8)
+    frames = [{3: (a[i], t[i]), **({8: (b[i], u[i])} if i >= 4 else {})} for i in range(12)]
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    res = CliRunner().invoke(scene_app, ["animate", str(write_phalp_video(tmp_path, frames)), "--out", str(tmp_path),
+                                         "--fps", "24", "--max-effectors", "2", "--export", ""])
+    assert res.exit_code == 0, res.output
+    timeline = AnimationTimeline.open(tmp_path / "animation.json", best_solver, window=2)
+    app = AnimationEditorApp(timeline, best_solver, host="127.0.0.1", port=0)
+    try:
+        assert timeline.frames == range(12) and timeline.frame_time == pytest.approx(1 / 24)
+        assert app._meshes[0].visible and not app._meshes[1].visible  # track 8 has not started
+        app.goto(6)
+        assert app._meshes[1].visible
+        first, second = (x.body_pose.copy() for x in timeline.animation.tracks)
+        user_event(app.character_dropdown, "1: person_1")
+        assert app.state.active == 1
+        _drag_left_wrist_at(app, 6)
+        app.apply()
+        after = timeline.animation.tracks
+        assert np.array_equal(after[0].body_pose, first)  # the other track: untouched
+        assert not np.array_equal(after[1].body_pose[6 - 4], second[6 - 4])  # rows of track 8 start at frame 4
+        assert np.array_equal(after[1].body_pose[:6 - 4 - 2], second[:6 - 4 - 2])
+        assert app.state.active == 1  # still editing that track
+    finally:
+        app.stop()
 
 
 def test_timeline_controls_in_headless_chromium(app):
