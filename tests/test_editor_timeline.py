@@ -330,6 +330,13 @@ def test_timeline_controls_in_headless_chromium(app):
             close.first.click()  # the "software WebGL" notice of a GPU-less machine
         page.get_by_role("button", name="Next keyframe").click()
         wait_for(lambda: tl.frame == tl.keyframes()[1], "the next keyframe on the server")
+        frame_thumb = page.get_by_role("slider").first  # the Timeline panel comes first
+        wait_for(lambda: frame_thumb.get_attribute("aria-valuenow") == str(tl.frame), "the frame slider's value")
+        frame_thumb.focus()
+        page.keyboard.press("ArrowRight")  # scrub one frame with the slider
+        wait_for(lambda: tl.frame == tl.keyframes()[1] + 1, "the scrubbed frame on the server")
+        track = tl.animation.tracks[0]
+        assert np.array_equal(app.state.scene.characters[0].pose.body_pose, track.body_pose[tl.frame])
         page.get_by_role("button", name="Play").click()
         wait_for(lambda: app.playing, "playback on the server")
         page.get_by_role("button", name="Pause").click()
