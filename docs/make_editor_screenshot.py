@@ -6,6 +6,10 @@ on a free loopback port and screenshots it with Debian's Chromium (``/usr/bin/ch
 
 ``--drag`` (docs/editor_drag.png): the demo's SMPL scene instead, after a drag of a new left-wrist handle
 50 cm up (the case of docs/editing.md); the status line shows what the drag relaxed and the conflict report.
+
+``--animation ANIMATION.json [--frame N]`` (docs/editor_timeline.png): the editor with its timeline on an
+animation of ``smplik scene animate`` (docs/editor_timeline.png: GVHMR's ``hmr4d_results.pt`` of a real video,
+``--fps 30``), at frame N (default: the second keyframe), with its keyframe handles.
 """
 
 from __future__ import annotations
@@ -33,15 +37,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--drag", action="store_true", help="Screenshot a wrist drag on the SMPL scene.")
+    parser.add_argument("--animation", type=Path, default=None, help="Screenshot the timeline on this animation.")
+    parser.add_argument("--frame", type=int, default=None, help="Frame of --animation (default: 2nd keyframe).")
     args = parser.parse_args()
     if args.out is None:
-        args.out = ROOT / "docs" / ("editor_drag.png" if args.drag else "editor_scene.png")
+        name = "editor_timeline.png" if args.animation else "editor_drag.png" if args.drag else "editor_scene.png"
+        args.out = ROOT / "docs" / name
     torch.set_num_threads(1)
     solver = IKSolver.load()
     with tempfile.TemporaryDirectory() as tmp:
-        run_demo(Path(tmp), solver)
-        scene = Path(tmp) / ("smpl" if args.drag else "character") / "scene.json"
-        app = EditorApp(EditorState.open(scene, solver), port=0)
+        if args.animation is not None:
+            from workflows.editor.timeline import AnimationTimeline
+            from workflows.editor.timeline_app import AnimationEditorApp
+
+            timeline = AnimationTimeline.open(args.animation, solver)
+            app = AnimationEditorApp(timeline, solver, port=0)
+            keys = timeline.keyframes()
+            app.goto(args.frame if args.frame is not None else keys[min(1, len(keys) - 1)])
+        else:
+            run_demo(Path(tmp), solver)
+            scene = Path(tmp) / ("smpl" if args.drag else "character") / "scene.json"
+            app = EditorApp(EditorState.open(scene, solver), port=0)
         if args.drag:
             drag_left_wrist(app)
         try:

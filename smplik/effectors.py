@@ -29,6 +29,9 @@ from smplik.conventions import JOINT_NAMES, NUM_JOINTS, EffectorType, joint_inde
 from smplik.validation import MAX_ABS_POSITION_M, JSONPathError, finite_array, short_repr
 
 _TYPE_NAMES = tuple(t.name.lower() for t in EffectorType)
+EXACT = 1e-12
+"""A rotation value with ``|R^T R - I| <= EXACT`` (a look-at direction with ``|norm - 1| <= EXACT``) is kept as
+given: re-projecting an exact one changes its last bits, and a written effector must read back unchanged."""
 
 
 class EffectorError(ValueError):
@@ -79,8 +82,10 @@ class Effector:
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
             raise EffectorError(f"Effector on '{JOINT_NAMES[j]}': value is not a rotation matrix "
                                 f"(needs R^T R = I and det R = +1; det = {np.linalg.det(R):.4f}).")
-        u, _, vt = np.linalg.svd(R)  # project to the nearest exact rotation
-        return cls(j, EffectorType.ROTATION, u @ vt, None, tolerance)
+        if np.abs(R.T @ R - np.eye(3)).max() > EXACT:  # project to the nearest exact rotation; an exact one is
+            u, _, vt = np.linalg.svd(R)              # kept, so a written effector reads back bit for bit
+            R = u @ vt
+        return cls(j, EffectorType.ROTATION, R, None, tolerance)
 
     @classmethod
     def look_at(cls, joint: str | int, target: Any, direction: Any = (0.0, 0.0, 1.0),
@@ -92,7 +97,7 @@ class Effector:
         if not n >= 1e-8 or not np.isfinite(n):
             raise EffectorError(f"Effector on '{JOINT_NAMES[j]}': look-at direction is the zero vector "
                                 "(or not normalisable).")
-        return cls(j, EffectorType.LOOK_AT, t, d / n, tolerance)
+        return cls(j, EffectorType.LOOK_AT, t, d if abs(n - 1.0) <= EXACT else d / n, tolerance)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], path: str = "") -> Effector:

@@ -10,11 +10,14 @@ also writes the screenshot there (docs/editor.png is made so).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -54,6 +57,24 @@ def body_pixels(png: bytes) -> int:
     return int(((b - r > 25) & (b > 120) & (g > 100)).sum())
 
 
+@contextlib.contextmanager
+def editor_page(url: str, *, width: int = 1100, height: int = 700) -> Iterator[Any]:
+    """A playwright page of headless Debian Chromium on the editor at ``url``, its 3D canvas loaded; the browser
+    closes on exit."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=30_000)
+        try:
+            page = browser.new_page(viewport={"width": width, "height": height})
+            page.set_default_timeout(WAIT_S * 1000)
+            page.goto(url)
+            page.wait_for_selector("canvas")
+            yield page
+        finally:
+            browser.close()
+
+
 @pytest.fixture()
 def editor(tmp_path):
     import torch
@@ -75,78 +96,68 @@ def editor(tmp_path):
 
 
 def test_editor_in_headless_chromium(editor, tmp_path):
-    from playwright.sync_api import sync_playwright
-
     state = editor.state
     saved = tmp_path / "scene.json"
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=30_000)
-        try:
-            page = browser.new_page(viewport={"width": 1100, "height": 700})
-            page.set_default_timeout(WAIT_S * 1000)
-            page.goto(editor.url)
-            page.wait_for_selector("canvas")
-            add = page.get_by_role("button", name="Add effector")
-            add.wait_for()
-            # the 3D view is not blank: the body is drawn (polls while the mesh streams in)
-            wait_for(lambda: body_pixels(page.screenshot(timeout=WAIT_S * 1000)) > 5000, "the body in the 3D view",
-                     timeout=2 * WAIT_S)
-            close = page.locator(".mantine-Notification-closeButton")
-            if close.count():
-                close.first.click()  # the "software WebGL" notice of a GPU-less machine
+    with editor_page(editor.url) as page:
+        add = page.get_by_role("button", name="Add effector")
+        add.wait_for()
+        # the 3D view is not blank: the body is drawn (polls while the mesh streams in)
+        wait_for(lambda: body_pixels(page.screenshot(timeout=WAIT_S * 1000)) > 5000, "the body in the 3D view",
+                 timeout=2 * WAIT_S)
+        close = page.locator(".mantine-Notification-closeButton")
+        if close.count():
+            close.first.click()  # the "software WebGL" notice of a GPU-less machine
 
-            # click "Add effector": the default joint and type (left_wrist, position)
-            add.click()
-            wait_for(lambda: len(state.character().effectors) == 4, "the added effector on the server")
-            e = state.character().effectors[3]
-            assert (e.joint_name, e.type.name.lower()) == ("left_wrist", "position")
-            assert state.selected == 3
+        # click "Add effector": the default joint and type (left_wrist, position)
+        add.click()
+        wait_for(lambda: len(state.character().effectors) == 4, "the added effector on the server")
+        e = state.character().effectors[3]
+        assert (e.joint_name, e.type.name.lower()) == ("left_wrist", "position")
+        assert state.selected == 3
 
-            # drag the beta-0 slider's thumb to the right with the mouse (arrow keys would also turn
-            # viser's camera); the server gets the value the slider shows
-            thumb = page.get_by_role("slider").first
-            box = thumb.bounding_box()
-            x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
-            page.mouse.move(x, y)
-            page.mouse.down()
-            for step in range(1, 6):
-                page.mouse.move(x + 6 * step, y)
-            page.mouse.up()
-            shown = wait_for(lambda: float(thumb.get_attribute("aria-valuenow") or 0.0), "the slider's new value")
-            assert 0.05 <= shown <= 1.5
-            wait_for(lambda: abs(state.character().betas[0] - shown) < 1e-6, f"beta 0 = {shown} on the server")
-            assert np.allclose(state.character().pose.betas[0], shown)
+        # drag the beta-0 slider's thumb to the right with the mouse (arrow keys would also turn
+        # viser's camera); the server gets the value the slider shows
+        thumb = page.get_by_role("slider").first
+        box = thumb.bounding_box()
+        x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        page.mouse.move(x, y)
+        page.mouse.down()
+        for step in range(1, 6):
+            page.mouse.move(x + 6 * step, y)
+        page.mouse.up()
+        shown = wait_for(lambda: float(thumb.get_attribute("aria-valuenow") or 0.0), "the slider's new value")
+        assert 0.05 <= shown <= 1.5
+        wait_for(lambda: abs(state.character().betas[0] - shown) < 1e-6, f"beta 0 = {shown} on the server")
+        assert np.allclose(state.character().pose.betas[0], shown)
 
-            def shot_with_body():
-                shot = page.screenshot()
-                return shot if body_pixels(shot) > 5000 else None
+        def shot_with_body():
+            shot = page.screenshot()
+            return shot if body_pixels(shot) > 5000 else None
 
-            png = wait_for(shot_with_body, "the body after the slider drag")  # polled: no fixed pause
-            (tmp_path / "editor.png").write_bytes(png)
-            if os.environ.get("SMPLIK_EDITOR_SCREENSHOT"):
-                Path(os.environ["SMPLIK_EDITOR_SCREENSHOT"]).write_bytes(png)
-            assert body_pixels(png) > 5000
+        png = wait_for(shot_with_body, "the body after the slider drag")  # polled: no fixed pause
+        (tmp_path / "editor.png").write_bytes(png)
+        if os.environ.get("SMPLIK_EDITOR_SCREENSHOT"):
+            Path(os.environ["SMPLIK_EDITOR_SCREENSHOT"]).write_bytes(png)
+        assert body_pixels(png) > 5000
 
-            # Save: the file holds the server's scene
-            assert not saved.exists()
-            page.get_by_role("button", name="Save").click()
-            wait_for(saved.exists, "the saved scene file")
-            data = json.loads(saved.read_text())
-            char = data["characters"][0]
-            assert [(x["joint"], x["type"]) for x in char["effectors"]] == [
-                ("head", "look_at"), ("right_wrist", "position"), ("pelvis", "rotation"), ("left_wrist", "position")]
-            assert char["betas"][0] == pytest.approx(shown) and char["pose"]["betas"][0] == pytest.approx(shown)
+        # Save: the file holds the server's scene
+        assert not saved.exists()
+        page.get_by_role("button", name="Save").click()
+        wait_for(saved.exists, "the saved scene file")
+        data = json.loads(saved.read_text())
+        char = data["characters"][0]
+        assert [(x["joint"], x["type"]) for x in char["effectors"]] == [
+            ("head", "look_at"), ("right_wrist", "position"), ("pelvis", "rotation"), ("left_wrist", "position")]
+        assert char["betas"][0] == pytest.approx(shown) and char["pose"]["betas"][0] == pytest.approx(shown)
 
-            # Undo (the whole slider gesture), then Save again: the file follows
-            page.get_by_role("button", name="Undo").click()
-            wait_for(lambda: state.character().betas[0] == 0.0, "undo of the slider on the server")
-            before = saved.stat().st_mtime_ns
-            page.get_by_role("button", name="Save").click()
-            wait_for(lambda: saved.stat().st_mtime_ns != before, "the second save")
-            assert json.loads(saved.read_text())["characters"][0]["betas"][0] == 0.0
-            assert "Saved" in editor.status
-        finally:
-            browser.close()
+        # Undo (the whole slider gesture), then Save again: the file follows
+        page.get_by_role("button", name="Undo").click()
+        wait_for(lambda: state.character().betas[0] == 0.0, "undo of the slider on the server")
+        before = saved.stat().st_mtime_ns
+        page.get_by_role("button", name="Save").click()
+        wait_for(lambda: saved.stat().st_mtime_ns != before, "the second save")
+        assert json.loads(saved.read_text())["characters"][0]["betas"][0] == 0.0
+        assert "Saved" in editor.status
 
 
 def test_edit_command_serves_the_page_and_prints_the_url(tmp_path):

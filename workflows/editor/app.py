@@ -213,13 +213,7 @@ class EditorApp:
             self.export_text = gui.add_text("Export folder", export_dir)
             self.export_button = gui.add_button("Export", icon=viser.Icon.FILE_EXPORT)
         self.status_md = gui.add_markdown(self.status)
-
-        def user(fn: Callable[[Any], None]) -> Callable[[Any], None]:
-            def handler(event: Any) -> None:
-                if event.client is None:  # an assignment made by this module
-                    return
-                self._run(lambda: fn(event))
-            return handler
+        user = self._user
 
         self.character_dropdown.on_update(user(lambda e: self.state.select_character(
             int(e.target.value.split(":")[0]))))
@@ -234,10 +228,19 @@ class EditorApp:
         self.delete_button.on_click(user(lambda e: self.state.delete_effector()))
         self.refine_checkbox.on_update(user(lambda e: self.state.set_refine(bool(e.target.value))))
         self.recover_button.on_click(user(lambda e: self._recover()))
-        self.undo_button.on_click(user(lambda e: self.state.undo()))
-        self.redo_button.on_click(user(lambda e: self.state.redo()))
+        self.undo_button.on_click(user(lambda e: self.undo()))
+        self.redo_button.on_click(user(lambda e: self.redo()))
         self.save_button.on_click(user(lambda e: self.save()))
         self.export_button.on_click(user(lambda e: self.export()))
+
+    def _user(self, fn: Callable[[Any], None]) -> Callable[[Any], None]:
+        """A GUI callback that runs ``fn(event)`` as an edit (:meth:`_run`) when a person made the change;
+        assignments made by this module (``event.client is None``) are ignored."""
+        def handler(event: Any) -> None:
+            if event.client is None:
+                return
+            self._run(lambda: fn(event))
+        return handler
 
     def _character_labels(self) -> list[str]:
         return [f"{i}: {c.name}" for i, c in enumerate(self.state.scene.characters)]
@@ -258,6 +261,14 @@ class EditorApp:
     def _recover(self) -> None:
         errors = self.state.recover(int(self.max_effectors_slider.value))
         self._set_status(f"Recovered {len(errors)} effectors; error {errors[-1] * 1000:.0f} mm.")
+
+    def undo(self) -> bool:
+        """The Undo button."""
+        return self.state.undo()
+
+    def redo(self) -> bool:
+        """The Redo button."""
+        return self.state.redo()
 
     def save(self) -> Path:
         """Save to the File field's path (the Save button)."""

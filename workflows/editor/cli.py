@@ -5,7 +5,7 @@ from __future__ import annotations
 import ipaddress
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -25,6 +25,10 @@ from shape_inversion.options import (
 from smplik.cli.errors import fail
 from smplik.limits import DEFAULT_MAX_JOINTS
 
+if TYPE_CHECKING:
+    from workflows.editor.app import EditorApp
+    from workflows.editor.timeline import AnimationTimeline
+
 app = typer.Typer(help="Interactive pose editor.")
 console = Console(stderr=True)
 
@@ -42,7 +46,8 @@ def is_loopback(host: str) -> bool:
 @app.command("edit")
 def edit_cmd(
     scene: Annotated[Path | None, typer.Argument(help="Scene JSON to edit (a new file: start from a T-pose body "
-                                                      "and create it on Save; none: ./scene.json).")] = None,
+                                                      "and create it on Save; none: ./scene.json), or an "
+                                                      "animation.json of scene animate (a timeline).")] = None,
     host: Annotated[str, typer.Option("--host", help="Address to listen on (0.0.0.0: the whole network).")]
     = "127.0.0.1",
     port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port (0: any free port).")] = 8080,
@@ -63,7 +68,8 @@ def edit_cmd(
         "--output-dir", help="A folder Save and Export may also write in (repeatable; default: only the scene's "
                              "folder).")] = None,
 ) -> None:
-    """Edit a scene in the browser: drag effectors, shape sliders, recovery, undo/redo, Save, Export."""
+    """Edit a scene in the browser: drag effectors, shape sliders, recovery, undo/redo, Save, Export. An animation
+    (scene animate) opens with a timeline: play, scrub, keyframes, drag, blend window, Apply."""
     import dataclasses
 
     import numpy as np
@@ -82,6 +88,20 @@ def edit_cmd(
     path = scene if scene is not None else Path("scene.json")
     if path.suffix.lower() != ".json":
         fail(f"SCENE must be a .json file, got {path}.")
+    solver = None
+    if path.exists():  # an animation (smplik scene animate): the editor with a timeline
+        from workflows.editor.timeline import AnimationTimeline
+
+        solver = _solver(checkpoint)
+        try:
+            timeline = AnimationTimeline.open_if_animation(path, solver)
+        except ValueError as exc:
+            fail(exc)
+        if timeline is not None:
+            if character is not None:
+                fail(f"{path} is an animation: --character applies to scenes (give it to smplik scene animate).")
+            _serve_timeline(timeline, solver, host, port, (path.resolve().parent, *(output_dir or ())))
+            return
     try:
         loaded = load_scene(path) if path.exists() else None
     except ValueError as exc:
@@ -106,7 +126,18 @@ def edit_cmd(
         console.print(f"{path} does not exist: editing a new T-pose body; Save writes {path}.", highlight=False,
                       soft_wrap=True)
         loaded = fresh_scene()
-    solver = _solver(checkpoint)
+    solver = solver or _solver(checkpoint)
+    _one_thread()
+    try:
+        state = EditorState(loaded, solver, path=path)
+        write_dirs = (path.resolve().parent, *(output_dir or ()))
+        editor = EditorApp(state, host=host, port=port, write_dirs=write_dirs)
+    except (EditorError, OSError) as exc:
+        fail(exc)
+    _serve(editor, host)
+
+
+def _one_thread() -> None:
     import torch
     from threadpoolctl import threadpool_limits
 
@@ -114,12 +145,24 @@ def edit_cmd(
     # slows the skinning several times over when other processes share the cores.
     torch.set_num_threads(1)
     threadpool_limits(1)
+
+
+def _serve_timeline(timeline: AnimationTimeline, solver: Any, host: str, port: int,
+                    write_dirs: tuple[Path, ...]) -> None:
+    """``smplik edit ANIMATION.json``: the editor with a timeline (:mod:`workflows.editor.timeline_app`)."""
+    from workflows.editor.state import EditorError
+    from workflows.editor.timeline_app import AnimationEditorApp
+
+    _one_thread()
     try:
-        state = EditorState(loaded, solver, path=path)
-        write_dirs = (path.resolve().parent, *(output_dir or ()))
-        editor = EditorApp(state, host=host, port=port, write_dirs=write_dirs)
+        editor = AnimationEditorApp(timeline, solver, host=host, port=port, write_dirs=write_dirs)
     except (EditorError, OSError) as exc:
         fail(exc)
+    _serve(editor, host)
+
+
+def _serve(editor: EditorApp, host: str) -> None:
+    """Print the editor's URL and serve until Ctrl+C."""
     if not is_loopback(host):
         console.print(f"[yellow]warning:[/yellow] listening on {host}: anyone who can reach this machine on port "
                       f"{editor.port} can edit the scene and save files.", highlight=False, soft_wrap=True)

@@ -101,7 +101,22 @@ def _rebase(name: str | None, old_dir: Path | None, new_dir: Path) -> str | None
     return str((old_dir / name).resolve())
 
 
-class EditorState:
+class UndoStacks:
+    """``can_undo`` / ``can_redo`` of an editable model keeping past and undone states in ``_undo`` / ``_redo``."""
+
+    _undo: list[Any]
+    _redo: list[Any]
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._redo)
+
+
+class EditorState(UndoStacks):
     """The editor's model (see the module docstring).
 
     Args:
@@ -148,6 +163,24 @@ class EditorState:
         """Edit the scene file at ``path`` (SceneError naming the file and JSON path when invalid)."""
         return cls(load_scene(path), solver, path=path, **kwargs)
 
+    def replace_scene(self, scene: Scene) -> None:
+        """Edit another scene with the same characters (an animation's frame on the timeline): the undo
+        history, selection and estimated poses start afresh; the active character, the refinement switch
+        and the shaped bodies (skinning caches) are kept."""
+        if len(scene.characters) != len(self.scene.characters):
+            raise EditorError(f"The new scene has {len(scene.characters)} characters, not "
+                              f"{len(self.scene.characters)}.")
+        self._now = Snapshot(scene, self.active, None, self.refine)
+        self._undo.clear()
+        self._redo.clear()
+        self._gesture = None
+        self._reference = {i: c.pose for i, c in enumerate(scene.characters)}
+        self._views.clear()
+        self._reports.clear()
+        self.relaxed = ()
+        self._drag_base = None
+        self.version += 1
+
     # ------------------------------------------------------------------------- read access
 
     @property
@@ -167,14 +200,6 @@ class EditorState:
     @property
     def refine(self) -> bool:
         return self._now.refine
-
-    @property
-    def can_undo(self) -> bool:
-        return bool(self._undo)
-
-    @property
-    def can_redo(self) -> bool:
-        return bool(self._redo)
 
     def character(self, index: int | None = None) -> SceneCharacter:
         """The character at ``index`` (default: the active one)."""

@@ -1,4 +1,5 @@
-"""The editor's timeline model for animations (plain Python; the viser wiring is still to come).
+"""The editor's timeline model for animations (plain Python; :mod:`workflows.editor.timeline_app` wires it to
+the browser).
 
 :class:`AnimationTimeline` holds an :class:`~workflows.animation.Animation` and what a timeline shows and
 does: the current source frame (scrub, step for playback at the source frame rate, jump between
@@ -16,10 +17,11 @@ from typing import Any
 
 from smplik.effectors import Effector
 from workflows.animation import Animation, AnimationError
+from workflows.editor.state import UndoStacks
 from workflows.scene import Scene
 
 
-class AnimationTimeline:
+class AnimationTimeline(UndoStacks):
     """An animation being edited on a timeline (see the module docstring)."""
 
     def __init__(self, animation: Animation, solver: Any, *, window: int = 10, path: str | Path | None = None
@@ -39,6 +41,27 @@ class AnimationTimeline:
         from workflows.animation_io import load_animation
 
         return cls(load_animation(path), solver, path=path, **kwargs)
+
+    @classmethod
+    def open_if_animation(cls, path: str | Path, solver: Any, **kwargs: Any) -> AnimationTimeline | None:
+        """The timeline of ``path`` when it is a ``smplik-animation`` file; None for anything else (a scene,
+        or a file the scene reader should report on). An invalid animation file: one-line
+        :class:`~workflows.animation_io.AnimationFileError` naming the file and JSON path."""
+        from smplik.validation import read_json
+        from workflows.animation_io import ANIMATION_FORMAT, AnimationFileError, animation_from_dict
+
+        try:
+            data = read_json(path, AnimationFileError, what="animation file")
+        except AnimationFileError:
+            return None
+        if not isinstance(data, dict) or data.get("format") != ANIMATION_FORMAT:
+            return None
+        return cls(animation_from_dict(data, source=str(path)), solver, path=path, **kwargs)
+
+    @property
+    def path(self) -> Path | None:
+        """The file :meth:`save` writes by default (the file opened, then the last one saved)."""
+        return self._path
 
     @property
     def animation(self) -> Animation:
@@ -70,12 +93,13 @@ class AnimationTimeline:
         """Seconds per frame when playing (the source frame rate)."""
         return 1.0 / self._animation.fps
 
-    def set_frame(self, frame: int) -> None:
-        """Scrub to a source frame (an error outside :attr:`frames`)."""
+    def set_frame(self, frame: int) -> int:
+        """Scrub to a source frame (an error outside :attr:`frames`); returns it."""
         if frame not in self.frames:
             raise AnimationError(f"frame {frame} is outside the animation's frames {self.frames.start}.."
                                  f"{self.frames.stop - 1}.")
         self._frame = int(frame)
+        return self._frame
 
     def step(self, count: int = 1) -> int:
         """Advance by ``count`` frames, wrapping around (playback); returns the new frame."""
