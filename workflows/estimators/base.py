@@ -26,7 +26,11 @@ present; otherwise the published rest pelvis of the SMPL neutral template at bet
 dependence of ``J0_est`` (a linear term ``J_dirs[0] @ beta``; on the built-in body, whose shape
 directions mimic SMPL's, ``|beta| <= 2`` moves the rest pelvis by up to
 :data:`J0_BETA_EFFECT_M` metres, which is the size of the error to expect for unusual shapes),
-and the male/female templates (the neutral one is used for every gender).
+and the male/female templates (the neutral one is used for every gender). For SMPL-X producers the user's
+``SMPLX_NEUTRAL.npz`` (``$SMPLIK_SMPLX_MODEL`` or the model folder) gives ``J0_est(beta)`` exactly and our
+body the betas whose skeleton matches SMPL-X's (:mod:`workflows.estimators.smplx_shape`): SMPL-X betas
+read as our betas are another body (against GVHMR's own render, a head up to 7 % of the body's image
+height low).
 
 An OpenGL camera at the world origin with identity rotation (x right, y up, looking down -z) is
 then exactly the estimator's camera, so previews overlay the source image with
