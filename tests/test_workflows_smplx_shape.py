@@ -48,6 +48,18 @@ def test_rest_pelvis_and_betas_come_from_the_smplx_file(smplx_file):
     J_ours = load_body_model(Gender.NEUTRAL).rest_joints(torch.as_tensor(ours, dtype=torch.float32))[0, :22].numpy()
     J_smplx = reg[:22] @ (v + dirs[:, :, :10] @ BETAS[0])
     np.testing.assert_allclose(J_ours - J_ours[0], J_smplx - J_smplx[0], atol=1e-5)  # the same skeleton
+    arrays = load_body_model(Gender.NEUTRAL).arrays
+
+    def above_pelvis(betas_ours: np.ndarray) -> np.ndarray:
+        """Head top and soles of our rest mesh relative to its pelvis (y, m)."""
+        mesh = arrays["v_template"] + arrays["shapedirs"] @ betas_ours
+        y = mesh[:, 1] - arrays["J_regressor"][0] @ mesh[:, 1]
+        return np.array([y.max(), y.min()])
+
+    mesh = v + dirs[:, :, :10] @ BETAS[0]
+    y_smplx = mesh[:, 1] - reg[0] @ mesh[:, 1]
+    np.testing.assert_allclose(above_pelvis(ours[0]), [y_smplx.max(), y_smplx.min()], atol=1e-4)  # fitted: same
+    assert np.abs(above_pelvis(BETAS[0]) - [y_smplx.max(), y_smplx.min()]).max() > 0.03  # unfitted: 3+ cm off
 
 
 def test_gvhmr_person_gets_the_fitted_body_at_the_exact_pelvis(smplx_file, tmp_path):

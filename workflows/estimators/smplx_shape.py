@@ -14,9 +14,11 @@ sub-folder, the layout ``smplx.create`` uses):
 
 * ``J0_smplx(beta) = J_regressor[0] @ (v_template + shapedirs[..., :10] beta)``, exactly what smplx
   rotates the root about (the producer's ``transl`` is relative to it);
-* the betas given to our body are the least-squares fit of our rest skeleton to SMPL-X's for the
-  producer's betas: the 22 body joints (pelvis..right_wrist, shared by both skeletons) relative to
-  the pelvis, both linear in beta, so one (66 x 10) solve per person.
+* the betas given to our body are the least-squares fit of our rest body to SMPL-X's for the producer's
+  betas: the 22 body joints (pelvis..right_wrist, shared by both skeletons) and the top of the head and
+  the soles (the highest and lowest rest vertices at beta = 0: what an overlay shows), relative to the
+  pelvis, all linear in beta, so one (72 x 10) solve per person; directions that move none of them
+  (girth) stay 0, and the fit is clipped to the +-5 that SMPL-SI spans.
 
 The file is read with ``np.load(allow_pickle=False)`` (no code runs); only the arrays above are used.
 Without the file, the readers keep the published beta = 0 rest pelvis
@@ -64,7 +66,7 @@ def smplx_model_path() -> Path | None:
 
 @functools.lru_cache(maxsize=4)
 def smplx_skeleton(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """SMPL-X's rest body joints, linear in beta: ``J_template (22, 3)``, ``J_dirs (22, 3, 10)`` (float64)."""
+    """SMPL-X's rest landmarks (:func:`_landmarks`), linear in beta: ``(24, 3)``, ``(24, 3, 10)`` (float64)."""
     from workflows.estimators.base import EstimateFormatError
 
     try:
@@ -82,29 +84,42 @@ def smplx_skeleton(path: str) -> tuple[np.ndarray, np.ndarray]:
                                   f"J_regressor {reg.shape}; expected (V, 3), (V, 3, >=10), (>=22, V).")
     if not all(np.isfinite(a).all() for a in (v, dirs, reg)):
         raise EstimateFormatError(f"{path}: SMPL-X arrays contain NaN or inf.")
-    reg = reg[:BODY_JOINTS]
-    return reg @ v, np.einsum("jv,vcb->jcb", reg, dirs[:, :, :NUM_BETAS])
+    return _landmarks(reg[:BODY_JOINTS], v, dirs[:, :, :NUM_BETAS])
+
+
+def _landmarks(J_regressor: np.ndarray, v_template: np.ndarray, shapedirs: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The 22 body joints, then the head-top and sole vertices (highest / lowest at beta = 0), linear in beta:
+    ``(24, 3)`` at beta = 0 and ``(24, 3, 10)`` per unit beta."""
+    ends = [int(np.argmax(v_template[:, 1])), int(np.argmin(v_template[:, 1]))]
+    template = np.concatenate([J_regressor @ v_template, v_template[ends]])
+    dirs = np.concatenate([np.einsum("jv,vcb->jcb", J_regressor, shapedirs), shapedirs[ends]])
+    return template, dirs
 
 
 def smplx_rest_joints(betas: np.ndarray, path: Path) -> np.ndarray:
     """SMPL-X rest body joints for betas (N, 10) -> (N, 22, 3)."""
-    J_template, J_dirs = smplx_skeleton(str(path))
-    return J_template + np.einsum("jcb,nb->njc", J_dirs, np.asarray(betas, dtype=np.float64))
+    return _smplx_landmarks(betas, path)[:, :BODY_JOINTS]
+
+
+def _smplx_landmarks(betas: np.ndarray, path: Path) -> np.ndarray:
+    template, dirs = smplx_skeleton(str(path))
+    return template + np.einsum("jcb,nb->njc", dirs, np.asarray(betas, dtype=np.float64))
 
 
 def fit_our_betas(betas_smplx: np.ndarray, gender: Gender, path: Path) -> np.ndarray:
     """Our body's betas whose rest skeleton best matches SMPL-X's for ``betas_smplx`` (N, 10) -> (N, 10).
 
-    Least squares over the 22 body joints relative to the pelvis (module docstring); directions of our body that
-    move no joint (girth) get 0, the minimum-norm solution.
+    Least squares over the pelvis-relative landmarks (module docstring).
     """
     from smplik.body_model import load_body_model
 
-    model = load_body_model(gender)
-    J_t = model.J_template.double().numpy()[:BODY_JOINTS]
-    J_d = model.J_dirs.double().numpy()[:BODY_JOINTS]
-    A = (J_d - J_d[:1]).reshape(-1, NUM_BETAS)  # (66, 10): pelvis-relative joints per unit beta
-    target = smplx_rest_joints(betas_smplx, path)
-    b = (target - target[:, :1]) - (J_t - J_t[:1])  # (N, 22, 3)
-    fitted, *_ = np.linalg.lstsq(A, b.reshape(b.shape[0], -1).T, rcond=None)
-    return fitted.T
+    arrays = load_body_model(gender).arrays
+    J_t, J_d = _landmarks(np.asarray(arrays["J_regressor"], dtype=np.float64)[:BODY_JOINTS],
+                          np.asarray(arrays["v_template"], dtype=np.float64),
+                          np.asarray(arrays["shapedirs"], dtype=np.float64)[:, :, :NUM_BETAS])
+    A = (J_d - J_d[:1]).reshape(-1, NUM_BETAS)  # (72, 10): pelvis-relative landmarks per unit beta
+    target = _smplx_landmarks(betas_smplx, path)
+    b = (target - target[:, :1]) - (J_t - J_t[:1])  # (N, 24, 3)
+    fitted, *_ = np.linalg.lstsq(A, b.reshape(b.shape[0], -1).T, rcond=1e-3)
+    return np.clip(fitted.T, -5.0, 5.0)
