@@ -462,7 +462,8 @@ def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) ->
     """
     entries: list[tuple[int, tuple[list[int], list[float], list[float]]]] = []
     for i, st in enumerate(states):
-        assert st.chosen
+        if not st.chosen:  # cut off right after a path was set aside (the round cap): keep the paths
+            st.chosen, st.errors, st.scores = (list(x) for x in st.paths[-1])
         current = (st.chosen, st.errors, st.scores)
         seen = {tuple(st.chosen)}
         entries.append((i, current))  # first: it wins ties
