@@ -20,7 +20,8 @@ sub-folder, the layout ``smplx.create`` uses):
   pelvis, all linear in beta, so one (72 x 10) solve per person; directions that move none of them
   (girth) stay 0, and the fit is clipped to the +-5 that SMPL-SI spans.
 
-The file is read with ``np.load(allow_pickle=False)`` (no code runs); only the arrays above are used.
+The file is read with ``np.load(allow_pickle=False)`` (no code runs); only the arrays above are used. The
+neutral file serves every gender (SMPL-X producers that name one, e.g. AMASS SMPL-X, are fitted with it).
 Without the file, the readers keep the published beta = 0 rest pelvis
 (:data:`workflows.estimators.base.SMPLX_NEUTRAL_REST_PELVIS`) and the producer's betas as they are.
 """
