@@ -19,8 +19,11 @@ Against the producer's own render (real files): for every ``hmr4d_results.pt`` u
 ``1_incam.mp4`` (its in-camera render over the video) beside it, 10 frames per track: the producer's body
 is where the two videos differ; its top row (head) and bottom row (feet) are compared with those of our
 built-in body's mesh projected through the scene's overlay camera, in % of the producer's body height in
-the image (positive: ours lower). Needs imageio with its ffmpeg plugin (``imageio-ffmpeg``); skipped
-without it or without the files.
+the image (positive: ours lower). ``upper`` / ``lower``: the producer's pelvis-to-head-top and
+pelvis-to-feet image lengths over ours (our pelvis pixel for both): which part of the body differs
+(SMPL-X betas are another body than the built-in body's, :mod:`workflows.estimators.smplx_shape`; with
+``$SMPLIK_SMPLX_MODEL`` set the readers fit our betas to SMPL-X's skeleton and this measures that fit).
+Needs imageio with its ffmpeg plugin (``imageio-ffmpeg``); skipped without it or without the files.
 
 Prints a table and writes ``benchmarks/results/estimator_placement.json``.
 """
@@ -52,6 +55,7 @@ from smplik.conventions import Gender  # noqa: E402
 from smplik.paths import real_estimators_dir  # noqa: E402
 from workflows.estimators import read_estimate  # noqa: E402
 from workflows.estimators.base import estimator_rest_pelvis, rest_pelvis  # noqa: E402
+from workflows.estimators.smplx_shape import smplx_model_path  # noqa: E402
 
 SEEDS = 10
 HEIGHTS_PX = (200.0, 240.0, 400.0)
@@ -99,9 +103,12 @@ def main() -> None:
     renders = producer_render_rows(real)
     path = save("estimator_placement", {"image_size": [640, 480], "seeds": SEEDS, "formats": results,
                                         "producer_renders": renders,
+                                        "smplx_model": bool(smplx_model_path()),
                                         "note": "head error = built-in body proportions vs SMPL's; SMPL-X "
                                                 "producers (gvhmr): pelvis only; sam3d: fitted SMPL pose; "
-                                                "producer_renders: % of the body's image height, + = ours lower"})
+                                                "producer_renders: % of the body's image height, + = ours lower; "
+                                                "upper/lower: producer's pelvis-to-head / pelvis-to-feet over ours "
+                                                "(SMPL-X betas read as built-in betas unless smplx_model)"})
     print(f"wrote {path}")
 
 
@@ -167,13 +174,13 @@ def producer_render_rows(folder: Path, frames_per_track: int = 10) -> dict:
 
     rows = {}
     print(f"{'GVHMR track':36s} {'frames':>6s} {'head % mean':>11s} {'head % max':>10s} {'feet % mean':>11s} "
-          f"{'feet % max':>10s}")
+          f"{'feet % max':>10s} {'upper':>6s} {'lower':>6s}")
     for path in tracks:
         data = load_estimator_file(path, False, 1 << 30)
         length = len(data["smpl_params_incam"]["body_pose"])
         video_in = imageio.get_reader(path.parent / "0_input_video.mp4")
         video_out = imageio.get_reader(path.parent / "1_incam.mp4")
-        head, feet = [], []
+        head, feet, upper, lower = [], [], [], []
         for f in np.linspace(0, length - 1, frames_per_track).round().astype(int):
             a, b = video_in.get_data(int(f)), video_out.get_data(int(f))
             body = _body_rows(a, b)
@@ -187,21 +194,29 @@ def producer_render_rows(folder: Path, frames_per_track: int = 10) -> dict:
                 return torch.as_tensor(np.asarray(x), dtype=torch.float32)[None]
 
             with torch.no_grad():
-                verts, _ = load_body_model(p.gender).vertices(t(p.global_orient), t(p.body_pose), t(p.transl),
-                                                              t(p.betas))
-            V = np.linalg.solve(cam.T_world_camera, np.c_[verts[0].double().numpy(), np.ones(len(verts[0]))].T).T
+                verts, joints = load_body_model(p.gender).vertices(t(p.global_orient), t(p.body_pose), t(p.transl),
+                                                                   t(p.betas))
+            points = np.concatenate([verts[0].double().numpy(), joints[0, :1].double().numpy()])
+            V = np.linalg.solve(cam.T_world_camera, np.c_[points, np.ones(len(points))].T).T
             v = cam.cy - cam.fy * V[:, 1] / -V[:, 2]
+            pelvis, v = v[-1], v[:-1]
             height = body[1] - body[0]
             head.append(100 * (v.min() - body[0]) / height)
             feet.append(100 * (v.max() - body[1]) / height)
+            upper.append((pelvis - body[0]) / (pelvis - v.min()))  # the producer's pelvis-to-head / ours
+            lower.append((body[1] - pelvis) / (v.max() - pelvis))
         name = str(path.parent.relative_to(folder))
         rows[name] = {"frames": len(head), "head_pct_mean": round(float(np.mean(head)), 2),
                       "head_pct_max_abs": round(float(np.max(np.abs(head))), 2),
                       "feet_pct_mean": round(float(np.mean(feet)), 2),
-                      "feet_pct_max_abs": round(float(np.max(np.abs(feet))), 2)}
+                      "feet_pct_max_abs": round(float(np.max(np.abs(feet))), 2),
+                      "upper_body_ratio_mean": round(float(np.mean(upper)), 3),
+                      "lower_body_ratio_mean": round(float(np.mean(lower)), 3),
+                      "betas": [round(float(b), 2) for b in np.asarray(data["smpl_params_incam"]["betas"])[0]]}
         r = rows[name]
         print(f"{name:36s} {r['frames']:6d} {r['head_pct_mean']:11.2f} {r['head_pct_max_abs']:10.2f} "
-              f"{r['feet_pct_mean']:11.2f} {r['feet_pct_max_abs']:10.2f}")
+              f"{r['feet_pct_mean']:11.2f} {r['feet_pct_max_abs']:10.2f} {r['upper_body_ratio_mean']:6.3f} "
+              f"{r['lower_body_ratio_mean']:6.3f}")
     return rows
 
 

@@ -14,9 +14,10 @@ def test_greedy_lowers_the_error_with_each_effector_and_stops_at_the_threshold(s
     target = TargetPose.from_pose(synthetic_pose(0))
     solver = oracle_solver(target.p_world)
     res = recover_effectors(solver, target, RecoveryConfig(max_effectors=6, threshold=0.0))
-    # one batched solve per greedy step; full above the threshold, the restart's 6 prefixes (one solve per
-    # width) are scored too and lose to the greedy path, one swap round finds nothing better; the final pose
-    assert len(res.effectors) == 6 and solver.calls == 6 + 6 + 1 + 1
+    # one batched solve per greedy step; full above the threshold and polish_above: the greedy search again
+    # (the solver's refinement), the restart's 6 prefixes (one solve per width), one swap round that finds
+    # nothing better; the final pose (every path holds 6: one batched solve)
+    assert len(res.effectors) == 6 and solver.calls == 6 + 6 + 6 + 1 + 1
     assert res.final_error == pytest.approx(res.errors[-1], rel=1e-6)
     assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))
     # the oracle rewards rotations of joints with many children: spine3 (4 joints) first
@@ -102,7 +103,7 @@ def test_final_pose_is_what_the_effectors_re_solve_to(synthetic_pose, oracle_sol
 
     target = TargetPose.from_pose(synthetic_pose(4))
     res = recover_effectors(WorseWhenFullyRefined(target.p_world), target, RecoveryConfig(max_effectors=4,
-                                                                                          threshold=0.0))
+                                                                                          threshold=0.0, polish=False))
     off = np.linalg.norm(res.pose.joints - target.p_world.numpy(), axis=-1)
     assert off.min() > 0.8 and res.final_error == pytest.approx(off.mean(), rel=1e-4)  # 0.5 m on each axis
     assert res.final_error > res.errors[-1]
@@ -207,3 +208,39 @@ def test_polish_off_keeps_the_plain_greedy_path(synthetic_pose, oracle_solver):
     res = recover_effectors(solver, target, RecoveryConfig(max_effectors=6, threshold=0.0, polish=False))
     assert len(res.effectors) == 6 and solver.calls == 6 + 1  # one solve per greedy step, then the final pose
     assert all(b < a for a, b in zip(res.errors, res.errors[1:], strict=False))
+
+
+class _CheapSolveMisleads:
+    """An oracle solver (tests/conftest.py) whose cheap search solve (``refine`` given) likes spine3's rotation,
+    while the full refinement (``refine=None``, the final solve) puts every joint 5 cm off in any set holding it."""
+
+    def __init__(self, oracle_cls, target):
+        self.oracle, self.refines = oracle_cls(target), []
+
+    def solve_tensors(self, eff, betas, gender, *, refine=None):
+        out = self.oracle.solve_tensors(eff, betas, gender, refine=refine)
+        self.refines.append(refine)
+        spine3_rot = (eff.joint == 9) & (eff.type == int(EffectorType.ROTATION))
+        bad = spine3_rot.any(-1).float()[:, None, None]
+        shift = -0.02 * bad if refine is not None else 0.05 * bad  # closer for the cheap solve, off when refined
+        return type(out)(out.R_local, out.R_world, out.p_world + shift, out.draft, out.transl)
+
+
+def test_a_hard_pose_is_searched_again_with_the_full_refinement(synthetic_pose, oracle_solver):
+    """The cheap search solve picks spine3's rotation, which the final (fully refined) solve leaves 5 cm off: the
+    path ends above ``polish_above``, so the search runs again scored with the solver's own refinement and the
+    result avoids it; below ``polish_above`` the cheap path is kept as it is (no extra solve)."""
+    target = TargetPose.from_pose(synthetic_pose(0))
+    spine3_rot = (9, int(EffectorType.ROTATION))
+    solver = _CheapSolveMisleads(oracle_solver, target.p_world)
+    res = recover_effectors(solver, target, RecoveryConfig(max_effectors=6, threshold=0.0, polish_above=0.03))
+    assert None in solver.refines[:-1]  # searched with the full refinement before the final solve
+    assert spine3_rot not in {(e.joint, int(e.type)) for e in res.effectors} and len(res.effectors) == 6
+    cheap = recover_effectors(_CheapSolveMisleads(oracle_solver, target.p_world), target,
+                              RecoveryConfig(max_effectors=6, threshold=0.0, polish=False))
+    assert (cheap.effectors[0].joint, int(cheap.effectors[0].type)) == spine3_rot
+    assert res.final_error < cheap.final_error - 0.03
+    calm = _CheapSolveMisleads(oracle_solver, target.p_world)
+    kept = recover_effectors(calm, target, RecoveryConfig(max_effectors=6, threshold=0.0, polish_above=1.0))
+    assert [(e.joint, e.type) for e in kept.effectors] == [(e.joint, e.type) for e in cheap.effectors]
+    assert len(calm.refines) == 6 + 1 and calm.refines[:-1].count(None) == 0

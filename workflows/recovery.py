@@ -12,21 +12,29 @@ neck positions at 96 mm, every third effector above 100 mm, while the 6-point se
 1. **pairs**: when no single candidate lowers the error, every pair of remaining candidates is tried
    (one batched solve) and the best pair is kept if it lowers the error (its first member's error is
    the one it had as a single);
-2. **force**: if no pair helps either, the least harmful single is added and the search goes on;
-3. **restart**: a path that is full (``max_effectors``, at least 6) but still above the threshold is
-   set aside and the search starts again, once, from the dense :data:`RESTART_SET` (all its prefixes
-   scored in one round), continuing by the same rules; the closer path (search score) goes on;
-4. **swaps**: a full path still above the threshold is polished by up to :data:`SWAP_ROUNDS` swaps,
-   each the best replacement of one effector by another candidate (all in one batched solve) when it
-   lowers the error; the new one goes last and the path's per-count errors are scored again.
+2. **force**: if no pair helps either, the least harmful single is added and the search goes on.
 
-Of the full paths (the first, the restart's, before and after swaps), the result is the one whose
-re-solved pose (the final solve below) is closest: the search's cheap solve can rank them otherwise.
-So the result holds ``max_effectors`` effectors unless the threshold was reached. ``errors`` decrease
-strictly along a path except after a forced step, along the restart set's prefixes and after swaps.
-On every frame of four real GVHMR tracks and an AIST++ dance (``benchmarks/estimator_recovery.py``)
-the plain greedy search left squat frames at 72-96 mm with 2 effectors; with these steps the worst
-GVHMR frame is under 40 mm with 8.
+A full path (``max_effectors``) still above the threshold **and** above ``polish_above`` (3 cm: a hard pose;
+most poses end below it and cost no more than the greedy search) is escalated. On hard poses the cheap
+solve that scores candidates (one refinement step) ranks them differently from the full refinement that
+gives the final pose (an AIST++ dance frame: 44 mm scored, 41 mm final, where the same search scored with
+the full refinement ends at 24 mm), so every later stage is scored with the solver's own refinement:
+
+3. **search again**: the path is set aside and the greedy search (pairs and forced steps included) runs
+   again from no effector;
+4. **restart**: if that path is still above ``polish_above`` (and ``max_effectors`` >= 6), it is set aside
+   too and the search starts again from the dense :data:`RESTART_SET` (all its prefixes scored in one
+   round), continuing by the same rules;
+5. **swaps**: the closest of the escalated paths is polished by up to :data:`SWAP_ROUNDS` swaps, each the
+   best replacement of one effector by another candidate (all in one batched solve) when it lowers the
+   error; the new one goes last and the path's per-count errors are scored again.
+
+Of the full paths (the cheap one, the escalated ones, before and after swaps), the result is the one whose
+re-solved pose (the final solve below) is closest. So the result holds ``max_effectors`` effectors unless
+the threshold was reached. ``errors`` decrease strictly along a path except after a forced step, along the
+restart set's prefixes and after swaps. On every frame of four real GVHMR tracks and an AIST++ dance
+(``benchmarks/estimator_recovery.py``) the plain greedy search left squat frames at 72-96 mm with 2
+effectors; with these steps no frame is above 40 mm with 8 (docs/estimators.md has the figures).
 
 Candidates: the 24 joints x {position, rotation}, plus (``include_look_at``) a look-at on the head
 whose target is ``look_at_distance`` metres along the head's forward axis (+z in its frame).
@@ -155,8 +163,12 @@ class RecoveryConfig:
     """Refinement steps (:mod:`smplik.refine`) while scoring candidates; the final pose gets the
     solver's own refinement. One step keeps 8 effectors under 100 ms on one CPU thread."""
     polish: bool = True
-    """Restart and swaps on a full path still above the threshold (steps 3-4 of the module docstring); off
-    keeps the plain greedy search's speed (pairs and forced steps still run)."""
+    """Escalate a full path still above ``polish_above`` and the threshold (steps 3-5 of the module docstring);
+    off keeps the plain greedy search (pairs and forced steps still run)."""
+    polish_above: float = 0.03
+    """Escalate only a full path whose search error (metres, character space) is above this: most poses end
+    below it after the cheap greedy search and cost no more than it (0: escalate every path above the
+    threshold)."""
     criterion: Criterion = "joints"
     """What each step minimises (:func:`recovery_score`); ``errors`` always report the mean joint error."""
 
@@ -245,15 +257,20 @@ class _Search:
     mode: SearchMode = "single"
     singles: dict[int, tuple[float, float]] = field(default_factory=dict)
     """The last single step's (error, score) per candidate: a kept pair's first member reports its own."""
-    restarted: bool = False
+    stage: Literal["greedy", "research", "restart", "swap"] = "greedy"
+    """Where the search is: the cheap greedy path, then (escalated) the greedy search again scored with the full
+    refinement, the restart from :data:`RESTART_SET`, the swaps."""
     paths: list[tuple[list[int], list[float], list[float]]] = field(default_factory=list)
-    """Full paths set aside (the first one at the restart, the one before swaps): :func:`_finish` keeps the
-    path whose re-solved pose is closest."""
+    """Full paths set aside (the cheap one, the re-search's, the restart's, the one before swaps):
+    :func:`_finish` keeps the path whose re-solved pose is closest."""
     swaps_left: int = 0
     swapped: bool = False
-    stuck_path: tuple[list[int], list[float], list[float]] | None = None
-    """The first (full) path, set aside at the restart (kept if the restart ends no closer)."""
     done: bool = False
+
+    @property
+    def full_refine(self) -> bool:
+        """Scored with the solver's own (full) refinement: every stage after the cheap greedy path."""
+        return self.stage != "greedy"
 
 
 def _trial_sets(st: _Search, cfg: RecoveryConfig) -> list[Tensor]:
@@ -278,8 +295,9 @@ def _trial_sets(st: _Search, cfg: RecoveryConfig) -> list[Tensor]:
 
 
 def _score_sets(solver: TensorSolver, states: Sequence[_Search], sets: Sequence[Tensor], cfg: RecoveryConfig,
-                refine: RefineConfig) -> list[tuple[Tensor, Tensor]]:
-    """Solve every trial set (``sets[i]`` belongs to ``states[i]``), one batched call per set width.
+                refine: RefineConfig | None) -> list[tuple[Tensor, Tensor]]:
+    """Solve every trial set (``sets[i]`` belongs to ``states[i]``), one batched call per set width
+    (``refine``: the search's cheap refinement, None for the solver's own).
 
     Returns per entry ``(score (B,), mean joint error (B,))`` in character space.
     """
@@ -305,11 +323,10 @@ def _score_sets(solver: TensorSolver, states: Sequence[_Search], sets: Sequence[
     return out  # type: ignore[return-value]
 
 
-def _restart(st: _Search) -> None:
-    """Keep the current path aside and search again from :data:`RESTART_SET` (once per target)."""
-    st.stuck_path = (list(st.chosen), list(st.errors), list(st.scores))
+def _set_aside(st: _Search) -> None:
+    """Keep the current full path for :func:`_finish` and start the next stage from no effector."""
+    st.paths.append((list(st.chosen), list(st.errors), list(st.scores)))
     st.chosen, st.errors, st.scores, st.singles = [], [], [], {}
-    st.restarted, st.mode = True, "seed"
 
 
 def _advance(st: _Search, sets: list[Tensor], scored: list[tuple[Tensor, Tensor]], cfg: RecoveryConfig) -> None:
@@ -366,23 +383,24 @@ def _advance(st: _Search, sets: list[Tensor], scored: list[tuple[Tensor, Tensor]
 
 
 def _full(st: _Search, cfg: RecoveryConfig) -> None:
-    """A path holds ``max_effectors`` but is above the threshold: restart (once, with room for the restart
-    set), else keep the closer of the two paths and polish it by swaps."""
-    if not cfg.polish:
+    """A path holds ``max_effectors`` but is above the threshold: escalate (module docstring, steps 3-5) while
+    it is above ``polish_above``; the next stage starts, or the search ends."""
+    if not cfg.polish or st.errors[-1] < cfg.polish_above:
         st.done = True
         return
-    if not st.restarted and len(st.chosen) >= len(RESTART_SET):
-        _restart(st)
+    if st.stage == "greedy":
+        _set_aside(st)
+        st.stage, st.mode = "research", "single"
         return
-    if st.stuck_path is not None:
-        st.paths.append((list(st.chosen), list(st.errors), list(st.scores)))
-        if st.stuck_path[2][-1] < st.scores[-1]:
-            st.chosen, st.errors, st.scores = st.stuck_path  # the restart ended farther than the first path
-        else:
-            st.paths.append(st.stuck_path)
-    st.stuck_path = None
+    if st.stage == "research" and len(st.chosen) >= len(RESTART_SET):
+        _set_aside(st)
+        st.stage, st.mode = "restart", "seed"
+        return
+    # swaps polish the closest of the paths scored with the full refinement (the cheap path's scores differ)
     st.paths.append((list(st.chosen), list(st.errors), list(st.scores)))
-    st.mode, st.swaps_left = "swap", SWAP_ROUNDS
+    comparable = st.paths[1:] if len(st.paths) > 1 else st.paths
+    st.chosen, st.errors, st.scores = (list(x) for x in min(comparable, key=lambda p: p[2][-1]))
+    st.stage, st.mode, st.swaps_left = "swap", "swap", SWAP_ROUNDS
 
 
 @torch.inference_mode()
@@ -402,6 +420,8 @@ def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: Recov
         raise ValueError(f"max_effectors must be >= 1, got {cfg.max_effectors}.")
     if cfg.search_refine_steps < 0:
         raise ValueError(f"search_refine_steps must be >= 0, got {cfg.search_refine_steps}.")
+    if not cfg.polish_above >= 0:
+        raise ValueError(f"polish_above must be >= 0 metres, got {cfg.polish_above}.")
     scales = [1.0] * len(targets) if scales is None else list(scales)
     if len(scales) != len(targets):
         raise ValueError(f"{len(targets)} targets but {len(scales)} scales.")
@@ -412,17 +432,22 @@ def recover_many(solver: TensorSolver, targets: Sequence[TargetPose], cfg: Recov
     limit = min(cfg.max_effectors, min((s.cand[0].shape[0] for s in states), default=0))
     cfg = replace(cfg, max_effectors=limit)
     search = replace(getattr(solver, "refine", DEFAULT_REFINEMENT), iterations=cfg.search_refine_steps)
-    for round_ in range(8 * limit + 2 * SWAP_ROUNDS + 8):  # a round adds effectors or moves to another mode
+    for round_ in range(24 * limit + 2 * SWAP_ROUNDS + 16):  # a round adds effectors or moves to another mode
         active = [s for s in states if not s.done]
         if not active:
             break
-        trials = [_trial_sets(st, cfg) for st in active]
-        flat_states = [st for st, sets in zip(active, trials, strict=True) for _ in sets]
-        scored = _score_sets(solver, flat_states, [s for sets in trials for s in sets], cfg, search)
-        start = 0
-        for st, sets in zip(active, trials, strict=True):
-            _advance(st, sets, scored[start:start + len(sets)], cfg)
-            start += len(sets)
+        for full in (False, True):  # the cheap greedy paths, then the escalated ones (the solver's refinement)
+            group = [st for st in active if st.full_refine == full]
+            if not group:
+                continue
+            trials = [_trial_sets(st, cfg) for st in group]
+            flat_states = [st for st, sets in zip(group, trials, strict=True) for _ in sets]
+            scored = _score_sets(solver, flat_states, [s for sets in trials for s in sets], cfg,
+                                 None if full else search)
+            start = 0
+            for st, sets in zip(group, trials, strict=True):
+                _advance(st, sets, scored[start:start + len(sets)], cfg)
+                start += len(sets)
         if progress is not None:
             progress(min(round_ + 1, limit), limit)
     return _finish(solver, states, cfg)
@@ -437,7 +462,8 @@ def _finish(solver: TensorSolver, states: list[_Search], cfg: RecoveryConfig) ->
     """
     entries: list[tuple[int, tuple[list[int], list[float], list[float]]]] = []
     for i, st in enumerate(states):
-        assert st.chosen
+        if not st.chosen:  # cut off right after a path was set aside (the round cap): keep the paths
+            st.chosen, st.errors, st.scores = (list(x) for x in st.paths[-1])
         current = (st.chosen, st.errors, st.scores)
         seen = {tuple(st.chosen)}
         entries.append((i, current))  # first: it wins ties

@@ -26,7 +26,11 @@ present; otherwise the published rest pelvis of the SMPL neutral template at bet
 dependence of ``J0_est`` (a linear term ``J_dirs[0] @ beta``; on the built-in body, whose shape
 directions mimic SMPL's, ``|beta| <= 2`` moves the rest pelvis by up to
 :data:`J0_BETA_EFFECT_M` metres, which is the size of the error to expect for unusual shapes),
-and the male/female templates (the neutral one is used for every gender).
+and the male/female templates (the neutral one is used for every gender). For SMPL-X producers the user's
+``SMPLX_NEUTRAL.npz`` (``$SMPLIK_SMPLX_MODEL`` or the model folder) gives ``J0_est(beta)`` exactly and our
+body the betas whose skeleton matches SMPL-X's (:mod:`workflows.estimators.smplx_shape`): SMPL-X betas
+read as our betas are another body (against GVHMR's own render, a head up to 7 % of the body's image
+height low).
 
 An OpenGL camera at the world origin with identity rotation (x right, y up, looking down -z) is
 then exactly the estimator's camera, so previews overlay the source image with
@@ -228,7 +232,8 @@ def estimator_rest_pelvis(betas: np.ndarray, gender: Gender, family: BodyFamily 
     """J0_est: the rest pelvis of the body model the PRODUCER used (see the module docstring). (N, 10) -> (N, 3).
 
     SMPL: the configured real SMPL files when present, else :data:`SMPL_NEUTRAL_REST_JOINTS` ``[0]``;
-    SMPL-X: :data:`SMPLX_NEUTRAL_REST_PELVIS` (smplik loads no SMPL-X files).
+    SMPL-X: from the user's ``SMPLX_NEUTRAL.npz`` in the model folder when present
+    (:mod:`workflows.estimators.smplx_shape`), else :data:`SMPLX_NEUTRAL_REST_PELVIS`.
     """
     betas = np.asarray(betas, dtype=np.float64).reshape(-1, NUM_BETAS)
     if family == "smpl":
@@ -237,6 +242,11 @@ def estimator_rest_pelvis(betas: np.ndarray, gender: Gender, family: BodyFamily 
         if resolve_model_dir(None) is not None:
             return rest_pelvis(betas, gender)
         return np.broadcast_to(SMPL_NEUTRAL_REST_JOINTS[0], betas.shape[:1] + (3,)).copy()
+    from workflows.estimators.smplx_shape import smplx_model_path, smplx_rest_joints
+
+    path = smplx_model_path()
+    if path is not None:
+        return smplx_rest_joints(betas, path)[:, 0]
     return np.broadcast_to(SMPLX_NEUTRAL_REST_PELVIS, betas.shape[:1] + (3,)).copy()
 
 
@@ -373,6 +383,12 @@ def make_people(
                                   "physical range (|t| <= 1 km).")
     genders = genders or [Gender.NEUTRAL] * N
     J0_est = np.concatenate([estimator_rest_pelvis(betas[i:i + 1], genders[i], body_family) for i in range(N)])
+    if body_family == "smplx":  # SMPL-X betas are another body: our closest one, when the SMPL-X file is there
+        from workflows.estimators.smplx_shape import fit_our_betas, smplx_model_path
+
+        smplx_path = smplx_model_path()
+        if smplx_path is not None:
+            betas = np.concatenate([fit_our_betas(betas[i:i + 1], genders[i], smplx_path) for i in range(N)])
     J0_ours = np.concatenate([rest_pelvis(betas[i:i + 1], genders[i]) for i in range(N)])
     pelvis = translation + J0_est if translation_kind == "transl" else translation
     if frame_of_reference == "camera":
