@@ -41,17 +41,18 @@ def test_stale_effectors_follow_the_chain():
             _eff("left_hand", "position"), _eff("left_elbow", "position"), _eff("left_wrist", "rotation"),
             _eff("spine3", "rotation"), _eff("right_wrist", "position"), _eff("left_collar", "rotation"),
             _eff("head", "look_at"), _eff("head", "rotation")]
-    # a moved wrist position: the arm's other positions and the rotations of its ancestors in the arm
-    assert stale_effectors(effs, 0) == (1, 2, 3, 4, 8)
+    # a moved wrist position: every other effector of the arm (its own rotation included: the hand follows the
+    # forearm, as in real reaches)
+    assert stale_effectors(effs, 0) == (1, 2, 3, 4, 5, 8)
     # a moved elbow rotation: the positions below it in the arm
     assert stale_effectors(effs, 1) == (0, 3)
     # a moved look-at on the head: the head's own rotation
     assert stale_effectors(effs, 9) == (10,)
     relaxed, idx = relax_stale(effs, 0)
-    assert idx == (1, 2, 3, 4, 8)
+    assert idx == (1, 2, 3, 4, 5, 8)
     assert [e.tolerance for e in relaxed] == [RELAXED_TOLERANCE if i in idx else 0.0 for i in range(len(effs))]
     dropped, idx = relax_stale(effs, 0, tolerance=None)
-    assert len(dropped) == len(effs) - 5 and dropped[0] is effs[0]
+    assert len(dropped) == len(effs) - 6 and dropped[0] is effs[0]
 
 
 def test_drag_effector_replaces_or_appends():
