@@ -165,6 +165,41 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
     assert torch.allclose(u, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(B, 3), atol=1e-6)
 
 
+def test_turn_swivel_moves_only_the_middle_joint_about_the_reach_axis(bodies):
+    """The elbow/knee pole: turning by swivel_angle towards a reference limb puts the middle joint in the
+    reference's plane, keeps the root and the reached tip, and changes only the chain root's rotation."""
+    from smplik.benchmark.two_bone import swivel_angle, turn_swivel
+
+    g = torch.Generator().manual_seed(5)
+    B = 4
+    J = bodies.rest_joints(torch.zeros(B, 10), torch.zeros(B, dtype=torch.long)).double()
+    R = axis_angle_to_matrix(torch.randn(B, NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.3)
+    R_ref = axis_angle_to_matrix(torch.randn(B, NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.3)
+    t = torch.zeros(B, 3, dtype=torch.float64)
+    tip = torch.tensor([JOINT_INDEX[n] for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle")])
+    rows, par = torch.arange(B), torch.tensor(PARENTS)
+    mid, root = par[tip], par[par[tip]]
+    _, p = forward_kinematics(R, J, t)
+    target = p[rows, root] + 0.8 * (p[rows, tip] - p[rows, root])
+    R = two_bone_ik(R, t, J, tip, target)
+    _, p = forward_kinematics(R, J, t)
+    _, p_ref = forward_kinematics(R_ref, J, t)
+    angle = swivel_angle(p[rows, root], p[rows, mid], target, p_ref[rows, root], p_ref[rows, mid])
+    assert angle.abs().min() > 1e-3  # the random reference has another pole
+    R2 = turn_swivel(R, t, J, tip, target, angle)
+    _, p2 = forward_kinematics(R2, J, t)
+    assert (p2[rows, tip] - target).norm(dim=-1).max() < 1e-9 and (p2[rows, root] - p[rows, root]).abs().max() < 1e-12
+    # now in the reference's plane: no turn left
+    left = swivel_angle(p2[rows, root], p2[rows, mid], target, p_ref[rows, root], p_ref[rows, mid])
+    assert left.abs().max() < 1e-6
+    changed = (R2 - R).abs().amax((-1, -2)) > 1e-12
+    for b in range(B):
+        assert set(torch.nonzero(changed[b])[:, 0].tolist()) == {int(root[b])}
+    # a straight limb has no pole: no turn
+    zero = swivel_angle(p[rows, root], target, target, p_ref[rows, root], p_ref[rows, mid])
+    assert zero.abs().max() == 0.0
+
+
 def test_cli_edits_refuses_bad_input_in_one_line(tmp_path):
     from typer.testing import CliRunner
 

@@ -224,7 +224,7 @@ def _meets(solver: Any, effectors: Sequence[Effector], pose: Pose) -> bool:
 
 
 def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
-               moved_joints: Sequence[int]) -> list[Pose]:
+               moved_joints: Sequence[int], *, analytic: bool = True) -> list[Pose]:
     """Solve B drags (SMPL space) so that only the dragged chain changes, posed the way the prior finds natural.
 
     Per row, first the *prior's chain*: the network solves the (relaxed) effectors; its local rotations of the
@@ -249,6 +249,7 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
         effector_lists: B effector lists (SMPL space, after the drag).
         previous: B poses before the drag (same betas and gender as the rows are solved with).
         moved_joints: B joint indices, the dragged effectors' joints.
+        analytic: False: the prior's chain only (the previous release's drag; the edit benchmark compares).
     """
     from smplik.benchmark.two_bone import swivel_angle, turn_swivel, two_bone_ik
     from smplik.effectors import pack_effectors
@@ -284,14 +285,14 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
                                                                           transl), J_rest)
         # the analytic limb: rows whose dragged wrist/ankle holds an exact position
         targets = torch.zeros(B, 3, dtype=torch.float64)
-        analytic = torch.zeros(B, dtype=torch.bool)
+        two_bone = torch.zeros(B, dtype=torch.bool)
         for b, (effs, j) in enumerate(zip(effector_lists, moved_joints, strict=True)):
             pos = [e for e in effs if e.joint == int(j) and e.type == EffectorType.POSITION
                    and e.tolerance < RELAXED_TOLERANCE]
             if JOINT_NAMES[int(j)] in TWO_BONE_ENDS and pos:
-                analytic[b], targets[b] = True, torch.as_tensor(np.asarray(pos[0].value, np.float64))
-        if analytic.any():
-            rows = torch.nonzero(analytic)[:, 0]
+                two_bone[b], targets[b] = True, torch.as_tensor(np.asarray(pos[0].value, np.float64))
+        if analytic and two_bone.any():
+            rows = torch.nonzero(two_bone)[:, 0]
             tip = torch.tensor([int(moved_joints[b]) for b in rows.tolist()])
             par = torch.tensor(PARENTS)
             mid, root = par[tip], par[par[tip]]
