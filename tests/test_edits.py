@@ -44,6 +44,8 @@ def test_stale_effectors_follow_the_chain():
     # a moved wrist position: every other effector of the arm (its own rotation included: the hand follows the
     # forearm, as in real reaches)
     assert stale_effectors(effs, 0) == (1, 2, 3, 4, 5, 8)
+    # two position handles on one wrist: moving one makes the other stale
+    assert stale_effectors(effs + [_eff("left_wrist", "position")], 0) == (1, 2, 3, 4, 5, 8, 11)
     # a moved elbow rotation: the positions below it in the arm
     assert stale_effectors(effs, 1) == (0, 3)
     # a moved look-at on the head: the head's own rotation

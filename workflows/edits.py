@@ -12,8 +12,9 @@ while the dragged effector is met. The rule follows the kinematic chain within t
 (:data:`~smplik.conventions.LIMB_CHAINS`; the spine-neck-head chain for torso joints):
 
 * a moved **position** on joint ``j`` makes stale every other effector of the chain: the other position
-  effectors (the elbow's, the hand's), the rotation and look-at effectors of ``j``'s ancestors (the
-  collar's, shoulder's and elbow's rotations fix where ``j`` can be) and those of ``j`` and its descendants
+  effectors (the elbow's, the hand's, an older one of ``j`` itself), the rotation and look-at effectors of
+  ``j``'s ancestors (the collar's, shoulder's and elbow's rotations fix where ``j`` can be) and those of ``j``
+  and its descendants
   (in real reaches the hand turns with the forearm: keeping the old hand orientation exact made the edit
   benchmark's validation edits worse, docs/editing.md);
 * a moved **rotation** or **look-at** on ``j`` makes stale the position effectors of ``j``'s descendants
@@ -97,7 +98,7 @@ def stale_effectors(effectors: Sequence[Effector], moved: int) -> tuple[int, ...
         if i == moved or e.joint not in chain:
             continue
         if m.type == EffectorType.POSITION:
-            stale = e.type != EffectorType.POSITION or e.joint != m.joint
+            stale = True  # every other effector of the chain (another position of the same joint included)
         else:
             stale = (e.type == EffectorType.POSITION and _is_ancestor(m.joint, e.joint)) or (
                 e.joint == m.joint and e.type not in (EffectorType.POSITION, m.type))
