@@ -212,6 +212,13 @@ def test_cli_edits_refuses_bad_input_in_one_line(tmp_path):
                                    "--methods", "smplik,magic"])
     assert res.exit_code != 0 and "magic" in res.output
     assert not (tmp_path / "r.json").exists()
+    # a held-out folder: missing, or an unknown retarget preset, refused before any work
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--out", str(tmp_path / "r.json"), "--clips",
+                                   str(tmp_path / "no_clips")])
+    assert res.exit_code == 1 and "no_clips" in res.output and "Traceback" not in res.output
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--out", str(tmp_path / "r.json"), "--clips", str(tmp_path),
+                                   "--clips-preset", "not_a_rig"])
+    assert res.exit_code == 1 and "not_a_rig" in res.output and "Traceback" not in res.output
 
 
 def test_benchmark_on_a_cache_without_edits_says_so(tiny_cache, tmp_path):
@@ -266,6 +273,8 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     for name in ("02_05.bvh", "02_06.bvh"):
         shutil.copy(shared_data.cmu(name), tmp_path / name)
     clips = clips_from_folder(tmp_path)
+    auto = clips_from_folder(tmp_path, preset="auto")  # the CLI's default: the rig mapper
+    assert all(torch.allclose(a.pose, c.pose, atol=1e-5) for a, c in zip(auto, clips, strict=True))
     assert [c.name for c in clips] == ["02_05.bvh", "02_06.bvh"] and all(c.subject == "02" for c in clips)
     assert all(c.fps == EDIT_FPS and c.pose.shape[1:] == (NUM_JOINTS, 3) for c in clips)
     J = BodyModelSet.load().rest_joints(torch.zeros(10), torch.tensor(0))

@@ -11,7 +11,9 @@ least 15 cm relative to the pelvis while the other limb ends and the head stayed
 3. solve with each method (:data:`METHODS`) and compare with frame ``t1`` (same alignment).
 
 Methods: ``smplik`` (the editor's drag today, :func:`workflows.edits.drag_effector`: the dragged chain's stale
-effectors relaxed to tolerance 1, then the solver), ``smplik_drop`` (stale effectors deleted instead),
+effectors relaxed to tolerance 1, then :func:`workflows.edits.solve_edit`: the limb's two-bone IK with the
+prior's elbow/knee swivel), ``smplik_chain`` (``solve_edit(analytic=False)``: the previous release's solve of
+the same drag), ``smplik_drop`` (stale effectors deleted instead),
 ``smplik_before`` (the drag before this mechanism: every recovered effector kept exact), ``smplik_net``
 (the network alone on that same set), ``optim`` (200 Adam steps of :class:`~smplik.benchmark.OptimizationIK`
 started from the scene's pose, on the relaxed set of ``smplik``) and ``two_bone`` (the scene's pose with the
@@ -358,11 +360,12 @@ def save_figure(results: dict[str, Any], path: str | Path) -> Path:
 
 
 def edit_benchmark(data: str | Path, solver: Any, *, split: str = "test", clips_folder: str | Path | None = None,
-                   clips_preset: str = "cmu", methods: Sequence[str] = METHODS,
+                   clips_preset: str = "auto", methods: Sequence[str] = METHODS,
                    cfg: EditBenchmarkConfig = EditBenchmarkConfig(),
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The whole benchmark from a pose cache (``smplik data build``): ``split``'s clips, and the BVH clips of
-    ``clips_folder`` (held-out motion) as a second part ``held_out``; training ranges and the ``optim``
+    ``clips_folder`` (held-out motion, read with the retarget preset ``clips_preset``) as a second part
+    ``held_out``; training ranges and the ``optim``
     prior from the cache's train split. Returns the results document (:func:`run_edit_benchmark` per part).
 
     Raises: FileNotFoundError / ValueError naming the cache or folder.
