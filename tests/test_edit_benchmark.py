@@ -261,6 +261,9 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
         assert s["pairs"] == len(doc["pairs"]) and np.isfinite(s["mpjpe_mm"])
         assert s["reach_mm_median"] < 10.0
     assert doc["methods"]["two_bone"]["reach_mm_median"] < 1e-3
+    # the default drag: only the arm moves (no collateral change from the recovered pose), nothing contorts
+    assert doc["methods"]["smplik"]["contorted_pairs"] == 0
+    assert abs(doc["methods"]["smplik"]["collateral_mm"] - doc["methods"]["two_bone"]["collateral_mm"]) < 1e-3
 
 
 def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
