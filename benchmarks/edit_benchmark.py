@@ -4,7 +4,8 @@
 ``smplik benchmark edits --out benchmarks/results/edit_benchmark.json`` (the figure beside it,
 ``edit_benchmark.png``); see :mod:`workflows.edit_benchmark` and docs/editing.md. ``--data`` defaults to
 the pose cache of :func:`smplik.paths.pose_cache` (``smplik data build``); ``--clips`` adds a folder of
-held-out BVH clips (default ``$SMPLIK_EDIT_CLIPS`` when set).
+held-out BVH clips (default ``$SMPLIK_EDIT_CLIPS`` when set; ``--clips-preset``: their retarget preset,
+default ``auto``, the rig mapper). The committed results add ``--clips ../shared/data/cmu-dance``.
 """
 
 from __future__ import annotations

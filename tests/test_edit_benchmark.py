@@ -165,6 +165,41 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
     assert torch.allclose(u, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(B, 3), atol=1e-6)
 
 
+def test_turn_swivel_moves_only_the_middle_joint_about_the_reach_axis(bodies):
+    """The elbow/knee pole: turning by swivel_angle towards a reference limb puts the middle joint in the
+    reference's plane, keeps the root and the reached tip, and changes only the chain root's rotation."""
+    from smplik.benchmark.two_bone import swivel_angle, turn_swivel
+
+    g = torch.Generator().manual_seed(5)
+    B = 4
+    J = bodies.rest_joints(torch.zeros(B, 10), torch.zeros(B, dtype=torch.long)).double()
+    R = axis_angle_to_matrix(torch.randn(B, NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.3)
+    R_ref = axis_angle_to_matrix(torch.randn(B, NUM_JOINTS, 3, generator=g, dtype=torch.float64) * 0.3)
+    t = torch.zeros(B, 3, dtype=torch.float64)
+    tip = torch.tensor([JOINT_INDEX[n] for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle")])
+    rows, par = torch.arange(B), torch.tensor(PARENTS)
+    mid, root = par[tip], par[par[tip]]
+    _, p = forward_kinematics(R, J, t)
+    target = p[rows, root] + 0.8 * (p[rows, tip] - p[rows, root])
+    R = two_bone_ik(R, t, J, tip, target)
+    _, p = forward_kinematics(R, J, t)
+    _, p_ref = forward_kinematics(R_ref, J, t)
+    angle = swivel_angle(p[rows, root], p[rows, mid], target, p_ref[rows, root], p_ref[rows, mid])
+    assert angle.abs().min() > 1e-3  # the random reference has another pole
+    R2 = turn_swivel(R, t, J, tip, target, angle)
+    _, p2 = forward_kinematics(R2, J, t)
+    assert (p2[rows, tip] - target).norm(dim=-1).max() < 1e-9 and (p2[rows, root] - p[rows, root]).abs().max() < 1e-12
+    # now in the reference's plane: no turn left
+    left = swivel_angle(p2[rows, root], p2[rows, mid], target, p_ref[rows, root], p_ref[rows, mid])
+    assert left.abs().max() < 1e-6
+    changed = (R2 - R).abs().amax((-1, -2)) > 1e-12
+    for b in range(B):
+        assert set(torch.nonzero(changed[b])[:, 0].tolist()) == {int(root[b])}
+    # a straight limb has no pole: no turn
+    zero = swivel_angle(p[rows, root], target, target, p_ref[rows, root], p_ref[rows, mid])
+    assert zero.abs().max() == 0.0
+
+
 def test_cli_edits_refuses_bad_input_in_one_line(tmp_path):
     from typer.testing import CliRunner
 
@@ -177,6 +212,13 @@ def test_cli_edits_refuses_bad_input_in_one_line(tmp_path):
                                    "--methods", "smplik,magic"])
     assert res.exit_code != 0 and "magic" in res.output
     assert not (tmp_path / "r.json").exists()
+    # a held-out folder: missing, or an unknown retarget preset, refused before any work
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--out", str(tmp_path / "r.json"), "--clips",
+                                   str(tmp_path / "no_clips")])
+    assert res.exit_code == 1 and "no_clips" in res.output and "Traceback" not in res.output
+    res = CliRunner().invoke(app, ["benchmark", "edits", "--out", str(tmp_path / "r.json"), "--clips", str(tmp_path),
+                                   "--clips-preset", "not_a_rig"])
+    assert res.exit_code == 1 and "not_a_rig" in res.output and "Traceback" not in res.output
 
 
 def test_benchmark_on_a_cache_without_edits_says_so(tiny_cache, tmp_path):
@@ -219,6 +261,9 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
         assert s["pairs"] == len(doc["pairs"]) and np.isfinite(s["mpjpe_mm"])
         assert s["reach_mm_median"] < 10.0
     assert doc["methods"]["two_bone"]["reach_mm_median"] < 1e-3
+    # the default drag: only the arm moves (no collateral change from the recovered pose), nothing contorts
+    assert doc["methods"]["smplik"]["contorted_pairs"] == 0
+    assert abs(doc["methods"]["smplik"]["collateral_mm"] - doc["methods"]["two_bone"]["collateral_mm"]) < 1e-3
 
 
 def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
@@ -231,6 +276,8 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     for name in ("02_05.bvh", "02_06.bvh"):
         shutil.copy(shared_data.cmu(name), tmp_path / name)
     clips = clips_from_folder(tmp_path)
+    auto = clips_from_folder(tmp_path, preset="auto")  # the CLI's default: the rig mapper
+    assert all(torch.allclose(a.pose, c.pose, atol=1e-5) for a, c in zip(auto, clips, strict=True))
     assert [c.name for c in clips] == ["02_05.bvh", "02_06.bvh"] and all(c.subject == "02" for c in clips)
     assert all(c.fps == EDIT_FPS and c.pose.shape[1:] == (NUM_JOINTS, 3) for c in clips)
     J = BodyModelSet.load().rest_joints(torch.zeros(10), torch.tensor(0))

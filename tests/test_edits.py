@@ -41,17 +41,20 @@ def test_stale_effectors_follow_the_chain():
             _eff("left_hand", "position"), _eff("left_elbow", "position"), _eff("left_wrist", "rotation"),
             _eff("spine3", "rotation"), _eff("right_wrist", "position"), _eff("left_collar", "rotation"),
             _eff("head", "look_at"), _eff("head", "rotation")]
-    # a moved wrist position: the arm's other positions and the rotations of its ancestors in the arm
-    assert stale_effectors(effs, 0) == (1, 2, 3, 4, 8)
+    # a moved wrist position: every other effector of the arm (its own rotation included: the hand follows the
+    # forearm, as in real reaches)
+    assert stale_effectors(effs, 0) == (1, 2, 3, 4, 5, 8)
+    # two position handles on one wrist: moving one makes the other stale
+    assert stale_effectors(effs + [_eff("left_wrist", "position")], 0) == (1, 2, 3, 4, 5, 8, 11)
     # a moved elbow rotation: the positions below it in the arm
     assert stale_effectors(effs, 1) == (0, 3)
     # a moved look-at on the head: the head's own rotation
     assert stale_effectors(effs, 9) == (10,)
     relaxed, idx = relax_stale(effs, 0)
-    assert idx == (1, 2, 3, 4, 8)
+    assert idx == (1, 2, 3, 4, 5, 8)
     assert [e.tolerance for e in relaxed] == [RELAXED_TOLERANCE if i in idx else 0.0 for i in range(len(effs))]
     dropped, idx = relax_stale(effs, 0, tolerance=None)
-    assert len(dropped) == len(effs) - 5 and dropped[0] is effs[0]
+    assert len(dropped) == len(effs) - 6 and dropped[0] is effs[0]
 
 
 def test_drag_effector_replaces_or_appends():
@@ -187,3 +190,84 @@ def test_hinge_twist_moves_to_the_parent_and_keeps_the_joints(bodies):
         q = matrix_to_quaternion(R2[:, j])
         assert ((q[:, 1:] * a).sum(-1)).abs().max() < 1e-9
     assert not torch.allclose(R2[:, elbow], R[:, elbow])  # there was a twist to move
+
+
+def _dragged(character: SceneCharacter, joint: str, offset) -> tuple[list[Effector], Pose, np.ndarray]:
+    """The character's effectors after a drag of ``joint``'s position by ``offset`` (relaxed), its pose, the
+    pose's joints."""
+    before = TargetPose.from_pose(dataclasses.replace(character.pose, joints=None)).p_world.double().numpy()
+    target = before[JOINT_INDEX[joint]] + np.asarray(offset)
+    effs, _, _ = drag_effector(character.effectors, Effector.position(joint, target))
+    return list(effs), dataclasses.replace(character.pose, joints=None), before
+
+
+def test_a_dragged_wrist_moves_only_its_arm_and_takes_the_priors_swivel(solver):
+    """The default drag: the wrist reaches its target, every joint outside shoulder-elbow-wrist-hand stays
+    exactly where it was (collar included), and the elbow's pole turns SWIVEL_SHARE of the way from the
+    scene's to the network's."""
+    from smplik.benchmark.two_bone import swivel_angle, two_bone_ik
+    from smplik.effectors import pack_effectors
+    from smplik.kinematics import forward_kinematics
+    from smplik.refine import NO_REFINEMENT
+    from smplik.rotations import axis_angle_to_matrix
+    from workflows.edits import SWIVEL_SHARE, solve_edit
+
+    character = _recovered_style_character(solver)
+    wrist = JOINT_INDEX["left_wrist"]
+    effs, previous, before = _dragged(character, "left_wrist", (0.15, 0.3, 0.1))
+    target = effs[-1].value
+    pose = solve_edit(solver, [effs], [previous], [wrist])[0]
+    after = TargetPose.from_pose(dataclasses.replace(pose, joints=None)).p_world.double().numpy()
+    assert np.linalg.norm(after[wrist] - target) < 1e-4
+    arm = [JOINT_INDEX[n] for n in ("left_elbow", "left_wrist", "left_hand")]
+    rest = [j for j in range(len(PARENTS)) if j not in arm]
+    assert np.abs(after[rest] - before[rest]).max() < 1e-5
+    assert np.linalg.norm(after[arm[0]] - before[arm[0]]) > 0.05  # the elbow did move
+    # the pole: plain two-bone on the old pose vs the network's elbow for the same effectors
+    aa = torch.from_numpy(np.concatenate([previous.global_orient[None], previous.body_pose]))[None]
+    J = solver.bodies.rest_joints(torch.zeros(1, NUM_BETAS), torch.zeros(1, dtype=torch.long)).double()
+    tr, tip, tgt = torch.from_numpy(previous.transl)[None], torch.tensor([wrist]), torch.from_numpy(target)[None]
+    _, p_plain = forward_kinematics(two_bone_ik(axis_angle_to_matrix(aa), tr, J, tip, tgt), J, tr)
+    net = solver.solve_tensors(pack_effectors([effs]), torch.zeros(1, NUM_BETAS), torch.zeros(1, dtype=torch.long),
+                               refine=NO_REFINEMENT)
+    sh, el = JOINT_INDEX["left_shoulder"], JOINT_INDEX["left_elbow"]
+    to_net = swivel_angle(p_plain[:, sh], p_plain[:, el], tgt, net.p_world[:, sh].double(), net.p_world[:, el].double())
+    taken = swivel_angle(p_plain[:, sh], p_plain[:, el], tgt, torch.from_numpy(after[sh])[None],
+                         torch.from_numpy(after[el])[None])
+    assert abs(float(to_net)) > 5e-3  # the network does prefer another pole here
+    assert abs(float(taken) - SWIVEL_SHARE * float(to_net)) < 1e-4
+    # the previous release's solve (analytic=False) re-poses the chain with the network instead
+    chain_pose = solve_edit(solver, [effs], [previous], [wrist], analytic=False)[0]
+    assert not np.allclose(chain_pose.body_pose, pose.body_pose)
+
+
+def test_an_out_of_reach_drag_lets_the_body_help_and_a_pinned_hand_keeps_its_turn(solver):
+    """Beyond the arm's reach the analytic limb cannot meet the exact target: the held refinement starts from
+    it and brings the wrist closer than the straight arm reaches (collar/spine take a share). An exact hand
+    rotation the user holds (tolerance 0 after the drag) keeps the hand's world orientation."""
+    from workflows.edits import solve_edit
+
+    character = _recovered_style_character(solver)
+    wrist, hand = JOINT_INDEX["left_wrist"], JOINT_INDEX["left_hand"]
+    effs, previous, before = _dragged(character, "left_wrist", (0.0, 0.0, 0.0))
+    shoulder = before[JOINT_INDEX["left_shoulder"]]
+    arm = (np.linalg.norm(before[JOINT_INDEX["left_elbow"]] - shoulder)
+           + np.linalg.norm(before[wrist] - before[JOINT_INDEX["left_elbow"]]))
+    far = shoulder + np.array([arm + 0.08, 0.0, 0.0])
+    effs[-1] = Effector.position("left_wrist", far)
+    pose = solve_edit(solver, [effs], [previous], [wrist])[0]
+    after = TargetPose.from_pose(dataclasses.replace(pose, joints=None)).p_world.double().numpy()
+    assert np.linalg.norm(after[wrist] - far) < 0.08 - 0.02
+    # a reachable drag with the hand's rotation pinned again
+    R_before = TargetPose.from_pose(previous).R_world.double().numpy()
+    effs, previous, _ = _dragged(character, "left_wrist", (0.1, 0.25, 0.0))
+    effs.append(Effector.rotation("left_wrist", R_before[wrist]))
+    pose = solve_edit(solver, [effs], [previous], [wrist])[0]
+    fk = TargetPose.from_pose(dataclasses.replace(pose, joints=None))
+    assert np.linalg.norm(fk.p_world.double().numpy()[wrist] - effs[-2].value) < 1e-3
+    cos = (np.trace(fk.R_world.double().numpy()[wrist] @ R_before[wrist].T) - 1) / 2
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))) < 0.5
+    # the hand rides on the kept wrist rotation: its offset from the wrist is turned by the same world rotation
+    offset = fk.p_world.double().numpy()[hand] - fk.p_world.double().numpy()[wrist]
+    assert np.linalg.norm(offset - (TargetPose.from_pose(previous).p_world.double().numpy()[hand]
+                                    - TargetPose.from_pose(previous).p_world.double().numpy()[wrist])) < 1e-3

@@ -38,6 +38,11 @@ def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
         assert read_bvh(bvh).num_frames == 1
     edited = load_scene(out.edited_scene).characters[0]
     assert edited.effectors[-1].joint_name == "right_wrist"
+    # the edit's figures: the raised wrist meets its target and the torso does not turn (no contortion)
+    reach = next(line for line in out.edit_lines if "mm off its target" in line)
+    assert float(reach.split(" mm off its target")[0].rsplit(" ", 1)[1]) < 10.0
+    turn = next(line for line in out.edit_lines if line.startswith("edit: torso turn (deg) "))
+    assert max(float(part.rsplit(" ", 1)[1]) for part in turn.split(") ", 1)[1].split(", ")) < 5.0
     # the printout names every file once, says what it is, and ends with what to open first
     from workflows.cli import demo_report
 

@@ -11,7 +11,9 @@ least 15 cm relative to the pelvis while the other limb ends and the head stayed
 3. solve with each method (:data:`METHODS`) and compare with frame ``t1`` (same alignment).
 
 Methods: ``smplik`` (the editor's drag today, :func:`workflows.edits.drag_effector`: the dragged chain's stale
-effectors relaxed to tolerance 1, then the solver), ``smplik_drop`` (stale effectors deleted instead),
+effectors relaxed to tolerance 1, then :func:`workflows.edits.solve_edit`: the limb's two-bone IK with the
+prior's elbow/knee swivel), ``smplik_chain`` (``solve_edit(analytic=False)``: the previous release's solve of
+the same drag), ``smplik_drop`` (stale effectors deleted instead),
 ``smplik_before`` (the drag before this mechanism: every recovered effector kept exact), ``smplik_net``
 (the network alone on that same set), ``optim`` (200 Adam steps of :class:`~smplik.benchmark.OptimizationIK`
 started from the scene's pose, on the relaxed set of ``smplik``) and ``two_bone`` (the scene's pose with the
@@ -47,14 +49,17 @@ from smplik.effectors import Effector, pack_effectors
 from smplik.kinematics import forward_kinematics
 from smplik.pose import Pose
 from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from workflows.edits import RELAXED_TOLERANCE, drag_effector, solve_edit
+from workflows.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
 from workflows.recovery import RecoveryConfig, TargetPose, recover_many
 
 RESULTS_FORMAT = "smplik-edit-benchmark"
 RESULTS_VERSION = 1
 METHOD_DESCRIPTIONS: dict[str, str] = {
     "smplik": f"smplik's drag (workflows.edits): stale effectors of the dragged chain relaxed to tolerance "
-              f"{RELAXED_TOLERANCE:g}; the network's pose of that chain on the scene's pose, refined",
+              f"{RELAXED_TOLERANCE:g}; the limb posed on the scene's pose by two-bone IK with {SWIVEL_SHARE:g} of the "
+              "learned prior's elbow/knee swivel; refined only where an exact effector is missed",
+    "smplik_chain": "the previous release's drag solve (same relaxed effectors): the network's pose of the dragged "
+                    "chain on the scene's pose, refined (the rest held 100x)",
     "smplik_relax": "the relaxed effectors solved afresh (network + refinement; the scene's pose not used)",
     "smplik_drop": "as smplik_relax, the stale effectors deleted instead of relaxed",
     "smplik_before": "the drag before workflows.edits: every recovered effector kept exact, then the solver",
@@ -234,11 +239,11 @@ def solve_method(name: str, problems: EditProblems, solver: Any, *, optim: Any =
 
     P = len(problems.pairs)
     betas = np.zeros((P, NUM_BETAS))
-    if name == "smplik":
+    if name in ("smplik", "smplik_chain"):
         previous = [Pose(aa[0], aa[1:], tr, np.zeros(NUM_BETAS), Gender.NEUTRAL)
                     for aa, tr in zip(problems.scene_aa.numpy(), problems.scene_transl.numpy(), strict=True)]
         moved = [JOINT_INDEX[e] for e in problems.ends]
-        return _poses_to_aa(solve_edit(solver, problems.drag(), previous, moved))
+        return _poses_to_aa(solve_edit(solver, problems.drag(), previous, moved, analytic=name == "smplik"))
     if name in ("smplik_relax", "smplik_drop", "smplik_before", "smplik_net"):
         lists = problems.drag(tolerance=None if name == "smplik_drop" else RELAXED_TOLERANCE,
                               relax=name in ("smplik_relax", "smplik_drop"))
@@ -355,10 +360,12 @@ def save_figure(results: dict[str, Any], path: str | Path) -> Path:
 
 
 def edit_benchmark(data: str | Path, solver: Any, *, split: str = "test", clips_folder: str | Path | None = None,
-                   methods: Sequence[str] = METHODS, cfg: EditBenchmarkConfig = EditBenchmarkConfig(),
+                   clips_preset: str = "auto", methods: Sequence[str] = METHODS,
+                   cfg: EditBenchmarkConfig = EditBenchmarkConfig(),
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The whole benchmark from a pose cache (``smplik data build``): ``split``'s clips, and the BVH clips of
-    ``clips_folder`` (held-out motion) as a second part ``held_out``; training ranges and the ``optim``
+    ``clips_folder`` (held-out motion, read with the retarget preset ``clips_preset``) as a second part
+    ``held_out``; training ranges and the ``optim``
     prior from the cache's train split. Returns the results document (:func:`run_edit_benchmark` per part).
 
     Raises: FileNotFoundError / ValueError naming the cache or folder.
@@ -387,8 +394,8 @@ def edit_benchmark(data: str | Path, solver: Any, *, split: str = "test", clips_
     }
     doc |= run_edit_benchmark(clips, solver, ranges, methods=methods, optim=optim, cfg=cfg, progress=say)
     if clips_folder is not None:
-        held = clips_from_folder(clips_folder)
+        held = clips_from_folder(clips_folder, preset=clips_preset)
         say(f"held-out folder {clips_folder}: {len(held)} clips")
-        doc["held_out"] = {"folder": str(clips_folder)} | run_edit_benchmark(
+        doc["held_out"] = {"folder": str(clips_folder), "preset": clips_preset} | run_edit_benchmark(
             held, solver, ranges, methods=methods, optim=optim, cfg=cfg, progress=say)
     return doc

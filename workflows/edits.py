@@ -11,15 +11,21 @@ hints (the network still reads them, the refinement weighs them about 1 %), so t
 while the dragged effector is met. The rule follows the kinematic chain within the moved joint's limb
 (:data:`~smplik.conventions.LIMB_CHAINS`; the spine-neck-head chain for torso joints):
 
-* a moved **position** on joint ``j`` makes stale the other position effectors of the chain (the elbow's
-  position, the hand's) and the rotation and look-at effectors of ``j``'s ancestors in the chain (the
-  collar's, shoulder's and elbow's rotations fix where ``j`` can be);
+* a moved **position** on joint ``j`` makes stale every other effector of the chain: the other position
+  effectors (the elbow's, the hand's, an older one of ``j`` itself), the rotation and look-at effectors of
+  ``j``'s ancestors (the collar's, shoulder's and elbow's rotations fix where ``j`` can be) and those of ``j``
+  and its descendants
+  (in real reaches the hand turns with the forearm: keeping the old hand orientation exact made the edit
+  benchmark's validation edits worse, docs/editing.md);
 * a moved **rotation** or **look-at** on ``j`` makes stale the position effectors of ``j``'s descendants
   in the chain (they move with it) and ``j``'s own effector of the other orientation type.
 
-Effectors outside the chain, and ``j``'s own orientation when its position moves (a wrist keeps its hand's
-orientation), are kept: they hold the rest of the body. The benchmark behind this choice is
+Effectors outside the chain are kept: they hold the rest of the body. The benchmark behind these choices is
 ``benchmarks/edit_benchmark.py`` (``docs/editing.md``).
+
+**Solving a drag** (:func:`solve_edit`): a dragged wrist or ankle is posed by the analytic two-bone IK of its
+limb on the pose the drag started from, its elbow or knee swivel turned most of the way to the learned
+prior's; everything outside the limb stays put unless an exact effector needs it.
 
 **Conflict report** (:func:`conflict_report`): per effector, its residual after the solve, what its tolerance
 allows, and the effectors it contradicts: those whose removal (one batched leave-one-out solve) brings its
@@ -92,8 +98,7 @@ def stale_effectors(effectors: Sequence[Effector], moved: int) -> tuple[int, ...
         if i == moved or e.joint not in chain:
             continue
         if m.type == EffectorType.POSITION:
-            stale = (e.type == EffectorType.POSITION and e.joint != m.joint) or (
-                e.type != EffectorType.POSITION and _is_ancestor(e.joint, m.joint))
+            stale = True  # every other effector of the chain (another position of the same joint included)
         else:
             stale = (e.type == EffectorType.POSITION and _is_ancestor(m.joint, e.joint)) or (
                 e.joint == m.joint and e.type not in (EffectorType.POSITION, m.type))
@@ -175,31 +180,82 @@ def hinge_twist_to_parent(R_local: Tensor, J_rest: Tensor, joints: Sequence[int]
     return R_local
 
 
-def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
-               moved_joints: Sequence[int]) -> list[Pose]:
-    """Solve B drags (SMPL space) so that only the dragged chain takes the network's new answer.
+SWIVEL_SHARE = 0.75
+"""Share of the turn from the scene's elbow/knee swivel to the prior's that an analytic drag takes
+(:func:`solve_edit`; chosen on the validation split and unseen CMU dance, docs/editing.md)."""
+TWO_BONE_ENDS: tuple[str, ...] = ("left_wrist", "right_wrist", "left_ankle", "right_ankle")
+"""Dragged joints whose limb :func:`solve_edit` poses analytically (shoulder-elbow-wrist, hip-knee-ankle)."""
+NETWORK_SWIVEL_ENDS: tuple[str, ...] = ("left_wrist", "right_wrist")
+"""Ends whose prior swivel is the network's alone (an arm's elbow); a leg's knee comes from the refined chain,
+whose hip the refinement has placed (validation: knee off by less)."""
 
-    Per row: the network solves the (relaxed) effectors; its local rotations of the moved joint's chain
-    (:func:`chain_of`) above the moved joint are put on the ``previous`` pose (every other local rotation, the
-    moved joint's own and its subtree's included, and the translation kept), and the solver's refinement
-    (:mod:`smplik.refine`, anchored to that pose, the joints outside the chain held :data:`HOLD_PRIOR` times
-    harder) meets the effectors; a knee's or elbow's turn about its parent bone then moves to the hip or shoulder
-    (:func:`hinge_twist_to_parent`: same joint positions, no hinge twist the training motion never shows).
-    The rest of the body stays where the user left it unless an effector asks otherwise; the limb takes the
-    pose the network finds natural for the new target. A moved joint in no chain (the pelvis) solves as
-    :meth:`~smplik.solver.IKSolver.solve_batch` does.
+
+def _refine_held(solver: Any, eff: Any, chain: Tensor, start: Any, J_rest: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Refine B starting poses towards their effectors, the joints outside each row's ``chain`` (B, 24) bool held
+    :data:`HOLD_PRIOR` times harder; knee/elbow twist then handed to the parent (:func:`hinge_twist_to_parent`).
+
+    Returns float64 (B, 24, 3, 3) local rotations, (B, 3) translations and (B, 24, 3) joints.
+    """
+    from smplik.network import IKOutput
+    from smplik.refine import refine_output
+
+    B = chain.shape[0]
+    R_out = torch.zeros(B, len(PARENTS), 3, 3, dtype=torch.float64)
+    transl_out = torch.zeros(B, 3, dtype=torch.float64)
+    joints_out = torch.zeros(B, len(PARENTS), 3, dtype=torch.float64)
+    base = solver.refine.joint_prior_array(len(PARENTS))
+    for key in torch.unique(chain, dim=0):  # one refinement per chain: its own per-joint prior
+        rows = torch.nonzero((chain == key).all(-1))[:, 0]
+        prior = np.where(key.numpy(), base, base * HOLD_PRIOR)
+        cfg = dataclasses.replace(solver.refine, joint_prior=tuple(prior.tolist()))
+        out = refine_output(IKOutput(*(t[rows] for t in start)), J_rest[rows], _rows(eff, rows), cfg)
+        hinges = [j for j in (JOINT_INDEX[n] for n in HINGE_JOINTS) if bool(key[j])]
+        R_out[rows] = hinge_twist_to_parent(out.R_local.double(), J_rest[rows].double(), hinges)
+        transl_out[rows] = out.transl.double()
+        joints_out[rows] = out.p_world.double()
+    return R_out, transl_out, joints_out
+
+
+def _meets(solver: Any, effectors: Sequence[Effector], pose: Pose) -> bool:
+    """Every effector of tolerance below :data:`RELAXED_TOLERANCE` is within its :func:`allowance` on ``pose``."""
+    from smplik.solver import effector_residuals
+
+    return all(r.value <= allowance(r.effector) for r in effector_residuals(pose, effectors, solver.bodies)
+               if r.effector.tolerance < RELAXED_TOLERANCE)
+
+
+def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
+               moved_joints: Sequence[int], *, analytic: bool = True) -> list[Pose]:
+    """Solve B drags (SMPL space) so that only the dragged chain changes, posed the way the prior finds natural.
+
+    Per row, first the *prior's chain*: the network solves the (relaxed) effectors; its local rotations of the
+    moved joint's chain (:func:`chain_of`) above the moved joint are put on the ``previous`` pose (every other
+    local rotation, the moved joint's own and its subtree's included, and the translation kept), and the
+    solver's refinement (:mod:`smplik.refine`, anchored to that pose, the joints outside the chain held
+    :data:`HOLD_PRIOR` times harder) meets the effectors; a knee's or elbow's turn about its parent bone then
+    moves to the hip or shoulder (:func:`hinge_twist_to_parent`).
+
+    A dragged wrist or ankle position (:data:`TWO_BONE_ENDS`) is then posed analytically on the ``previous``
+    pose: the two-bone IK of shoulder-elbow-wrist or hip-knee-ankle
+    (:func:`smplik.benchmark.two_bone.two_bone_ik`) reaches the target exactly with the fewest joints changed,
+    and its swivel (the elbow or knee pole) turns :data:`SWIVEL_SHARE` of the way to the prior's (the network's
+    elbow, :data:`NETWORK_SWIVEL_ENDS`, or the prior chain's knee). Every joint outside the limb, the collar
+    included, stays exactly where the user left it. Only when that pose misses an effector the user still
+    holds exactly (the target out of reach, a kept wrist rotation) does the held refinement start from it,
+    so the collar, spine or root take a share only when the edit needs them. A moved joint in no chain
+    (the pelvis) solves as :meth:`~smplik.solver.IKSolver.solve_batch` does.
 
     Args:
         solver: an :class:`smplik.solver.IKSolver`.
         effector_lists: B effector lists (SMPL space, after the drag).
         previous: B poses before the drag (same betas and gender as the rows are solved with).
         moved_joints: B joint indices, the dragged effectors' joints.
+        analytic: False: the prior's chain only (the previous release's drag; the edit benchmark compares).
     """
-
-    from smplik.effectors import EffectorBatch, pack_effectors
+    from smplik.benchmark.two_bone import swivel_angle, turn_swivel, two_bone_ik
+    from smplik.effectors import pack_effectors
     from smplik.kinematics import forward_kinematics
-    from smplik.network import IKOutput
-    from smplik.refine import NO_REFINEMENT, refine_output
+    from smplik.refine import NO_REFINEMENT
     from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
     B = len(effector_lists)
@@ -226,23 +282,62 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
         transl = torch.where(keep_all[:, None], net.transl.float(), transl_prev)
         J_rest = solver.model.rest_joints(betas, gender)
         R_world, p_world = forward_kinematics(R_local, J_rest, transl)
-        aa = np.zeros((B, len(PARENTS), 3))
-        transl_out, joints_out = np.zeros((B, 3)), np.zeros((B, len(PARENTS), 3))
-        base = solver.refine.joint_prior_array(len(PARENTS))
-        for key in torch.unique(chain, dim=0):  # one refinement per chain: its own per-joint prior
-            rows = torch.nonzero((chain == key).all(-1))[:, 0]
-            prior = np.where(key.numpy(), base, base * HOLD_PRIOR)
-            cfg = dataclasses.replace(solver.refine, joint_prior=tuple(prior.tolist()))
-            sub = EffectorBatch(*(getattr(eff, f)[rows] for f in ("joint", "type", "data", "tolerance", "mask")))
-            start = IKOutput(R_local[rows], R_world[rows], p_world[rows], net.draft[rows], transl[rows])
-            out = refine_output(start, J_rest[rows], sub, cfg)
-            hinges = [j for j in (JOINT_INDEX[n] for n in HINGE_JOINTS) if bool(key[j])]
-            R_out = hinge_twist_to_parent(out.R_local.double(), J_rest[rows].double(), hinges)
-            aa[rows.numpy()] = matrix_to_axis_angle(R_out).numpy()
-            transl_out[rows.numpy()] = out.transl.double().numpy()
-            joints_out[rows.numpy()] = out.p_world.double().numpy()
-    return [Pose(aa[b, 0], aa[b, 1:], transl_out[b], np.asarray(p.betas, np.float64), p.gender, joints_out[b])
+        R_out, transl_out, joints_out = _refine_held(solver, eff, chain, (R_local, R_world, p_world, net.draft,
+                                                                          transl), J_rest)
+        # the analytic limb: rows whose dragged wrist/ankle holds an exact position
+        targets = torch.zeros(B, 3, dtype=torch.float64)
+        two_bone = torch.zeros(B, dtype=torch.bool)
+        for b, (effs, j) in enumerate(zip(effector_lists, moved_joints, strict=True)):
+            pos = [e for e in effs if e.joint == int(j) and e.type == EffectorType.POSITION
+                   and e.tolerance < RELAXED_TOLERANCE]
+            if JOINT_NAMES[int(j)] in TWO_BONE_ENDS and pos:
+                two_bone[b], targets[b] = True, torch.as_tensor(np.asarray(pos[0].value, np.float64))
+        if analytic and two_bone.any():
+            rows = torch.nonzero(two_bone)[:, 0]
+            tip = torch.tensor([int(moved_joints[b]) for b in rows.tolist()])
+            par = torch.tensor(PARENTS)
+            mid, root = par[tip], par[par[tip]]
+            J64, R_prev = J_rest[rows].double(), axis_angle_to_matrix(aa_prev[rows].double())
+            t_prev = transl_prev[rows].double()
+            R_seed = two_bone_ik(R_prev, t_prev, J64, tip, targets[rows])
+            _, p_seed = forward_kinematics(R_seed, J64, t_prev)
+            arm = torch.tensor([JOINT_NAMES[int(t)] in NETWORK_SWIVEL_ENDS for t in tip.tolist()])
+            p_ref = torch.where(arm[:, None, None], net.p_world[rows].double(), joints_out[rows])
+            k = torch.arange(len(rows))
+            angle = swivel_angle(p_seed[k, root], p_seed[k, mid], targets[rows], p_ref[k, root], p_ref[k, mid])
+            R_seed = turn_swivel(R_seed, t_prev, J64, tip, targets[rows], SWIVEL_SHARE * angle)
+            # an orientation the user holds on the end or below it (a hand's, a foot's): the end keeps its world
+            # rotation instead of following the forearm or shin
+            Rw_prev, _ = forward_kinematics(R_prev, J64, t_prev)
+            Rw_seed, _ = forward_kinematics(R_seed, J64, t_prev)
+            for i, b in enumerate(rows.tolist()):
+                t = int(tip[i])
+                if any(e.type != EffectorType.POSITION and e.tolerance < RELAXED_TOLERANCE
+                       and (e.joint == t or _is_ancestor(t, e.joint)) for e in effector_lists[b]):
+                    R_seed[i, t] = Rw_seed[i, int(mid[i])].transpose(-1, -2) @ Rw_prev[i, t]
+            Rw_seed, p_seed = forward_kinematics(R_seed, J64, t_prev)
+            aa_seed = matrix_to_axis_angle(R_seed).numpy()
+            ok = torch.tensor([_meets(solver, effector_lists[b], Pose(
+                aa_seed[i, 0], aa_seed[i, 1:], t_prev[i].numpy(), np.asarray(previous[b].betas, np.float64),
+                previous[b].gender)) for i, b in enumerate(rows.tolist())])
+            if (~ok).any():  # out of reach or a kept effector missed: the held refinement from the analytic pose
+                bad = rows[~ok]
+                start = (R_seed[~ok].float(), Rw_seed[~ok].float(), p_seed[~ok].float(), net.draft[bad],
+                         t_prev[~ok].float())
+                R_fix, t_fix, p_fix = _refine_held(solver, _rows(eff, bad), chain[bad], start, J_rest[bad])
+                R_seed[~ok], t_prev[~ok], p_seed[~ok] = R_fix, t_fix, p_fix
+            R_out[rows], transl_out[rows], joints_out[rows] = R_seed, t_prev, p_seed
+        aa = matrix_to_axis_angle(R_out).numpy()
+    transl_np, joints_np = transl_out.numpy(), joints_out.numpy()
+    return [Pose(aa[b, 0], aa[b, 1:], transl_np[b], np.asarray(p.betas, np.float64), p.gender, joints_np[b])
             for b, p in enumerate(previous)]
+
+
+def _rows(eff: Any, rows: Tensor) -> Any:
+    """The ``rows`` of an :class:`~smplik.effectors.EffectorBatch`."""
+    from smplik.effectors import EffectorBatch
+
+    return EffectorBatch(*(getattr(eff, f)[rows] for f in ("joint", "type", "data", "tolerance", "mask")))
 
 
 def solve_drag(character: Any, solver: Any, moved: int, previous: Pose | None = None) -> Any:

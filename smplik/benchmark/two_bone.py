@@ -94,3 +94,42 @@ def two_bone_ik(R_local: Tensor, transl: Tensor, J_rest: Tensor, tip: Tensor, ta
     grand = par[root]
     R_local[rows, root] = R_world[rows, grand].transpose(-1, -2) @ delta_root @ R_world[rows, root]
     return R_local
+
+
+def swivel_angle(root: Tensor, mid: Tensor, target: Tensor, root_ref: Tensor, mid_ref: Tensor) -> Tensor:
+    """Signed turn (B,) about the reach axis ``target - root`` that takes the middle joint's direction
+    ``mid - root`` onto ``mid_ref - root_ref`` (both projected off the axis): the swivel (elbow or knee pole)
+    change from one limb pose to another. 0 where either projection is degenerate (a straight limb).
+
+    All arguments (B, 3) world positions.
+    """
+    n = target - root
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    u = mid - root
+    u = u - (u * n).sum(-1, keepdim=True) * n
+    v = mid_ref - root_ref
+    v = v - (v * n).sum(-1, keepdim=True) * n
+    angle = torch.atan2((torch.cross(u, v, dim=-1) * n).sum(-1), (u * v).sum(-1))
+    ok = (u.norm(dim=-1) > 1e-3) & (v.norm(dim=-1) > 1e-3)
+    return torch.where(ok, angle, torch.zeros_like(angle))
+
+
+def turn_swivel(R_local: Tensor, transl: Tensor, J_rest: Tensor, tip: Tensor, target: Tensor, angle: Tensor,
+                parents: tuple[int, ...] = PARENTS) -> Tensor:
+    """Turn each tip's two-bone chain by ``angle`` (B,) about its reach axis ``target - root``: the chain
+    root's world rotation is pre-multiplied by that turn, so the root stays, the tip stays on the axis (on the
+    target when the chain reaches it) and only the middle joint's swivel changes (what a pole or hint
+    target sets in Unity's TwoBoneIK or a Blender IK constraint).
+
+    R_local (B, J, 3, 3), transl (B, 3), J_rest (B, J, 3), tip (B,) long, target (B, 3) -> (B, J, 3, 3).
+    """
+    rows = torch.arange(R_local.shape[0])
+    par = torch.tensor(parents)
+    root = par[par[tip]]
+    R_world, p = forward_kinematics(R_local, J_rest, transl, parents)
+    n = target - p[rows, root]
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    R_local = R_local.clone()
+    turned = _rotate_about(n, angle) @ R_world[rows, root]
+    R_local[rows, root] = R_world[rows, par[root]].transpose(-1, -2) @ turned
+    return R_local

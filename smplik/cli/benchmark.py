@@ -177,6 +177,9 @@ def edits_command(
                                                    "else the cache folder's cmu30.npz).")] = None,
     split: Annotated[str, typer.Option(help="Split whose clips give the edits.")] = "test",
     clips: Annotated[Path | None, typer.Option(help="Also a folder of held-out BVH clips.")] = None,
+    clips_preset: Annotated[str, typer.Option("--clips-preset", help="Retarget preset of those clips: a built-in "
+                                              "name, a JSON file, or auto (the rig mapper; CMU's cgspeed files read as "
+                                              "with cmu).")] = "auto",
     max_pairs: Annotated[int, typer.Option("--max-pairs", min=1, help="At most this many edit pairs "
                                            "(a seeded draw).")] = 150,
     seed: Annotated[int, typer.Option(help="Seed of that draw.")] = 0,
@@ -204,11 +207,19 @@ def edits_command(
     if out.suffix != ".json":
         raise typer.BadParameter(f"must end in .json, got {out}.", param_hint="--out")
     with user_errors():
+        if clips is not None:  # checked before the minutes of work
+            if not clips.is_dir():
+                raise FileNotFoundError(f"--clips {clips}: no such folder.")
+            if clips_preset != "auto":
+                from smplik.data.retarget import load_preset
+
+                load_preset(clips_preset)
         cache = data or pose_cache()
         if not cache.is_file():
             raise FileNotFoundError(f"no pose cache at {cache}: build one with `smplik data build` and pass --data.")
         solver = IKSolver.load(checkpoint)
-        results = edit_benchmark(cache, solver, split=split, clips_folder=clips, methods=chosen,
+        results = edit_benchmark(cache, solver, split=split, clips_folder=clips, clips_preset=clips_preset,
+                                 methods=chosen,
                                  cfg=EditBenchmarkConfig(max_pairs=max_pairs, seed=seed,
                                                          optim_iterations=optim_iterations),
                                  progress=say)
