@@ -44,7 +44,8 @@ def animate_cmd(
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
     root: RootOption = None,
-    smoothing: Annotated[str, typer.Option("--smoothing", help="one_euro, savgol or none.")] = "one_euro",
+    smoothing: Annotated[str, typer.Option(
+        "--smoothing", help="sequence (a sequence solve, the default), one_euro, savgol or none.")] = "sequence",
     foot_lock: Annotated[bool, typer.Option("--foot-lock/--no-foot-lock", help="Lock feet in contact.")] = True,
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
                                                       "interpolation errs more than this (m).")] = 0.03,
