@@ -10,7 +10,8 @@ Steps (:func:`animate_file`):
    character's SMPL-SI body (``betas``, ``gender``, ``scale``); each frame is retargeted onto it as
    ``from-estimate`` does (:func:`workflows.pipeline.retarget_to_body`: local rotations kept, pelvis
    at its world position).
-3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, smoothing, foot contacts and foot locking.
+3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, then (default) a sequence solve over all frames
+   with the foot locks (:func:`workflows.motion_clean.sequence_clean`), or a filter and foot locking.
 4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, recursively, the frame
    where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
    errs most, while that error (mean joint distance, character space) is above a threshold.

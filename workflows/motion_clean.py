@@ -2,6 +2,10 @@
 
 All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
 
+The default cleaning, :func:`sequence_clean`, is a sequence solve (:mod:`smplik.sequence`): the joints' paths
+smoothed over the whole clip with the foot locks among their data, then every frame's body fitted to them.
+The filters below are the measured baselines.
+
 Smoothing (:func:`smooth_motion`) filters the local joint rotations as unit quaternions (scalar
 first, made sign-continuous over time, renormalised after filtering) and the root translation:
 
