@@ -41,6 +41,9 @@ from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
 from smplik.refine import RefineConfig, refine_output, tolerance_weight
 
+REFINE_CHUNK = 512
+"""Frames refined per call in step 2 (bounds the memory of the torch refinement on long clips)."""
+
 
 class SequenceError(ValueError):
     """Invalid sequence-solve input or settings (one line)."""
@@ -158,6 +161,11 @@ def solve_sequence(R_local: Tensor, transl: Tensor, J_rest: Tensor, eff: Effecto
     if eff is not None:
         path_eff = EffectorBatch(*(torch.cat([getattr(eff, f).to(getattr(path_eff, f).dtype), getattr(path_eff, f)], 1)
                                    for f in ("joint", "type", "data", "tolerance", "mask")))
-    start = IKOutput(R0, R_world, p_world, p_world, t0)
-    out = refine_output(start, J_rest.expand(T, J, 3).contiguous(), path_eff, cfg.refine, parents)
-    return out.R_local.to(dt), out.transl.to(dt)
+    R_out, t_out = R0.clone(), t0.clone()
+    for lo in range(0, T, REFINE_CHUNK):  # frames are independent here; chunks bound the memory
+        hi = min(T, lo + REFINE_CHUNK)
+        start = IKOutput(R0[lo:hi], R_world[lo:hi], p_world[lo:hi], p_world[lo:hi], t0[lo:hi])
+        chunk = EffectorBatch(*(getattr(path_eff, f)[lo:hi] for f in ("joint", "type", "data", "tolerance", "mask")))
+        out = refine_output(start, J_rest.expand(hi - lo, J, 3).contiguous(), chunk, cfg.refine, parents)
+        R_out[lo:hi], t_out[lo:hi] = out.R_local.to(dt), out.transl.to(dt)
+    return R_out, t_out

@@ -116,3 +116,23 @@ def test_default_cleaning_lowers_jitter_and_skating_and_stays_near_the_estimate(
     assert jitter(p_clean) < 0.5 * jitter(p_raw)
     assert foot_skating(p_clean, contacts) < 0.2 * foot_skating(p_raw, contacts)
     assert np.linalg.norm(p_clean - p_raw, axis=-1).mean() < 0.005
+
+
+def test_sequence_solve_is_the_same_in_chunks_and_on_either_refinement_backend(monkeypatch):
+    import smplik.sequence as sequence
+    from smplik.refine import numba_available, refine_backend
+
+    R, transl, J = _true_motion(30)
+    rng = np.random.default_rng(5)
+    noisy = Rotation.from_rotvec(rng.normal(0, 0.05, (30 * 24, 3))).as_matrix().reshape(30, 24, 3, 3) @ R
+    args = (torch.as_tensor(noisy), torch.as_tensor(transl), torch.as_tensor(J))
+    whole = solve_sequence(*args)
+    monkeypatch.setattr(sequence, "REFINE_CHUNK", 7)
+    chunked = solve_sequence(*args)
+    for a, b in zip(whole, chunked, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-9, rtol=0)
+    if numba_available():
+        with refine_backend("reference"):
+            reference = solve_sequence(*args)
+        torch.testing.assert_close(reference[1], whole[1], atol=1e-5, rtol=0)
+        assert (reference[0] - whole[0]).abs().max() < 1e-4
