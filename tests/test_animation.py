@@ -162,6 +162,8 @@ def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
     assert "unknown export format(s) ['fbx']" in _one_error_line(animate(path, "--out", out, "--fps", 30,
                                                                         "--export", "bvh,fbx"))
     assert "smoothing must be" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--smoothing", "wavy"))
+    assert "smoothness must be a positive number" in _one_error_line(animate(path, "--out", out, "--fps", 30,
+                                                                             "--smoothness", 0))
     assert "keyframe threshold" in _one_error_line(animate(path, "--out", out, "--fps", 30,
                                                            "--keyframe-threshold", 0))
     assert "refusing more than 5" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--max-frames", 5))

@@ -10,7 +10,8 @@ Steps (:func:`animate_file`):
    character's SMPL-SI body (``betas``, ``gender``, ``scale``); each frame is retargeted onto it as
    ``from-estimate`` does (:func:`workflows.pipeline.retarget_to_body`: local rotations kept, pelvis
    at its world position).
-3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, smoothing, foot contacts and foot locking.
+3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, then (default) a sequence solve over all frames
+   with the foot locks (:func:`workflows.motion_clean.sequence_clean`), or a filter and foot locking.
 4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, recursively, the frame
    where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
    errs most, while that error (mean joint distance, character space) is above a threshold.
@@ -38,7 +39,14 @@ from smplik.conventions import Gender
 from smplik.effectors import Effector
 from smplik.pose import Pose
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
-from workflows.motion_clean import CleanConfig, foot_contacts, glitch_frames, lock_feet, smooth_motion
+from workflows.motion_clean import (
+    CleanConfig,
+    foot_contacts,
+    glitch_frames,
+    lock_feet,
+    sequence_clean,
+    smooth_motion,
+)
 from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
 from workflows.scene import SkeletonSource
 
@@ -415,6 +423,9 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio)
         if glitches.any():
             R, transl = repair_frames(R, transl, glitches)
+    if cfg.smoothing == "sequence":
+        R_s, t_s, contacts = sequence_clean(R, transl, J_rest, fps, cfg, scale)
+        return R_s, t_s, contacts, raw, joints_of(R_s, t_s, J_rest) * scale, glitches
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)
     contacts = foot_contacts(p_s * scale, fps, cfg) if cfg.foot_lock else np.zeros((len(poses), 2), dtype=bool)

@@ -44,7 +44,10 @@ def animate_cmd(
     positions: PositionsOption = "auto",
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
     root: RootOption = None,
-    smoothing: Annotated[str, typer.Option("--smoothing", help="one_euro, savgol or none.")] = "one_euro",
+    smoothing: Annotated[str, typer.Option(
+        "--smoothing", help="sequence (a sequence solve, the default), one_euro, savgol or none.")] = "sequence",
+    smoothness: Annotated[float, typer.Option("--smoothness", help="sequence cleaning: weight of the joints' "
+                                              "acceleration; higher smooths more.")] = 2.0,
     foot_lock: Annotated[bool, typer.Option("--foot-lock/--no-foot-lock", help="Lock feet in contact.")] = True,
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
                                                       "interpolation errs more than this (m).")] = 0.03,
@@ -75,7 +78,8 @@ def animate_cmd(
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
-        config = AnimateConfig(CleanConfig(smoothing=smoothing, foot_lock=foot_lock),  # type: ignore[arg-type]
+        config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
+                                           foot_lock=foot_lock),
                                keyframe_threshold_m=keyframe_threshold,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
         task = bar.add_task("reading", total=None)

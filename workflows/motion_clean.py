@@ -2,6 +2,10 @@
 
 All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
 
+The default cleaning, :func:`sequence_clean`, is a sequence solve (:mod:`smplik.sequence`): the joints' paths
+smoothed over the whole clip with the foot locks among their data, then every frame's body fitted to them.
+The filters below are the measured baselines.
+
 Smoothing (:func:`smooth_motion`) filters the local joint rotations as unit quaternions (scalar
 first, made sign-continuous over time, renormalised after filtering) and the root translation:
 
@@ -45,7 +49,7 @@ LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["l
               (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"]))
 """(hip, knee, ankle) per side (left, right)."""
 
-SmoothingMethod = Literal["one_euro", "savgol", "none"]
+SmoothingMethod = Literal["sequence", "one_euro", "savgol", "none"]
 
 
 class CleanError(ValueError):
@@ -56,8 +60,14 @@ class CleanError(ValueError):
 class CleanConfig:
     """How :func:`smooth_motion` and :func:`lock_feet` clean a motion."""
 
-    smoothing: SmoothingMethod = "one_euro"
-    """``"one_euro"`` (adaptive, zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
+    smoothing: SmoothingMethod = "sequence"
+    """``"sequence"`` (a sequence solve on the estimator's joints, foot locks included: :func:`sequence_clean`),
+    ``"one_euro"`` (adaptive, zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
+    smoothness: float = 2.0
+    """Sequence: weight of the joints' squared acceleration (m/frame^2) against their squared offset (m) from
+    the estimate (:class:`smplik.sequence.SequenceConfig`); higher smooths more."""
+    lock_weight: float = 1000.0
+    """Sequence: weight of a locked foot's position against the estimate's (1)."""
     min_cutoff_hz: float = 3.0
     """One-Euro: cutoff (Hz) of slow motion; lower smooths more."""
     beta: float = 1.0
@@ -86,10 +96,10 @@ class CleanConfig:
     """... and more than this many times the distance between those neighbours (fast real motion does not)."""
 
     def __post_init__(self) -> None:
-        if self.smoothing not in ("one_euro", "savgol", "none"):
-            raise CleanError(f"smoothing must be 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
-        for name in ("min_cutoff_hz", "d_cutoff_hz", "contact_height_m", "contact_speed_mps", "glitch_min_m",
-                     "glitch_ratio"):
+        if self.smoothing not in ("sequence", "one_euro", "savgol", "none"):
+            raise CleanError(f"smoothing must be 'sequence', 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
+        for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
+                     "contact_speed_mps", "glitch_min_m", "glitch_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
@@ -377,3 +387,70 @@ def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray) ->
     """Jitter, skating (on ``contact``) and MPJPE to ``reference`` of joints p (T, 24, 3) in metres."""
     mpjpe = float(np.linalg.norm(p - reference, axis=-1).mean())
     return MotionMetrics(1000 * jitter(p), 1000 * foot_skating(p, contact), 1000 * mpjpe, int(contact.sum()))
+
+
+# ----------------------------------------------------------------------------- sequence cleaning
+
+
+def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs.
+
+    Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right).
+
+    Returns: foot targets (T, 2, 3) (the run's mean foot position, blended in and out over ``blend_frames``
+    like :func:`lock_feet`; the foot itself elsewhere) and weights (T, 2).
+    """
+    targets = p_world[:, list(FOOT_JOINTS)].copy()
+    weights = np.zeros(contact.shape)
+    for side, foot in enumerate(FOOT_JOINTS):
+        for w, s, e in lock_weights(contact[:, side], blend_frames):
+            lock = p_world[s:e, foot].mean(0)
+            take = w > weights[:, side]
+            targets[take, side] = (1.0 - w[take, None]) * p_world[take, foot] + w[take, None] * lock
+            weights[:, side] = np.maximum(weights[:, side], w)
+    return targets, weights
+
+
+def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, fps: float, cfg: CleanConfig,
+                   scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clean a motion by a sequence solve (:func:`smplik.sequence.solve_sequence`) on its own joints.
+
+    The estimate's joints are the data of every joint's path (weight 1); foot contacts are detected on the
+    smoothed paths (:func:`foot_contacts`), and each contact run's locked foot position (:func:`lock_targets`)
+    joins the data with weight ``lock_weight`` times its blend weight; the smoothed paths (``smoothness``)
+    are then fitted frame by frame, the prior centred on the estimate's local rotations. Foot locking and
+    smoothing are one solve, so a lock cannot re-introduce jitter.
+
+    Args: R_parent_joint (T, 24, 3, 3) local rotations, transl (T, 3), J_rest (24, 3) (SMPL space); the
+    contact thresholds are in character space (``scale`` times SMPL space).
+
+    Returns: local rotations (T, 24, 3, 3), transl (T, 3), contacts (T, 2) bool.
+    """
+    import torch
+
+    from smplik.kinematics import forward_kinematics
+    from smplik.sequence import SequenceConfig, smooth_trajectories, solve_sequence
+
+    T = R_parent_joint.shape[0]
+    R = torch.as_tensor(R_parent_joint, dtype=torch.float64)
+    J = torch.as_tensor(J_rest, dtype=torch.float64)
+    p_raw = forward_kinematics(R, J, torch.as_tensor(transl, dtype=torch.float64))[1].numpy()
+    weights = np.ones(p_raw.shape[:2])
+    targets = p_raw.copy()
+    contacts = np.zeros((T, 2), dtype=bool)
+    if cfg.foot_lock and T >= 3:
+        smooth = smooth_trajectories(p_raw, weights, cfg.smoothness)
+        contacts = foot_contacts(smooth * scale, fps, cfg)
+        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames)
+        w_lock = cfg.lock_weight * lock
+        foot_idx = list(FOOT_JOINTS)
+        targets[:, foot_idx] = (p_raw[:, foot_idx] + w_lock[..., None] * feet) / (1.0 + w_lock[..., None])
+        weights[:, foot_idx] += w_lock
+    R_s, t_s = solve_sequence(R, torch.as_tensor(transl, dtype=torch.float64), J, None,
+                              SequenceConfig(smoothness=cfg.smoothness), joint_targets=targets,
+                              joint_weights=weights)
+    R_out, t_out = R_s.numpy(), t_s.numpy()
+    if contacts.any():  # the fitted feet are near their locks; two-bone IK puts them on it exactly
+        p_s = forward_kinematics(R_s, J, t_s)[1].numpy()
+        R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames)
+    return R_out, t_out, contacts
