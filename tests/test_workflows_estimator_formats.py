@@ -233,7 +233,7 @@ def test_meshes_from_demos_that_save_only_meshes_say_so(tmp_path):
 
 
 REAL_LAYOUTS = {"vibe": ("vibe_output.pkl", "pare_output.pkl"), "easymocap": ("smpl/*.json",),
-                "glamr": ("*.pkl",), "tram": ("hps/hps_track_*.npy",), "smplerx": ("smplx/*.npz",)}
+                "glamr": ("*.pkl",), "phalp": ("*.pkl",), "tram": ("hps/hps_track_*.npy",), "smplerx": ("smplx/*.npz",)}
 """Where each producer's real outputs sit under ``real_estimators_dir()/<format>*/`` (any depth)."""
 
 
