@@ -236,6 +236,16 @@ def test_a_dragged_wrist_moves_only_its_arm_and_takes_the_priors_swivel(solver):
                          torch.from_numpy(after[el])[None])
     assert abs(float(to_net)) > 5e-3  # the network does prefer another pole here
     assert abs(float(taken) - SWIVEL_SHARE * float(to_net)) < 1e-4
+    # the elbow bends without turning about the upper arm (that twist is the shoulder's): the plain
+    # two-bone bend about the chain's plane does turn it here
+    from smplik.rotations import matrix_to_quaternion
+
+    bone = (J[0, el] - J[0, sh]) / (J[0, el] - J[0, sh]).norm()
+    def twist(R_elbow):
+        q = matrix_to_quaternion(R_elbow)
+        return float((q[1:] * bone).sum().abs())
+    assert twist(axis_angle_to_matrix(torch.from_numpy(pose.body_pose[el - 1]))) < 1e-6
+    assert twist(two_bone_ik(axis_angle_to_matrix(aa), tr, J, tip, tgt)[0, el]) > 1e-3
     # the previous release's solve (analytic=False) re-poses the chain with the network instead
     chain_pose = solve_edit(solver, [effs], [previous], [wrist], analytic=False)[0]
     assert not np.allclose(chain_pose.body_pose, pose.body_pose)

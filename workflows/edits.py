@@ -315,6 +315,11 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
                 if any(e.type != EffectorType.POSITION and e.tolerance < RELAXED_TOLERANCE
                        and (e.joint == t or _is_ancestor(t, e.joint)) for e in effector_lists[b]):
                     R_seed[i, t] = Rw_seed[i, int(mid[i])].transpose(-1, -2) @ Rw_prev[i, t]
+            # the analytic bend turns the elbow/knee about the chain's plane, which can twist it about the
+            # upper arm or thigh: that twist goes to the shoulder or hip (positions and world rotations kept)
+            for m in torch.unique(mid).tolist():
+                sel = mid == m
+                R_seed[sel] = hinge_twist_to_parent(R_seed[sel], J64[sel], [m])
             Rw_seed, p_seed = forward_kinematics(R_seed, J64, t_prev)
             aa_seed = matrix_to_axis_angle(R_seed).numpy()
             ok = torch.tensor([_meets(solver, effector_lists[b], Pose(
