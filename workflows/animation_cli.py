@@ -100,6 +100,8 @@ def animate_cmd(
             bar.update(task, description="preview")
             images = preview_frames(anim, video=video, every=preview_every)
             files.append(save_preview(images, preview, anim.fps / preview_every))
+    if anim.depth_change is not None:
+        say(anim.depth_change.describe())
     for t in anim.tracks:
         contacts = 0 if t.contacts is None else int(t.contacts.sum())
         say(f"{t.name}: frames {t.first_frame}..{t.first_frame + t.num_frames - 1} at {anim.fps:g} frames/s "

@@ -16,8 +16,9 @@ first, made sign-continuous over time, renormalised after filtering) and the roo
 * ``"savgol"``: a plain Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`), the baseline.
 
 Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
-foot) touches the floor where it is low (within ``height_m`` of the clip's floor, a low percentile
-of the feet's heights; world y is up) **and** slow (below ``speed_mps``); runs shorter than
+foot) touches the floor where it is low (within ``height_m`` of the clip's floor, :func:`floor_plane`: a
+plane fitted under the standing feet, level by default, tilted where the feet show it, e.g. a camera's
+pitch in camera space; y is up) **and** slow (below ``speed_mps``); runs shorter than
 ``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the foot to its mean position over
 each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
 (:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
@@ -29,7 +30,8 @@ neighbours.
 
 Metrics (:func:`motion_metrics`), on joint positions ``(T, 24, 3)`` in metres: jitter = mean joint
 acceleration ``|p[t+1] - 2 p[t] + p[t-1]|`` (mm/frame^2); skating = mean speed of the foot joints
-during contact (mm/frame); fidelity = MPJPE to reference joints (mm).
+during contact (mm/frame); pose fidelity = MPJPE to reference joints with both pelvises at the origin (mm, as
+HMR papers report MPJPE); trajectory change = mean pelvis distance (mm), reported separately.
 """
 
 from __future__ import annotations
@@ -209,9 +211,42 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
 
 
-def floor_height(p_world: np.ndarray) -> float:
-    """The floor's y (metres): the 5th percentile of the foot joints' heights over the clip. p_world (T, 24, 3)."""
-    return float(np.percentile(p_world[:, list(FOOT_JOINTS), 1], 5.0))
+FLOOR_TILT_PRIOR = 0.1
+"""Ridge weight (m^2 per foot sample) pulling the floor's slope towards level (y up: the world's or the camera's
+up): the fitted slope shrinks by s^2 / (s^2 + prior), s the standing feet's horizontal spread (std, m), so a
+clip whose feet stay within about 30 cm keeps a nearly level floor and depth noise cannot tilt it."""
+
+
+def floor_plane(p_world: np.ndarray, prior: float = FLOOR_TILT_PRIOR) -> np.ndarray:
+    """The floor under a clip's feet: ``(a, b, c)`` of ``y = a x + b z + c`` (metres, y up). p_world (T, 24, 3).
+
+    The lower foot of every frame stands on the floor (walking, running; in camera space too, where the floor
+    is tilted by the camera's pitch and roll): a plane is fitted to those points by least squares, its slope
+    pulled towards level (``prior``, the world's or camera's up as the prior), then refitted to the points
+    within 5 cm of the first fit (airborne frames dropped). ``c`` is the 5th percentile of the foot joints'
+    heights above the sloped plane, as the level floor's height is.
+    """
+    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    low = feet[np.arange(feet.shape[0]), np.argmin(feet[..., 1], axis=1)]  # (T, 3)
+    keep = np.ones(low.shape[0], dtype=bool)
+    slope = np.zeros(2)
+    for _ in range(2):
+        xz = low[keep][:, [0, 2]]
+        centred = xz - xz.mean(0)
+        y = low[keep, 1] - low[keep, 1].mean()
+        n = max(int(keep.sum()), 1)
+        slope = np.linalg.solve(centred.T @ centred + prior * n * np.eye(2), centred.T @ y)
+        resid = low[:, 1] - low[:, [0, 2]] @ slope
+        keep = resid - np.percentile(resid, 10.0) < 0.05
+        if keep.sum() < 3:
+            break
+    heights = feet[..., 1] - feet[..., [0, 2]] @ slope
+    return np.array([slope[0], slope[1], float(np.percentile(heights, 5.0))])
+
+
+def height_above_floor(p: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Vertical height (m) above ``plane`` = (a, b, c) of ``y = a x + b z + c`` of points p (..., 3) -> (...)."""
+    return p[..., 1] - plane[0] * p[..., 0] - plane[1] * p[..., 2] - plane[2]
 
 
 def joint_speed(p: np.ndarray) -> np.ndarray:
@@ -224,7 +259,7 @@ def joint_speed(p: np.ndarray) -> np.ndarray:
 def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig) -> np.ndarray:
     """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up."""
     feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
-    low = feet[..., 1] - floor_height(p_world) < cfg.contact_height_m
+    low = height_above_floor(feet, floor_plane(p_world)) < cfg.contact_height_m
     slow = joint_speed(feet) * fps < cfg.contact_speed_mps
     contact = low & slow
     for side in range(2):
@@ -361,13 +396,17 @@ class MotionMetrics:
     skating_mm: float
     """Mean speed of the foot joints during contact, mm/frame (0 without contacts)."""
     mpjpe_mm: float
-    """Mean per-joint position error to the reference, mm."""
+    """Pose fidelity: mean per-joint position error to the reference with both pelvises at the origin (the MPJPE
+    of HMR papers), mm."""
     contact_frames: int
     """Foot-frames in contact (both feet counted)."""
+    trajectory_mm: float = 0.0
+    """Trajectory change: mean distance between the pelvises, mm."""
 
     def to_dict(self) -> dict[str, float]:
         return {"jitter_mm_per_frame2": round(self.jitter_mm, 3), "skating_mm_per_frame": round(self.skating_mm, 3),
-                "mpjpe_mm": round(self.mpjpe_mm, 3), "contact_frames": int(self.contact_frames)}
+                "mpjpe_mm": round(self.mpjpe_mm, 3), "trajectory_mm": round(self.trajectory_mm, 3),
+                "contact_frames": int(self.contact_frames)}
 
 
 def jitter(p: np.ndarray) -> float:
@@ -384,9 +423,13 @@ def foot_skating(p: np.ndarray, contact: np.ndarray) -> float:
 
 
 def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray) -> MotionMetrics:
-    """Jitter, skating (on ``contact``) and MPJPE to ``reference`` of joints p (T, 24, 3) in metres."""
-    mpjpe = float(np.linalg.norm(p - reference, axis=-1).mean())
-    return MotionMetrics(1000 * jitter(p), 1000 * foot_skating(p, contact), 1000 * mpjpe, int(contact.sum()))
+    """Jitter, skating (on ``contact``), pelvis-aligned MPJPE and trajectory change (pelvis distance) to
+    ``reference`` of joints p (T, 24, 3) in metres."""
+    aligned = (p - p[:, :1]) - (reference - reference[:, :1])
+    mpjpe = float(np.linalg.norm(aligned, axis=-1).mean())
+    trajectory = float(np.linalg.norm(p[:, 0] - reference[:, 0], axis=-1).mean())
+    return MotionMetrics(1000 * jitter(p), 1000 * foot_skating(p, contact), 1000 * mpjpe, int(contact.sum()),
+                         1000 * trajectory)
 
 
 # ----------------------------------------------------------------------------- sequence cleaning
