@@ -60,11 +60,12 @@ from smplik.paths import real_estimators_dir  # noqa: E402
 from workflows.animation import (  # noqa: E402
     AnimateConfig,
     animation_from_clip,
+    camera_clean,
     clean_track,
     read_clip,
     realistic_depth,
 )
-from workflows.motion_clean import CleanConfig, motion_metrics  # noqa: E402
+from workflows.motion_clean import CleanConfig, ground_velocity, motion_metrics  # noqa: E402
 from workflows.pipeline import retarget_to_body  # noqa: E402
 
 ASSUMED_FPS = {"gvhmr": 30.0, "wham": 30.0, "phalp": 30.0}
@@ -98,8 +99,9 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
         people = [p for _, p in entries]
         body = (np.mean([p.betas for p in people], axis=0), people[0].gender, 1.0)
         poses = [retarget_to_body(p, *body) for p in people]
-        default = clean_track(poses, fps, CleanConfig(), 1.0)
+        default = clean_track(poses, fps, camera_clean(CleanConfig(), clip.space), 1.0)
         raw_joints, contacts = default[3], default[2]
+        ground = ground_velocity(raw_joints) if clip.space == "camera" else None  # skating relative to the ground
         repaired = int(default[5].sum())
         result = {"file": str(path.relative_to(path.parents[1])), "format": clip.format, "space": clip.space,
                   "track": tid, "frames": len(poses), "fps": fps, "repaired_glitches": repaired}
@@ -107,11 +109,12 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
             result["depth_change"] = dataclasses.asdict(depth)
             source = [retarget_to_body(p, *body) for _, p in source_clip.tracks[tid][:max_frames]]
             source_raw = clean_track(source, fps, CleanConfig(), 1.0)[3]
-            result["raw_source_depth"] = motion_metrics(source_raw, source_raw, contacts).to_dict()
-        result["raw"] = motion_metrics(raw_joints, raw_joints, contacts).to_dict()
+            result["raw_source_depth"] = motion_metrics(source_raw, source_raw, contacts,
+                                                        ground_velocity(source_raw)).to_dict()
+        result["raw"] = motion_metrics(raw_joints, raw_joints, contacts, ground).to_dict()
         for name, cfg in VARIANTS.items():
-            joints = default[4] if name == DEFAULT else clean_track(poses, fps, cfg, 1.0)[4]
-            result[name] = motion_metrics(joints, raw_joints, contacts).to_dict()
+            joints = default[4] if name == DEFAULT else clean_track(poses, fps, camera_clean(cfg, clip.space), 1.0)[4]
+            result[name] = motion_metrics(joints, raw_joints, contacts, ground).to_dict()
         # the whole pipeline on this track: keyframes and throughput
         sub = dataclass_clip(clip, tid, entries)
         start, cpu_start = time.perf_counter(), time.process_time()

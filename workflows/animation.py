@@ -43,6 +43,7 @@ from workflows.motion_clean import (
     CleanConfig,
     foot_contacts,
     glitch_frames,
+    ground_velocity,
     lock_feet,
     sequence_clean,
     smooth_motion,
@@ -477,6 +478,12 @@ class TrackMotion:
     contacts: np.ndarray
 
 
+def camera_clean(cfg: CleanConfig, space: str) -> CleanConfig:
+    """The cleaning of a clip in ``space``: in a camera frame the ground may move through the frame (a camera
+    following the person, a treadmill), so contacts and locks follow it (``ground_moves``)."""
+    return dataclasses.replace(cfg, ground_moves=True) if space == "camera" else cfg
+
+
 def repair_frames(R_parent_joint: np.ndarray, transl: np.ndarray, bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Replace the rows flagged in ``bad`` (T,) by interpolating the nearest good rows on either side
     (slerp / lerp; at an end, the nearest good row). R (T, 24, 3, 3), transl (T, 3)."""
@@ -518,9 +525,11 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         return R_s, t_s, contacts, raw, joints_of(R_s, t_s, J_rest) * scale, glitches
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)
-    contacts = foot_contacts(p_s * scale, fps, cfg) if cfg.foot_lock else np.zeros((len(poses), 2), dtype=bool)
+    ground = ground_velocity(p_s) if cfg.ground_moves else np.zeros(3)
+    contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale) if cfg.foot_lock
+                else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames)
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground)
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
 
@@ -553,6 +562,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
     if camera is None and clip.space == "camera":
         camera = next(iter(clip.tracks.values()))[0][1].camera
     clip, camera, depth_change = realistic_depth(clip, camera, config.camera_fov_deg)
+    clean_cfg = camera_clean(config.clean, clip.space)
     tracks, motions, targets, scales, owners = [], [], [], [], []
     for n, tid in enumerate(ids):
         rows = clip.tracks[tid]
@@ -562,7 +572,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         else:
             body = (np.asarray(character.betas, dtype=np.float64), character.gender, float(character.scale))
         poses = [retarget_to_body(p, *body) for p in people]
-        R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, config.clean, body[2])
+        R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, clean_cfg, body[2])
         J_rest = rest_joints(body[0], body[1])
         keys = select_keyframes(R, transl, J_rest, config.keyframe_threshold_m, scale=body[2],
                                 max_gap=config.max_keyframe_gap)
@@ -585,7 +595,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         keyframes.setdefault(n, []).append(Keyframe(tracks[n].first_frame + k, rec.effectors, rec.final_error))
     tracks = [dataclasses.replace(t, keyframes=tuple(keyframes.get(n, ()))) for n, t in enumerate(tracks)]
     return Animation(tuple(tracks), float(rate), clip.source, clip.format, clip.space,
-                     camera if clip.space == "camera" else None, config.clean, depth_change), motions
+                     camera if clip.space == "camera" else None, clean_cfg, depth_change), motions
 
 
 @dataclass(frozen=True)
