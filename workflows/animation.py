@@ -339,8 +339,8 @@ def camera_fov(camera: CameraInfo | None) -> float | None:
 
 @dataclass(frozen=True)
 class DepthChange:
-    """How :func:`realistic_depth` moved a camera-space clip: ``factor`` times every pelvis position (camera at
-    the origin), from a ``fov_from_deg`` camera to a ``fov_to_deg`` one (focal lengths in pixels)."""
+    """How :func:`realistic_depth` moved a camera-space clip: ``factor`` times every pelvis's depth (x and y
+    kept), from a ``fov_from_deg`` camera to a ``fov_to_deg`` one (focal lengths in pixels; median depths, m)."""
 
     factor: float
     fov_from_deg: float
@@ -363,10 +363,10 @@ def realistic_depth(clip: Clip, camera: CameraInfo | None, fov_deg: float | None
     """A camera-space clip from a near-orthographic camera, placed for a camera of a normal field of view.
 
     A pinhole camera of focal f sees a point (x, y, z) at pixel (f x / z, f y / z) + principal point, and a body
-    of height h at z with apparent height f h / z. Scaling every pelvis position by k = f' / f (camera at the
-    origin) keeps both for the camera of focal f': the same pixel position and apparent size, the depth (and
-    its frame-to-frame noise, which a near-orthographic camera leaves almost unconstrained) k times smaller.
-    Local rotations, and hence the pose, are unchanged.
+    of height h at depth z with apparent height f h / z. Scaling every pelvis's depth z by k = f' / f and
+    keeping its x and y keeps both for the camera of focal f' (f' x / (k z) = f x / z): the same pixel position
+    and apparent size, the depth (and its frame-to-frame noise, which a near-orthographic camera leaves almost
+    unconstrained) k times smaller. Local rotations, and hence the pose, are unchanged.
 
     Returns the clip (unchanged when it is in a world frame, when ``fov_deg`` is None, or when its camera is
     not narrower than :data:`NEAR_ORTHOGRAPHIC_FOV_DEG` or unknown), its camera (the new focal length) and the
@@ -387,8 +387,8 @@ def realistic_depth(clip: Clip, camera: CameraInfo | None, fov_deg: float | None
         for gender in {p.gender for p in people}:
             rows_g = [i for i, p in enumerate(people) if p.gender == gender]
             pelvis[rows_g] += rest_pelvis(np.stack([people[i].betas for i in rows_g]), gender)
-        moved = k * pelvis
-        depths.append(np.linalg.norm(pelvis, axis=-1))
+        moved = pelvis * [1.0, 1.0, k]
+        depths.append(-pelvis[:, 2])
         new_camera = None if people[0].camera is None else dataclasses.replace(people[0].camera, focal_px=focal_to)
         tracks[tid] = [(f, dataclasses.replace(p, transl=p.transl + moved[i] - pelvis[i],
                                                camera=new_camera if p.camera is not None else None))

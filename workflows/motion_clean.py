@@ -222,10 +222,10 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
 
 
-FLOOR_TILT_PRIOR = 0.1
+FLOOR_TILT_PRIOR = 0.005
 """Ridge weight (m^2 per foot sample) pulling the floor's slope towards level (y up: the world's or the camera's
 up): the fitted slope shrinks by s^2 / (s^2 + prior), s the standing feet's horizontal spread (std, m), so a
-clip whose feet stay within about 30 cm keeps a nearly level floor and depth noise cannot tilt it."""
+clip whose standing feet stay within a few centimetres keeps a level floor."""
 
 
 def floor_plane(p_world: np.ndarray, prior: float = FLOOR_TILT_PRIOR) -> np.ndarray:
@@ -233,24 +233,22 @@ def floor_plane(p_world: np.ndarray, prior: float = FLOOR_TILT_PRIOR) -> np.ndar
 
     The lower foot of every frame stands on the floor (walking, running; in camera space too, where the floor
     is tilted by the camera's pitch and roll): a plane is fitted to those points by least squares, its slope
-    pulled towards level (``prior``, the world's or camera's up as the prior), then refitted to the points
-    within 5 cm of the first fit (airborne frames dropped). ``c`` is the 5th percentile of the foot joints'
-    heights above the sloped plane, as the level floor's height is.
+    pulled towards level (``prior``, the world's or camera's up as the prior), to the points less than 5 cm
+    above their median (airborne frames dropped), four times, "lower" measured from the previous fit. ``c``
+    is the 5th percentile of the foot joints' heights above the sloped plane, as the level floor's height is.
     """
     feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
-    low = feet[np.arange(feet.shape[0]), np.argmin(feet[..., 1], axis=1)]  # (T, 3)
-    keep = np.ones(low.shape[0], dtype=bool)
     slope = np.zeros(2)
-    for _ in range(2):
+    for _ in range(4):  # the lower foot above the current plane (a tilted floor changes which foot is lower)
+        heights = feet[..., 1] - feet[..., [0, 2]] @ slope
+        low = feet[np.arange(feet.shape[0]), np.argmin(heights, axis=1)]  # (T, 3)
+        resid = low[:, 1] - low[:, [0, 2]] @ slope
+        keep = resid < np.median(resid) + 0.05  # the lower foot stands in most frames: drop airborne ones
         xz = low[keep][:, [0, 2]]
         centred = xz - xz.mean(0)
         y = low[keep, 1] - low[keep, 1].mean()
         n = max(int(keep.sum()), 1)
         slope = np.linalg.solve(centred.T @ centred + prior * n * np.eye(2), centred.T @ y)
-        resid = low[:, 1] - low[:, [0, 2]] @ slope
-        keep = resid - np.percentile(resid, 10.0) < 0.05
-        if keep.sum() < 3:
-            break
     heights = feet[..., 1] - feet[..., [0, 2]] @ slope
     return np.array([slope[0], slope[1], float(np.percentile(heights, 5.0))])
 
