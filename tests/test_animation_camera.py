@@ -123,7 +123,7 @@ def test_camera_space_contacts_follow_a_moving_tilted_ground():
     cfg = CleanConfig(contact_min_frames=3)
     plane = floor_plane(p)
     assert plane[0] == pytest.approx(np.tan(np.radians(10.0)), abs=0.03)  # the floor's tilt is found
-    g = ground_velocity(p)
+    g = ground_velocity(p, 0.35 / 30)
     assert g == pytest.approx(Rotation.from_euler("z", 10, degrees=True).apply([-1.2 / 30, 0, 0]), abs=2e-3)
     found = foot_contacts(p, 30.0, cfg, g)
     inner = np.ones(len(p), dtype=bool)
@@ -131,6 +131,9 @@ def test_camera_space_contacts_follow_a_moving_tilted_ground():
     assert (found == truth)[inner].mean() > 0.9
     # a still ground (world frames) finds none of them: the stance feet move at the pan speed
     assert foot_contacts(p, 30.0, cfg).sum() < 0.1 * truth.sum()
+    # a still camera (the same walk, ground at rest) keeps a still ground
+    p_still = p + Rotation.from_euler("z", 10, degrees=True).apply([1.2 / 30, 0, 0]) * np.arange(len(p))[:, None, None]
+    assert np.array_equal(ground_velocity(p_still, 0.35 / 30), np.zeros(3))
     assert foot_skating(p, truth, g) < 0.005 < 0.03 < foot_skating(p, truth)  # m/frame; the run edges blur
 
 

@@ -43,7 +43,7 @@ from workflows.motion_clean import (
     CleanConfig,
     foot_contacts,
     glitch_frames,
-    ground_velocity,
+    ground_of,
     lock_feet,
     sequence_clean,
     smooth_motion,
@@ -525,7 +525,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         return R_s, t_s, contacts, raw, joints_of(R_s, t_s, J_rest) * scale, glitches
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)
-    ground = ground_velocity(p_s) if cfg.ground_moves else np.zeros(3)
+    ground = ground_of(p_s, fps, cfg, scale)
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale) if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():

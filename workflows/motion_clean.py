@@ -265,21 +265,31 @@ def joint_speed(p: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.gradient(p, axis=0), axis=-1)
 
 
-def ground_velocity(p_world: np.ndarray) -> np.ndarray:
-    """The ground's velocity (3,) (units per frame) in the frame of joints p_world (T, 24, 3), y up: the median
-    over the clip of the lower foot's velocity (the lower foot stands on the ground in most frames of walking
-    and running, so the median is the ground's: about zero for a still camera, the belt's or the pan's velocity
-    for a treadmill or a camera following the person)."""
+def ground_velocity(p_world: np.ndarray, tolerance: float) -> np.ndarray:
+    """The ground's velocity (3,) (units per frame) in the frame of joints p_world (T, 24, 3), y up.
+
+    The lower foot stands on the ground in most frames of walking, so the median over the clip of its velocity
+    is the ground's: the belt's or the pan's velocity for a treadmill or a camera following the person. It is
+    kept only when more frames' lower foot moves within ``tolerance`` (units per frame) of it than of a still
+    ground (a runner's flight phases, a jump, or a person moving through a still camera's view bias the
+    median); else zero."""
     feet = p_world[:, list(FOOT_JOINTS)]
     if feet.shape[0] < 3:
         return np.zeros(3)
     low = feet[np.arange(feet.shape[0]), np.argmin(feet[..., 1], axis=1)]
-    return np.median(np.gradient(low, axis=0), axis=0)
+    v = np.gradient(low, axis=0)
+    median = np.median(v, axis=0)
+    moving = (np.linalg.norm(v - median, axis=-1) < tolerance).sum()
+    still = (np.linalg.norm(v, axis=-1) < tolerance).sum()
+    return median if moving > still else np.zeros(3)
 
 
-def _ground(p_world: np.ndarray, cfg: CleanConfig) -> np.ndarray:
-    """:func:`ground_velocity` when ``cfg.ground_moves``, else zero (3,)."""
-    return ground_velocity(p_world) if cfg.ground_moves else np.zeros(3)
+def ground_of(p_world: np.ndarray, fps: float, cfg: CleanConfig, scale: float = 1.0) -> np.ndarray:
+    """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
+    SMPL space, the contact speed in character space (``scale`` times SMPL space)."""
+    if not cfg.ground_moves:
+        return np.zeros(3)
+    return ground_velocity(p_world, cfg.contact_speed_mps / fps / scale)
 
 
 def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig, ground: np.ndarray | None = None
@@ -539,7 +549,7 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
     smoothness = budgeted_smoothness(p_raw, cfg, scale)
     if cfg.foot_lock and T >= 3:
         smooth = smooth_trajectories(p_raw, weights, cfg.smoothness)  # contacts are found on the smooth paths
-        ground = _ground(smooth, cfg)
+        ground = ground_of(smooth, fps, cfg, scale)
         contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale)
         feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground)
         w_lock = cfg.lock_weight * lock
