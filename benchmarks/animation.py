@@ -13,15 +13,22 @@ estimator's world frame when it has one (WHAM, GVHMR ``smpl_params_global``, AIS
 * ``savgol``: Savitzky-Golay smoothing (window 9, order 2) + foot locking (a plain baseline);
 * ``one_euro``: zero-phase One-Euro smoothing + foot locking (a plain baseline).
 
-Fidelity budget: cleaning may move the joints at most :data:`FIDELITY_TOLERANCE_MM` from the estimate (MPJPE
-to the raw per-frame joints). Per joint and frame ``|clean - truth| <= |raw - truth| + |clean - raw|``, so
-the cleaned motion's error to the unknown true motion exceeds the estimate's by at most that MPJPE; 5 mm is
-10 % of 50 mm, below the MPJPE of every video estimator we read on 3DPW (WHAM, GVHMR, 4D-Humans: about
-55-80 mm), so within it cleaning cannot raise the fidelity error by more than 10 %.
+Fidelity budget: cleaning may move the pose at most :data:`FIDELITY_TOLERANCE_MM` from the estimate
+(pelvis-aligned MPJPE to the raw per-frame joints). Per joint and frame, pelvis-aligned,
+``|clean - truth| <= |raw - truth| + |clean - raw|``, so the cleaned motion's error to the unknown true
+motion exceeds the estimate's by at most that MPJPE; 5 mm is 10 % of 50 mm, below the MPJPE of every video
+estimator we read on 3DPW (WHAM, GVHMR, 4D-Humans: about 55-80 mm), so within it cleaning cannot raise the
+fidelity error by more than 10 %.
 
 Metrics (:mod:`workflows.motion_clean`): jitter = mean joint acceleration (mm/frame^2), skating = mean
-speed of the foot joints during contact (mm/frame; the contacts detected by the default pipeline, the
-same frames for every variant), fidelity = MPJPE (mm, 24 joints) to the raw per-frame joints. The default
+speed of the foot joints during contact, relative to the ground (mm/frame; the contacts and, in camera
+frames, the ground velocity found by the default pipeline, the same for every variant), pose fidelity =
+pelvis-aligned MPJPE (mm, 24 joints) to the raw per-frame joints (the MPJPE of HMR papers), and the
+trajectory change (mean pelvis distance, mm, the table's ``traj``) separately.
+
+Camera-space tracks of near-orthographic estimators (4D-Humans/PHALP) are placed at a realistic depth first,
+as ``scene animate`` does (:func:`workflows.animation.realistic_depth`); ``raw_source_depth`` is the estimate
+at the estimator's own depth, for the record, and ``raw`` the reference after that placement. The default
 pipeline is also run end to end (read, retarget, clean, keyframes, effector recovery on keyframes with
 the shipped model): keyframe count and frames per second (the table's ``fps``: end to end, reading
 included; the JSON also has the reading and the rest separately; the shipped model is loaded
@@ -243,9 +250,12 @@ def main() -> None:
             print(f"{r['file'][:52]:52s} {r['frames']:4d} {v:17s} {m['jitter_mm_per_frame2']:7.2f} "
                   f"{m['skating_mm_per_frame']:8.2f} {m['mpjpe_mm']:6.1f} {m['trajectory_mm']:6.1f}{extra}")
     checks = {v: all(r[v]["jitter_mm_per_frame2"] < r["raw"]["jitter_mm_per_frame2"]
-                     and r[v]["skating_mm_per_frame"] < r["raw"]["skating_mm_per_frame"] for r in rows)
+                     and (r[v]["skating_mm_per_frame"] < r["raw"]["skating_mm_per_frame"]
+                          or r["raw"]["contact_frames"] == 0) for r in rows)
               for v in VARIANTS}
-    print("lower jitter and skating than raw on every file:", checks)
+    no_contacts = [r["file"] for r in rows if r["raw"]["contact_frames"] == 0]
+    print("lower jitter on every file and lower skating on every file with contacts:", checks)
+    print("files where no foot contact was detected (skating not measured):", no_contacts or "none")
     within = {v: all(r[v]["mpjpe_mm"] <= FIDELITY_TOLERANCE_MM for r in rows) for v in VARIANTS}
     print(f"fidelity within {FIDELITY_TOLERANCE_MM} mm of the estimate on every file:", within)
     slowest = min((r["end_to_end_frames_per_s"] for r in rows), default=None)
@@ -274,6 +284,7 @@ def main() -> None:
     path = save("animation", {"data": str(args.data), "variants": {k: vars(v) for k, v in VARIANTS.items()},
                               "default": DEFAULT, "fidelity_tolerance_mm": FIDELITY_TOLERANCE_MM,
                               "tracks": rows, "lower_jitter_and_skating_everywhere": checks,
+                              "files_without_contacts": no_contacts,
                               "fidelity_within_tolerance_everywhere": within,
                               "slowest_end_to_end_frames_per_s": slowest,
                               "slowest_end_to_end_frames_per_cpu_s": slowest_cpu, "cmu": cmu,

@@ -82,6 +82,9 @@ def test_phalp_depth_is_placed_for_a_normal_camera_keeping_pixels_and_apparent_s
     assert track.repaired == ()
     assert 2.5 < np.median(-track.transl[:, 2]) < 5.0
     assert np.abs(np.diff(track.transl[:, 2])).mean() < 0.03  # was ~0.45 m per frame at the source depth
+    res = animate(path, "--out", tmp_path / "kept", "--fps", 30, "--max-effectors", 2, "--keep-depth", "--export", "")
+    assert res.exit_code == 0 and "near-orthographic" not in res.output, res.output
+    assert np.median(-load_animation(tmp_path / "kept" / "animation.json").tracks[0].transl[:, 2]) > 80
 
 
 def test_other_cameras_and_world_clips_keep_their_depth(tmp_path):
