@@ -13,15 +13,22 @@ estimator's world frame when it has one (WHAM, GVHMR ``smpl_params_global``, AIS
 * ``savgol``: Savitzky-Golay smoothing (window 9, order 2) + foot locking (a plain baseline);
 * ``one_euro``: zero-phase One-Euro smoothing + foot locking (a plain baseline).
 
-Fidelity budget: cleaning may move the joints at most :data:`FIDELITY_TOLERANCE_MM` from the estimate (MPJPE
-to the raw per-frame joints). Per joint and frame ``|clean - truth| <= |raw - truth| + |clean - raw|``, so
-the cleaned motion's error to the unknown true motion exceeds the estimate's by at most that MPJPE; 5 mm is
-10 % of 50 mm, below the MPJPE of every video estimator we read on 3DPW (WHAM, GVHMR, 4D-Humans: about
-55-80 mm), so within it cleaning cannot raise the fidelity error by more than 10 %.
+Fidelity budget: cleaning may move the pose at most :data:`FIDELITY_TOLERANCE_MM` from the estimate
+(pelvis-aligned MPJPE to the raw per-frame joints). Per joint and frame, pelvis-aligned,
+``|clean - truth| <= |raw - truth| + |clean - raw|``, so the cleaned motion's error to the unknown true
+motion exceeds the estimate's by at most that MPJPE; 5 mm is 10 % of 50 mm, below the MPJPE of every video
+estimator we read on 3DPW (WHAM, GVHMR, 4D-Humans: about 55-80 mm), so within it cleaning cannot raise the
+fidelity error by more than 10 %.
 
 Metrics (:mod:`workflows.motion_clean`): jitter = mean joint acceleration (mm/frame^2), skating = mean
-speed of the foot joints during contact (mm/frame; the contacts detected by the default pipeline, the
-same frames for every variant), fidelity = MPJPE (mm, 24 joints) to the raw per-frame joints. The default
+speed of the foot joints during contact, relative to the ground (mm/frame; the contacts and, in camera
+frames, the ground velocity found by the default pipeline, the same for every variant), pose fidelity =
+pelvis-aligned MPJPE (mm, 24 joints) to the raw per-frame joints (the MPJPE of HMR papers), and the
+trajectory change (mean pelvis distance, mm, the table's ``traj``) separately.
+
+Camera-space tracks of near-orthographic estimators (4D-Humans/PHALP) are placed at a realistic depth first,
+as ``scene animate`` does (:func:`workflows.animation.realistic_depth`); ``raw_source_depth`` is the estimate
+at the estimator's own depth, for the record, and ``raw`` the reference after that placement. The default
 pipeline is also run end to end (read, retarget, clean, keyframes, effector recovery on keyframes with
 the shipped model): keyframe count and frames per second (the table's ``fps``: end to end, reading
 included; the JSON also has the reading and the rest separately; the shipped model is loaded
@@ -44,6 +51,7 @@ Prints tables and writes ``benchmarks/results/animation.json``; without data it 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -56,8 +64,15 @@ sys.path.insert(0, str(ROOT))
 from _common import save  # noqa: E402
 
 from smplik.paths import real_estimators_dir  # noqa: E402
-from workflows.animation import AnimateConfig, animation_from_clip, clean_track, read_clip  # noqa: E402
-from workflows.motion_clean import CleanConfig, motion_metrics  # noqa: E402
+from workflows.animation import (  # noqa: E402
+    AnimateConfig,
+    animation_from_clip,
+    camera_clean,
+    clean_track,
+    read_clip,
+    realistic_depth,
+)
+from workflows.motion_clean import CleanConfig, ground_of, motion_metrics  # noqa: E402
 from workflows.pipeline import retarget_to_body  # noqa: E402
 
 ASSUMED_FPS = {"gvhmr": 30.0, "wham": 30.0, "phalp": 30.0}
@@ -76,6 +91,9 @@ def find_files(folder: Path) -> list[Path]:
 def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
     start, cpu_start = time.perf_counter(), time.process_time()
     clip = read_clip(path, space="world", solver=solver)
+    source_clip = clip
+    camera = next(iter(clip.tracks.values()))[0][1].camera if clip.space == "camera" else None
+    clip, _, depth = realistic_depth(clip, camera, AnimateConfig().camera_fov_deg)
     read_s, read_cpu = time.perf_counter() - start, time.process_time() - cpu_start
     frames_read = sum(len(v) for v in clip.tracks.values())
     fps = clip.fps or ASSUMED_FPS.get(clip.format, 30.0)
@@ -88,15 +106,23 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
         people = [p for _, p in entries]
         body = (np.mean([p.betas for p in people], axis=0), people[0].gender, 1.0)
         poses = [retarget_to_body(p, *body) for p in people]
-        default = clean_track(poses, fps, CleanConfig(), 1.0)
+        default = clean_track(poses, fps, camera_clean(CleanConfig(), clip.space), 1.0)
         raw_joints, contacts = default[3], default[2]
+        default_cfg = camera_clean(CleanConfig(), clip.space)
+        ground = ground_of(default[4], fps, default_cfg)  # skating relative to the ground (camera frames)
         repaired = int(default[5].sum())
         result = {"file": str(path.relative_to(path.parents[1])), "format": clip.format, "space": clip.space,
                   "track": tid, "frames": len(poses), "fps": fps, "repaired_glitches": repaired}
-        result["raw"] = motion_metrics(raw_joints, raw_joints, contacts).to_dict()
+        if depth is not None:  # the estimate at the estimator's own (near-orthographic) depth, for the record
+            result["depth_change"] = dataclasses.asdict(depth)
+            source = [retarget_to_body(p, *body) for _, p in source_clip.tracks[tid][:max_frames]]
+            source_raw = clean_track(source, fps, CleanConfig(), 1.0)[3]
+            result["raw_source_depth"] = motion_metrics(source_raw, source_raw, contacts,
+                                                        ground_of(source_raw, fps, default_cfg)).to_dict()
+        result["raw"] = motion_metrics(raw_joints, raw_joints, contacts, ground).to_dict()
         for name, cfg in VARIANTS.items():
-            joints = default[4] if name == DEFAULT else clean_track(poses, fps, cfg, 1.0)[4]
-            result[name] = motion_metrics(joints, raw_joints, contacts).to_dict()
+            joints = default[4] if name == DEFAULT else clean_track(poses, fps, camera_clean(cfg, clip.space), 1.0)[4]
+            result[name] = motion_metrics(joints, raw_joints, contacts, ground).to_dict()
         # the whole pipeline on this track: keyframes and throughput
         sub = dataclass_clip(clip, tid, entries)
         start, cpu_start = time.perf_counter(), time.process_time()
@@ -115,8 +141,6 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
 
 
 def dataclass_clip(clip, tid, entries):
-    import dataclasses
-
     return dataclasses.replace(clip, tracks={tid: entries})
 
 
@@ -209,20 +233,29 @@ def main() -> None:
     rows: list[dict] = []
     for path in find_files(args.data):
         rows += bench_file(path, solver, args.max_frames)
-    head = (f"{'file':52s} {'T':>4s} {'variant':17s} {'jitter':>7s} {'skating':>8s} {'MPJPE':>6s}")
+    head = (f"{'file':52s} {'T':>4s} {'variant':17s} {'jitter':>7s} {'skating':>8s} {'MPJPE':>6s} {'traj':>6s}")
     print(head + f" {'keys':>5s} {'fps':>6s} {'cpu fps':>7s} {'glitches':>8s}")
     for r in rows:
-        for v in ("raw", *VARIANTS):
+        if "depth_change" in r:
+            d = r["depth_change"]
+            print(f"{r['file'][:52]:52s} depth x{d['factor']:.4f} ({d['fov_from_deg']:.1f} -> {d['fov_to_deg']:g} deg "
+                  f"camera): median {d['depth_from_m']:.1f} m -> {d['depth_to_m']:.2f} m")
+        for v in ("raw_source_depth", "raw", *VARIANTS):
+            if v not in r:
+                continue
             m = r[v]
             extra = (f" {r['keyframes']:5d} {r['end_to_end_frames_per_s']:6.1f} {r['end_to_end_frames_per_cpu_s']:7.1f}"
                      f" {r['repaired_glitches']:8d}"
                      if v == DEFAULT else "")
             print(f"{r['file'][:52]:52s} {r['frames']:4d} {v:17s} {m['jitter_mm_per_frame2']:7.2f} "
-                  f"{m['skating_mm_per_frame']:8.2f} {m['mpjpe_mm']:6.1f}{extra}")
+                  f"{m['skating_mm_per_frame']:8.2f} {m['mpjpe_mm']:6.1f} {m['trajectory_mm']:6.1f}{extra}")
     checks = {v: all(r[v]["jitter_mm_per_frame2"] < r["raw"]["jitter_mm_per_frame2"]
-                     and r[v]["skating_mm_per_frame"] < r["raw"]["skating_mm_per_frame"] for r in rows)
+                     and (r[v]["skating_mm_per_frame"] < r["raw"]["skating_mm_per_frame"]
+                          or r["raw"]["contact_frames"] == 0) for r in rows)
               for v in VARIANTS}
-    print("lower jitter and skating than raw on every file:", checks)
+    no_contacts = [r["file"] for r in rows if r["raw"]["contact_frames"] == 0]
+    print("lower jitter on every file and lower skating on every file with contacts:", checks)
+    print("files where no foot contact was detected (skating not measured):", no_contacts or "none")
     within = {v: all(r[v]["mpjpe_mm"] <= FIDELITY_TOLERANCE_MM for r in rows) for v in VARIANTS}
     print(f"fidelity within {FIDELITY_TOLERANCE_MM} mm of the estimate on every file:", within)
     slowest = min((r["end_to_end_frames_per_s"] for r in rows), default=None)
@@ -251,6 +284,7 @@ def main() -> None:
     path = save("animation", {"data": str(args.data), "variants": {k: vars(v) for k, v in VARIANTS.items()},
                               "default": DEFAULT, "fidelity_tolerance_mm": FIDELITY_TOLERANCE_MM,
                               "tracks": rows, "lower_jitter_and_skating_everywhere": checks,
+                              "files_without_contacts": no_contacts,
                               "fidelity_within_tolerance_everywhere": within,
                               "slowest_end_to_end_frames_per_s": slowest,
                               "slowest_end_to_end_frames_per_cpu_s": slowest_cpu, "cmu": cmu,

@@ -43,6 +43,7 @@ from workflows.motion_clean import (
     CleanConfig,
     foot_contacts,
     glitch_frames,
+    ground_of,
     lock_feet,
     sequence_clean,
     smooth_motion,
@@ -52,6 +53,13 @@ from workflows.scene import SkeletonSource
 
 MAX_FRAMES = 100_000
 """Most frames read from one file by default (55 minutes at 30 frames/s; ``max_frames`` raises it)."""
+NORMAL_FOV_DEG = 60.0
+"""Field of view (degrees, over the larger image side) of the realistic camera a near-orthographic track is
+placed for (:func:`realistic_depth`); a phone or action camera's video is about 55-75 degrees wide."""
+NEAR_ORTHOGRAPHIC_FOV_DEG = 20.0
+"""Cameras narrower than this (degrees) are treated as near-orthographic: 4D-Humans/PHALP (focal
+5000/256 * max(W, H): 2.9 degrees) and HMR2-style crops. ROMP/BEV, VIBE (60), WHAM (the image diagonal), HybrIK
+(1000/256 of the box width), TRAM (calibrated) and the world-trajectory formats are not touched."""
 KNOWN_FPS = {"aist": 60.0}
 """Frame rates fixed by a format (AIST++ motions are 60 frames/s); AMASS files store theirs."""
 
@@ -72,11 +80,19 @@ class AnimateConfig:
     """Also split any keyframe interval longer than this many frames (0: no limit)."""
     recovery: RecoveryConfig = field(default_factory=lambda: RecoveryConfig(max_effectors=6, threshold=0.03))
     """Effector recovery on keyframes."""
+    camera_fov_deg: float | None = NORMAL_FOV_DEG
+    """Camera-space tracks from a near-orthographic camera (field of view below :data:`NEAR_ORTHOGRAPHIC_FOV_DEG`,
+    e.g. 4D-Humans/PHALP): place the body as a camera of this field of view (over the larger image side) sees it
+    at the same pixel with the same apparent size (:func:`realistic_depth`); None keeps the estimator's depth."""
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.keyframe_threshold_m) and self.keyframe_threshold_m > 0):
             raise AnimationError(f"keyframe threshold must be a positive number of metres, got "
                                  f"{self.keyframe_threshold_m}.")
+        if self.camera_fov_deg is not None and not (np.isfinite(self.camera_fov_deg)
+                                                    and NEAR_ORTHOGRAPHIC_FOV_DEG <= self.camera_fov_deg < 170):
+            raise AnimationError(f"camera field of view must be in [{NEAR_ORTHOGRAPHIC_FOV_DEG:g}, 170) degrees, got "
+                                 f"{self.camera_fov_deg}.")
         if self.max_keyframe_gap < 0:
             raise AnimationError(f"max keyframe gap must be >= 0, got {self.max_keyframe_gap}.")
 
@@ -145,6 +161,9 @@ class Animation:
     space: str = "camera"
     camera: CameraInfo | None = None
     clean: CleanConfig | None = None
+    depth_change: DepthChange | None = field(default=None, compare=False)
+    """How the reading placed a near-orthographic camera's track at a realistic depth (:func:`realistic_depth`;
+    not stored in the animation file, whose camera is already the realistic one)."""
 
 
 # ----------------------------------------------------------------------------- reading a clip
@@ -307,6 +326,78 @@ def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: 
                              f"{first}..{last} (missing frames; choose --frames around them).")
 
 
+def camera_fov(camera: CameraInfo | None) -> float | None:
+    """A camera's field of view (degrees) over its image's larger side, None when unknown."""
+    if camera is None:
+        return None
+    if camera.focal_px is None:
+        return camera.default_fov_deg if camera.focal_rule == "fov" else None
+    if camera.image_size is None:
+        return None
+    return float(np.degrees(2.0 * np.arctan(max(camera.image_size) / 2.0 / camera.focal_px)))
+
+
+@dataclass(frozen=True)
+class DepthChange:
+    """How :func:`realistic_depth` moved a camera-space clip: ``factor`` times every pelvis's depth (x and y
+    kept), from a ``fov_from_deg`` camera to a ``fov_to_deg`` one (focal lengths in pixels; median depths, m)."""
+
+    factor: float
+    fov_from_deg: float
+    fov_to_deg: float
+    focal_from_px: float
+    focal_to_px: float
+    depth_from_m: float
+    depth_to_m: float
+
+    def describe(self) -> str:
+        """One line for the user."""
+        return (f"depth: the estimator's camera is near-orthographic ({self.fov_from_deg:.1f} deg field of view, "
+                f"focal {self.focal_from_px:.0f} px), so the body is placed for a {self.fov_to_deg:g} deg camera "
+                f"(focal {self.focal_to_px:.0f} px; same pixels, same apparent size): median depth "
+                f"{self.depth_from_m:.1f} m -> {self.depth_to_m:.2f} m (x{self.factor:.4f}, depth noise too)")
+
+
+def realistic_depth(clip: Clip, camera: CameraInfo | None, fov_deg: float | None = NORMAL_FOV_DEG
+                    ) -> tuple[Clip, CameraInfo | None, DepthChange | None]:
+    """A camera-space clip from a near-orthographic camera, placed for a camera of a normal field of view.
+
+    A pinhole camera of focal f sees a point (x, y, z) at pixel (f x / z, f y / z) + principal point, and a body
+    of height h at depth z with apparent height f h / z. Scaling every pelvis's depth z by k = f' / f and
+    keeping its x and y keeps both for the camera of focal f' (f' x / (k z) = f x / z): the same pixel position
+    and apparent size, the depth (and its frame-to-frame noise, which a near-orthographic camera leaves almost
+    unconstrained) k times smaller. Local rotations, and hence the pose, are unchanged.
+
+    Returns the clip (unchanged when it is in a world frame, when ``fov_deg`` is None, or when its camera is
+    not narrower than :data:`NEAR_ORTHOGRAPHIC_FOV_DEG` or unknown), its camera (the new focal length) and the
+    change made (None when nothing changed).
+    """
+    fov_from = camera_fov(camera)
+    if (clip.space != "camera" or fov_deg is None or camera is None or camera.focal_px is None
+            or camera.image_size is None or fov_from is None or fov_from >= NEAR_ORTHOGRAPHIC_FOV_DEG):
+        return clip, camera, None
+    from workflows.estimators.base import rest_pelvis
+
+    focal_to = max(camera.image_size) / 2.0 / np.tan(np.radians(fov_deg) / 2.0)
+    k = float(focal_to / camera.focal_px)
+    tracks, depths = {}, []
+    for tid, rows in clip.tracks.items():
+        people = [p for _, p in rows]
+        pelvis = np.stack([p.transl for p in people])  # + J0(betas): (T, 3) camera frame (y up, -z forward)
+        for gender in {p.gender for p in people}:
+            rows_g = [i for i, p in enumerate(people) if p.gender == gender]
+            pelvis[rows_g] += rest_pelvis(np.stack([people[i].betas for i in rows_g]), gender)
+        moved = pelvis * [1.0, 1.0, k]
+        depths.append(-pelvis[:, 2])
+        new_camera = None if people[0].camera is None else dataclasses.replace(people[0].camera, focal_px=focal_to)
+        tracks[tid] = [(f, dataclasses.replace(p, transl=p.transl + moved[i] - pelvis[i],
+                                               camera=new_camera if p.camera is not None else None))
+                       for i, (f, p) in enumerate(rows)]
+    median = float(np.median(np.concatenate(depths)))
+    change = DepthChange(k, fov_from, float(fov_deg), float(camera.focal_px), float(focal_to), median, k * median)
+    return dataclasses.replace(clip, tracks=tracks), dataclasses.replace(camera, focal_px=focal_to), change
+
+
 # ----------------------------------------------------------------------------- motion math
 
 
@@ -387,6 +478,12 @@ class TrackMotion:
     contacts: np.ndarray
 
 
+def camera_clean(cfg: CleanConfig, space: str) -> CleanConfig:
+    """The cleaning of a clip in ``space``: in a camera frame the ground may move through the frame (a camera
+    following the person, a treadmill), so contacts and locks follow it (``ground_moves``)."""
+    return dataclasses.replace(cfg, ground_moves=True) if space == "camera" else cfg
+
+
 def repair_frames(R_parent_joint: np.ndarray, transl: np.ndarray, bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Replace the rows flagged in ``bad`` (T,) by interpolating the nearest good rows on either side
     (slerp / lerp; at an end, the nearest good row). R (T, 24, 3, 3), transl (T, 3)."""
@@ -428,9 +525,11 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         return R_s, t_s, contacts, raw, joints_of(R_s, t_s, J_rest) * scale, glitches
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)
-    contacts = foot_contacts(p_s * scale, fps, cfg) if cfg.foot_lock else np.zeros((len(poses), 2), dtype=bool)
+    ground = ground_of(p_s, fps, cfg, scale)
+    contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale) if cfg.foot_lock
+                else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames)
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground)
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
 
@@ -460,6 +559,10 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         ids = [i for i in ids if clip.tracks[i]]
     for i in ids:
         check_track(i, clip.tracks[i], frames, clip.source)
+    if camera is None and clip.space == "camera":
+        camera = next(iter(clip.tracks.values()))[0][1].camera
+    clip, camera, depth_change = realistic_depth(clip, camera, config.camera_fov_deg)
+    clean_cfg = camera_clean(config.clean, clip.space)
     tracks, motions, targets, scales, owners = [], [], [], [], []
     for n, tid in enumerate(ids):
         rows = clip.tracks[tid]
@@ -469,7 +572,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         else:
             body = (np.asarray(character.betas, dtype=np.float64), character.gender, float(character.scale))
         poses = [retarget_to_body(p, *body) for p in people]
-        R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, config.clean, body[2])
+        R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, clean_cfg, body[2])
         J_rest = rest_joints(body[0], body[1])
         keys = select_keyframes(R, transl, J_rest, config.keyframe_threshold_m, scale=body[2],
                                 max_gap=config.max_keyframe_gap)
@@ -492,7 +595,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         keyframes.setdefault(n, []).append(Keyframe(tracks[n].first_frame + k, rec.effectors, rec.final_error))
     tracks = [dataclasses.replace(t, keyframes=tuple(keyframes.get(n, ()))) for n, t in enumerate(tracks)]
     return Animation(tuple(tracks), float(rate), clip.source, clip.format, clip.space,
-                     camera if clip.space == "camera" else None, config.clean), motions
+                     camera if clip.space == "camera" else None, clean_cfg, depth_change), motions
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,12 @@ def animate_cmd(
         "--smoothing", help="sequence (a sequence solve, the default), one_euro, savgol or none.")] = "sequence",
     smoothness: Annotated[float, typer.Option("--smoothness", help="sequence cleaning: weight of the joints' "
                                               "acceleration; higher smooths more.")] = 2.0,
+    pose_budget: Annotated[float, typer.Option("--pose-budget", help="sequence cleaning: most the smoothing may "
+                                               "move the pose from the estimate (pelvis-aligned MPJPE, mm); "
+                                               "0: no cap.")] = 5.0,
+    keep_depth: Annotated[bool, typer.Option("--keep-depth", help="Camera-space tracks of near-orthographic "
+                                             "estimators (4D-Humans/PHALP): keep their depth instead of placing "
+                                             "the body for a 60-degree camera.")] = False,
     foot_lock: Annotated[bool, typer.Option("--foot-lock/--no-foot-lock", help="Lock feet in contact.")] = True,
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
                                                       "interpolation errs more than this (m).")] = 0.03,
@@ -79,8 +85,9 @@ def animate_cmd(
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
-                                           foot_lock=foot_lock),
+                                           foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
                                keyframe_threshold_m=keyframe_threshold,
+                               camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
         task = bar.add_task("reading", total=None)
 
@@ -100,6 +107,8 @@ def animate_cmd(
             bar.update(task, description="preview")
             images = preview_frames(anim, video=video, every=preview_every)
             files.append(save_preview(images, preview, anim.fps / preview_every))
+    if anim.depth_change is not None:
+        say(anim.depth_change.describe())
     for t in anim.tracks:
         contacts = 0 if t.contacts is None else int(t.contacts.sum())
         say(f"{t.name}: frames {t.first_frame}..{t.first_frame + t.num_frames - 1} at {anim.fps:g} frames/s "

@@ -16,8 +16,9 @@ first, made sign-continuous over time, renormalised after filtering) and the roo
 * ``"savgol"``: a plain Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`), the baseline.
 
 Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
-foot) touches the floor where it is low (within ``height_m`` of the clip's floor, a low percentile
-of the feet's heights; world y is up) **and** slow (below ``speed_mps``); runs shorter than
+foot) touches the floor where it is low (within ``height_m`` of the clip's floor, :func:`floor_plane`: a
+plane fitted under the standing feet, level by default, tilted where the feet show it, e.g. a camera's
+pitch in camera space; y is up) **and** slow (below ``speed_mps``); runs shorter than
 ``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the foot to its mean position over
 each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
 (:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
@@ -29,7 +30,8 @@ neighbours.
 
 Metrics (:func:`motion_metrics`), on joint positions ``(T, 24, 3)`` in metres: jitter = mean joint
 acceleration ``|p[t+1] - 2 p[t] + p[t-1]|`` (mm/frame^2); skating = mean speed of the foot joints
-during contact (mm/frame); fidelity = MPJPE to reference joints (mm).
+during contact (mm/frame); pose fidelity = MPJPE to reference joints with both pelvises at the origin (mm, as
+HMR papers report MPJPE); trajectory change = mean pelvis distance (mm), reported separately.
 """
 
 from __future__ import annotations
@@ -66,6 +68,10 @@ class CleanConfig:
     smoothness: float = 2.0
     """Sequence: weight of the joints' squared acceleration (m/frame^2) against their squared offset (m) from
     the estimate (:class:`smplik.sequence.SequenceConfig`); higher smooths more."""
+    pose_budget_mm: float | None = 5.0
+    """Sequence: most the smoothing may move the pose from the estimate (pelvis-aligned MPJPE of the smoothed
+    joint paths, character space, mm): ``smoothness`` is halved until it does not (:func:`budgeted_smoothness`),
+    so a noisy estimator (4D-Humans/PHALP) is smoothed less than its noise alone would ask. None: no cap."""
     lock_weight: float = 1000.0
     """Sequence: weight of a locked foot's position against the estimate's (1)."""
     min_cutoff_hz: float = 3.0
@@ -88,6 +94,11 @@ class CleanConfig:
     """Contact runs shorter than this are dropped."""
     blend_frames: int = 3
     """Frames over which a lock is blended in before and out after a contact run."""
+    ground_moves: bool = False
+    """The ground may move through the frame at a constant velocity (a camera-space clip: a camera panning with
+    the person, a treadmill): contacts are feet slow *relative to the ground* and locks move with it
+    (:func:`ground_velocity`). Off for world-frame motion, whose ground is still; ``scene animate`` turns it on
+    for camera-space clips."""
     repair_glitches: bool = True
     """Detect single-frame glitches (:func:`glitch_frames`) and replace them by interpolation before smoothing."""
     glitch_min_m: float = 0.1
@@ -103,6 +114,8 @@ class CleanConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
+        if self.pose_budget_mm is not None and not (np.isfinite(self.pose_budget_mm) and self.pose_budget_mm > 0):
+            raise CleanError(f"pose_budget_mm must be a positive number or None, got {self.pose_budget_mm}.")
         if not (np.isfinite(self.beta) and self.beta >= 0):
             raise CleanError(f"beta must be >= 0, got {self.beta}.")
         if self.savgol_window < 3 or self.savgol_window % 2 == 0 or self.savgol_order >= self.savgol_window:
@@ -209,9 +222,40 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
 
 
-def floor_height(p_world: np.ndarray) -> float:
-    """The floor's y (metres): the 5th percentile of the foot joints' heights over the clip. p_world (T, 24, 3)."""
-    return float(np.percentile(p_world[:, list(FOOT_JOINTS), 1], 5.0))
+FLOOR_TILT_PRIOR = 0.005
+"""Ridge weight (m^2 per foot sample) pulling the floor's slope towards level (y up: the world's or the camera's
+up): the fitted slope shrinks by s^2 / (s^2 + prior), s the standing feet's horizontal spread (std, m), so a
+clip whose standing feet stay within a few centimetres keeps a level floor."""
+
+
+def floor_plane(p_world: np.ndarray, prior: float = FLOOR_TILT_PRIOR) -> np.ndarray:
+    """The floor under a clip's feet: ``(a, b, c)`` of ``y = a x + b z + c`` (metres, y up). p_world (T, 24, 3).
+
+    The lower foot of every frame stands on the floor (walking, running; in camera space too, where the floor
+    is tilted by the camera's pitch and roll): a plane is fitted to those points by least squares, its slope
+    pulled towards level (``prior``, the world's or camera's up as the prior), to the points less than 5 cm
+    above their median (airborne frames dropped), four times, "lower" measured from the previous fit. ``c``
+    is the 5th percentile of the foot joints' heights above the sloped plane, as the level floor's height is.
+    """
+    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    slope = np.zeros(2)
+    for _ in range(4):  # the lower foot above the current plane (a tilted floor changes which foot is lower)
+        heights = feet[..., 1] - feet[..., [0, 2]] @ slope
+        low = feet[np.arange(feet.shape[0]), np.argmin(heights, axis=1)]  # (T, 3)
+        resid = low[:, 1] - low[:, [0, 2]] @ slope
+        keep = resid < np.median(resid) + 0.05  # the lower foot stands in most frames: drop airborne ones
+        xz = low[keep][:, [0, 2]]
+        centred = xz - xz.mean(0)
+        y = low[keep, 1] - low[keep, 1].mean()
+        n = max(int(keep.sum()), 1)
+        slope = np.linalg.solve(centred.T @ centred + prior * n * np.eye(2), centred.T @ y)
+    heights = feet[..., 1] - feet[..., [0, 2]] @ slope
+    return np.array([slope[0], slope[1], float(np.percentile(heights, 5.0))])
+
+
+def height_above_floor(p: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Vertical height (m) above ``plane`` = (a, b, c) of ``y = a x + b z + c`` of points p (..., 3) -> (...)."""
+    return p[..., 1] - plane[0] * p[..., 0] - plane[1] * p[..., 2] - plane[2]
 
 
 def joint_speed(p: np.ndarray) -> np.ndarray:
@@ -221,11 +265,41 @@ def joint_speed(p: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.gradient(p, axis=0), axis=-1)
 
 
-def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig) -> np.ndarray:
-    """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up."""
+def ground_velocity(p_world: np.ndarray, tolerance: float) -> np.ndarray:
+    """The ground's velocity (3,) (units per frame) in the frame of joints p_world (T, 24, 3), y up.
+
+    The lower foot stands on the ground in most frames of walking, so the median over the clip of its velocity
+    is the ground's: the belt's or the pan's velocity for a treadmill or a camera following the person. It is
+    kept only when more frames' lower foot moves within ``tolerance`` (units per frame) of it than of a still
+    ground (a runner's flight phases, a jump, or a person moving through a still camera's view bias the
+    median); else zero."""
+    feet = p_world[:, list(FOOT_JOINTS)]
+    if feet.shape[0] < 3:
+        return np.zeros(3)
+    low = feet[np.arange(feet.shape[0]), np.argmin(feet[..., 1], axis=1)]
+    v = np.gradient(low, axis=0)
+    median = np.median(v, axis=0)
+    moving = (np.linalg.norm(v - median, axis=-1) < tolerance).sum()
+    still = (np.linalg.norm(v, axis=-1) < tolerance).sum()
+    return median if moving > still else np.zeros(3)
+
+
+def ground_of(p_world: np.ndarray, fps: float, cfg: CleanConfig, scale: float = 1.0) -> np.ndarray:
+    """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
+    SMPL space, the contact speed in character space (``scale`` times SMPL space)."""
+    if not cfg.ground_moves:
+        return np.zeros(3)
+    return ground_velocity(p_world, cfg.contact_speed_mps / fps / scale)
+
+
+def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig, ground: np.ndarray | None = None
+                  ) -> np.ndarray:
+    """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up: feet low
+    above the floor and slow relative to the ground moving at ``ground`` (3,) m/frame (default: still)."""
     feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
-    low = feet[..., 1] - floor_height(p_world) < cfg.contact_height_m
-    slow = joint_speed(feet) * fps < cfg.contact_speed_mps
+    g = np.zeros(3) if ground is None else np.asarray(ground)
+    low = height_above_floor(feet, floor_plane(p_world)) < cfg.contact_height_m
+    slow = joint_speed(feet - g * np.arange(feet.shape[0])[:, None, None]) * fps < cfg.contact_speed_mps
     contact = low & slow
     for side in range(2):
         for s, e in _runs(contact[:, side]):
@@ -314,31 +388,26 @@ def lock_weights(contact: np.ndarray, blend_frames: int) -> list[tuple[np.ndarra
     return out
 
 
-def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3
-              ) -> np.ndarray:
-    """Pin each foot joint to its mean position over each contact run by two-bone leg IK.
+def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3,
+              ground: np.ndarray | None = None) -> np.ndarray:
+    """Pin each foot joint to its lock (:func:`lock_targets`) over each contact run by two-bone leg IK.
 
     Args:
         R_parent_joint: (T, 24, 3, 3) local rotations; p_world: (T, 24, 3) their joint positions;
-        contact: (T, 2) bool (left, right) from :func:`foot_contacts`.
+        contact: (T, 2) bool (left, right) from :func:`foot_contacts`; ground: (3,) the ground's velocity
+        (units per frame; default still).
 
     Returns: new local rotations (T, 24, 3, 3); only the hips, knees and ankles of locked legs change
     (the ankles keep their world rotations).
     """
     R_out = R_parent_joint.copy()
     G = local_to_world(R_parent_joint)
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground)
     for side, ((hip, knee, ankle), foot) in enumerate(zip(LEG_CHAINS, FOOT_JOINTS, strict=True)):
-        weight = np.zeros(p_world.shape[0])
-        foot_target = p_world[:, foot].copy()
-        for w, s, e in lock_weights(contact[:, side], blend_frames):
-            lock = p_world[s:e, foot].mean(0)
-            take = w > weight
-            foot_target[take] = (1.0 - w[take, None]) * p_world[take, foot] + w[take, None] * lock
-            weight = np.maximum(weight, w)
-        rows = np.nonzero(weight > 0)[0]
+        rows = np.nonzero(weights[:, side] > 0)[0]
         if rows.size == 0:
             continue
-        ankle_target = foot_target[rows] - (p_world[rows, foot] - p_world[rows, ankle])
+        ankle_target = targets[rows, side] - (p_world[rows, foot] - p_world[rows, ankle])
         R_a, R_b = two_bone_ik(p_world[rows, hip], p_world[rows, knee], p_world[rows, ankle], ankle_target,
                                -G[rows, knee, :, 0])
         G_hip = R_a @ G[rows, hip]
@@ -361,13 +430,17 @@ class MotionMetrics:
     skating_mm: float
     """Mean speed of the foot joints during contact, mm/frame (0 without contacts)."""
     mpjpe_mm: float
-    """Mean per-joint position error to the reference, mm."""
+    """Pose fidelity: mean per-joint position error to the reference with both pelvises at the origin (the MPJPE
+    of HMR papers), mm."""
     contact_frames: int
     """Foot-frames in contact (both feet counted)."""
+    trajectory_mm: float = 0.0
+    """Trajectory change: mean distance between the pelvises, mm."""
 
     def to_dict(self) -> dict[str, float]:
         return {"jitter_mm_per_frame2": round(self.jitter_mm, 3), "skating_mm_per_frame": round(self.skating_mm, 3),
-                "mpjpe_mm": round(self.mpjpe_mm, 3), "contact_frames": int(self.contact_frames)}
+                "mpjpe_mm": round(self.mpjpe_mm, 3), "trajectory_mm": round(self.trajectory_mm, 3),
+                "contact_frames": int(self.contact_frames)}
 
 
 def jitter(p: np.ndarray) -> float:
@@ -377,38 +450,73 @@ def jitter(p: np.ndarray) -> float:
     return float(np.linalg.norm(p[2:] - 2.0 * p[1:-1] + p[:-2], axis=-1).mean())
 
 
-def foot_skating(p: np.ndarray, contact: np.ndarray) -> float:
-    """Mean speed (units/frame) of the foot joints over their contact frames. p (T, 24, 3), contact (T, 2)."""
-    speed = joint_speed(p[:, list(FOOT_JOINTS)])
+def foot_skating(p: np.ndarray, contact: np.ndarray, ground: np.ndarray | None = None) -> float:
+    """Mean speed (units/frame) of the foot joints over their contact frames, relative to the ground moving at
+    ``ground`` (3,) units/frame (default still). p (T, 24, 3), contact (T, 2)."""
+    g = np.zeros(3) if ground is None else np.asarray(ground)
+    speed = joint_speed(p[:, list(FOOT_JOINTS)] - g * np.arange(p.shape[0])[:, None, None])
     return float(speed[contact].mean()) if contact.any() else 0.0
 
 
-def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray) -> MotionMetrics:
-    """Jitter, skating (on ``contact``) and MPJPE to ``reference`` of joints p (T, 24, 3) in metres."""
-    mpjpe = float(np.linalg.norm(p - reference, axis=-1).mean())
-    return MotionMetrics(1000 * jitter(p), 1000 * foot_skating(p, contact), 1000 * mpjpe, int(contact.sum()))
+def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray, ground: np.ndarray | None = None
+                   ) -> MotionMetrics:
+    """Jitter, skating (on ``contact``), pelvis-aligned MPJPE and trajectory change (pelvis distance) to
+    ``reference`` of joints p (T, 24, 3) in metres."""
+    aligned = (p - p[:, :1]) - (reference - reference[:, :1])
+    mpjpe = float(np.linalg.norm(aligned, axis=-1).mean())
+    trajectory = float(np.linalg.norm(p[:, 0] - reference[:, 0], axis=-1).mean())
+    return MotionMetrics(1000 * jitter(p), 1000 * foot_skating(p, contact, ground), 1000 * mpjpe, int(contact.sum()),
+                         1000 * trajectory)
 
 
 # ----------------------------------------------------------------------------- sequence cleaning
 
 
-def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int) -> tuple[np.ndarray, np.ndarray]:
+def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs.
 
-    Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right).
+    Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right), ground (3,) the ground's
+    velocity (units per frame; default still).
 
-    Returns: foot targets (T, 2, 3) (the run's mean foot position, blended in and out over ``blend_frames``
-    like :func:`lock_feet`; the foot itself elsewhere) and weights (T, 2).
+    Returns: foot targets (T, 2, 3) (the run's mean foot position relative to the ground, moving with the
+    ground, blended in and out over ``blend_frames``; the foot itself elsewhere) and weights (T, 2).
     """
     targets = p_world[:, list(FOOT_JOINTS)].copy()
     weights = np.zeros(contact.shape)
+    drift = (np.zeros(3) if ground is None else np.asarray(ground)) * np.arange(p_world.shape[0])[:, None]
     for side, foot in enumerate(FOOT_JOINTS):
         for w, s, e in lock_weights(contact[:, side], blend_frames):
-            lock = p_world[s:e, foot].mean(0)
+            lock = (p_world[s:e, foot] - drift[s:e]).mean(0) + drift  # (T, 3)
             take = w > weights[:, side]
-            targets[take, side] = (1.0 - w[take, None]) * p_world[take, foot] + w[take, None] * lock
+            targets[take, side] = (1.0 - w[take, None]) * p_world[take, foot] + w[take, None] * lock[take]
             weights[:, side] = np.maximum(weights[:, side], w)
     return targets, weights
+
+
+BUDGET_MARGIN = 0.85
+"""Share of ``pose_budget_mm`` the smoothed paths may use; the body fit and the foot locks use the rest."""
+
+
+def budgeted_smoothness(p_raw: np.ndarray, cfg: CleanConfig, scale: float = 1.0) -> float:
+    """The sequence smoothness for joints p_raw (T, 24, 3) (SMPL space): ``cfg.smoothness``, halved until the
+    smoothed paths (:func:`smplik.sequence.smooth_trajectories`) move the pose, pelvis-aligned MPJPE times
+    ``scale``, at most :data:`BUDGET_MARGIN` times ``cfg.pose_budget_mm``; 0 (no smoothing) when even
+    1/1000 of it does not fit."""
+    from smplik.sequence import smooth_trajectories
+
+    if cfg.pose_budget_mm is None or p_raw.shape[0] < 3:
+        return cfg.smoothness
+    limit = BUDGET_MARGIN * cfg.pose_budget_mm / 1000.0
+    rel_raw = p_raw - p_raw[:, :1]
+    ones = np.ones(p_raw.shape[:2])
+    smoothness = cfg.smoothness
+    while smoothness >= cfg.smoothness / 1000.0:
+        z = smooth_trajectories(p_raw, ones, smoothness)
+        if scale * np.linalg.norm(z - z[:, :1] - rel_raw, axis=-1).mean() <= limit:
+            return smoothness
+        smoothness /= 2.0
+    return 0.0
 
 
 def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, fps: float, cfg: CleanConfig,
@@ -438,19 +546,21 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
     weights = np.ones(p_raw.shape[:2])
     targets = p_raw.copy()
     contacts = np.zeros((T, 2), dtype=bool)
+    smoothness = budgeted_smoothness(p_raw, cfg, scale)
     if cfg.foot_lock and T >= 3:
-        smooth = smooth_trajectories(p_raw, weights, cfg.smoothness)
-        contacts = foot_contacts(smooth * scale, fps, cfg)
-        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames)
+        smooth = smooth_trajectories(p_raw, weights, cfg.smoothness)  # contacts are found on the smooth paths
+        ground = ground_of(smooth, fps, cfg, scale)
+        contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale)
+        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground)
         w_lock = cfg.lock_weight * lock
         foot_idx = list(FOOT_JOINTS)
         targets[:, foot_idx] = (p_raw[:, foot_idx] + w_lock[..., None] * feet) / (1.0 + w_lock[..., None])
         weights[:, foot_idx] += w_lock
     R_s, t_s = solve_sequence(R, torch.as_tensor(transl, dtype=torch.float64), J, None,
-                              SequenceConfig(smoothness=cfg.smoothness), joint_targets=targets,
+                              SequenceConfig(smoothness=smoothness), joint_targets=targets,
                               joint_weights=weights)
     R_out, t_out = R_s.numpy(), t_s.numpy()
     if contacts.any():  # the fitted feet are near their locks; two-bone IK puts them on it exactly
         p_s = forward_kinematics(R_s, J, t_s)[1].numpy()
-        R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames)
+        R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground)
     return R_out, t_out, contacts

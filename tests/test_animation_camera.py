@@ -1,0 +1,164 @@
+"""Camera-space animations: near-orthographic producers (4D-Humans/PHALP) at a realistic depth, the floor and
+foot contacts in a camera frame (tilted, the ground moving through it), pose fidelity against the estimate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from animation_fixtures import video_motion, write_phalp_video
+from estimator_fixtures import FOCAL, IMAGE_H, IMAGE_W
+from scipy.spatial.transform import Rotation
+
+from smplik.conventions import JOINT_INDEX
+from workflows.animation import NORMAL_FOV_DEG, camera_fov, clean_track, read_clip, realistic_depth
+from workflows.animation_io import load_animation
+from workflows.estimators.base import rest_pelvis
+from workflows.motion_clean import (
+    FOOT_JOINTS,
+    CleanConfig,
+    floor_plane,
+    foot_contacts,
+    foot_skating,
+    ground_velocity,
+    jitter,
+    motion_metrics,
+)
+
+
+@pytest.fixture()
+def animate(monkeypatch, best_solver):
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.cli import scene_app
+
+    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
+
+
+def _phalp_walk(tmp_path, T: int = 40, depth_noise_m: float = 0.4):
+    """A PHALP ``track.py`` output (tests/animation_fixtures.write_phalp_video, PHALP.track's joblib layout) of
+    one person ~88 m away (4D-Humans' focal 5000/256 * max(W, H)), its depth jumping like the real files'."""
+    aa, transl = video_motion(T, seed=3, fmt="phalp")
+    rng = np.random.default_rng(7)
+    transl = transl.copy()
+    transl[:, 2] += rng.normal(0, depth_noise_m, T)
+    return write_phalp_video(tmp_path, [{1: (aa[i], transl[i])} for i in range(T)])
+
+
+def _pelvis(clip) -> np.ndarray:
+    people = [p for _, p in next(iter(clip.tracks.values()))]
+    return np.stack([p.transl for p in people]) + rest_pelvis(np.stack([p.betas for p in people]), people[0].gender)
+
+
+def test_phalp_depth_is_placed_for_a_normal_camera_keeping_pixels_and_apparent_size(tmp_path, animate):
+    path = _phalp_walk(tmp_path)
+    clip = read_clip(path)
+    camera = next(iter(clip.tracks.values()))[0][1].camera
+    assert camera.focal_px == pytest.approx(FOCAL["phalp"]) and camera_fov(camera) < 3.0
+    moved, new_camera, change = realistic_depth(clip, camera)
+    focal_60 = max(IMAGE_W, IMAGE_H) / 2 / np.tan(np.radians(NORMAL_FOV_DEG / 2))
+    assert new_camera.focal_px == pytest.approx(focal_60) and change.factor == pytest.approx(focal_60 / FOCAL["phalp"])
+    before, after = _pelvis(clip), _pelvis(moved)
+    assert np.median(-before[:, 2]) > 80 and 2.5 < np.median(-after[:, 2]) < 5.0  # ~88 m -> ~4 m
+    # the same pixel (y-up camera, looking down -z) and the same apparent size (focal / depth)
+    px_before = camera.focal_px * before[:, :2] / -before[:, 2:]
+    px_after = new_camera.focal_px * after[:, :2] / -after[:, 2:]
+    assert np.abs(px_after - px_before).max() < 1e-6
+    assert np.allclose(new_camera.focal_px / -after[:, 2], camera.focal_px / -before[:, 2])
+    # the depth noise shrinks by the same factor; the local rotations are untouched
+    assert np.std(np.diff(after[:, 2])) == pytest.approx(change.factor * np.std(np.diff(before[:, 2])))
+    rows_b, rows_a = next(iter(clip.tracks.values())), next(iter(moved.tracks.values()))
+    assert all(np.array_equal(a.body_pose, b.body_pose) and np.array_equal(a.global_orient, b.global_orient)
+               for (_, a), (_, b) in zip(rows_a, rows_b, strict=True))
+
+    # end to end: one printed line, the realistic camera in the file, no depth jump taken for a glitch
+    res = animate(path, "--out", tmp_path / "out", "--fps", 30, "--max-effectors", 2)
+    assert res.exit_code == 0, res.output
+    assert sum("near-orthographic" in line for line in res.output.splitlines()) == 1
+    anim = load_animation(tmp_path / "out" / "animation.json")
+    (track,) = anim.tracks
+    assert anim.camera.focal_px == pytest.approx(focal_60)
+    assert track.repaired == ()
+    assert 2.5 < np.median(-track.transl[:, 2]) < 5.0
+    assert np.abs(np.diff(track.transl[:, 2])).mean() < 0.03  # was ~0.45 m per frame at the source depth
+    res = animate(path, "--out", tmp_path / "kept", "--fps", 30, "--max-effectors", 2, "--keep-depth", "--export", "")
+    assert res.exit_code == 0 and "near-orthographic" not in res.output, res.output
+    assert np.median(-load_animation(tmp_path / "kept" / "animation.json").tracks[0].transl[:, 2]) > 80
+
+
+def test_other_cameras_and_world_clips_keep_their_depth(tmp_path):
+    path = _phalp_walk(tmp_path, T=12, depth_noise_m=0.0)
+    clip = read_clip(path)
+    camera = next(iter(clip.tracks.values()))[0][1].camera
+    assert realistic_depth(clip, camera, None)[2] is None  # switched off
+    import dataclasses
+
+    normal = dataclasses.replace(camera, focal_px=FOCAL["romp"])  # a 60-degree camera (ROMP/BEV, VIBE)
+    assert realistic_depth(clip, normal)[0] is clip
+    assert realistic_depth(dataclasses.replace(clip, space="world"), camera)[0].tracks is clip.tracks
+
+
+def _camera_walk(T: int = 90, fps: float = 30.0, pan_mps: float = 1.2, roll_deg: float = 10.0):
+    """Feet of a person walking along +x on a floor, seen by a camera that pans with them (the ground moves
+    through the frame at -pan_mps) and is rolled by roll_deg (a tilted floor in camera space): joints
+    (T, 24, 3) y up and the true contacts (T, 2)."""
+    t = np.arange(T)
+    period, step = 30, 2 * pan_mps * 30 / fps * 0.5  # one stride per 30 frames at the walking speed
+    p = np.zeros((T, 24, 3))
+    truth = np.zeros((T, 2), dtype=bool)
+    for side, foot in enumerate(FOOT_JOINTS):
+        phase = (t + side * period // 2) % period
+        stance = phase < period // 2
+        truth[:, side] = stance
+        cycles = (t + side * period // 2) // period
+        swing_s = np.clip((phase - period // 2) / (period // 2), 0, 1)
+        x = cycles * step + np.where(stance, 0.0, swing_s * step)
+        y = np.where(stance, 0.0, 0.12 * np.sin(np.pi * swing_s))
+        p[:, foot] = np.stack([x - pan_mps / fps * t, y, np.full(T, -0.1 if side else 0.1)], 1)
+    p[:, JOINT_INDEX["pelvis"]] = [0.0, 0.9, 0.0]
+    R = Rotation.from_euler("z", roll_deg, degrees=True).as_matrix()
+    return p @ R.T + [0.0, -0.9, -4.0], truth
+
+
+def test_camera_space_contacts_follow_a_moving_tilted_ground():
+    p, truth = _camera_walk()
+    cfg = CleanConfig(contact_min_frames=3)
+    plane = floor_plane(p)
+    assert plane[0] == pytest.approx(np.tan(np.radians(10.0)), abs=0.03)  # the floor's tilt is found
+    g = ground_velocity(p, 0.35 / 30)
+    assert g == pytest.approx(Rotation.from_euler("z", 10, degrees=True).apply([-1.2 / 30, 0, 0]), abs=2e-3)
+    found = foot_contacts(p, 30.0, cfg, g)
+    inner = np.ones(len(p), dtype=bool)
+    inner[[0, -1]] = False
+    assert (found == truth)[inner].mean() > 0.9
+    # a still ground (world frames) finds none of them: the stance feet move at the pan speed
+    assert foot_contacts(p, 30.0, cfg).sum() < 0.1 * truth.sum()
+    # a still camera (the same walk, ground at rest) keeps a still ground
+    p_still = p + Rotation.from_euler("z", 10, degrees=True).apply([1.2 / 30, 0, 0]) * np.arange(len(p))[:, None, None]
+    assert np.array_equal(ground_velocity(p_still, 0.35 / 30), np.zeros(3))
+    assert foot_skating(p, truth, g) < 0.005 < 0.03 < foot_skating(p, truth)  # m/frame; the run edges blur
+
+
+def test_pose_fidelity_is_pelvis_aligned_and_the_trajectory_is_separate():
+    rng = np.random.default_rng(0)
+    ref = rng.normal(0, 0.3, (20, 24, 3))
+    moved = ref + [0.0, 0.0, 0.25]
+    m = motion_metrics(moved, ref, np.zeros((20, 2), dtype=bool))
+    assert m.mpjpe_mm == pytest.approx(0.0, abs=1e-9) and m.trajectory_mm == pytest.approx(250.0)
+    bent = ref.copy()
+    bent[:, 5] += [0.0, 0.01, 0.0]
+    assert motion_metrics(bent, ref, np.zeros((20, 2), dtype=bool)).mpjpe_mm == pytest.approx(10.0 / 24)
+
+
+def test_a_noisy_estimate_is_cleaned_within_the_pose_budget():
+    from smplik.pose import Pose
+
+    aa, transl = video_motion(45, seed=2, fmt="romp")  # 0.02 rad per-frame noise: PHALP-like jitter (~45 mm)
+    poses = [Pose(aa[i, 0], aa[i, 1:], transl[i] * [1, -1, -1], np.zeros(10)) for i in range(len(aa))]
+    budget = clean_track(poses, 30.0, CleanConfig(), 1.0)
+    free = clean_track(poses, 30.0, CleanConfig(pose_budget_mm=None), 1.0)
+    raw = budget[3]
+    held = motion_metrics(budget[4], raw, budget[2])
+    assert held.mpjpe_mm <= 5.0 and jitter(budget[4]) < 0.8 * jitter(raw)
+    assert motion_metrics(free[4], raw, free[2]).mpjpe_mm > 5.0  # uncapped, the default smoothness moves it more
