@@ -72,7 +72,7 @@ from workflows.animation import (  # noqa: E402
     read_clip,
     realistic_depth,
 )
-from workflows.motion_clean import CleanConfig, ground_of, motion_metrics  # noqa: E402
+from workflows.motion_clean import CleanConfig, foot_noise, ground_of, motion_metrics  # noqa: E402
 from workflows.pipeline import retarget_to_body  # noqa: E402
 
 ASSUMED_FPS = {"gvhmr": 30.0, "wham": 30.0, "phalp": 30.0}
@@ -109,7 +109,9 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
         default = clean_track(poses, fps, camera_clean(CleanConfig(), clip.space), 1.0)
         raw_joints, contacts = default[3], default[2]
         default_cfg = camera_clean(CleanConfig(), clip.space)
-        ground = ground_of(default[4], fps, default_cfg)  # skating relative to the ground (camera frames)
+        # skating relative to the ground (camera frames), found as the pipeline does (the cleaned path as smooth)
+        noise = foot_noise(raw_joints, default[4], fps)
+        ground = ground_of(default[4], fps, default_cfg, noise=noise)
         repaired = int(default[5].sum())
         result = {"file": str(path.relative_to(path.parents[1])), "format": clip.format, "space": clip.space,
                   "track": tid, "frames": len(poses), "fps": fps, "repaired_glitches": repaired}
@@ -118,7 +120,7 @@ def bench_file(path: Path, solver, max_frames: int) -> list[dict]:
             source = [retarget_to_body(p, *body) for _, p in source_clip.tracks[tid][:max_frames]]
             source_raw = clean_track(source, fps, CleanConfig(), 1.0)[3]
             result["raw_source_depth"] = motion_metrics(source_raw, source_raw, contacts,
-                                                        ground_of(source_raw, fps, default_cfg)).to_dict()
+                                                        ground_of(source_raw, fps, default_cfg, noise=noise)).to_dict()
         result["raw"] = motion_metrics(raw_joints, raw_joints, contacts, ground).to_dict()
         for name, cfg in VARIANTS.items():
             joints = default[4] if name == DEFAULT else clean_track(poses, fps, camera_clean(cfg, clip.space), 1.0)[4]

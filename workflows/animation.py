@@ -42,6 +42,7 @@ from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateForma
 from workflows.motion_clean import (
     CleanConfig,
     foot_contacts,
+    foot_noise,
     glitch_frames,
     ground_of,
     lock_feet,
@@ -525,8 +526,10 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         return R_s, t_s, contacts, raw, joints_of(R_s, t_s, J_rest) * scale, glitches
     R_s, t_s = smooth_motion(R, transl, fps, cfg)
     p_s = joints_of(R_s, t_s, J_rest)
-    ground = ground_of(p_s, fps, cfg, scale)
-    contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale) if cfg.foot_lock
+    noise = foot_noise(raw, p_s * scale, fps)
+    ground = ground_of(p_s, fps, cfg, scale, noise)
+    contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
+                if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
         R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground)

@@ -90,6 +90,13 @@ class CleanConfig:
     """A foot within this height of the floor may be in contact."""
     contact_speed_mps: float = 0.35
     """... and slower than this (m/s)."""
+    contact_noise_ratio: float = 3.0
+    """Per axis, the speed threshold is at least this many times the clip's foot noise speed on that axis
+    (:func:`foot_noise`): a still foot of a noisy estimate (PHALP's depth from the box scale) still counts as
+    slow; a clean estimate (noise far below ``contact_speed_mps``) keeps ``contact_speed_mps``."""
+    contact_release_ratio: float = 1.5
+    """Hysteresis: a contact run, once found, extends over neighbouring low frames up to this many times the
+    speed threshold (a landing or stance whose slowest frames alone are too short)."""
     contact_min_frames: int = 3
     """Contact runs shorter than this are dropped."""
     blend_frames: int = 3
@@ -110,7 +117,7 @@ class CleanConfig:
         if self.smoothing not in ("sequence", "one_euro", "savgol", "none"):
             raise CleanError(f"smoothing must be 'sequence', 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
-                     "contact_speed_mps", "glitch_min_m", "glitch_ratio"):
+                     "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
@@ -121,6 +128,8 @@ class CleanConfig:
         if self.savgol_window < 3 or self.savgol_window % 2 == 0 or self.savgol_order >= self.savgol_window:
             raise CleanError(f"savgol_window must be odd, >= 3 and above savgol_order; got {self.savgol_window} "
                              f"and order {self.savgol_order}.")
+        if not (np.isfinite(self.contact_release_ratio) and self.contact_release_ratio >= 1):
+            raise CleanError(f"contact_release_ratio must be >= 1, got {self.contact_release_ratio}.")
         if self.contact_min_frames < 1 or self.blend_frames < 0:
             raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
 
@@ -265,43 +274,82 @@ def joint_speed(p: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.gradient(p, axis=0), axis=-1)
 
 
-def ground_velocity(p_world: np.ndarray, tolerance: float) -> np.ndarray:
+def ground_velocity(p_world: np.ndarray, tolerance: float | np.ndarray, height: float | None = None) -> np.ndarray:
     """The ground's velocity (3,) (units per frame) in the frame of joints p_world (T, 24, 3), y up.
 
     The lower foot stands on the ground in most frames of walking, so the median over the clip of its velocity
-    is the ground's: the belt's or the pan's velocity for a treadmill or a camera following the person. It is
-    kept only when more frames' lower foot moves within ``tolerance`` (units per frame) of it than of a still
-    ground (a runner's flight phases, a jump, or a person moving through a still camera's view bias the
-    median); else zero."""
+    is the ground's: the belt's or the pan's velocity for a treadmill or a camera following the person. With
+    ``height``, only frames whose lower foot is within it of the floor (:func:`floor_plane`) count: a runner's
+    or jumper's lower foot is in the air in the others. It is kept only when more of those frames' lower foot
+    moves within ``tolerance`` (units per frame; (3,) per axis: the scaled speed below 1) of it than of a
+    still ground (a person moving through a still camera's view biases the median); else zero."""
     feet = p_world[:, list(FOOT_JOINTS)]
     if feet.shape[0] < 3:
         return np.zeros(3)
-    low = feet[np.arange(feet.shape[0]), np.argmin(feet[..., 1], axis=1)]
-    v = np.gradient(low, axis=0)
+    heights = feet[..., 1] if height is None else height_above_floor(feet, floor_plane(p_world))
+    lower = np.argmin(heights, axis=1)
+    v = np.gradient(feet, axis=0)[np.arange(feet.shape[0]), lower]
+    if height is not None:
+        v = v[heights[np.arange(feet.shape[0]), lower] < height]
+        if v.shape[0] == 0:
+            return np.zeros(3)
     median = np.median(v, axis=0)
-    moving = (np.linalg.norm(v - median, axis=-1) < tolerance).sum()
-    still = (np.linalg.norm(v, axis=-1) < tolerance).sum()
+    moving = (np.linalg.norm((v - median) / tolerance, axis=-1) < 1).sum()
+    still = (np.linalg.norm(v / tolerance, axis=-1) < 1).sum()
     return median if moving > still else np.zeros(3)
 
 
-def ground_of(p_world: np.ndarray, fps: float, cfg: CleanConfig, scale: float = 1.0) -> np.ndarray:
+def contact_threshold(cfg: CleanConfig, noise: np.ndarray | None = None) -> np.ndarray:
+    """The per-axis contact speed threshold (3,) (m/s): ``contact_speed_mps``, raised to ``contact_noise_ratio``
+    times the clip's foot noise ``noise`` (3,) m/s (:func:`foot_noise`) on noisy axes."""
+    sigma = np.zeros(3) if noise is None else np.asarray(noise)
+    return np.maximum(cfg.contact_speed_mps, cfg.contact_noise_ratio * sigma)
+
+
+def ground_of(p_world: np.ndarray, fps: float, cfg: CleanConfig, scale: float = 1.0,
+              noise: np.ndarray | None = None) -> np.ndarray:
     """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
-    SMPL space, the contact speed in character space (``scale`` times SMPL space)."""
+    SMPL space, the contact height, speed and the foot ``noise`` (3,) (:func:`foot_noise`) in character space
+    (``scale`` times SMPL space)."""
     if not cfg.ground_moves:
         return np.zeros(3)
-    return ground_velocity(p_world, cfg.contact_speed_mps / fps / scale)
+    return ground_velocity(p_world, contact_threshold(cfg, noise) / fps / scale, cfg.contact_height_m / scale)
 
 
-def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig, ground: np.ndarray | None = None
-                  ) -> np.ndarray:
+def foot_noise(p_raw: np.ndarray, p_smooth: np.ndarray, fps: float) -> np.ndarray:
+    """The clip's foot noise speed per axis (3,) (units/s): the median over frames and both feet of the squared
+    velocity of the raw feet's deviation from their smoothed paths, square-rooted. p_raw, p_smooth (T, 24, 3).
+
+    A still foot of the smoothed path keeps low-frequency estimator error of about this speed (a monocular
+    estimator's depth, from the person's image scale, jitters several times more than the image axes)."""
+    idx = list(FOOT_JOINTS)
+    if p_raw.shape[0] < 3:
+        return np.zeros(3)
+    v = np.gradient(p_raw[:, idx] - p_smooth[:, idx], axis=0) * fps  # (T, 2, 3)
+    return np.sqrt(np.median(v ** 2, axis=(0, 1)))
+
+
+def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig, ground: np.ndarray | None = None,
+                  noise: np.ndarray | None = None) -> np.ndarray:
     """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up: feet low
-    above the floor and slow relative to the ground moving at ``ground`` (3,) m/frame (default: still)."""
+    above the floor and slow relative to the ground moving at ``ground`` (3,) m/frame (default: still).
+
+    Slow: per axis, the velocity relative to the ground is scaled by that axis's threshold, the larger of
+    ``contact_speed_mps`` and ``contact_noise_ratio`` times ``noise`` (3,) m/s (:func:`foot_noise`; default
+    none), and the scaled speed is below 1. Hysteresis: each run extends over neighbouring low frames whose
+    scaled speed is below ``contact_release_ratio``; runs shorter than ``contact_min_frames`` are dropped."""
     feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
     g = np.zeros(3) if ground is None else np.asarray(ground)
+    threshold = contact_threshold(cfg, noise)  # (3,) m/s per axis
     low = height_above_floor(feet, floor_plane(p_world)) < cfg.contact_height_m
-    slow = joint_speed(feet - g * np.arange(feet.shape[0])[:, None, None]) * fps < cfg.contact_speed_mps
-    contact = low & slow
+    relative = feet - g * np.arange(feet.shape[0])[:, None, None]
+    v = (np.gradient(relative, axis=0) if feet.shape[0] >= 2 else np.zeros_like(relative)) * fps
+    scaled = np.linalg.norm(v / threshold, axis=-1)  # (T, 2)
+    contact = low & (scaled < 1.0)
+    loose = low & (scaled < cfg.contact_release_ratio)
     for side in range(2):
+        for s, e in _runs(loose[:, side]):  # hysteresis: a loose run holding a strict frame is one contact
+            contact[s:e, side] = contact[s:e, side].any()
         for s, e in _runs(contact[:, side]):
             if e - s < cfg.contact_min_frames:
                 contact[s:e, side] = False
@@ -549,8 +597,9 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
     smoothness = budgeted_smoothness(p_raw, cfg, scale)
     if cfg.foot_lock and T >= 3:
         smooth = smooth_trajectories(p_raw, weights, cfg.smoothness)  # contacts are found on the smooth paths
-        ground = ground_of(smooth, fps, cfg, scale)
-        contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale)
+        noise = foot_noise(p_raw, smooth, fps) * scale
+        ground = ground_of(smooth, fps, cfg, scale, noise)
+        contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale, noise)
         feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground)
         w_lock = cfg.lock_weight * lock
         foot_idx = list(FOOT_JOINTS)
