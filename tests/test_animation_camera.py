@@ -3,6 +3,8 @@ foot contacts in a camera frame (tilted, the ground moving through it), pose fid
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from animation_fixtures import video_motion, write_phalp_video
@@ -162,3 +164,57 @@ def test_a_noisy_estimate_is_cleaned_within_the_pose_budget():
     held = motion_metrics(budget[4], raw, budget[2])
     assert held.mpjpe_mm <= 5.0 and jitter(budget[4]) < 0.8 * jitter(raw)
     assert motion_metrics(free[4], raw, free[2]).mpjpe_mm > 5.0  # uncapped, the default smoothness moves it more
+
+
+def _camera_run(T: int = 80, fps: float = 30.0, speed_mps: float = 3.0, seed: int = 0):
+    """Feet of a person running along +x (a stride of 20 frames; each foot's stance 6 frames, two flight phases
+    of 4 frames) seen by a camera panning with them, y up, with a monocular estimator's per-frame noise: 5 mm
+    on the image axes, 40 mm in depth (z; PHALP's depth comes from the person's image scale). Returns the
+    noisy joints (T, 24, 3), the true contacts (T, 2) and the true foot heights (T, 2)."""
+    t = np.arange(T)
+    period, stance_frames = 20, 6
+    travel = speed_mps * period / fps  # each foot moves one stride per period, all of it during its swing
+    p = np.zeros((T, 24, 3))
+    truth = np.zeros((T, 2), dtype=bool)
+    height = np.zeros((T, 2))
+    for side, foot in enumerate(FOOT_JOINTS):
+        shifted = t + side * period // 2
+        phase, cycles = shifted % period, shifted // period
+        stance = phase < stance_frames
+        s = np.clip((phase - stance_frames + 1) / (period - stance_frames + 1), 0, 1)  # swing progress
+        x = cycles * travel + np.where(stance, 0.0, (3 * s ** 2 - 2 * s ** 3) * travel)
+        y = np.where(stance, 0.0, 0.3 * np.sin(np.pi * s))
+        truth[:, side], height[:, side] = stance, y
+        p[:, foot] = np.stack([x - speed_mps / fps * t, y, np.full(T, -0.1 if side else 0.1)], 1)
+    p[:, JOINT_INDEX["pelvis"]] = [0.0, 0.95, 0.0]
+    noise = np.random.default_rng(seed).normal(size=p.shape) * [0.005, 0.005, 0.04]
+    return p + noise + [0.0, -0.9, -4.0], truth, height
+
+
+def test_running_stances_are_found_on_a_noisy_panning_estimate_and_flights_stay_free():
+    from smplik.sequence import smooth_trajectories
+    from workflows.motion_clean import foot_noise, ground_of
+
+    fps = 30.0
+    p_raw, truth, height = _camera_run()
+    cfg = CleanConfig(ground_moves=True)
+    smooth = smooth_trajectories(p_raw, np.ones(p_raw.shape[:2]), cfg.smoothness)
+    noise = foot_noise(p_raw, smooth, fps)
+    assert noise[2] > 3 * max(noise[0], noise[1])  # the depth axis is the noisy one, and it is measured
+    ground = ground_of(smooth, fps, cfg, noise=noise)
+    assert ground[0] == pytest.approx(-3.0 / fps, abs=0.4 / fps)  # the pan is found from the low feet only
+    found = foot_contacts(smooth, fps, cfg, ground, noise)
+    airborne = height > 0.05  # flight and swing frames with the foot well off the ground
+    assert not found[airborne].any()  # no false contact in the air
+    for side in range(2):  # every stance away from the clip's ends is found, most of its frames
+        for s, e in [(s, e) for s, e in _runs_of(truth[:, side]) if s > 1 and e < len(truth) - 1]:
+            assert found[s:e, side].sum() >= 3, (side, s, e)
+    assert (found & truth).sum() >= 0.6 * truth[2:-2].sum()
+    # the fixed 0.35 m/s threshold on the noisy depth, without hysteresis, finds (almost) none of them
+    old = foot_contacts(smooth, fps, dataclasses.replace(cfg, contact_release_ratio=1.0), ground)
+    assert old.sum() < 0.2 * truth.sum()
+
+
+def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
+    padded = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return list(zip(np.nonzero(padded == 1)[0], np.nonzero(padded == -1)[0], strict=True))

@@ -605,11 +605,20 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
         foot_idx = list(FOOT_JOINTS)
         targets[:, foot_idx] = (p_raw[:, foot_idx] + w_lock[..., None] * feet) / (1.0 + w_lock[..., None])
         weights[:, foot_idx] += w_lock
-    R_s, t_s = solve_sequence(R, torch.as_tensor(transl, dtype=torch.float64), J, None,
-                              SequenceConfig(smoothness=smoothness), joint_targets=targets,
-                              joint_weights=weights)
-    R_out, t_out = R_s.numpy(), t_s.numpy()
-    if contacts.any():  # the fitted feet are near their locks; two-bone IK puts them on it exactly
-        p_s = forward_kinematics(R_s, J, t_s)[1].numpy()
-        R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground)
+    rel_raw = p_raw - p_raw[:, :1]
+    while True:  # the locks move the pose too: smooth less until smoothing and locks fit the budget together
+        R_s, t_s = solve_sequence(R, torch.as_tensor(transl, dtype=torch.float64), J, None,
+                                  SequenceConfig(smoothness=smoothness), joint_targets=targets,
+                                  joint_weights=weights)
+        R_out, t_out = R_s.numpy(), t_s.numpy()
+        if contacts.any():  # the fitted feet are near their locks; two-bone IK puts them on it exactly
+            p_s = forward_kinematics(R_s, J, t_s)[1].numpy()
+            R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground)
+        if cfg.pose_budget_mm is None or smoothness == 0.0 or not contacts.any():
+            break
+        p_out = forward_kinematics(torch.as_tensor(R_out), J, t_s)[1].numpy()
+        change_mm = 1000.0 * scale * np.linalg.norm(p_out - p_out[:, :1] - rel_raw, axis=-1).mean()
+        if change_mm <= cfg.pose_budget_mm:
+            break
+        smoothness = smoothness / 2.0 if smoothness / 2.0 >= cfg.smoothness / 1000.0 else 0.0
     return R_out, t_out, contacts
