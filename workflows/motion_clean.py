@@ -18,9 +18,11 @@ first, made sign-continuous over time, renormalised after filtering) and the roo
 Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
 foot) touches the floor where it is low (within ``height_m`` of the clip's floor, :func:`floor_plane`: a
 plane fitted under the standing feet, level by default, tilted where the feet show it, e.g. a camera's
-pitch in camera space; y is up) **and** slow (below ``speed_mps``); runs shorter than
-``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the foot to its mean position over
-each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
+pitch in camera space; y is up) **and** slow (per axis below ``speed_mps`` or ``noise_ratio`` times the
+clip's own foot noise on that axis, :func:`foot_noise`, whichever is larger: a monocular estimator's depth
+jitters several times its image axes); runs extend over neighbouring low frames up to ``release_ratio``
+times that (hysteresis), and runs shorter than ``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the
+foot to its mean position over each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
 (:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
 lands on the locked point exactly when the leg can reach it.
 
