@@ -136,3 +136,33 @@ def test_sequence_solve_is_the_same_in_chunks_and_on_either_refinement_backend(m
             reference = solve_sequence(*args)
         torch.testing.assert_close(reference[1], whole[1], atol=1e-5, rtol=0)
         assert (reference[0] - whole[0]).abs().max() < 1e-4
+
+
+def test_foot_locks_and_smoothing_fit_the_pose_budget_together():
+    """Locks move the legs too: where the budgeted smoothing plus the locks would exceed the pose budget, the
+    smoothing is lowered until both fit (a noisy standing estimate whose feet are locked all along)."""
+    import dataclasses
+
+    from smplik.conventions import Gender
+    from workflows.motion_clean import budgeted_smoothness
+
+    rng = np.random.default_rng(4)
+    T = 60
+    aa = np.zeros((T, 24, 3))
+    aa[:, [1, 2], 0], aa[:, [4, 5], 0] = -0.25, 0.5
+    aa[:, [1, 2, 4, 5, 7, 8], :] += rng.normal(0, 0.03, (T, 6, 3))  # jittery legs
+    R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
+    J = rest_joints(np.zeros(10), Gender.NEUTRAL)
+    transl = np.tile([0.0, 0.05, 0.0], (T, 1))
+    cfg = CleanConfig(pose_budget_mm=5.0, contact_speed_mps=3.0)  # the feet are locked in every frame
+    p_raw = joints_of(R, transl, J)
+
+    def change_mm(R_c, t_c):
+        p = joints_of(R_c, t_c, J)
+        return 1000 * np.linalg.norm(p - p[:, :1] - (p_raw - p_raw[:, :1]), axis=-1).mean()
+
+    R_c, t_c, contacts = sequence_clean(R, transl, J, 30.0, cfg)
+    assert contacts.mean() > 0.9 and change_mm(R_c, t_c) <= 5.0
+    # the smoothing budgeted on the paths alone, with the locks on top, goes over
+    alone = dataclasses.replace(cfg, smoothness=budgeted_smoothness(p_raw, cfg), pose_budget_mm=None)
+    assert change_mm(*sequence_clean(R, transl, J, 30.0, alone)[:2]) > 5.0
