@@ -578,7 +578,9 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
     smoothed paths (:func:`foot_contacts`), and each contact run's locked foot position (:func:`lock_targets`)
     joins the data with weight ``lock_weight`` times its blend weight; the smoothed paths (``smoothness``)
     are then fitted frame by frame, the prior centred on the estimate's local rotations. Foot locking and
-    smoothing are one solve, so a lock cannot re-introduce jitter.
+    smoothing are one solve, so a lock cannot re-introduce jitter. The locks move the legs too: while the result
+    moves the pose (pelvis-aligned MPJPE) more than ``pose_budget_mm``, the smoothness is halved and the solve
+    repeated (down to none; locks that alone exceed the budget are kept).
 
     Args: R_parent_joint (T, 24, 3, 3) local rotations, transl (T, 3), J_rest (24, 3) (SMPL space); the
     contact thresholds are in character space (``scale`` times SMPL space).
