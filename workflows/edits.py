@@ -466,14 +466,14 @@ def solve_scripted(solver: Any, name: str, effectors: Sequence[Effector], previo
     if exact or previous is None:
         smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
         return solver.solve(smpl, betas=betas, gender=gender), ScriptedEdit(name, effectors, mode="exact")
-    previous = dataclasses.replace(previous, betas=betas, gender=gender, joints=None)
+    stored, previous = previous, dataclasses.replace(previous, betas=betas, gender=gender, joints=None)
     if moved is None:
         unmet = unmet_effectors(effectors, previous, scale, solver.bodies, among=among)
     else:
         residuals = character_residuals(effectors, previous, scale, solver.bodies)
         unmet = [(int(i), residuals[int(i)]) for i in moved]
     if not unmet:
-        return previous, ScriptedEdit(name, effectors, mode="kept")
+        return stored, ScriptedEdit(name, effectors, mode="kept")
     distance = dict(unmet)
     order = drag_order(effectors, list(distance))
     relaxed: set[int] = set()

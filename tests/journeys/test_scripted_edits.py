@@ -115,11 +115,17 @@ def test_a_wrist_raised_in_scene_json_then_scene_solve_moves_only_the_arm(demo_s
     for n in before:
         if n != name:
             assert f"{n}: every effector is met by the stored pose" in output
+    blocks: dict[str, list[str]] = {}  # the indented lines under each person's lines
+    for line in lines:
+        if not line.startswith(" ") and ":" in line:
+            person = line.split(":")[0]
+        elif line.startswith("  "):
+            blocks.setdefault(person, []).append(line)
     loaded = json.loads(edited.read_text())["characters"]
     for c in loaded:
         for k, e in enumerate(c["effectors"]):
             label = f"  {k}: {e['joint']} {e['type']} (tolerance"
-            assert sum(line.startswith(label) for line in lines) == 1, (c["name"], label)
+            assert sum(line.startswith(label) for line in blocks[c["name"]]) == 1, (c["name"], label)
         # the effectors the move made stale are stored relaxed, and named in the moved line
         for e in c["effectors"]:
             if c["name"] == name and e["tolerance"] == 1.0:
