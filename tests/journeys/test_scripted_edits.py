@@ -179,13 +179,16 @@ def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("wrist", WRISTS)
-def test_edit_keyframe_with_a_one_effector_file_moves_only_the_arm(animation_file, cli, tmp_path, wrist):
+@pytest.mark.parametrize("where", ["keyframe", "between keyframes"])
+def test_edit_keyframe_with_a_one_effector_file_moves_only_the_arm(animation_file, cli, tmp_path, wrist, where):
     from workflows.animation_io import load_animation
 
     before_anim = load_animation(animation_file)
     track = before_anim.tracks[0]
-    frame = track.keyframes[len(track.keyframes) // 2].frame
-    recovered = next(k.effectors for k in track.keyframes if k.frame == frame)
+    keys = [k.frame for k in track.keyframes]
+    between = next(f for f in track.frames if f > keys[1] and f not in keys)
+    frame = keys[len(keys) // 2] if where == "keyframe" else between
+    recovered = next((k.effectors for k in track.keyframes if k.frame == frame), ())
     J0 = _track_joints(animation_file, frame)
     target = J0[JOINT_INDEX[wrist]] + RAISE
     effectors = tmp_path / "raise_hand.json"  # the docs' example: one effector, character space
@@ -202,7 +205,8 @@ def test_edit_keyframe_with_a_one_effector_file_moves_only_the_arm(animation_fil
 
     # it says what it did: the keyframe's other effectors kept, the wrist moved as a drag
     replaced = sum(e.joint_name == wrist and e.type.name == "POSITION" for e in recovered)
-    said = f"frame {frame}: 1 effector given (replacing {replaced} of the keyframe's, {len(recovered) - replaced} kept)"
+    said = (f"frame {frame}: 1 effector given (replacing {replaced} of the keyframe's, {len(recovered) - replaced} "
+            "kept)" if recovered else f"frame {frame}: 1 effector given (a new keyframe)")
     assert said in output and f"moved {wrist} position" in output and "solved as a drag" in output
     edited = load_animation(out).tracks[0]
     stored = next(k.effectors for k in edited.keyframes if k.frame == frame)
