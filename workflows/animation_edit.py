@@ -70,27 +70,35 @@ class KeyframeEdit:
     replaced: int
     solve: ScriptedEdit
     window: int
+    merged: bool = True
+    """False: the effectors given were the keyframe's whole list (``merge=False``)."""
 
     def line(self) -> str:
         """``person_0: frame 40: 1 effector given (replacing 0 of the keyframe's 6, 6 kept); moved ...``"""
         what = self.solve.line().split(": ", 1)[1]
-        merged = (f"replacing {self.replaced} of the keyframe's, {self.kept} kept" if self.kept or self.replaced
+        merged = ("the keyframe's whole list" if not self.merged else
+                  f"replacing {self.replaced} of the keyframe's, {self.kept} kept" if self.kept or self.replaced
                   else "a new keyframe")
         return (f"{self.track}: frame {self.frame}: {self.given} effector{'s' * (self.given != 1)} given "
                 f"({merged}); {what}; blended over +-{self.window} frames")
 
 
 def edit_keyframe(animation: Animation, track: str, frame: int, effectors: Sequence[Effector], solver: Any, *,
-                  window: int, exact: bool = False) -> Animation:
+                  window: int, exact: bool = False, merge: bool = True) -> Animation:
     """The animation with track ``track`` (name or track id) re-posed at source frame ``frame`` by
     ``effectors`` (character space) merged into the keyframe's, the change blended over ``window`` frames on
     each side (:func:`keyframe_edit`, which also says what it did)."""
-    return keyframe_edit(animation, track, frame, effectors, solver, window=window, exact=exact).animation
+    return keyframe_edit(animation, track, frame, effectors, solver, window=window, exact=exact,
+                         merge=merge).animation
 
 
 def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Sequence[Effector], solver: Any, *,
-                  window: int, exact: bool = False) -> KeyframeEdit:
-    """:func:`edit_keyframe` and what it did (module docstring: merge, drags, blend)."""
+                  window: int, exact: bool = False, merge: bool = True) -> KeyframeEdit:
+    """:func:`edit_keyframe` and what it did (module docstring: merge, drags, blend).
+
+    ``merge=False``: ``effectors`` are the keyframe's whole new list (the editor's *Apply*, whose frame shows
+    every effector of the keyframe: one deleted there stays deleted); the moved ones are still solved as drags.
+    """
     from workflows.edits import solve_scripted
 
     matches = [i for i, t in enumerate(animation.tracks) if track in (t.name, t.track_id)]
@@ -107,7 +115,7 @@ def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Seque
     if not effectors:
         raise AnimationError("a keyframe edit needs at least one effector.")
     row = frame - t.first_frame
-    old = next((k.effectors for k in t.keyframes if k.frame == frame), ())
+    old = next((k.effectors for k in t.keyframes if k.frame == frame), ()) if merge else ()
     merged, given, replaced = merge_effectors(old, effectors)
     new, report = solve_scripted(solver, t.name, merged, t.pose(row), scale=t.scale, betas=t.betas, gender=t.gender,
                                  among=given, exact=exact)
@@ -130,4 +138,4 @@ def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Seque
     tracks = list(animation.tracks)
     tracks[n] = edited
     return KeyframeEdit(dataclasses.replace(animation, tracks=tuple(tracks)), t.name, frame, len(effectors),
-                        len(old) - replaced, replaced, report, window)
+                        len(old) - replaced, replaced, report, window, merge)
