@@ -9,7 +9,8 @@ pose, its limb re-posed and the rest of the body kept. That gives the change ``D
 every local rotation and ``dt`` of the root translation at that frame. Frames within ``window`` of it receive
 the change scaled by a raised-cosine weight, ``w(d) = (1 + cos(pi d / (window + 1))) / 2`` at distance ``d``
 (``w = 1`` at the keyframe, so it reaches the solved pose exactly): ``R_j <- R_j exp(w log D_j)``,
-``t <- t + w dt``. Every frame outside the window keeps its values bit for bit. The keyframe stores the merged
+``t <- t + w dt``. Every frame outside the window keeps its values bit for bit (every frame, when the frame's
+pose already meets the given effectors). The keyframe stores the merged
 effectors (error 0); other keyframes inside the window keep their effectors. ``exact=True`` re-solves the
 frame from the merged effectors alone (every one exact as given, nothing relaxed).
 
@@ -124,6 +125,8 @@ def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Seque
     log_delta = Rotation.from_matrix(np.swapaxes(R_old, -1, -2) @ R_new).as_rotvec()  # (24, 3)
     dt = np.asarray(new.transl) - t.transl[row]
     weights = blend_weights(t.num_frames, row, window)
+    if report.mode == "kept":  # every given effector already met: the motion stays bit for bit
+        weights = np.zeros_like(weights)
     rows = np.nonzero(weights > 0)[0]
     go, bp, transl = t.global_orient.copy(), t.body_pose.copy(), t.transl.copy()
     R_rows = axis_angle_to_local(go[rows], bp[rows])

@@ -239,3 +239,29 @@ def test_readme_scripted_drag_runs_as_written(demo_scene, tmp_path, monkeypatch,
     joint = re.search(r"drag\(\"person_0\", \"(\w+)\"", block).group(1)
     assert np.linalg.norm(after[JOINT_INDEX[joint]] - before[JOINT_INDEX[joint]] - RAISE) < 0.01
     assert np.linalg.norm(after[JOINT_INDEX["head"]] - before[JOINT_INDEX["head"]]) < 0.01
+
+
+@pytest.mark.slow
+def test_editor_apply_takes_the_keyframes_whole_list(animation_file, shipped_solver):
+    """The editor's Apply (the timeline) passes the frame's whole list: an effector deleted there stays deleted,
+    where the command's file is merged into the keyframe's."""
+    from workflows.animation_edit import keyframe_edit
+    from workflows.animation_io import load_animation
+    from workflows.editor.timeline import AnimationTimeline
+
+    anim = load_animation(animation_file)
+    track = anim.tracks[0]
+    key = track.keyframes[1]
+    fewer = key.effectors[1:]  # the first one deleted in the editor
+    timeline = AnimationTimeline(anim, shipped_solver, window=4)
+    timeline.set_frame(key.frame)
+    timeline.apply(track.name, fewer)
+    stored = next(k.effectors for k in timeline.animation.tracks[0].keyframes if k.frame == key.frame)
+    assert stored == fewer
+    merged = keyframe_edit(anim, track.name, key.frame, fewer, shipped_solver, window=4)
+    kept = next(k.effectors for k in merged.animation.tracks[0].keyframes if k.frame == key.frame)
+    assert kept[0] == key.effectors[0] and kept[1:] == fewer
+    # nothing moved (the rest is met by the frame's pose): the motion is unchanged either way
+    np.testing.assert_array_equal(timeline.animation.tracks[0].body_pose, track.body_pose)
+    said = f"{len(fewer)} effectors given (replacing {len(fewer)} of the keyframe's, 1 kept)"
+    assert "pose kept" in merged.line() and said in merged.line()
