@@ -27,6 +27,13 @@ Effectors outside the chain are kept: they hold the rest of the body. The benchm
 limb on the pose the drag started from, its elbow or knee swivel turned most of the way to the learned
 prior's; everything outside the limb stays put unless an exact effector needs it.
 
+**Scripted edits** (:func:`solve_scripted`): a script that changes effectors (in ``scene.json``, an animation's
+keyframe) gets the same drag. The effectors the stored pose does not meet (beyond their :func:`allowance`) are
+the moved ones; each relaxes its chain's stale effectors and they are solved one after the other by
+:func:`solve_edit` from the stored pose (``smplik scene solve``: :func:`solve_scene_edits`; Python:
+:func:`drag_scene_effector`, ``Scene.drag``; ``smplik scene edit-keyframe``:
+:func:`workflows.animation_edit.keyframe_edit`).
+
 **Conflict report** (:func:`conflict_report`): per effector, its residual after the solve, what its tolerance
 allows, and the effectors it contradicts: those whose removal (one batched leave-one-out solve) brings its
 residual within the allowance or halves it.
