@@ -379,7 +379,8 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
     save_effector_file(tmp_path / "edit.json", effs)
     res = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", str(frame), "--effectors",
                                          str(tmp_path / "edit.json"), "--window", str(window),
-                                         "--out", str(tmp_path / "edited" / "edited.json"), "--export", "bvh"])
+                                         "--exact", "--out", str(tmp_path / "edited" / "edited.json"),
+                                         "--export", "bvh"])
     assert res.exit_code == 0, res.output
     after = load_animation(tmp_path / "edited" / "edited.json").tracks[0]
     outside = np.r_[0:frame - window, frame + window + 1:40]
@@ -387,15 +388,17 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
         assert np.array_equal(getattr(after, key)[outside], getattr(before, key)[outside])
         assert not np.array_equal(getattr(after, key)[frame], getattr(before, key)[frame])
     p_after = _track_joints(after)
-    solved = best_solver.solve(effs, betas=before.betas, gender=before.gender)
-    assert np.abs(p_after[frame] - np.asarray(solved.joints)).max() < 1e-4  # the keyframe is the new solve
+    key = next(k for k in after.keyframes if k.frame == frame)  # the given effectors merged into the recovered
+    names = [e.joint_name for e in key.effectors]
+    assert {"right_wrist", "pelvis", "left_wrist"} <= set(names) and len(names) == len(set(names))
+    assert np.allclose(key.effectors[names.index("right_wrist")].value, target)
+    solved = best_solver.solve(list(key.effectors), betas=before.betas, gender=before.gender)
+    assert np.abs(p_after[frame] - np.asarray(solved.joints)).max() < 1e-4  # --exact: the keyframe is the solve
     moved = np.linalg.norm(p_after[:, wrist] - p_before[:, wrist], axis=-1)
     assert moved[frame] > moved[frame - 3] > moved[frame - window] > 0 == moved[frame - window - 1]
     bvh = read_bvh(tmp_path / "edited" / "person_0.bvh")  # re-exported: the edit is in the file
     order = [bvh.index(n) for n in JOINT_NAMES]
     assert bvh.num_frames == 40 and np.abs(bvh.positions[:, order] - p_after).max() < MM
-    key = next(k for k in after.keyframes if k.frame == frame)
-    assert [e.joint_name for e in key.effectors] == ["right_wrist", "pelvis", "left_wrist"]
     bad = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--frame", "99", "--effectors",
                                          str(tmp_path / "edit.json")])
     assert "frame 99 is outside track person_0's frames 0..39" in _one_error_line(bad)
