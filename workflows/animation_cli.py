@@ -83,7 +83,7 @@ def animate_cmd(
 
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True) as bar:
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
                                            foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
                                keyframe_threshold_m=keyframe_threshold,
