@@ -201,13 +201,15 @@ def export_cmd(
                                            "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
-    from workflows.export import export_scene
+    from workflows.export import export_scene, glb_notes
     from workflows.scene import load_scene
 
+    formats = [f for f in format.split(",") if f.strip()]
     with user_errors():
         loaded = load_scene(scene)
-        paths = export_scene(loaded, out, formats=[f for f in format.split(",") if f.strip()],
-                             base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
+        paths = export_scene(loaded, out, formats=formats, base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
+    for note in glb_notes(loaded, formats) if paths else []:
+        say(note)
     for path in paths:
         say(f"wrote {path}")
     if not paths:
