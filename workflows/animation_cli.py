@@ -58,7 +58,8 @@ def animate_cmd(
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
                                                       "interpolation errs more than this (m).")] = 0.03,
     export: Annotated[str, typer.Option("--export", help="Animated files per track, comma-separated: bvh, glb "
-                                        "(GLB: the body's or glTF character's mesh, a BVH/JSON character's SMPL-SI body); '' for none.")] = "bvh",
+                                        "(GLB: the body's or glTF character's mesh, a BVH/JSON character's "
+                                        "SMPL-SI body); '' for none.")] = "bvh",
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per keyframe.")] = 6,
     preview: Annotated[Path | None, typer.Option("--preview", help="Write an animated preview (.gif or .mp4).")
                        ] = None,

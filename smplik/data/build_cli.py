@@ -16,7 +16,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 __all__ = ["build", "StorageDtype"]
 
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # status lines are never cut mid-number
 
 
 class StorageDtype(str, Enum):
