@@ -137,19 +137,23 @@ def edit_keyframe_cmd(
     animation: Annotated[Path, typer.Argument(help="Animation file (animation.json of scene animate).")],
     frame: Annotated[int, typer.Option("--frame", help="Source frame of the keyframe to set.")],
     effectors: Annotated[Path, typer.Option("--effectors", help="Effector file (smplik-effectors JSON, "
-                                            "character space) for that frame.")],
+                                            "character space) for that frame: the effectors to move or add; the "
+                                            "keyframe's others are kept.")],
     track: Annotated[str | None, typer.Option("--track", help="Track name or id (default: the only one).")] = None,
     window: Annotated[int, typer.Option("--window", min=0, help="Blend the change over this many frames on "
                                         "each side; frames beyond stay unchanged.")] = 10,
+    exact: Annotated[bool, typer.Option("--exact", help="Re-solve the frame from the merged effectors exactly "
+                                        "instead of solving the moved ones as drags.")] = False,
     out: Annotated[Path | None, typer.Option("--out", help="Output file (default: overwrite ANIMATION).")] = None,
     export: Annotated[str, typer.Option("--export", help="Also re-export per track next to the output: bvh, "
                                         "glb (comma-separated; default none).")] = "",
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
 ) -> None:
-    """Set a keyframe's effectors, re-solve that frame and blend the change into the neighbouring frames."""
+    """Move or add a keyframe's effectors (merged into its recovered ones), re-pose the frame as the editor's drag
+    does (the moved limbs only) and blend the change into the neighbouring frames."""
     from smplik.effector_schema import load_effector_file
     from workflows.animation import AnimationError, export_animation
-    from workflows.animation_edit import edit_keyframe
+    from workflows.animation_edit import keyframe_edit
     from workflows.animation_io import load_animation, save_animation
     from workflows.cli import _solver
 
@@ -161,10 +165,10 @@ def edit_keyframe_cmd(
                                      f"({', '.join(t.name for t in anim.tracks)}).")
             track = anim.tracks[0].name
         effs = load_effector_file(effectors).effectors
-        edited = edit_keyframe(anim, track, frame, effs, _solver(checkpoint), window=window)
-        path = save_animation(edited, out or animation)
+        edit = keyframe_edit(anim, track, frame, effs, _solver(checkpoint), window=window, exact=exact)
+        path = save_animation(edit.animation, out or animation)
         formats = [f.strip().lower() for f in export.split(",") if f.strip()]
-        files = export_animation(edited, path.parent, formats, base_dir=path.parent) if formats else []
-    say(f"{track}: frame {frame} re-solved from {len(effs)} effectors, blended over +-{window} frames")
+        files = export_animation(edit.animation, path.parent, formats, base_dir=path.parent) if formats else []
+    say(edit.line())
     for written in (path, *files):
         say(f"wrote {written}")

@@ -43,25 +43,6 @@ def _solver(checkpoint: Path | None):
         return IKSolver.load(checkpoint)
 
 
-def character_residuals(before, after, solver) -> list[str]:  # noqa: ANN001 - SceneCharacter, IKSolver
-    """Lines with each effector's residual (mm / degrees) of a re-solved character, the network's before
-    the refinement in brackets."""
-    from dataclasses import replace
-
-    from smplik.cli.solve import report_residuals
-    from smplik.refine import RefineConfig
-    from workflows.scene import scale_effector, solve_character
-
-    if after.pose is None or not after.effectors or after is before:
-        return [f"{after.name}: no effectors, pose unchanged"]
-    steps = solver.refine.iterations
-    network = solve_character(before, replace(solver, refine=RefineConfig(iterations=0))).pose
-    smpl_effectors = [scale_effector(e, 1.0 / after.scale) for e in after.effectors]
-    lines = report_residuals(network, after.pose, smpl_effectors, solver.bodies, steps)
-    note = "" if after.scale == 1 else f" (SMPL space: character scale {after.scale:g})"
-    return [f"{after.name}: {lines[0]}{note}", *lines[1:]]
-
-
 @scene_app.command("from-estimate")
 def from_estimate_cmd(
     results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json, .pt).")],
@@ -142,24 +123,29 @@ def from_estimate_cmd(
 def solve_cmd(
     scene: Annotated[Path, typer.Argument(help="Scene JSON.")],
     out: Annotated[Path | None, typer.Option("--out", help="Output scene (default: overwrite SCENE).")] = None,
+    exact: Annotated[bool, typer.Option("--exact", help="Re-solve every effector exactly from scratch instead of "
+                                        "solving the changed ones as drags.")] = False,
     checkpoint: Checkpoint = None,
 ) -> None:
-    """Re-solve every character from its (edited) effectors and shape; print each effector's residual and the
-    conflict report (the effectors not met and those they contradict)."""
-    from workflows.edits import conflict_report
-    from workflows.scene import load_scene, save_scene, solve_scene
+    """Re-solve a scene after its effectors were edited: the effectors its stored pose does not meet (the ones
+    you changed) are solved as the editor's drags (the stale effectors of their chains relaxed, the rest of the
+    body kept); print what moved and what was relaxed, then each effector's residual and conflicts."""
+    from workflows.edits import conflict_report, solve_scene_edits
+    from workflows.scene import load_scene, save_scene
 
     with user_errors():
         loaded = load_scene(scene)
         solver = _solver(checkpoint)
-        solved = solve_scene(loaded, solver)
+        solved, reports = solve_scene_edits(loaded, solver, exact=exact)
         path = save_scene(solved, out or scene)
-        for before, after in zip(loaded.characters, solved.characters, strict=True):
-            for line in character_residuals(before, after, solver):
+        lines = {r.character: r.line() for r in reports}
+        for c in solved.characters:
+            if not c.effectors:
+                say(f"{c.name}: no effectors, pose unchanged")
+                continue
+            say(lines[c.name])
+            for line in conflict_report(c, solver).lines():  # residuals, effectors not met and what they contradict
                 say(line)
-            if after.effectors:  # which effectors are not met, and which others they contradict
-                for line in conflict_report(after, solver).lines():
-                    say(line)
     say(f"wrote {path}")
 
 

@@ -27,6 +27,13 @@ Effectors outside the chain are kept: they hold the rest of the body. The benchm
 limb on the pose the drag started from, its elbow or knee swivel turned most of the way to the learned
 prior's; everything outside the limb stays put unless an exact effector needs it.
 
+**Scripted edits** (:func:`solve_scripted`): a script that changes effectors (in ``scene.json``, an animation's
+keyframe) gets the same drag. The effectors the stored pose does not meet (beyond their :func:`allowance`) are
+the moved ones; each relaxes its chain's stale effectors and they are solved one after the other by
+:func:`solve_edit` from the stored pose (``smplik scene solve``: :func:`solve_scene_edits`; Python:
+:func:`drag_scene_effector`, ``Scene.drag``; ``smplik scene edit-keyframe``:
+:func:`workflows.animation_edit.keyframe_edit`).
+
 **Conflict report** (:func:`conflict_report`): per effector, its residual after the solve, what its tolerance
 allows, and the effectors it contradicts: those whose removal (one batched leave-one-out solve) brings its
 residual within the allowance or halves it.
@@ -359,6 +366,213 @@ def solve_drag(character: Any, solver: Any, moved: int, previous: Pose | None = 
     effectors = [scale_effector(e, 1.0 / character.scale) for e in character.effectors]
     pose = solve_edit(solver, [effectors], [previous], [character.effectors[moved].joint])[0]
     return dataclasses.replace(character, pose=pose)
+
+
+# ----------------------------------------------------------------------------- scripted edits
+
+
+@dataclass(frozen=True)
+class ScriptedEdit:
+    """What a scripted edit of one character did (:func:`solve_scripted`), for one printed line.
+
+    Attributes:
+        character: the character's (or track's) name.
+        effectors: the effectors after the edit (character space; the relaxed ones with tolerance raised).
+        moved: indices (into ``effectors``) of the effectors solved as drags, in the order they were solved.
+        distances: per moved effector, how far the pose before the edit was from it (mm or degrees, character
+            space).
+        relaxed: indices of the effectors whose tolerance the drags raised (:func:`relax_stale`).
+        mode: ``"drag"`` (the moved effectors solved as drags from the previous pose), ``"kept"`` (every effector
+            met by the previous pose: the pose is kept), ``"exact"`` (every effector re-solved exactly: asked for,
+            or no previous pose).
+    """
+
+    character: str
+    effectors: tuple[Effector, ...]
+    moved: tuple[int, ...] = ()
+    distances: tuple[float, ...] = ()
+    relaxed: tuple[int, ...] = ()
+    mode: str = "drag"
+
+    def _names(self, indices: Sequence[int]) -> str:
+        return ", ".join(f"{self.effectors[i].joint_name} {self.effectors[i].type.name.lower()}" for i in indices)
+
+    def line(self) -> str:
+        """One line: what was moved (and how far), what it relaxed, or why nothing was dragged."""
+        if self.mode == "exact":
+            return f"{self.character}: re-solved exactly from its {len(self.effectors)} effectors"
+        if self.mode == "kept":
+            return (f"{self.character}: every effector is met by the stored pose (within {POSITION_ALLOWANCE_MM:g} "
+                    f"mm / {ANGLE_ALLOWANCE_DEG:g} deg); pose kept")
+        units = ["mm" if self.effectors[i].type == EffectorType.POSITION else "deg" for i in self.moved]
+        moved = ", ".join(f"{self._names([i])} ({d:.0f} {u} from the stored pose)"
+                          for i, d, u in zip(self.moved, self.distances, units, strict=True))
+        relaxed = self._names(self.relaxed) or "nothing"
+        return (f"{self.character}: moved {moved}, solved as a drag; relaxed (tolerance {RELAXED_TOLERANCE:g}): "
+                f"{relaxed}")
+
+
+def character_residuals(effectors: Sequence[Effector], pose: Pose, scale: float, bodies: Any) -> list[float]:
+    """Each effector's residual (character space: mm or degrees) on ``pose`` (SMPL space) of a character
+    scaled by ``scale``."""
+    from smplik.solver import effector_residuals
+    from workflows.scene import scale_effector
+
+    smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
+    return [r.value * (scale if r.effector.type == EffectorType.POSITION else 1.0)
+            for r in effector_residuals(dataclasses.replace(pose, joints=None), smpl, bodies)]
+
+
+def unmet_effectors(effectors: Sequence[Effector], pose: Pose, scale: float, bodies: Any, *,
+                    among: Sequence[int] | None = None) -> list[tuple[int, float]]:
+    """The effectors a stored pose does not meet: those (of ``among``, default all) held more tightly than a
+    relaxed hint (tolerance below :data:`RELAXED_TOLERANCE`) whose residual on ``pose`` exceeds their
+    :func:`allowance` (10 mm / 5 degrees for exact ones); as (index, residual) pairs in index order.
+
+    The effectors a script changed since the pose was solved are among these; so is one the pose never met
+    (a conflict the previous solve could not resolve)."""
+    residuals = character_residuals(effectors, pose, scale, bodies)
+    pick = range(len(effectors)) if among is None else sorted(set(among))
+    return [(i, residuals[i]) for i in pick
+            if effectors[i].tolerance < RELAXED_TOLERANCE and residuals[i] > allowance(effectors[i])]
+
+
+def drag_order(effectors: Sequence[Effector], moved: Sequence[int]) -> list[int]:
+    """The order in which several moved effectors are solved as drags: those on no chain (the pelvis: they
+    re-pose the whole body) first, then the others as given."""
+    return sorted(moved, key=lambda i: bool(chain_of(effectors[i].joint)))
+
+
+def solve_scripted(solver: Any, name: str, effectors: Sequence[Effector], previous: Pose | None, *, scale: float,
+                   betas: Any, gender: Any, moved: Sequence[int] | None = None, among: Sequence[int] | None = None,
+                   exact: bool = False) -> tuple[Pose, ScriptedEdit]:
+    """Solve a character whose effectors a script changed as the editor solves drags of them.
+
+    ``moved`` (indices into ``effectors``): the effectors the script changed; default: those ``previous`` does
+    not meet (:func:`unmet_effectors`, among the indices ``among``). Each moved effector relaxes the stale
+    effectors of its chain (:func:`stale_effectors`; a moved effector is never relaxed), then the moved ones
+    are solved one after the other as drags (:func:`solve_edit`, in :func:`drag_order`; the moved effectors not
+    yet solved are left out of each step), starting from ``previous``. Nothing moved: ``previous`` is kept.
+    ``exact`` or no ``previous``: every effector re-solved exactly (``solver.solve``), nothing relaxed.
+
+    Args:
+        solver: an :class:`smplik.solver.IKSolver`.
+        name: the character's name (for the report line).
+        effectors: character space (positions and look-at targets are divided by ``scale`` to solve).
+        previous: the pose before the edit (SMPL space) or None.
+        scale, betas, gender: the character's.
+
+    Returns: (the solved pose, SMPL space; what was done, :class:`ScriptedEdit`).
+    """
+    from workflows.scene import scale_effector
+
+    effectors = tuple(effectors)
+    if not effectors:
+        raise ValueError(f"{name}: no effectors to solve.")
+    betas = np.asarray(betas, np.float64)
+    if exact or previous is None:
+        smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
+        return solver.solve(smpl, betas=betas, gender=gender), ScriptedEdit(name, effectors, mode="exact")
+    stored, previous = previous, dataclasses.replace(previous, betas=betas, gender=gender, joints=None)
+    if moved is None:
+        unmet = unmet_effectors(effectors, previous, scale, solver.bodies, among=among)
+    else:
+        residuals = character_residuals(effectors, previous, scale, solver.bodies)
+        unmet = [(int(i), residuals[int(i)]) for i in moved]
+    if not unmet:
+        return stored, ScriptedEdit(name, effectors, mode="kept")
+    distance = dict(unmet)
+    order = drag_order(effectors, list(distance))
+    relaxed: set[int] = set()
+    current = effectors
+    for k in order:
+        stale = [i for i in stale_effectors(current, k)
+                 if i not in distance and current[i].tolerance < RELAXED_TOLERANCE]
+        current = tuple(dataclasses.replace(e, tolerance=RELAXED_TOLERANCE) if i in stale else e
+                        for i, e in enumerate(current))
+        relaxed.update(stale)
+    pose = previous
+    for step, k in enumerate(order):
+        pending = set(order[step + 1:])
+        keep = [i for i in range(len(current)) if i not in pending]
+        smpl = [scale_effector(current[i], 1.0 / scale) for i in keep]
+        pose = solve_edit(solver, [smpl], [pose], [current[k].joint])[0]
+        pose = dataclasses.replace(pose, joints=None) if step + 1 < len(order) else pose
+    report = ScriptedEdit(name, current, tuple(order), tuple(distance[k] for k in order), tuple(sorted(relaxed)))
+    return pose, report
+
+
+def solve_scene_edits(scene: Any, solver: Any, *, exact: bool = False, only: Sequence[str] | None = None
+                      ) -> tuple[Any, list[ScriptedEdit]]:
+    """``smplik scene solve``: every character (or those named in ``only``) with effectors solved by
+    :func:`solve_scripted` (the effectors its stored pose does not meet, solved as drags; ``exact``: today's
+    exact re-solve of all of them). Returns the new :class:`~workflows.scene.Scene` and one
+    :class:`ScriptedEdit` per character solved."""
+    chars, reports = [], []
+    for c in scene.characters:
+        if not c.effectors or (only is not None and c.name not in only):
+            chars.append(c)
+            continue
+        pose, report = solve_scripted(solver, c.name, c.effectors, c.pose, scale=c.scale, betas=c.betas,
+                                      gender=c.gender, exact=exact)
+        chars.append(dataclasses.replace(c, effectors=report.effectors, pose=pose))
+        reports.append(report)
+    return dataclasses.replace(scene, characters=tuple(chars)), reports
+
+
+@cache
+def _shipped_solver() -> Any:
+    from smplik.solver import IKSolver
+
+    return IKSolver.load()
+
+
+def drag_scene_effector(scene: Any, character: str, joint: str | int, *, position: Any = None, offset: Any = None,
+                        rotation: Any = None, tolerance: float = 0.0, solver: Any = None) -> tuple[Any, ScriptedEdit]:
+    """A scripted drag: move (or add) one effector of a scene character and solve it as the editor's drag does.
+
+    Exactly one of ``position`` (3,) (the joint's new place, character space), ``offset`` (3,) (added to where
+    the stored pose has the joint) or ``rotation`` (3, 3) (the joint's new world rotation) is given. The
+    effector of the same joint and type is replaced (else one is added, with ``tolerance``), the stale effectors
+    of its chain are relaxed and its limb re-posed from the stored pose (:func:`solve_scripted`); the rest of the
+    body stays where it was.
+
+    Args:
+        scene: a :class:`~workflows.scene.Scene` (``load_scene``); it is not changed.
+        character: the character's name.
+        solver: an :class:`smplik.solver.IKSolver` (default: the shipped model, loaded once).
+
+    Returns: (the edited scene, what was moved and relaxed).
+    Raises: :class:`~workflows.scene.SceneError` for an unknown character, a missing pose (``offset``) or not
+    exactly one of position/offset/rotation; :class:`~smplik.effectors.EffectorError` for a bad joint or value.
+    """
+    from workflows.scene import SceneError, character_joints
+
+    names = [c.name for c in scene.characters]
+    if character not in names:
+        raise SceneError(f"no character {character!r} in the scene (characters: {', '.join(names)}).")
+    n = names.index(character)
+    c = scene.characters[n]
+    given = [v is not None for v in (position, offset, rotation)]
+    if sum(given) != 1:
+        raise SceneError("a drag needs exactly one of position=, offset= or rotation=.")
+    if rotation is not None:
+        new = Effector.rotation(joint, rotation, tolerance)
+    elif position is not None:
+        new = Effector.position(joint, position, tolerance)
+    else:
+        if c.pose is None:
+            raise SceneError(f"{character}: has no solved pose to move a joint from; give position= instead.")
+        j = Effector.position(joint, (0.0, 0.0, 0.0)).joint
+        new = Effector.position(joint, character_joints(c)[j] + np.asarray(offset, np.float64), tolerance)
+    effectors = tuple(c.effectors)
+    k = next((i for i, e in enumerate(effectors) if e.joint == new.joint and e.type == new.type), len(effectors))
+    effectors = effectors[:k] + (new,) + effectors[k + 1:]
+    pose, report = solve_scripted(solver or _shipped_solver(), c.name, effectors, c.pose, scale=c.scale,
+                                  betas=c.betas, gender=c.gender, moved=[k])
+    chars = list(scene.characters)
+    chars[n] = dataclasses.replace(c, effectors=report.effectors, pose=pose)
+    return dataclasses.replace(scene, characters=tuple(chars)), report
 
 
 # ----------------------------------------------------------------------------- conflict report

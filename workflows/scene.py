@@ -176,6 +176,19 @@ class Scene:
     camera: CameraInfo | None = None
     ground: GroundRecord | None = None
 
+    def drag(self, character: str, joint: str | int, *, position: Any = None, offset: Any = None,
+             rotation: Any = None, tolerance: float = 0.0, solver: Any = None) -> Scene:
+        """A scripted drag, as in the editor: this scene with ``character``'s effector on ``joint`` moved (or
+        added) and the character re-solved so that only the dragged limb moves
+        (:func:`workflows.edits.drag_scene_effector`, which also returns what was relaxed).
+
+        Exactly one of ``position`` (3,) (character space, metres), ``offset`` (3,) (from where the stored pose
+        has the joint) or ``rotation`` (3, 3) (world); ``solver``: default the shipped model."""
+        from workflows.edits import drag_scene_effector
+
+        return drag_scene_effector(self, character, joint, position=position, offset=offset, rotation=rotation,
+                                   tolerance=tolerance, solver=solver)[0]
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "format": SCENE_FORMAT,
@@ -365,7 +378,9 @@ def solve_character(character: SceneCharacter, solver: Any) -> SceneCharacter:
 
 
 def solve_scene(scene: Scene, solver: Any, *, only: Sequence[str] | None = None) -> Scene:
-    """Re-solve every character (or those named in ``only``) with ``solver.solve`` (an IKSolver)."""
+    """Re-solve every character (or those named in ``only``) exactly from all its effectors with ``solver.solve``
+    (an IKSolver): ``smplik scene solve --exact``. Plain ``scene solve`` solves only the effectors the stored pose
+    does not meet, as drags (:func:`workflows.edits.solve_scene_edits`)."""
     chars = tuple(solve_character(c, solver) if only is None or c.name in only else c for c in scene.characters)
     return dataclasses.replace(scene, characters=chars)
 

@@ -129,7 +129,8 @@ class AnimationTimeline(UndoStacks):
         """Set the current frame's effectors of ``track`` and blend the re-solved pose over the window."""
         from workflows.animation_edit import edit_keyframe
 
-        edited = edit_keyframe(self._animation, track, self._frame, effectors, self._solver, window=self._window)
+        edited = edit_keyframe(self._animation, track, self._frame, effectors, self._solver, window=self._window,
+                               merge=False)  # the frame shows the keyframe's whole list
         self._undo.append(self._animation)
         self._redo.clear()
         self._animation = edited
