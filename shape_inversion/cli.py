@@ -88,7 +88,7 @@ def invert_shape(
     from smplik.atomic import write_json_atomic
     from smplik.body_model import load_body_model
 
-    console = Console(stderr=True)
+    console = Console(stderr=True, soft_wrap=True)  # a status line is never cut mid-number
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     try:
         char = read_character(character, options)

@@ -2,7 +2,8 @@
 
 Three panels, one shared camera (front view, smplik frame): the custom skeleton (grey bones,
 blue spheres on the joints mapped to SMPL); the custom skeleton overlaid with the SMPL
-approximation's 24-joint skeleton (red); the SMPL mesh ``scale * V(betas)``. The SMPL body is
+approximation's 24-joint skeleton (red); the SMPL mesh ``scale * V(betas)``. A legend in the
+top-left corner names each colour. The SMPL body is
 placed so that its hip centre and ankle height match the character's.
 """
 
@@ -15,12 +16,15 @@ from shape_inversion.estimator import ShapeEstimate
 from shape_inversion.skeleton_io import Character
 from smplik.body_model import BodyModel
 from smplik.conventions import JOINT_INDEX, NUM_BETAS, PARENTS
-from smplik.render import MeshItem, Segment, Sphere, View, render
+from smplik.render import MeshItem, Segment, Sphere, View, label_image, render
 
 _BONE = (0.35, 0.35, 0.38, 1.0)
 _MAPPED = (0.15, 0.35, 0.85, 1.0)
 _SMPL = (0.85, 0.15, 0.15, 1.0)
 _MESH = (0.78, 0.72, 0.66, 1.0)
+LEGEND = (("your skeleton's bones", _BONE), ("its joints mapped to SMPL", _MAPPED),
+          ("SMPL-SI's SMPL skeleton (beta, scale)", _SMPL), ("SMPL-SI's SMPL body", _MESH))
+"""The legend drawn in the picture's top-left corner: (text, the colour it names)."""
 
 
 def smpl_placement(character: Character, smpl_joints: np.ndarray) -> np.ndarray:
@@ -37,7 +41,8 @@ def smpl_placement(character: Character, smpl_joints: np.ndarray) -> np.ndarray:
 
 def render_comparison(character: Character, estimate: ShapeEstimate, model: BodyModel, *,
                       size: tuple[int, int] = (1350, 600)) -> np.ndarray:
-    """RGB uint8 image (H, W, 3): custom skeleton | both skeletons | SMPL mesh."""
+    """RGB uint8 image (H, W, 3): custom skeleton | both skeletons | SMPL mesh, with a colour legend
+    (:data:`LEGEND`) in the top-left corner."""
     betas = torch.as_tensor(np.asarray(estimate.betas, dtype=np.float32)).reshape(1, NUM_BETAS)
     zeros = torch.zeros(1, 3)
     verts, joints = model.vertices(zeros, torch.zeros(1, 23, 3), zeros, betas)
@@ -58,4 +63,5 @@ def render_comparison(character: Character, estimate: ShapeEstimate, model: Body
     segments += [Segment(joints[j], joints[p], radius * 0.35, _SMPL) for j, p in enumerate(PARENTS) if p >= 0]
     spheres += [Sphere(joints[j], radius * 0.8, _SMPL) for j in range(len(PARENTS))]
     mesh = MeshItem(verts + step, model.faces, _MESH)
-    return render([mesh], spheres, segments, size=size, view=View(direction=(0.0, 0.0, 1.0), margin=1.05))
+    image = render([mesh], spheres, segments, size=size, view=View(direction=(0.0, 0.0, 1.0), margin=1.05))
+    return label_image(image, [text for text, _ in LEGEND], colors=[color for _, color in LEGEND])

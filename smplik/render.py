@@ -249,3 +249,24 @@ def save_png(image: np.ndarray, path: str | Path) -> Path:
 def hstack_images(images: Sequence[np.ndarray]) -> np.ndarray:
     """Place images of equal height side by side."""
     return np.concatenate(list(images), axis=1)
+
+
+def label_image(img: np.ndarray, lines: Sequence[str], *, colors: Sequence[tuple[float, ...]] | None = None
+                ) -> np.ndarray:
+    """``img`` with text lines in its top-left corner on a light box (PIL's default font)."""
+    from PIL import Image, ImageDraw
+
+    pil = Image.fromarray(np.ascontiguousarray(img))
+    draw = ImageDraw.Draw(pil)
+    line_h = 13
+    width = max((int(draw.textlength(t)) for t in lines), default=0) + 20
+    draw.rectangle([2, 2, 6 + width, 6 + line_h * len(lines)], fill=(255, 255, 255))
+    for k, text in enumerate(lines):
+        y = 4 + k * line_h
+        x = 6
+        if colors is not None and k < len(colors) and colors[k] is not None:
+            c = tuple(int(255 * v) for v in colors[k][:3])
+            draw.rectangle([x, y + 2, x + 8, y + 10], fill=c, outline=(0, 0, 0))
+            x += 12
+        draw.text((x, y), text, fill=(0, 0, 0))
+    return np.asarray(pil)

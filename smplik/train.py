@@ -153,6 +153,16 @@ def _read_metric_rows(path: Path, up_to: int) -> list[str]:
     return rows
 
 
+def progress_postfix(loss: float, mpjpe_mm: float, samples_per_s: float) -> dict[str, str]:
+    """The training progress bar's fields; a metric not measured yet (NaN: no evaluation so far, or no
+    validation split) shows as ``-``, never ``nanmm``."""
+
+    def shown(value: float, fmt: str, unit: str = "") -> str:
+        return "-" if value != value else f"{value:{fmt}}{unit}"
+
+    return {"loss": shown(loss, ".4f"), "mpjpe": shown(mpjpe_mm, ".1f", "mm"), "samples_s": shown(samples_per_s, ".0f")}
+
+
 def _write_metric_rows(path: Path, rows: list[str]) -> None:
     write_text_atomic(path, ",".join(METRIC_COLUMNS) + "\n" + "".join(r + "\n" for r in rows))
 
@@ -402,7 +412,7 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
                 rows.append(f"{step},{loss_avg:.6f},{shown[0]:.3f},{shown[1]:.3f},{shown[2]:.5f},{rate:.1f}")
                 _write_metric_rows(run / METRICS, rows)
                 if bar is not None:
-                    bar.set_postfix(loss=f"{loss_avg:.4f}", mpjpe=f"{shown[0]:.1f}mm", samples_s=f"{rate:.0f}")
+                    bar.set_postfix(progress_postfix(loss_avg, shown[0], rate))
                 _plot_curve(run)
             if rank == 0 and (step % cfg.ckpt_every == 0 or step == cfg.steps):
                 _save_checkpoint(ckpt_path, model, opt, step, cfg, gens, bodies, metrics, loss_avg)

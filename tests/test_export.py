@@ -4,8 +4,10 @@ edit + ``scene solve``, a GLB character with its own mesh)."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
+import pygltflib
 import pytest
 
 from shape_inversion.gltf_io import load_gltf
@@ -79,7 +81,10 @@ def test_character_scene_after_edit_and_solve_exports_the_solved_pose(demo, tmp_
     wrist = char.names.index(char.rig.smpl_to_rig["right_wrist"])
     solved = character_joints(first)[21]
     assert np.linalg.norm(bvh.positions[0, wrist] - solved) < 0.05
-    assert not (tmp_path / f"{first.name}.glb").exists()  # a BVH character has no mesh to export
+    # a BVH character has no mesh: its GLB is its SMPL-SI body (24-joint skin), said in one line
+    body = pygltflib.GLTF2.load_binary(str(tmp_path / f"{first.name}.glb"))
+    assert len(body.skins) == 1 and len(body.skins[0].joints) == 24 and body.meshes
+    assert f"{first.name}: {Path(first.skeleton.path).name} has no mesh; its GLB is the SMPL body" in res.output
 
 
 @pytest.fixture(scope="module")

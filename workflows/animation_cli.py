@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -58,7 +58,8 @@ def animate_cmd(
     keyframe_threshold: Annotated[float, typer.Option("--keyframe-threshold", help="Add keyframes where "
                                                       "interpolation errs more than this (m).")] = 0.03,
     export: Annotated[str, typer.Option("--export", help="Animated files per track, comma-separated: bvh, glb "
-                                        "(GLB for SMPL bodies and glTF characters); '' for none.")] = "bvh",
+                                        "(GLB: the body's or glTF character's mesh, a BVH/JSON character's "
+                                        "SMPL-SI body); '' for none.")] = "bvh",
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per keyframe.")] = 6,
     preview: Annotated[Path | None, typer.Option("--preview", help="Write an animated preview (.gif or .mp4).")
                        ] = None,
@@ -82,8 +83,9 @@ def animate_cmd(
     from workflows.recovery import RecoveryConfig
 
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+    formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True) as bar:
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
                                            foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
                                keyframe_threshold_m=keyframe_threshold,
@@ -97,7 +99,7 @@ def animate_cmd(
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,
                                trust_pickle=trust_pickle, space=space, progress=progress,
-                               formats=[f.strip().lower() for f in export.split(",") if f.strip()],
+                               formats=formats,
                                max_frames=max_frames)
         files = list(outputs.all_files)
         anim = outputs.animation
@@ -110,11 +112,25 @@ def animate_cmd(
     if anim.depth_change is not None:
         say(anim.depth_change.describe())
     for t in anim.tracks:
-        contacts = 0 if t.contacts is None else int(t.contacts.sum())
         say(f"{t.name}: frames {t.first_frame}..{t.first_frame + t.num_frames - 1} at {anim.fps:g} frames/s "
-            f"({anim.space} frame), {len(t.keyframes)} keyframes, {contacts} foot-contact frames")
+            f"({anim.space} frame), {len(t.keyframes)} keyframes, {contact_summary(t.contacts)}")
+    if outputs.exported:
+        from workflows.animation_io import scene_of
+        from workflows.export import glb_notes
+
+        for note in glb_notes(scene_of(anim), formats):
+            say(note)
     for path in files:
         say(f"wrote {path}")
+
+
+def contact_summary(contacts: Any) -> str:
+    """How a track's feet touch the ground, from its (T, 2) left/right contact flags (or None):
+    ``"left foot in contact on 210 of 537 frames, right on 198"``."""
+    if contacts is None:
+        return "no foot contacts detected"
+    left, right = (int(n) for n in contacts.sum(axis=0))
+    return f"left foot in contact on {left} of {len(contacts)} frames, right on {right}"
 
 
 def edit_keyframe_cmd(

@@ -92,7 +92,7 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True) as bar:
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("effector recovery", total=None)
 
         def progress(done: int, total: int, name: str) -> None:
@@ -187,13 +187,15 @@ def export_cmd(
                                            "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
-    from workflows.export import export_scene
+    from workflows.export import export_scene, glb_notes
     from workflows.scene import load_scene
 
+    formats = [f for f in format.split(",") if f.strip()]
     with user_errors():
         loaded = load_scene(scene)
-        paths = export_scene(loaded, out, formats=[f for f in format.split(",") if f.strip()],
-                             base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
+        paths = export_scene(loaded, out, formats=formats, base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
+    for note in glb_notes(loaded, formats) if paths else []:
+        say(note)
     for path in paths:
         say(f"wrote {path}")
     if not paths:

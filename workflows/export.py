@@ -10,7 +10,8 @@ Per character with a solved pose (:func:`export_scene`):
 * **GLB** ``<name>.glb``: a glTF/GLB character's own file (mesh, materials, skin) with its joint
   nodes posed, its own animation clips kept and the pose added as one more clip (``pose``); an SMPL
   character as a skinned SMPL mesh (its rest mesh, 24 joints, SMPL's skin weights reduced to the four
-  largest) posed the same way. Characters read from BVH/JSON have no mesh: BVH only.
+  largest) posed the same way; so is a character read from BVH/JSON (no mesh of its own): its SMPL-SI body,
+  at its shape and scale (:func:`glb_notes` says so in one line).
 * **One world frame.** Every file of a scene is in the scene's world frame (metres, y-up, the scene's
   floor and facing), so several exported characters line up in a 3D tool: a custom character's GLB gets
   one extra root node ``smplik_world`` taking its own frame (units, axes) to the scene's; its BVH keeps
@@ -110,9 +111,26 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
             text = custom_bvh_text(char, custom, frame_time, keep_source_frames=keep_source_frames,
                                    frame=bvh_frame)
             written.append(write_text_atomic(out_dir / f"{stem}.bvh", text))
-        if "glb" in formats and char.skeleton.gltf is not None:
-            written.append(write_bytes_atomic(out_dir / f"{stem}.glb", posed_character_glb(char, custom, frame_time)))
+        if "glb" in formats:  # its own mesh, or (a BVH / joints JSON has none) its SMPL-SI body: glb_notes
+            data = (posed_character_glb(char, custom, frame_time) if char.skeleton.gltf is not None
+                    else smpl_glb_bytes(c, frames, frame_time))
+            written.append(write_bytes_atomic(out_dir / f"{stem}.glb", data))
     return written
+
+
+GLTF_SUFFIXES = (".glb", ".gltf", ".vrm")
+"""Character files that carry their own mesh (read as glTF by :func:`shape_inversion.skeleton_io.read_character`)."""
+
+
+def glb_notes(scene: Scene, formats: Sequence[str]) -> list[str]:
+    """One line per custom character whose exported GLB is its SMPL-SI body rather than its own mesh (a BVH
+    or joints JSON has no mesh): what a user is told next to the ``wrote`` lines of an export."""
+    if "glb" not in [str(f).strip().lower() for f in formats]:
+        return []
+    return [f"{c.name}: {Path(c.skeleton.path).name} has no mesh; its GLB is the SMPL body of its SMPL-SI shape "
+            f"and scale, posed the same"
+            for c in scene.characters
+            if c.skeleton is not None and Path(c.skeleton.path).suffix.lower() not in GLTF_SUFFIXES]
 
 
 def _safe_stem(name: str, index: int) -> str:

@@ -20,7 +20,7 @@ import torch
 
 from smplik.conventions import PARENTS, EffectorType
 from smplik.pose import Pose
-from smplik.render import ImageCamera, MeshItem, Segment, Sphere, View, hstack_images, render
+from smplik.render import ImageCamera, MeshItem, Segment, Sphere, View, hstack_images, label_image, render
 from workflows.character import CustomCharacter, CustomPose
 from workflows.scene import Scene, SceneCharacter, character_joints
 
@@ -120,27 +120,6 @@ def ghost_segments(pose: Pose, scale: float = 1.0, color=GHOST_COLOR, radius: fl
     joints = (pose.joints if pose.joints is not None else TargetPose.from_pose(pose).p_world.double().numpy())
     p = np.asarray(joints, dtype=np.float64) * scale
     return [Segment(p[par], p[k], radius * scale, color) for k, par in enumerate(PARENTS) if par >= 0]
-
-
-def label_image(img: np.ndarray, lines: Sequence[str], *, colors: Sequence[tuple[float, ...]] | None = None
-                ) -> np.ndarray:
-    """``img`` with text lines in its top-left corner on a light box (PIL's default font)."""
-    from PIL import Image, ImageDraw
-
-    pil = Image.fromarray(np.ascontiguousarray(img))
-    draw = ImageDraw.Draw(pil)
-    line_h = 13
-    width = max((int(draw.textlength(t)) for t in lines), default=0) + 20
-    draw.rectangle([2, 2, 6 + width, 6 + line_h * len(lines)], fill=(255, 255, 255))
-    for k, text in enumerate(lines):
-        y = 4 + k * line_h
-        x = 6
-        if colors is not None and k < len(colors) and colors[k] is not None:
-            c = tuple(int(255 * v) for v in colors[k][:3])
-            draw.rectangle([x, y + 2, x + 8, y + 10], fill=c, outline=(0, 0, 0))
-            x += 12
-        draw.text((x, y), text, fill=(0, 0, 0))
-    return np.asarray(pil)
 
 
 def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[int, int] = (480, 640),

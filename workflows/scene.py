@@ -103,6 +103,13 @@ class SkeletonSource:
     joint_map: dict[str, str] | None = None
     """The SMPL joint -> rig joint map the character was read with (a record; re-reading maps it again)."""
 
+    def __hash__(self) -> int:
+        # The dataclass hash would hash the joint_map dict (unhashable); hash its items instead, so a
+        # skeleton record can key caches (the editor's per-character cache) like every other field.
+        fields = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "joint_map")
+        items = None if self.joint_map is None else tuple(sorted(self.joint_map.items()))
+        return hash((fields, items))
+
     @classmethod
     def from_options(cls, path: str, options: CharacterOptions,
                      joint_map: Mapping[str, str] | None = None) -> SkeletonSource:

@@ -13,7 +13,7 @@ from smplik.cli.options import parse_ensemble
 
 app = typer.Typer(help="Randomized-effector IK benchmark: make the files, run methods on them.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # status lines are never cut mid-number
 LEARNED_METHODS = ("smplik", "smplik_net", "smplik_ens", "smplik_net_ens")
 ALL_METHODS = (*LEARNED_METHODS, "optim", "nn", "rest")
 

@@ -161,8 +161,24 @@ app = typer.Typer(cls=SmplikGroup, help="Morphology-aware learned IK on the SMPL
                   pretty_exceptions_enable=False, rich_markup_mode=None, add_completion=False)
 
 
+def _print_version(value: bool) -> None:
+    """``smplik --version``: the installed distribution's version (importlib.metadata), then exit."""
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            text = version("smplik")
+        except PackageNotFoundError:  # run from a checkout that was never installed
+            text = "unknown (not installed: pip install -e .)"
+        print(f"smplik {text}")
+        raise typer.Exit(0)
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    show_version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                      help="Print the version and exit."),
+) -> None:
     """Morphology-aware learned IK on the SMPL body model."""
 
 

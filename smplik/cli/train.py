@@ -20,7 +20,7 @@ from rich.markup import escape
 
 from smplik.configs import EffectorSamplingConfig, NetworkConfig
 
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # status lines are never cut mid-number
 
 
 def _default(name: str, cls: type | None = None) -> str:

@@ -16,7 +16,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 __all__ = ["build", "StorageDtype"]
 
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # status lines are never cut mid-number
 
 
 class StorageDtype(str, Enum):
@@ -95,7 +95,7 @@ def build(
 
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TextColumn("{task.fields[clip]}"))
-    with Progress(*columns, console=console, transient=True) as progress:
+    with Progress(*columns, console=console, transient=True, disable=not console.is_terminal) as progress:
         task = progress.add_task(f"reading {kind}", total=len(sources), clip="")
 
         def advance(src: object) -> None:

@@ -11,11 +11,12 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from smplik.cli.errors import fail
 from smplik.conventions import Gender
 from smplik.paths import CMU_DIR_ENV, cmu_dir, missing_cmu_reason
 
 app = typer.Typer(help="Motion data: BVH import, retargeting, previews.", no_args_is_help=True)
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True, highlight=False)  # a line is never cut mid-path or mid-number
 
 def resolve_clip(clip: str) -> Path:
     """A BVH path, or a clip name such as ``07_01`` looked up in :func:`smplik.paths.cmu_dir`."""
@@ -40,7 +41,8 @@ def preview(
     out: Annotated[Path, typer.Option("--out", help="Output PNG.")],
     frames: Annotated[int, typer.Option("--frames", min=1, max=24, help="Number of frames in the strip.")] = 5,
     gender: Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model.")] = Gender.NEUTRAL,
-    preset: Annotated[str, typer.Option("--preset", help="Retarget preset name or JSON file.")] = "cmu",
+    preset: Annotated[str, typer.Option("--preset", help="Retarget preset: auto (mapped from the rig, as "
+                                                          "data build does), a preset name or a JSON file.")] = "auto",
     view: Annotated[str, typer.Option("--view", help="front, side or three-quarter.")] = "three-quarter",
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Real SMPL files (default: built-in).")] = None,
     panel: Annotated[int, typer.Option("--panel", help="Panel width in pixels (height is 1.6x).")] = 320,
@@ -61,8 +63,7 @@ def preview(
         motion = read_bvh(path)
         rc = retarget_bvh(motion, preset, gender=gender, model_dir=model_dir)
     except (BVHError, RetargetError) as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(1) from None
+        fail(exc)
     picks = np.linspace(rc.motion_start, rc.num_frames - 1, frames).round().astype(int)
     model = load_body_model(gender, model_dir)
     verts, joints = model.vertices(torch.from_numpy(rc.global_orient[picks]), torch.from_numpy(rc.body_pose[picks]),
@@ -85,8 +86,7 @@ def preview(
             images.append(render([mesh], segments=segments, size=(panel, int(panel * 1.6)),
                                  view=View(direction=tuple(direction))))
         except RenderError as exc:
-            console.print(f"[red]error:[/red] {exc}")
-            raise typer.Exit(1) from None
+            fail(exc)
     save_png(hstack_images(images), out)
     console.print(f"wrote {out} ({path.name}: frames {', '.join(str(int(f)) for f in picks)} of {rc.num_frames}, "
                   f"rest pose {rc.rest_mode}, root scale {rc.root_scale:.3f})")

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from workflows.editor.timeline import AnimationTimeline
 
 app = typer.Typer(help="Interactive pose editor.")
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # status lines are never cut mid-number
 
 
 def is_loopback(host: str) -> bool:
