@@ -66,7 +66,8 @@ def animate_cmd(
                                                "preview's background (camera-frame animations).")] = None,
     max_frames: Annotated[int, typer.Option("--max-frames", min=1, help="Refuse to read more frames than "
                                             "this.")] = 100_000,
-    preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame.")] = 1,
+    preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame (more "
+                                               "than 1000 frames get a larger step, printed).")] = 1,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
@@ -82,6 +83,11 @@ def animate_cmd(
     from workflows.recovery import RecoveryConfig
 
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+    if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
+        from workflows.animation_preview import check_preview_path
+
+        with user_errors():
+            check_preview_path(preview)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
@@ -101,18 +107,21 @@ def animate_cmd(
                                max_frames=max_frames)
         files = list(outputs.all_files)
         anim = outputs.animation
+        shown = None
         if preview is not None:
-            from workflows.animation_preview import preview_frames, save_preview
+            from workflows.animation_preview import write_preview
 
             bar.update(task, description="preview")
-            images = preview_frames(anim, video=video, every=preview_every)
-            files.append(save_preview(images, preview, anim.fps / preview_every))
+            shown = write_preview(anim, preview, video=video, every=preview_every)
+            files.append(shown.path)
     if anim.depth_change is not None:
         say(anim.depth_change.describe())
     for t in anim.tracks:
         contacts = 0 if t.contacts is None else int(t.contacts.sum())
         say(f"{t.name}: frames {t.first_frame}..{t.first_frame + t.num_frames - 1} at {anim.fps:g} frames/s "
             f"({anim.space} frame), {len(t.keyframes)} keyframes, {contacts} foot-contact frames")
+    if shown is not None:
+        say(shown.describe())
     for path in files:
         say(f"wrote {path}")
 
