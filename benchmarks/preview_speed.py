@@ -1,24 +1,27 @@
 """Cost of ``scene animate --preview`` against the animation's own, on a GVHMR-layout clip of 537 frames.
 
-The clip (``--frames``, default 537, the length of the GVHMR run of issue 32) is a walk written in GVHMR's
-``hmr4d_results.pt`` layout (``smpl_params_global`` / ``smpl_params_incam`` dicts of (L, ...) tensors,
-``K_fullimg``; GVHMR ``tools/demo/demo.py``). Timed, in one process with the shipped model loaded once:
+The clip (``--frames``, default 537, the length of the GVHMR run of issue 32) is a walk with estimator-like jitter
+written in GVHMR's ``hmr4d_results.pt`` layout (``smpl_params_global`` / ``smpl_params_incam`` dicts of (L, ...)
+tensors, ``K_fullimg``; GVHMR ``tools/demo/demo.py``). Three runs of the ``smplik`` command, as a user runs it:
 
-* ``animate_s``: :func:`workflows.animation.animate_file` (read, clean, keyframes, effectors; BVH export), the
-  animation's own time;
-* ``gif_s`` / ``mp4_s``: :func:`workflows.animation_preview.write_preview` of the whole clip (3D view with floor);
-* ``old_per_frame_s``: the previous preview's way (a new renderer per frame: :func:`workflows.previews.render_scene`
-  at 480 x 360, the view refitted per frame) on ``--old-sample`` frames, per frame, and extrapolated to the clip
-  (``old_extrapolated_s``; it also stopped at 300 frames).
+* ``animate``: ``smplik scene animate CLIP --out DIR`` (GVHMR: 30 frames/s assumed), the animation's own time
+  (start-up, reading, cleaning, keyframe effectors, BVH export);
+* ``gif`` / ``mp4``: the same with ``--preview x.gif`` / ``--preview x.mp4`` (3D view with floor; the GIF every
+  2nd frame, at 15 frames/s, the MP4 every frame). The preview's cost is the difference to ``animate``.
 
-Also CPU seconds of the process (``*_cpu_s``), which depend less on other load of a shared machine. Prints a
-table and writes ``benchmarks/results/preview_speed.json``.
+Wall-clock seconds and CPU seconds of the child process (``*_cpu_s``: user + system, all its threads, among them
+llvmpipe's, less dependent on the other load of a shared machine); ratios ``*_over_animate`` of both. Also the
+previous preview's way (a new renderer per frame, :func:`workflows.previews.render_scene` at 480 x 360, the
+view refitted per frame), per frame on ``--old-sample`` frames, in this process. Prints a line and writes
+``benchmarks/results/preview_speed.json``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -33,7 +36,7 @@ from _common import save  # noqa: E402
 
 
 def write_walk(path: Path, frames: int, fps: float = 30.0) -> Path:
-    """A walk (legs and arms swinging, 1.2 m/s along the body's facing, a slow turn) in GVHMR's layout."""
+    """A walk (legs and arms swinging, 1.2 m/s along the body's facing, a slow turn, jitter) in GVHMR's layout."""
     from scipy.spatial.transform import Rotation
 
     t = np.arange(frames) / fps
@@ -45,6 +48,7 @@ def write_walk(path: Path, frames: int, fps: float = 30.0) -> Path:
     aa[:, 4, 0], aa[:, 5, 0] = 0.5 * (1 + np.sin(phase)), 0.5 * (1 - np.sin(phase))  # knees
     aa[:, 16, 2], aa[:, 17, 2] = -1.2, 1.2  # arms down
     aa[:, 16, 0], aa[:, 17, 0] = 0.3 * np.sin(phase), -0.3 * np.sin(phase)
+    aa[:, 1:] += np.random.default_rng(0).normal(0.0, 0.02, (frames, 21, 3))  # estimator-like jitter
     speed = 1.2 * np.stack([np.sin(heading), np.zeros(frames), np.cos(heading)], 1)
     transl = np.cumsum(speed / fps, 0) + np.array([0.0, 0.9, 0.0])
     M = np.diag([1.0, -1.0, -1.0])
@@ -64,55 +68,68 @@ def write_walk(path: Path, frames: int, fps: float = 30.0) -> Path:
     return path
 
 
-def timed(fn):
-    wall, cpu = time.perf_counter(), time.process_time()
-    out = fn()
-    return out, time.perf_counter() - wall, time.process_time() - cpu
+def run(args: list[str]) -> tuple[float, float]:
+    """Wall and CPU seconds (user + system of the child) of one ``smplik`` run."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    wall = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "smplik.cli", *args], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    wall = time.perf_counter() - wall
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"smplik {' '.join(args)} failed:\n{done.stdout}{done.stderr}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=537)
-    parser.add_argument("--old-sample", type=int, default=20, help="frames drawn the previous way (per frame cost)")
+    parser.add_argument("--old-sample", type=int, default=10, help="frames drawn the previous way (per frame cost)")
     parser.add_argument("--name", default="preview_speed", help="results file benchmarks/results/NAME.json")
     args = parser.parse_args()
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     torch.set_num_threads(1)
-    from smplik.solver import IKSolver
-    from workflows.animation import AnimateConfig, animate_file
-    from workflows.animation_io import scene_of
-    from workflows.animation_preview import write_preview
-    from workflows.previews import render_scene
-    from workflows.recovery import RecoveryConfig
-
-    solver = IKSolver.load()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        clip = write_walk(tmp / "hmr4d_results.pt", args.frames)
-        config = AnimateConfig(recovery=RecoveryConfig(max_effectors=6, threshold=0.03))
-        outputs, animate_s, animate_cpu = timed(lambda: animate_file(clip, tmp / "out", solver, fps=30.0,
-                                                                     config=config))
-        anim = outputs.animation
-        gif, gif_s, gif_cpu = timed(lambda: write_preview(anim, tmp / "p.gif"))
-        mp4, mp4_s, mp4_cpu = timed(lambda: write_preview(anim, tmp / "p.mp4"))
-        sample = list(range(0, args.frames, max(1, args.frames // args.old_sample)))[:args.old_sample]
-        _, old_s, old_cpu = timed(lambda: [render_scene(scene_of(anim, f), size=(480, 360),
-                                                        directions=((0.0, 0.2, 1.0),), labels=False) for f in sample])
+        clip = str(write_walk(tmp / "hmr4d_results.pt", args.frames))
+        animate = run(["scene", "animate", clip, "--out", str(tmp / "a")])
+        gif = run(["scene", "animate", clip, "--out", str(tmp / "g"), "--preview", str(tmp / "p.gif")])
+        mp4 = run(["scene", "animate", clip, "--out", str(tmp / "m"), "--preview", str(tmp / "p.mp4")])
+        import imageio.v2 as imageio
+
+        gif_frames = len(imageio.mimread(tmp / "p.gif", memtest=False))
+        mp4_frames = imageio.get_reader(tmp / "p.mp4").count_frames()
         gif_mb = (tmp / "p.gif").stat().st_size / 2**20
-    old_per = old_s / len(sample)
+        from workflows.animation_io import load_animation, scene_of
+        from workflows.previews import render_scene
+
+        anim = load_animation(tmp / "a" / "animation.json")
+        sample = list(range(0, args.frames, max(1, args.frames // args.old_sample)))[:args.old_sample]
+        render_scene(scene_of(anim, 0), size=(480, 360), directions=((0.0, 0.2, 1.0),), labels=False)  # warm
+        wall, cpu = time.perf_counter(), time.process_time()
+        for f in sample:
+            render_scene(scene_of(anim, f), size=(480, 360), directions=((0.0, 0.2, 1.0),), labels=False)
+        old_wall, old_cpu = (time.perf_counter() - wall) / len(sample), (time.process_time() - cpu) / len(sample)
     result = {"frames": args.frames, "keyframes": sum(len(t.keyframes) for t in anim.tracks),
-              "animate_s": animate_s, "animate_cpu_s": animate_cpu, "gif_s": gif_s, "gif_cpu_s": gif_cpu,
-              "gif_frames": len(gif.frames), "gif_mb": gif_mb, "mp4_s": mp4_s, "mp4_cpu_s": mp4_cpu,
-              "mp4_frames": len(mp4.frames), "gif_over_animate": gif_s / animate_s,
-              "gif_over_animate_cpu": gif_cpu / animate_cpu, "mp4_over_animate": mp4_s / animate_s,
-              "old_sample_frames": len(sample), "old_per_frame_s": old_per, "old_per_frame_cpu_s": old_cpu / len(sample),
-              "old_extrapolated_s": old_per * args.frames, "new_gif_per_frame_s": gif_s / args.frames,
+              "animate_s": animate[0], "animate_cpu_s": animate[1],
+              "gif_run_s": gif[0], "gif_run_cpu_s": gif[1], "gif_s": gif[0] - animate[0],
+              "gif_cpu_s": gif[1] - animate[1], "gif_frames": gif_frames, "gif_mb": gif_mb,
+              "mp4_run_s": mp4[0], "mp4_run_cpu_s": mp4[1], "mp4_s": mp4[0] - animate[0],
+              "mp4_cpu_s": mp4[1] - animate[1], "mp4_frames": mp4_frames,
+              "gif_over_animate": (gif[0] - animate[0]) / animate[0],
+              "gif_over_animate_cpu": (gif[1] - animate[1]) / animate[1],
+              "mp4_over_animate": (mp4[0] - animate[0]) / animate[0],
+              "mp4_over_animate_cpu": (mp4[1] - animate[1]) / animate[1],
+              "old_sample_frames": len(sample), "old_per_frame_s": old_wall, "old_per_frame_cpu_s": old_cpu,
+              "old_extrapolated_300_frames_s": old_wall * min(300, args.frames),
               "load_average": os.getloadavg()}
-    print(f"{args.frames} frames: animation {animate_s:.1f} s (cpu {animate_cpu:.1f}); GIF {gif_s:.1f} s "
-          f"(cpu {gif_cpu:.1f}, {len(gif.frames)} frames, {gif_mb:.1f} MiB, x{gif_s / animate_s:.2f} the animation); "
-          f"MP4 {mp4_s:.1f} s (x{mp4_s / animate_s:.2f}); previous way {old_per:.3f} s per frame "
-          f"(~{old_per * args.frames:.0f} s for the clip) vs {gif_s / args.frames:.3f} s now; "
-          f"load average {os.getloadavg()[0]:.1f}")
+    r = result
+    print(f"{args.frames} frames, {r['keyframes']} keyframes: animate {r['animate_s']:.1f} s (cpu "
+          f"{r['animate_cpu_s']:.1f}); GIF +{r['gif_s']:.1f} s (cpu +{r['gif_cpu_s']:.1f}; "
+          f"x{r['gif_over_animate']:.2f} wall, x{r['gif_over_animate_cpu']:.2f} cpu; {gif_frames} frames, "
+          f"{gif_mb:.1f} MiB); MP4 +{r['mp4_s']:.1f} s"
+          f" (x{r['mp4_over_animate']:.2f} wall, x{r['mp4_over_animate_cpu']:.2f} cpu; {mp4_frames} frames); previous "
+          f"way {old_wall:.2f} s per frame (cpu {old_cpu:.2f}); load average {os.getloadavg()[0]:.1f}")
     print(f"wrote {save(args.name, result)}")
 
 

@@ -25,11 +25,11 @@ from smplik.limits import DEFAULT_MAX_JOINTS
 
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
-                                            "AIST++, AMASS, ...).")],
+                                            "AIST++, AMASS, ...), or a folder of per-frame outputs (SMPLer-X).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder (animation.json, one BVH per track).")],
     frames: Annotated[str, typer.Option("--frames", help="'all' or A:B (frames A..B-1).")] = "all",
-    fps: Annotated[float | None, typer.Option("--fps", help="Source frame rate (default: the file's; needed "
-                                              "when the format does not store it).")] = None,
+    fps: Annotated[float | None, typer.Option("--fps", help="Source frame rate (default: the file's; GVHMR: 30; "
+                                              "needed when the format does not store it).")] = None,
     track: Annotated[str | None, typer.Option("--track", help="Only this track id (default: every track).")] = None,
     format: Annotated[str, typer.Option("--format", help="Estimator format (as in from-estimate).")] = "auto",
     space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'world' (their world trajectory, "
@@ -114,6 +114,8 @@ def animate_cmd(
             bar.update(task, description="preview")
             shown = write_preview(anim, preview, video=video, every=preview_every)
             files.append(shown.path)
+    for note in anim.notes:  # what the reading assumed (a frame rate, a sequence, a folder's frames)
+        say(note)
     if anim.depth_change is not None:
         say(anim.depth_change.describe())
     for t in anim.tracks:

@@ -15,9 +15,11 @@ and a camera-frame animation, each frame is drawn over the matching video frame 
   shows against it. (In a camera-frame animation the true floor may be tilted; this one is level.)
 
 Cost (:func:`write_preview`): one OpenGL context for all frames (:class:`smplik.render.Renderer`), preview-sized
-frames, frames streamed to the MP4 encoder; a GIF gets one 255-colour palette, computed once from frames
-sampled over the clip, and every frame is mapped to it. The whole clip is shown (every ``every``-th frame);
-beyond :attr:`PreviewConfig.max_frames` frames a larger step is chosen, and :func:`describe_frames` says which.
+frames, the floor drawn once (the bodies are drawn over that image), frames streamed to the MP4 encoder; a GIF
+gets one 255-colour palette, computed once from frames sampled over the clip, and every frame is mapped to it.
+The whole clip is shown: an MP4 every ``every``-th frame, a GIF at most :attr:`PreviewConfig.gif_max_fps` frames
+per second of the clip (every 2nd frame of a 30 frames/s clip); beyond :attr:`PreviewConfig.max_frames` frames a
+larger step is chosen. :func:`describe_frames` says which frames are shown (``scene animate`` prints it).
 ``benchmarks/preview_speed.py`` measures the cost against the animation's own.
 """
 
@@ -53,6 +55,9 @@ class PreviewConfig:
     """Over a video, frames are scaled down so that their longer side is at most this (pixels)."""
     max_frames: int = 1000
     """Most frames in one preview; a longer clip is shown every k-th frame (k chosen, and said)."""
+    gif_max_fps: float = 15.0
+    """A GIF shows at most this many frames per second of the clip (every k-th frame, said): a GIF's usual rate,
+    half the drawing of a 30 frames/s clip. An MP4 shows every frame."""
     tile_m: float = 0.5
     """Floor tile size (metres, times the largest character scale)."""
     palette_samples: int = 8
@@ -97,15 +102,19 @@ def check_preview_path(path: str | Path) -> None:
                                  ) from None
 
 
-def shown_frames(animation: Animation, every: int = 1, max_frames: int = 1000) -> tuple[list[int], int]:
+def shown_frames(animation: Animation, every: int = 1, max_frames: int = 1000, max_fps: float | None = None
+                 ) -> tuple[list[int], int]:
     """The source frames a preview shows and their step: every ``every``-th of the clip's first..last frame, the
-    step raised (to the smallest multiple of ``every`` that fits) when that is more than ``max_frames``."""
+    step raised (to the smallest multiple of ``every`` that fits) when that is more than ``max_frames`` frames or
+    (``max_fps``) more than ``max_fps`` frames per second of the clip."""
     if every < 1:
         raise AnimationError(f"--preview-every must be >= 1, got {every}.")
     first = min(t.first_frame for t in animation.tracks)
     last = max(t.first_frame + t.num_frames - 1 for t in animation.tracks)
     span = last - first + 1
     step = every * max(1, math.ceil(math.ceil(span / every) / max_frames))
+    if max_fps is not None and animation.fps / step > max_fps * (1 + 1e-9):
+        step = max(step, every * math.ceil(animation.fps / max_fps / every))
     return list(range(first, last + 1, step)), step
 
 
@@ -296,6 +305,9 @@ def iter_preview_frames(animation: Animation, frames: list[int], *, video: str |
         world = world_view(animation, frames, config)
         size = (config.size[0] - config.size[0] % 2, config.size[1] - config.size[1] % 2)
     with Renderer(size) as renderer:
+        if world is not None:  # the floor never hides a body above it: drawn once, the bodies over that image
+            floor_image = render(list(world.floor), size=size, view=world.view, background=(1.0, 1.0, 1.0, 1.0),
+                                 renderer=renderer)
         for f in frames if order is None else order:
             scene = scene_of(animation, f)
             meshes, spheres, segments = scene_items(scene)
@@ -309,8 +321,8 @@ def iter_preview_frames(animation: Animation, frames: list[int], *, video: str |
                 out = render(meshes, spheres, segments, size=size, view=cam, background=bg,
                              renderer=renderer) if (meshes or spheres or segments) else bg
             else:
-                out = render([*world.floor, *meshes], spheres, segments, size=size, view=world.view,
-                             background=(1.0, 1.0, 1.0, 1.0), renderer=renderer)
+                out = render(meshes, spheres, segments, size=size, view=world.view, background=floor_image,
+                             renderer=renderer) if (meshes or spheres or segments) else floor_image
             yield f, _stamp(out, f)
 
 
@@ -326,7 +338,8 @@ def write_preview(animation: Animation, path: str | Path, *, video: str | Path |
     """Render and write the preview (``.gif`` or ``.mp4``) at ``animation.fps / step``, atomically."""
     path = Path(path)
     check_preview_path(path)
-    frames, step = shown_frames(animation, every, config.max_frames)
+    gif = path.suffix.lower() == ".gif"
+    frames, step = shown_frames(animation, every, config.max_frames, config.gif_max_fps if gif else None)
     fps = animation.fps / step
     with atomic_path(path) as tmp:
         if path.suffix.lower() == ".mp4":
