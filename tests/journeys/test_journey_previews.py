@@ -154,3 +154,21 @@ def test_an_unwritable_mp4_preview_fails_before_the_work(tmp_path, animate, turn
     assert not (tmp_path / "a" / "animation.json").exists()  # nothing done
     res = animate(turned_clip, "--out", tmp_path / "b", "--preview", tmp_path / "b" / "p.avi")
     assert res.exit_code == 1 and ".gif or .mp4" in res.output and not (tmp_path / "b").exists()
+
+
+def test_a_long_clip_is_shown_whole_and_the_frames_are_said():
+    from smplik.conventions import Gender
+    from workflows.animation import Animation, AnimationTrack
+    from workflows.animation_preview import describe_frames, shown_frames
+
+    n = 537  # issue 32's GVHMR clip, whose GIF stopped at frame 299
+    track = AnimationTrack("person_0", "0", Gender.NEUTRAL, np.zeros(10), 1.0, None, 0, np.zeros((n, 3)),
+                           np.zeros((n, 23, 3)), np.zeros((n, 3)))
+    anim = Animation((track,), 30.0)
+    frames, step = shown_frames(anim)  # MP4: every frame
+    assert frames == list(range(n)) and step == 1
+    frames, step = shown_frames(anim, max_fps=15.0)  # GIF: every 2nd, to the end
+    assert step == 2 and frames[0] == 0 and frames[-1] >= n - 2 and len(frames) == (n + 1) // 2
+    assert describe_frames(frames, step) == f"preview: every 2nd frame of 0..536 ({len(frames)} frames)"
+    frames, step = shown_frames(anim, 1, max_frames=100)  # a cap widens the step, still to the end
+    assert step == 6 and frames[-1] >= n - 6 and len(frames) <= 100
