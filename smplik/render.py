@@ -145,82 +145,112 @@ def fit_views(points: np.ndarray, directions: Sequence[Sequence[float]], *, size
     return [View(tuple(d), yfov, margin, tuple(center), distance) for d in directions]
 
 
-def render(
-    meshes: Sequence[MeshItem] = (),
-    spheres: Sequence[Sphere] = (),
-    segments: Sequence[Segment] = (),
-    *,
-    size: tuple[int, int] = (480, 640),
-    view: View | ImageCamera = View(),
-    background: np.ndarray | RGBA = (1.0, 1.0, 1.0, 1.0),
-    markers_on_top: bool = True,
-) -> np.ndarray:
-    """Render the items; returns an RGB uint8 image (H, W, 3) with ``size = (width, height)``.
+class Renderer:
+    """One offscreen OpenGL context of ``size = (width, height)``, reused for many images (an animation's
+    frames): creating and deleting a context costs more than drawing a frame. Use as a context manager, or
+    call :meth:`close`. :func:`render` draws one image with a renderer of its own."""
 
-    ``background`` is a colour, or an RGB image of the output size to draw over (overlay). With
-    ``markers_on_top`` the spheres and segments stay visible where a mesh hides them (a met position
-    target sits inside the body): a second pass of the markers alone is blended over the image.
-    """
-    width, height = int(size[0]), int(size[1])
-    if width < 1 or height < 1 or width > 16384 or height > 16384:
-        raise RenderError(f"Image size {width} x {height} is outside 1..16384 pixels.")
-    pyrender = _pyrender()
-    import trimesh
+    def __init__(self, size: tuple[int, int] = (480, 640)) -> None:
+        width, height = int(size[0]), int(size[1])
+        if width < 1 or height < 1 or width > 16384 or height > 16384:
+            raise RenderError(f"Image size {width} x {height} is outside 1..16384 pixels.")
+        self.size = (width, height)
+        self._meshes: dict[int, tuple[MeshItem, object]] = {}  # id -> (item, pyrender mesh): items drawn again
+        pyrender = _pyrender()
+        try:
+            self._renderer = pyrender.OffscreenRenderer(width, height)
+        except Exception as exc:
+            raise RenderError(
+                f"No OpenGL backend for offscreen rendering ({type(exc).__name__}: {exc}). On a headless machine set "
+                "PYOPENGL_PLATFORM=egl (needs libEGL, e.g. Mesa) or PYOPENGL_PLATFORM=osmesa before running."
+            ) from exc
 
-    bg_image = None
-    if isinstance(background, np.ndarray) and background.ndim == 3:
-        if background.shape[:2] != (height, width):
-            raise RenderError(f"Background image of shape {background.shape[:2]} does not match the size "
-                              f"{height} x {width}.")
-        bg_image, bg_color = background[..., :3], (0.0, 0.0, 0.0, 0.0)
-    else:
-        bg_color = tuple(float(c) for c in background)  # pyrender wants floats
-    scene = pyrender.Scene(bg_color=bg_color, ambient_light=(0.35, 0.35, 0.35))
-    marker_scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=(0.35, 0.35, 0.35))
-    points = []
-    for m in meshes:
+    def __enter__(self) -> Renderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Free the OpenGL context (idempotent)."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer = None
+
+    def _mesh(self, m: MeshItem):
+        """The pyrender mesh of ``m``, made once per item object while the item is among the last few drawn (an
+        item passed again, such as a floor, is not converted and uploaded again)."""
+        key = id(m)
+        if key in self._meshes and self._meshes[key][0] is m:
+            self._meshes[key] = self._meshes.pop(key)  # most recently used last
+            return self._meshes[key][1]
+        pyrender = _pyrender()
+        import trimesh
+
         tm = trimesh.Trimesh(np.asarray(m.vertices, float), np.asarray(m.faces), process=False)
         mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=m.color, metallicFactor=0.0, roughnessFactor=0.7)
-        scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
-        points.append(tm.vertices)
-    prims = [(trimesh.creation.icosphere(subdivisions=2, radius=s.radius).apply_translation(np.asarray(s.center)),
-              s.color) for s in spheres]
-    prims += [(_segment_mesh(s), s.color) for s in segments]
-    for tm, color in prims:
-        mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=color, metallicFactor=0.0, roughnessFactor=0.5)
-        scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=False))
-        marker_scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=False))
-        points.append(tm.vertices)
-    if not points:
-        raise RenderError("Nothing to render.")
-    allp = np.concatenate(points)
-    if not np.isfinite(allp).all():
-        raise RenderError("The items to render contain NaN or inf coordinates.")
-    if isinstance(view, ImageCamera):
-        if not all(np.isfinite(v) and v > 0 for v in (view.fx, view.fy)):
-            raise RenderError(f"Image camera focal lengths must be positive and finite, got {view.fx}, {view.fy}.")
-        camera = pyrender.IntrinsicsCamera(view.fx, view.fy, view.cx, view.cy, znear=0.05, zfar=100.0)
-        T_world_camera = np.asarray(view.T_world_camera, float)
-    else:
-        center, dist, radius = _fit(allp, view, width / height)
-        if view.distance is not None:
-            dist = float(view.distance)
-        d = _unit(view.direction)
-        T_world_camera = _look_at(center + dist * d, center)
-        camera = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=width / height, znear=0.05,
-                                            zfar=dist + 4 * radius)
-    light = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
-    for sc in (scene, marker_scene):
-        sc.add(camera, pose=T_world_camera)
-        sc.add(light, pose=T_world_camera)
-    try:
-        renderer = pyrender.OffscreenRenderer(width, height)
-    except Exception as exc:
-        raise RenderError(
-            f"No OpenGL backend for offscreen rendering ({type(exc).__name__}: {exc}). On a headless machine set "
-            "PYOPENGL_PLATFORM=egl (needs libEGL, e.g. Mesa) or PYOPENGL_PLATFORM=osmesa before running."
-        ) from exc
-    try:
+        mesh = pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True)
+        self._meshes[key] = (m, mesh)  # holding the item keeps its id from being reused
+        while len(self._meshes) > 16:
+            self._meshes.pop(next(iter(self._meshes)))
+        return mesh
+
+    def render(self, meshes: Sequence[MeshItem] = (), spheres: Sequence[Sphere] = (),
+               segments: Sequence[Segment] = (), *, view: View | ImageCamera = View(),
+               background: np.ndarray | RGBA = (1.0, 1.0, 1.0, 1.0), markers_on_top: bool = True) -> np.ndarray:
+        """Render the items at this renderer's size: RGB uint8 (H, W, 3); the arguments as in :func:`render`."""
+        if self._renderer is None:
+            raise RenderError("This renderer is closed.")
+        width, height = self.size
+        pyrender = _pyrender()
+        import trimesh
+
+        bg_image = None
+        if isinstance(background, np.ndarray) and background.ndim == 3:
+            if background.shape[:2] != (height, width):
+                raise RenderError(f"Background image of shape {background.shape[:2]} does not match the size "
+                                  f"{height} x {width}.")
+            bg_image, bg_color = background[..., :3], (0.0, 0.0, 0.0, 0.0)
+        else:
+            bg_color = tuple(float(c) for c in background)  # pyrender wants floats
+        scene = pyrender.Scene(bg_color=bg_color, ambient_light=(0.35, 0.35, 0.35))
+        marker_scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=(0.35, 0.35, 0.35))
+        points = []
+        for m in meshes:
+            scene.add(self._mesh(m))
+            points.append(np.asarray(m.vertices, float))
+        prims = [(trimesh.creation.icosphere(subdivisions=2, radius=s.radius).apply_translation(np.asarray(s.center)),
+                  s.color) for s in spheres]
+        prims += [(_segment_mesh(s), s.color) for s in segments]
+        for tm, color in prims:
+            mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=color, metallicFactor=0.0, roughnessFactor=0.5)
+            scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=False))
+            marker_scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=False))
+            points.append(tm.vertices)
+        if not points:
+            raise RenderError("Nothing to render.")
+        allp = np.concatenate(points)
+        if not np.isfinite(allp).all():
+            raise RenderError("The items to render contain NaN or inf coordinates.")
+        if isinstance(view, ImageCamera):
+            if not all(np.isfinite(v) and v > 0 for v in (view.fx, view.fy)):
+                raise RenderError(f"Image camera focal lengths must be positive and finite, got {view.fx}, "
+                                  f"{view.fy}.")
+            camera = pyrender.IntrinsicsCamera(view.fx, view.fy, view.cx, view.cy, znear=0.05, zfar=100.0)
+            T_world_camera = np.asarray(view.T_world_camera, float)
+        else:
+            center, dist, radius = _fit(allp, view, width / height)
+            if view.distance is not None:
+                dist = float(view.distance)
+            d = _unit(view.direction)
+            T_world_camera = _look_at(center + dist * d, center)
+            camera = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=width / height, znear=0.05,
+                                                zfar=dist + 4 * radius)
+        light = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
+        for sc in (scene, marker_scene):
+            sc.add(camera, pose=T_world_camera)
+            sc.add(light, pose=T_world_camera)
+        renderer = self._renderer
         if bg_image is not None:
             color, _ = renderer.render(scene, flags=pyrender.RenderFlags.RGBA)
             alpha = color[..., 3:4].astype(np.float32) / 255.0
@@ -233,8 +263,43 @@ def render(
             a = 0.7 * marks[..., 3:4].astype(np.float32) / 255.0  # hidden markers show through at 70 %
             out = marks[..., :3] * a + out * (1 - a)
         return np.ascontiguousarray(np.clip(out, 0, 255).astype(np.uint8))
-    finally:
-        renderer.delete()
+
+
+def camera_pose(points: np.ndarray, view: View, size: tuple[int, int]) -> np.ndarray:
+    """``T_world_camera`` (4, 4; OpenGL axes, looking down -z) that :func:`render` uses for ``view`` of items whose
+    vertices are ``points`` (P, 3) in an image of ``size = (width, height)``."""
+    center, dist, _ = _fit(np.asarray(points, float).reshape(-1, 3), view, size[0] / size[1])
+    if view.distance is not None:
+        dist = float(view.distance)
+    return _look_at(center + dist * _unit(view.direction), center)
+
+
+def render(
+    meshes: Sequence[MeshItem] = (),
+    spheres: Sequence[Sphere] = (),
+    segments: Sequence[Segment] = (),
+    *,
+    size: tuple[int, int] = (480, 640),
+    view: View | ImageCamera = View(),
+    background: np.ndarray | RGBA = (1.0, 1.0, 1.0, 1.0),
+    markers_on_top: bool = True,
+    renderer: Renderer | None = None,
+) -> np.ndarray:
+    """Render the items; returns an RGB uint8 image (H, W, 3) with ``size = (width, height)``.
+
+    ``background`` is a colour, or an RGB image of the output size to draw over (overlay). With
+    ``markers_on_top`` the spheres and segments stay visible where a mesh hides them (a met position
+    target sits inside the body): a second pass of the markers alone is blended over the image.
+    ``renderer``: a :class:`Renderer` of this ``size`` to reuse (default: one made and freed for this image).
+    """
+    if renderer is not None:
+        if tuple(renderer.size) != (int(size[0]), int(size[1])):
+            raise RenderError(f"The renderer is {renderer.size[0]} x {renderer.size[1]}; the image is to be "
+                              f"{size[0]} x {size[1]}.")
+        return renderer.render(meshes, spheres, segments, view=view, background=background,
+                               markers_on_top=markers_on_top)
+    with Renderer(size) as own:
+        return own.render(meshes, spheres, segments, view=view, background=background, markers_on_top=markers_on_top)
 
 
 def save_png(image: np.ndarray, path: str | Path) -> Path:

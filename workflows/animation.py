@@ -63,6 +63,9 @@ NEAR_ORTHOGRAPHIC_FOV_DEG = 20.0
 (1000/256 of the box width), TRAM (calibrated) and the world-trajectory formats are not touched."""
 KNOWN_FPS = {"aist": 60.0}
 """Frame rates fixed by a format (AIST++ motions are 60 frames/s); AMASS files store theirs."""
+ASSUMED_FPS = {"gvhmr": 30.0}
+"""Frame rates assumed, with a note, when the file stores none and ``--fps`` is not given: GVHMR's demo
+(``tools/demo/demo.py``) works on 30 frames/s video and its ``hmr4d_results.pt`` holds no rate."""
 
 
 class AnimationError(ValueError):
@@ -165,6 +168,9 @@ class Animation:
     depth_change: DepthChange | None = field(default=None, compare=False)
     """How the reading placed a near-orthographic camera's track at a realistic depth (:func:`realistic_depth`;
     not stored in the animation file, whose camera is already the realistic one)."""
+    notes: tuple[str, ...] = field(default=(), compare=False)
+    """What the reading assumed (a frame rate, a file read as a sequence, a folder's frames), one line each; not
+    stored in the animation file."""
 
 
 # ----------------------------------------------------------------------------- reading a clip
@@ -207,6 +213,10 @@ def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
             return len(data["smpl_poses"])
         if fmt == "amass":
             return len(data["poses"])
+        if fmt == "plain":
+            from workflows.estimators.plain import sequence_length
+
+            return sequence_length(data) or 1
     except (KeyError, TypeError, ValueError, AttributeError):
         pass  # the per-frame reader names the problem
     return 1
@@ -262,6 +272,59 @@ class Clip:
     tracks: dict[str, list[tuple[int, EstimatedPerson]]]
     fps: float | None
     space: str
+    notes: tuple[str, ...] = ()
+    """The readers' notes (:class:`workflows.estimators.pose_array.EstimateNote`), each once."""
+
+
+def _noted(read: Callable[[], Any], notes: dict[str, None]) -> Any:
+    """``read()``, its readers' notes (EstimateNote warnings) collected into ``notes`` instead of shown."""
+    import warnings
+
+    from workflows.estimators.pose_array import EstimateNote
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", EstimateNote)
+        out = read()
+    for w in caught:
+        if issubclass(w.category, EstimateNote):
+            notes.setdefault(str(w.message), None)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return out
+
+
+def read_folder_clip(path: Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
+                     max_people: int | None = None, max_bytes: int | None = None, solver: Any = None,
+                     frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES) -> Clip:
+    """:func:`read_clip` of a folder of per-frame outputs (:mod:`workflows.estimators.folders`): every frame read,
+    moved into the first person's camera, people linked into tracks by nearest pelvis."""
+    from workflows.estimators.folders import match_tracks, read_folder_frame, scan_folder, to_camera
+
+    notes: dict[str, None] = {}
+    folder = scan_folder(path, format=format, trust_pickle=trust_pickle, max_bytes=max_bytes)
+    length = folder.length
+    if frames is not None and frames[1] > length:
+        raise AnimationError(f"{path}: --frames {frames[0]}:{frames[1]} is outside the clip (frames 0..{length - 1}).")
+    start, stop = frames if frames is not None else (0, length)
+    wanted = [f for f in range(start, stop) if f in folder.files]
+    if len(wanted) > max_frames:
+        raise AnimationError(f"{path}: {len(wanted)} frames to read; refusing more than {max_frames} "
+                             "(--frames A:B reads a part; max_frames / --max-frames raises the cap).")
+    per_frame = []
+    camera = None
+    for f in wanted:
+        people = _noted(lambda f=f: read_folder_frame(folder, f, trust_pickle=trust_pickle, max_people=max_people,
+                                                      max_bytes=max_bytes, space=space, solver=solver), notes)
+        if people and camera is None:
+            camera = people[0].camera
+        per_frame.append((f, [to_camera(p, camera) for p in people]))
+    tracks = match_tracks(per_frame)
+    if not tracks:
+        raise AnimationError(f"{path}: no people in frames {start}..{stop - 1}.")
+    first = folder.describe(0).split(";")[0]
+    notes = {f"{first}; {len(tracks)} track(s) linked across frames by nearest pelvis": None, **notes}
+    is_world = folder.format in ("aist", "amass")
+    return Clip(str(path), folder.format, length, tracks, None, "world" if is_world else "camera", tuple(notes))
 
 
 def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
@@ -271,6 +334,9 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
     from workflows.estimators import MAX_BYTES, MAX_PEOPLE, _load_raw, detect_format, people_from_data
 
     path = Path(path)
+    if path.is_dir():
+        return read_folder_clip(path, format=format, trust_pickle=trust_pickle, space=space, max_people=max_people,
+                                max_bytes=max_bytes, solver=solver, frames=frames, max_frames=max_frames)
     if not path.is_file():
         raise EstimateFormatError(f"Estimator output not found: {path}")
     data = _load_raw(path, trust_pickle, MAX_BYTES if max_bytes is None else max_bytes)
@@ -291,11 +357,17 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
         raise AnimationError(f"{path}: {len(wanted)} frames to read; refusing more than {max_frames} "
                              "(--frames A:B reads a part; max_frames / --max-frames raises the cap).")
     tracks: dict[str, list[tuple[int, EstimatedPerson]]] = {}
+    notes: dict[str, None] = {}
+    if fmt == "phalp" and isinstance(data, dict) and data:  # frames are named: say how the numbers map to names
+        names = sorted(data, key=str)
+        notes[f"{path}: {length} frames, numbered 0..{length - 1} in name order (frame 0 is {str(names[0])!r}, "
+              f"frame {length - 1} is {str(names[-1])!r}); --frames A:B counts the same way."] = None
     for f in wanted:
         try:
-            people = people_from_data(data, source=str(path), format=fmt, frame=f,  # type: ignore[arg-type]
-                                      max_people=MAX_PEOPLE if max_people is None else max_people,
-                                      space=space, path=path, solver=solver)  # type: ignore[arg-type]
+            people = _noted(lambda f=f: people_from_data(
+                data, source=str(path), format=fmt, frame=f,  # type: ignore[arg-type]
+                max_people=MAX_PEOPLE if max_people is None else max_people,
+                space=space, path=path, solver=solver), notes)  # type: ignore[arg-type]
         except EstimateFormatError as exc:
             if "no people" in str(exc) or "no track covers" in str(exc):
                 continue  # an empty frame: the tracks' coverage is checked below
@@ -304,7 +376,8 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
             tracks.setdefault(str(p.person_id), []).append((f, p))
     if not tracks:
         raise AnimationError(f"{path}: no people in frames {start}..{stop - 1}.")
-    return Clip(str(path), fmt, length, tracks, stored_fps(data, fmt), "world" if is_world else "camera")
+    return Clip(str(path), fmt, length, tracks, stored_fps(data, fmt), "world" if is_world else "camera",
+                tuple(notes))
 
 
 def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: tuple[int, int] | None,
@@ -548,6 +621,11 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
 
     config = AnimateConfig() if config is None else config
     rate = fps if fps is not None else clip.fps
+    notes = list(clip.notes)
+    if rate is None and clip.format in ASSUMED_FPS:
+        rate = ASSUMED_FPS[clip.format]
+        notes.append(f"{clip.source}: the {clip.format} output does not store its frame rate; {rate:g} frames/s "
+                     "assumed (--fps F sets the video's).")
     if rate is None:
         raise AnimationError(f"{clip.source}: the {clip.format} output does not store its frame rate; pass --fps "
                              "(the source video's frames per second).")
@@ -598,7 +676,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         keyframes.setdefault(n, []).append(Keyframe(tracks[n].first_frame + k, rec.effectors, rec.final_error))
     tracks = [dataclasses.replace(t, keyframes=tuple(keyframes.get(n, ()))) for n, t in enumerate(tracks)]
     return Animation(tuple(tracks), float(rate), clip.source, clip.format, clip.space,
-                     camera if clip.space == "camera" else None, clean_cfg, depth_change), motions
+                     camera if clip.space == "camera" else None, clean_cfg, depth_change, tuple(notes)), motions
 
 
 @dataclass(frozen=True)

@@ -25,11 +25,11 @@ from smplik.limits import DEFAULT_MAX_JOINTS
 
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
-                                            "AIST++, AMASS, ...).")],
+                                            "AIST++, AMASS, ...), or a folder of per-frame outputs (SMPLer-X).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder (animation.json, one BVH per track).")],
     frames: Annotated[str, typer.Option("--frames", help="'all' or A:B (frames A..B-1).")] = "all",
-    fps: Annotated[float | None, typer.Option("--fps", help="Source frame rate (default: the file's; needed "
-                                              "when the format does not store it).")] = None,
+    fps: Annotated[float | None, typer.Option("--fps", help="Source frame rate (default: the file's; GVHMR: 30; "
+                                              "needed when the format does not store it).")] = None,
     track: Annotated[str | None, typer.Option("--track", help="Only this track id (default: every track).")] = None,
     format: Annotated[str, typer.Option("--format", help="Estimator format (as in from-estimate).")] = "auto",
     space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'world' (their world trajectory, "
@@ -67,7 +67,8 @@ def animate_cmd(
                                                "preview's background (camera-frame animations).")] = None,
     max_frames: Annotated[int, typer.Option("--max-frames", min=1, help="Refuse to read more frames than "
                                             "this.")] = 100_000,
-    preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame.")] = 1,
+    preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame (more "
+                                               "than 1000 frames get a larger step, printed).")] = 1,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
@@ -84,6 +85,11 @@ def animate_cmd(
 
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
+    if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
+        from workflows.animation_preview import check_preview_path
+
+        with user_errors():
+            check_preview_path(preview)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
@@ -103,17 +109,22 @@ def animate_cmd(
                                max_frames=max_frames)
         files = list(outputs.all_files)
         anim = outputs.animation
+        shown = None
         if preview is not None:
-            from workflows.animation_preview import preview_frames, save_preview
+            from workflows.animation_preview import write_preview
 
             bar.update(task, description="preview")
-            images = preview_frames(anim, video=video, every=preview_every)
-            files.append(save_preview(images, preview, anim.fps / preview_every))
+            shown = write_preview(anim, preview, video=video, every=preview_every)
+            files.append(shown.path)
+    for note in anim.notes:  # what the reading assumed (a frame rate, a sequence, a folder's frames)
+        say(note)
     if anim.depth_change is not None:
         say(anim.depth_change.describe())
     for t in anim.tracks:
         say(f"{t.name}: frames {t.first_frame}..{t.first_frame + t.num_frames - 1} at {anim.fps:g} frames/s "
             f"({anim.space} frame), {len(t.keyframes)} keyframes, {contact_summary(t.contacts)}")
+    if shown is not None:
+        say(shown.describe())
     if outputs.exported:
         from workflows.animation_io import scene_of
         from workflows.export import glb_notes

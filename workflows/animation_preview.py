@@ -1,25 +1,242 @@
 """Animated previews of an animation: a GIF or MP4, over the source video's frames or in a 3D view.
 
 Each shown frame is the animation's scene at that source frame (:func:`workflows.animation_io.scene_of`:
-every track present at the frame, with its effector markers on keyframes) drawn by
-:func:`workflows.previews.render_scene`. With ``video`` (a video file imageio-ffmpeg reads, or a folder of
-frame images in name order) and a camera-frame animation, each frame is drawn over the matching video frame
-through the estimator's camera; otherwise one 3D view from the front. Frames are subsampled by ``every``.
+every track present at the frame, with its effector markers on keyframes), its source frame number in the
+top-left corner. With ``video`` (a video file imageio-ffmpeg reads, or a folder of frame images in name order)
+and a camera-frame animation, each frame is drawn over the matching video frame through the estimator's camera
+(scaled to at most :attr:`PreviewConfig.overlay_max_side` pixels); otherwise a 3D view:
+
+* **from the front**: one camera for the whole clip, on the side the bodies face: the horizontal forward axis
+  of the root (pelvis) rotation (SMPL's body faces its +z) averaged over every frame of every track
+  (:func:`facing_direction`), 0.25 rad above the horizon, framing every shown frame's joints
+  (:func:`world_view`). The camera does not follow the body, so a walk crosses the picture.
+* **a floor**: a checkerboard of :attr:`PreviewConfig.tile_m` tiles at the clip's lowest point (the lowest mesh
+  vertex over the clip, :func:`floor_height`), horizontal in the animation's y-up frame, so that foot sliding
+  shows against it. (In a camera-frame animation the true floor may be tilted; this one is level.)
+
+Cost (:func:`write_preview`): one OpenGL context for all frames (:class:`smplik.render.Renderer`), preview-sized
+frames, the floor drawn once (the bodies are drawn over that image), frames streamed to the MP4 encoder; a GIF
+gets one 255-colour palette, computed once from frames sampled over the clip, and every frame is mapped to it.
+The whole clip is shown: an MP4 every ``every``-th frame, a GIF at most :attr:`PreviewConfig.gif_max_fps` frames
+per second of the clip (every 2nd frame of a 30 frames/s clip); beyond :attr:`PreviewConfig.max_frames` frames a
+larger step is chosen. :func:`describe_frames` says which frames are shown (``scene animate`` prints it).
+``benchmarks/preview_speed.py`` measures the cost against the animation's own.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from smplik.atomic import atomic_path
 from workflows.animation import Animation, AnimationError
 
+if TYPE_CHECKING:
+    from smplik.render import MeshItem, View
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+PREVIEW_SUFFIXES = (".gif", ".mp4")
+FLOOR_COLORS = ((0.80, 0.80, 0.80, 1.0), (0.62, 0.62, 0.64, 1.0))
+"""The floor's two tile colours."""
 
 
-def _video_frames(video: Path):
+@dataclass(frozen=True)
+class PreviewConfig:
+    """Size and frame selection of an animated preview."""
+
+    size: tuple[int, int] = (480, 360)
+    """(width, height) of the 3D view, pixels."""
+    overlay_max_side: int = 640
+    """Over a video, frames are scaled down so that their longer side is at most this (pixels)."""
+    max_frames: int = 1000
+    """Most frames in one preview; a longer clip is shown every k-th frame (k chosen, and said)."""
+    gif_max_fps: float = 15.0
+    """A GIF shows at most this many frames per second of the clip (every k-th frame, said): a GIF's usual rate,
+    half the drawing of a 30 frames/s clip. An MP4 shows every frame."""
+    tile_m: float = 0.5
+    """Floor tile size (metres, times the largest character scale)."""
+    palette_samples: int = 8
+    """GIF: frames, spread over the clip, whose colours make the one palette."""
+
+    def __post_init__(self) -> None:
+        if min(self.size) < 16 or max(self.size) > 4096 or self.overlay_max_side < 16 or self.max_frames < 1:
+            raise AnimationError(f"preview size {self.size} / overlay side {self.overlay_max_side} / "
+                                 f"max frames {self.max_frames} out of range.")
+
+
+@dataclass(frozen=True)
+class PreviewResult:
+    """What :func:`write_preview` wrote: the file, the source frames shown, and their step."""
+
+    path: Path
+    frames: tuple[int, ...]
+    every: int
+
+    def describe(self) -> str:
+        return describe_frames(self.frames, self.every)
+
+
+# ----------------------------------------------------------------------------- checks and frame choice
+
+
+def check_preview_path(path: str | Path) -> None:
+    """Refuse, before any work, a preview file that cannot be written: a suffix other than .gif / .mp4, or an
+    MP4 without the ffmpeg writer (package ``imageio-ffmpeg``, a dependency of smplik)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in PREVIEW_SUFFIXES:
+        raise AnimationError(f"--preview {path}: a preview is a .gif or .mp4 file.")
+    if suffix == ".mp4":
+        try:
+            import imageio_ffmpeg
+
+            imageio_ffmpeg.get_ffmpeg_exe()
+        except (ImportError, RuntimeError, OSError) as exc:
+            raise AnimationError(f"--preview {path}: no MP4 writer ({type(exc).__name__}: "
+                                 f"{' '.join(str(exc).split())[:160]}); pip install imageio-ffmpeg, or use a .gif."
+                                 ) from None
+
+
+def shown_frames(animation: Animation, every: int = 1, max_frames: int = 1000, max_fps: float | None = None
+                 ) -> tuple[list[int], int]:
+    """The source frames a preview shows and their step: every ``every``-th of the clip's first..last frame, the
+    step raised (to the smallest multiple of ``every`` that fits) when that is more than ``max_frames`` frames or
+    (``max_fps``) more than ``max_fps`` frames per second of the clip."""
+    if every < 1:
+        raise AnimationError(f"--preview-every must be >= 1, got {every}.")
+    first = min(t.first_frame for t in animation.tracks)
+    last = max(t.first_frame + t.num_frames - 1 for t in animation.tracks)
+    span = last - first + 1
+    step = every * max(1, math.ceil(math.ceil(span / every) / max_frames))
+    if max_fps is not None and animation.fps / step > max_fps * (1 + 1e-9):
+        step = max(step, every * math.ceil(animation.fps / max_fps / every))
+    return list(range(first, last + 1, step)), step
+
+
+def describe_frames(frames: tuple[int, ...] | list[int], every: int) -> str:
+    """One line: which source frames a preview shows."""
+    if every == 1:
+        return f"preview: frames {frames[0]}..{frames[-1]} ({len(frames)} frames, all of them)"
+    nth = {2: "2nd", 3: "3rd"}.get(every, f"{every}th")
+    return f"preview: every {nth} frame of {frames[0]}..{frames[-1]} ({len(frames)} frames)"
+
+
+# ----------------------------------------------------------------------------- the 3D view
+
+
+def _track_joints(track) -> np.ndarray:
+    """(T, 24, 3) joints of a track in character space (SMPL space times its scale)."""
+    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+
+    R = axis_angle_to_local(track.global_orient, track.body_pose)
+    return joints_of(R, track.transl, rest_joints(track.betas, track.gender)) * track.scale
+
+
+def facing_direction(animation: Animation) -> np.ndarray:
+    """(3,) unit horizontal direction (y-up world) the bodies face, averaged over every frame of every track:
+    the root rotation's +z axis (SMPL's body faces +z), its vertical part dropped. +z when they turn evenly."""
+    from scipy.spatial.transform import Rotation
+
+    total = np.zeros(3)
+    for t in animation.tracks:
+        forward = Rotation.from_rotvec(np.asarray(t.global_orient, float)).apply([0.0, 0.0, 1.0])  # (T, 3)
+        forward[:, 1] = 0.0
+        norms = np.linalg.norm(forward, axis=1, keepdims=True)
+        total += (forward / np.maximum(norms, 1e-9))[norms[:, 0] > 1e-6].sum(0)
+    n = float(np.linalg.norm(total))
+    return total / n if n > 1e-6 else np.array([0.0, 0.0, 1.0])
+
+
+def floor_height(animation: Animation, joints: list[np.ndarray], candidates: int = 4) -> float:
+    """The clip's lowest mesh vertex (y, character space): the meshes of the ``candidates`` frames of each track
+    whose foot joints are lowest (``joints``: per track (T, 24, 3), character space)."""
+    from workflows.animation_io import scene_of
+    from workflows.previews import scene_items
+
+    feet = [7, 8, 10, 11]  # ankles and feet
+    frames: set[int] = set()
+    for t, p in zip(animation.tracks, joints, strict=True):
+        low = p[:, feet, 1].min(1)
+        frames.update(t.first_frame + int(k) for k in np.argsort(low)[:candidates])
+    lowest = np.inf
+    for f in sorted(frames):
+        meshes, _, _ = scene_items(scene_of(animation, f), markers=False)
+        for m in meshes:
+            lowest = min(lowest, float(np.asarray(m.vertices)[:, 1].min()))
+    if not np.isfinite(lowest):  # no mesh: the lowest foot joint
+        lowest = min(float(p[:, feet, 1].min()) for p in joints)
+    return lowest
+
+
+def floor_meshes(height: float, lo: np.ndarray, hi: np.ndarray, tile: float) -> list[MeshItem]:
+    """A checkerboard (two :class:`smplik.render.MeshItem`, one per colour) of ``tile``-sized squares at
+    ``y = height`` covering x in ``[lo[0], hi[0]]`` and z in ``[lo[1], hi[1]]`` (tile-aligned)."""
+    from smplik.render import MeshItem
+
+    i0, i1 = math.floor(lo[0] / tile), math.ceil(hi[0] / tile)
+    k0, k1 = math.floor(lo[1] / tile), math.ceil(hi[1] / tile)
+    verts: list[list[np.ndarray]] = [[], []]
+    for i in range(i0, i1):
+        for k in range(k0, k1):
+            x, z = i * tile, k * tile
+            verts[(i + k) % 2].append(np.array([[x, height, z], [x, height, z + tile], [x + tile, height, z + tile],
+                                                [x + tile, height, z]]))
+    out = []
+    for color, quads in zip(FLOOR_COLORS, verts, strict=True):
+        if not quads:
+            continue
+        v = np.concatenate(quads)
+        base = 4 * np.arange(len(quads))[:, None]
+        faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]])  # counter-clockwise seen from above
+        out.append(MeshItem(v, faces, color))
+    return out
+
+
+@dataclass(frozen=True)
+class WorldView:
+    """The 3D view of a clip: one camera (:class:`smplik.render.View`) and the floor (its height and meshes)."""
+
+    view: View
+    """Looks at the clip from :attr:`facing`, slightly above."""
+    floor_y: float
+    """Height of the floor (the clip's lowest mesh vertex), character space."""
+    floor: tuple[MeshItem, ...]
+    facing: np.ndarray
+    """(3,) unit horizontal direction the bodies face (:func:`facing_direction`); the camera sits on that side."""
+
+
+def world_view(animation: Animation, frames: list[int], config: PreviewConfig = PreviewConfig()) -> WorldView:
+    """The camera (on the side the bodies face, framing every shown frame's joints) and floor of a clip."""
+    from smplik.render import fit_views
+
+    joints = [_track_joints(t) for t in animation.tracks]
+    floor_y = floor_height(animation, joints)
+    shown = set(frames)
+    points = np.concatenate([p[[r for r, f in enumerate(t.frames) if f in shown] or [0]].reshape(-1, 3)
+                             for t, p in zip(animation.tracks, joints, strict=True)])
+    scale = max(t.scale for t in animation.tracks)
+    lo, hi = points.min(0) - 0.2 * scale, points.max(0) + 0.2 * scale
+    lo[1] = floor_y
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    facing = facing_direction(animation)
+    direction = facing + np.array([0.0, math.tan(0.25), 0.0])
+    (view,) = fit_views(corners, [tuple(direction)], size=config.size)
+    tile = config.tile_m * scale
+    margin = 1.5 * tile
+    floor = floor_meshes(floor_y - 0.002 * scale, np.array([lo[0] - margin, lo[2] - margin]),
+                         np.array([hi[0] + margin, hi[2] + margin]), tile)
+    return WorldView(view, floor_y, tuple(floor), facing)
+
+
+# ----------------------------------------------------------------------------- frames
+
+
+def _video_frames(video: Path) -> Callable[[int], np.ndarray]:
     """``frame(i) -> (H, W, 3) uint8`` for a video file or a folder of images."""
     if video.is_dir():
         files = sorted(p for p in video.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
@@ -51,49 +268,115 @@ def _video_frames(video: Path):
     return from_video
 
 
-def preview_frames(animation: Animation, *, video: str | Path | None = None, every: int = 1,
-                   max_frames: int = 300, size: tuple[int, int] = (480, 360)) -> list[np.ndarray]:
-    """Rendered frames (RGB uint8) of the animation's source frames (every ``every``-th, at most ``max_frames``)."""
-    from workflows.animation_io import scene_of
-    from workflows.previews import render_scene
+def _resize(img: np.ndarray, width: int, height: int) -> np.ndarray:
+    if img.shape[1] == width and img.shape[0] == height:
+        return np.ascontiguousarray(img)
+    from PIL import Image
 
-    if every < 1:
-        raise AnimationError(f"--preview-every must be >= 1, got {every}.")
-    first = min(t.first_frame for t in animation.tracks)
-    last = max(t.first_frame + t.num_frames - 1 for t in animation.tracks)
-    shown = list(range(first, last + 1, every))[:max_frames]
+    return np.asarray(Image.fromarray(np.ascontiguousarray(img)).resize((width, height), Image.Resampling.BILINEAR))
+
+
+def _stamp(img: np.ndarray, frame: int) -> np.ndarray:
+    from workflows.previews import label_image
+
+    return label_image(img, [f"frame {frame}"])
+
+
+def iter_preview_frames(animation: Animation, frames: list[int], *, video: str | Path | None = None,
+                        config: PreviewConfig = PreviewConfig(), order: list[int] | None = None
+                        ) -> Iterator[tuple[int, np.ndarray]]:
+    """``(source frame, RGB uint8 image)`` for each of ``frames`` (in ``order`` when given, a permutation of
+    them), drawn with one reused renderer (module docstring)."""
+    from smplik.render import ImageCamera, Renderer, render
+    from workflows.animation_io import scene_of
+    from workflows.previews import image_camera, scene_items
+
     background = None
+    world = None
     if video is not None:
         if animation.camera is None:
             raise AnimationError("--video needs an animation in the camera frame (--space camera): a world "
                                  "trajectory does not line up with the video.")
         background = _video_frames(Path(video))
-    frames = []
-    for f in shown:
-        scene = scene_of(animation, f)
-        if background is not None:
-            frames.append(render_scene(scene, image=background(f), directions=(), labels=False))
-        else:
-            frames.append(render_scene(scene, size=size, directions=((0.0, 0.2, 1.0),), labels=False))
-    return frames
+        h0, w0 = background(frames[0]).shape[:2]
+        s = min(1.0, config.overlay_max_side / max(h0, w0))
+        size = (max(2, int(round(w0 * s / 2)) * 2), max(2, int(round(h0 * s / 2)) * 2))  # even: video encoders
+    else:
+        world = world_view(animation, frames, config)
+        size = (config.size[0] - config.size[0] % 2, config.size[1] - config.size[1] % 2)
+    with Renderer(size) as renderer:
+        if world is not None:  # the floor never hides a body above it: drawn once, the bodies over that image
+            floor_image = render(list(world.floor), size=size, view=world.view, background=(1.0, 1.0, 1.0, 1.0),
+                                 renderer=renderer)
+        for f in frames if order is None else order:
+            scene = scene_of(animation, f)
+            meshes, spheres, segments = scene_items(scene)
+            if background is not None:
+                img = background(f)
+                h, w = img.shape[:2]
+                cam = image_camera(scene, w, h)  # the estimator's camera at the video's size, then scaled
+                sx, sy = size[0] / w, size[1] / h
+                cam = ImageCamera(cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, cam.T_world_camera)
+                bg = _resize(img, *size)
+                out = render(meshes, spheres, segments, size=size, view=cam, background=bg,
+                             renderer=renderer) if (meshes or spheres or segments) else bg
+            else:
+                out = render(meshes, spheres, segments, size=size, view=world.view, background=floor_image,
+                             renderer=renderer) if (meshes or spheres or segments) else floor_image
+            yield f, _stamp(out, f)
 
 
-def save_preview(frames: list[np.ndarray], path: str | Path, fps: float) -> Path:
-    """Write frames as a GIF (``.gif``) or MP4 (``.mp4``, imageio-ffmpeg) at ``fps``, atomically."""
-    import imageio.v2 as imageio
+def preview_frames(animation: Animation, *, video: str | Path | None = None, every: int = 1,
+                   config: PreviewConfig = PreviewConfig()) -> list[np.ndarray]:
+    """Rendered frames (RGB uint8) of the animation's source frames (:func:`shown_frames`), in frame order."""
+    frames, _ = shown_frames(animation, every, config.max_frames)
+    return [img for _, img in iter_preview_frames(animation, frames, video=video, config=config)]
 
+
+def write_preview(animation: Animation, path: str | Path, *, video: str | Path | None = None, every: int = 1,
+                  config: PreviewConfig = PreviewConfig()) -> PreviewResult:
+    """Render and write the preview (``.gif`` or ``.mp4``) at ``animation.fps / step``, atomically."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise AnimationError(f"{path}: a preview is a .gif or .mp4 file.")
-    if not frames:
-        raise AnimationError("no frames to preview.")
-    h = min(f.shape[0] for f in frames)
-    w = min(f.shape[1] for f in frames)
-    frames = [f[:h - h % 2, :w - w % 2] for f in frames]  # one size; even for the video encoder
+    check_preview_path(path)
+    gif = path.suffix.lower() == ".gif"
+    frames, step = shown_frames(animation, every, config.max_frames, config.gif_max_fps if gif else None)
+    fps = animation.fps / step
     with atomic_path(path) as tmp:
-        if suffix == ".gif":
-            imageio.mimsave(tmp, frames, format="GIF", duration=1000.0 / fps, loop=0)
+        if path.suffix.lower() == ".mp4":
+            import imageio.v2 as imageio
+
+            writer = imageio.get_writer(str(tmp), format="FFMPEG", fps=fps, macro_block_size=1)
+            try:
+                for _, img in iter_preview_frames(animation, frames, video=video, config=config):
+                    writer.append_data(img)
+            finally:
+                writer.close()
         else:
-            imageio.mimsave(tmp, frames, format="FFMPEG", fps=fps, macro_block_size=1)
-    return path
+            _write_gif(animation, frames, tmp, fps, video=video, config=config)
+    return PreviewResult(path, tuple(frames), step)
+
+
+def _write_gif(animation: Animation, frames: list[int], tmp: Path, fps: float, *, video: str | Path | None,
+               config: PreviewConfig) -> None:
+    """A GIF of one palette: the sampled frames are drawn first, their colours make the palette (median cut,
+    once), then every frame is mapped to it (no dithering) as it is drawn; Pillow writes the file."""
+    from PIL import Image
+
+    picks = sorted({frames[round(k * (len(frames) - 1) / max(1, config.palette_samples - 1))]
+                    for k in range(min(config.palette_samples, len(frames)))})
+    order = picks + [f for f in frames if f not in set(picks)]
+    stream = iter_preview_frames(animation, frames, video=video, config=config, order=order)
+    sampled = [next(stream) for _ in picks]
+    mosaic = np.concatenate([img for _, img in sampled], axis=0)
+    palette = Image.fromarray(mosaic).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+    indexed: dict[int, Image.Image] = {}
+
+    def to_palette(img: np.ndarray) -> Image.Image:
+        return Image.fromarray(img).quantize(palette=palette, dither=Image.Dither.NONE)
+
+    for f, img in sampled:
+        indexed[f] = to_palette(img)
+    for f, img in stream:
+        indexed[f] = to_palette(img)
+    images = [indexed[f] for f in frames]
+    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0)

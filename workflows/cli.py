@@ -45,7 +45,8 @@ def _solver(checkpoint: Path | None):
 
 @scene_app.command("from-estimate")
 def from_estimate_cmd(
-    results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json, .pt).")],
+    results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json, .pt), or a folder of "
+                                            "per-frame outputs (SMPLer-X; --frame N).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help=f"One of: {', '.join(FORMATS)}.")] = "auto",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,

@@ -51,7 +51,7 @@ def character_mesh(character: SceneCharacter, color=PALETTE[0]) -> MeshItem | No
 
 def effector_markers(character: SceneCharacter, radius: float = 0.03) -> tuple[list[Sphere], list[Segment]]:
     """Marker spheres and segments for the character's effectors (character space)."""
-    joints = character_joints(character)
+    joints = character_joints(character) if character.effectors else None
     spheres: list[Sphere] = []
     segments: list[Segment] = []
     axis_len = 0.15 * character.scale

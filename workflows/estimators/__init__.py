@@ -229,7 +229,8 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
     """Read the people of one frame of an estimator output file, placed on our body in the y-up world.
 
     Args:
-        path: the results file (.npz, .json, .pk/.pkl/.joblib, .pt/.pth).
+        path: the results file (.npz, .json, .pk/.pkl/.joblib, .pt/.pth), or a folder of per-frame outputs
+            (:mod:`workflows.estimators.folders`: SMPLer-X's output folder, one file per frame of any reader).
         format: one of :data:`FORMATS` or ``"auto"`` (detect from the content).
         trust_pickle: load pickles with plain joblib/pickle (runs code from the file).
         frame: which video frame (default 0); single-image formats accept only 0. People are keyed
@@ -246,7 +247,7 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
         workflows.safe_pickle.UnsafePickleError: a pickle names a refused global.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.is_file() and not path.is_dir():
         raise EstimateFormatError(f"Estimator output not found: {path}")
     if format != "auto" and format not in _MODULES:
         raise EstimateFormatError(f"Unknown format {format!r}; expected auto or one of {', '.join(FORMATS)}.")
@@ -254,6 +255,18 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
         raise EstimateFormatError(f"--frame must be a non-negative integer, got {frame!r}.")
     if max_people < 1:
         raise EstimateFormatError(f"--max-people must be >= 1, got {max_people}.")
+    if path.is_dir():  # per-frame outputs (workflows.estimators.folders): frame N of the folder's clip
+        import warnings
+
+        from workflows.estimators.folders import read_folder_frame, scan_folder
+
+        folder = scan_folder(path, format=format, trust_pickle=trust_pickle, max_bytes=max_bytes)
+        people = read_folder_frame(folder, frame, trust_pickle=trust_pickle, max_people=max_people,
+                                   max_bytes=max_bytes, space=space, solver=solver)
+        if not people:
+            raise EstimateFormatError(f"{folder.describe(frame)}: no people in this frame (choose another --frame).")
+        warnings.warn(folder.describe(frame), pose_array.EstimateNote, stacklevel=2)
+        return people
     data = _load_raw(path, trust_pickle, max_bytes)
     return people_from_data(data, source=str(path), format=format, frame=frame, max_people=max_people, space=space,
                             path=path, solver=solver)

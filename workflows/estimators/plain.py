@@ -12,8 +12,14 @@ Camera intrinsics (camera frame only): ``K`` (3, 3), or ``focal_length`` (pixels
 ``[fx, fy]``) with ``image_size`` ``[width, height]`` (or ``width``/``height``), optional
 ``principal_point`` ``[cx, cy]``. Without them, a 60-degree field of view is assumed.
 
-A JSON file may also be a list of such objects, one per person. The file is one frame: ``--frame``
+A JSON file may also be a list of such objects, one per person. Such a file is one frame: ``--frame``
 must be 0.
+
+**A sequence**: N > 1 poses with ONE shape (``betas`` of one row, (1, K) or (K,)) are one person over N
+frames, not N people (:func:`sequence_length`): what a video's SMPL fit saves, e.g. a ROMP run refined by
+InstantAvatar (``global_orient (T, 3)``, ``body_pose (T, 69)``, ``transl (T, 3)``, ``betas (1, 10)``).
+``--frame N`` is row N (0..T-1), the person id is ``"0"`` in every frame (one track for ``scene animate``),
+and the reader says so once (:class:`~workflows.estimators.pose_array.EstimateNote`).
 """
 
 from __future__ import annotations
@@ -83,6 +89,20 @@ def _camera(data: dict[str, Any], source: str) -> CameraInfo:
     return CameraInfo(None, size)
 
 
+def sequence_length(data: Any) -> int | None:
+    """T when ``data`` is one person over T > 1 frames (T poses, one ``betas`` row), else None."""
+    if not isinstance(data, dict) or "betas" not in data or "global_orient" not in data:
+        return None
+    try:
+        go, betas = np.asarray(data["global_orient"]), np.asarray(data["betas"])
+    except (TypeError, ValueError):
+        return None
+    if go.dtype.kind not in "fiu" or betas.dtype.kind not in "fiu" or go.ndim != 2 or go.shape[1] != 3:
+        return None
+    one_shape = betas.ndim == 1 or (betas.ndim == 2 and betas.shape[0] == 1)
+    return int(go.shape[0]) if one_shape and go.shape[0] > 1 else None
+
+
 def _one(data: dict[str, Any], source: str, max_people: int) -> list[EstimatedPerson]:
     go = rows(require(data, "global_orient", source), "global_orient", 3, source)
     N = go.shape[0]
@@ -102,7 +122,8 @@ def _one(data: dict[str, Any], source: str, max_people: int) -> list[EstimatedPe
         family = "smplx" if model == "smplx" else "smpl"
     transl = rows(data.get("transl", np.zeros((N, 3))), "transl", 3, source, N)
     betas = finite(data.get("betas", np.zeros((N, NUM_BETAS))), "betas", source)
-    betas = betas.reshape(N, -1) if betas.size and betas.size % N == 0 else betas.reshape(1, -1).repeat(N, 0)
+    one_shape = betas.ndim == 1 or (betas.ndim == 2 and betas.shape[0] == 1)
+    betas = betas.reshape(1, -1).repeat(N, 0) if one_shape or not betas.size % N == 0 else betas.reshape(N, -1)
     g = data.get("gender", "neutral")
     g_list = [g] if isinstance(g, str) else np.asarray(g).reshape(-1).tolist()
     if len(g_list) not in (1, N):
@@ -121,8 +142,34 @@ def _one(data: dict[str, Any], source: str, max_people: int) -> list[EstimatedPe
                        source=f"{source} (plain)", max_people=max_people)
 
 
+def _sequence_frame(data: dict[str, Any], T: int, source: str, frame: int) -> dict[str, Any]:
+    """Row ``frame`` of a sequence file as a one-person record (per-frame keys sliced, the rest kept)."""
+    import warnings
+
+    from workflows.estimators.pose_array import EstimateNote
+
+    if not 0 <= frame < T:
+        raise EstimateFormatError(f"{source}: frame {frame} out of range (0..{T - 1}): a sequence of {T} frames "
+                                  f"(one 'betas' with {T} poses).")
+    warnings.warn(f"{source}: one 'betas' with {T} poses: one person over {T} frames (0..{T - 1}); from-estimate "
+                  "reads --frame N, scene animate all of them.", EstimateNote, stacklevel=3)
+    out = dict(data)
+    out["global_orient"] = finite(data["global_orient"], "global_orient", source)[frame:frame + 1]
+    bp = finite(require(data, "body_pose", source), "body_pose", source)
+    if bp.shape[0] != T:
+        raise EstimateFormatError(f"{source}: 'body_pose' has {bp.shape[0]} rows for {T} frames of 'global_orient'.")
+    out["body_pose"] = bp[frame:frame + 1]
+    if "transl" in data:
+        out["transl"] = rows(data["transl"], "transl", 3, source, T)[frame:frame + 1]
+    return out
+
+
 def from_data(data: Any, *, source: str = "<plain>", frame: int = 0, max_people: int = MAX_PEOPLE
               ) -> list[EstimatedPerson]:
+    T = sequence_length(data)
+    if T is not None:
+        people = _one(_sequence_frame(data, T, source, frame), source, max_people)
+        return [dataclasses.replace(p, person_id="0", frame=str(frame)) for p in people]
     if frame != 0:
         raise EstimateFormatError(f"{source}: a plain SMPL file is one frame; --frame must be 0, got {frame}.")
     if isinstance(data, list):
