@@ -40,6 +40,7 @@ from smplik.effectors import Effector
 from smplik.pose import Pose
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
 from workflows.motion_clean import (
+    FOOT_JOINTS,
     CleanConfig,
     foot_contacts,
     foot_noise,
@@ -48,6 +49,7 @@ from workflows.motion_clean import (
     lock_feet,
     sequence_clean,
     smooth_motion,
+    split_on_lift,
 )
 from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
 from workflows.scene import SkeletonSource
@@ -518,7 +520,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     raw = joints_of(R, transl, J_rest) * scale
     glitches = np.zeros(len(poses), dtype=bool)
     if cfg.repair_glitches:
-        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio)
+        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio, cfg.glitch_sigmas)
         if glitches.any():
             R, transl = repair_frames(R, transl, glitches)
     if cfg.smoothing == "sequence":
@@ -528,11 +530,16 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     p_s = joints_of(R_s, t_s, J_rest)
     noise = foot_noise(raw, p_s * scale, fps)
     ground = ground_of(p_s, fps, cfg, scale, noise)
+    if cfg.smoothing == "adaptive":  # its paths keep little of the raw noise: contacts on their own speed
+        noise = None
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground)
+        drift = ground * np.arange(len(poses))[:, None, None]
+        contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
+                                 cfg.contact_min_frames)
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
 
