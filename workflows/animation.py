@@ -47,6 +47,7 @@ from workflows.motion_clean import (
     glitch_frames,
     ground_of,
     lock_feet,
+    root_shift_from_locks,
     sequence_clean,
     smooth_motion,
     split_on_lift,
@@ -539,6 +540,10 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         drift = ground * np.arange(len(poses))[:, None, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames)
+        if cfg.root_from_locks and cfg.smoothing == "adaptive":
+            t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,
+                                              cfg.root_lock_smoothness)
+            p_s = joints_of(R_s, t_s, J_rest)
         R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches

@@ -113,6 +113,11 @@ class CleanConfig:
     offset to blend is larger than ``blend_max_m`` per frame)."""
     blend_max_m: float = 0.02
     """Most a lock's blend moves the foot from one frame to the next (m): no snap at a release."""
+    root_from_locks: bool = True
+    """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
+    (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
+    root_lock_smoothness: float = 10.0
+    """Smoothness (frames^2 weight of the squared acceleration) of that root shift."""
     release_m: float = 0.03
     """A lock releases when the (smoothed) foot leaves its locked point by this much (m): a lift or a step."""
     ground_moves: bool = False
@@ -122,7 +127,7 @@ class CleanConfig:
     for camera-space clips."""
     repair_glitches: bool = True
     """Detect single-frame glitches (:func:`glitch_frames`) and replace them by interpolation before smoothing."""
-    glitch_sigmas: float = 5.0
+    glitch_sigmas: float = 5.5
     """A glitch moves some joint from the midpoint of its neighbouring frames by more than this many times the
     clip's own robust spread of that offset (per joint and axis: :func:`glitch_frames`) ..."""
     glitch_min_m: float = 0.03
@@ -658,6 +663,25 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
                         targets[t, side] = p_world[t, foot] + w * (offset + drift[t] - drift[edge])
                         weights[t, side] = w
     return targets, weights
+
+
+def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None,
+                          blend_max: float | None, smoothness: float) -> np.ndarray:
+    """How far to move the root (T, 3) so that the locked feet's offsets go into the root, not the legs.
+
+    A still foot of a noisy estimate moves with the root's noise (a monocular depth's above all); pinning it by leg
+    IK alone bends the legs by that noise. The lock-weighted mean offset (lock target minus foot,
+    :func:`lock_targets`) of the feet in contact, per frame, is smoothed over time (Whittaker, ``smoothness``; data
+    weight the summed lock weights, a small pull to zero where no foot is locked): that is the root's noise the
+    locks see, and the root takes it. p_world (T, 24, 3), contact (T, 2)."""
+    from workflows.denoise import whittaker
+
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
+    offset = targets - p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    total = weights.sum(1)  # (T,)
+    mean = (weights[..., None] * offset).sum(1) / np.maximum(total, 1e-9)[:, None]
+    w = np.repeat((total + 1e-3)[:, None], 3, axis=1)
+    return whittaker(mean, w, np.full(3, smoothness))
 
 
 def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1) -> np.ndarray:
