@@ -279,6 +279,23 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
 # ----------------------------------------------------------------------------- plausibility
 
 
+ROOT_GLITCH_SMOOTHNESS = 10.0
+"""Smoothness of the robust root path that :func:`glitch_frames` measures the root's jumps from."""
+
+
+def _root_outliers(root: np.ndarray) -> np.ndarray:
+    """The root's offsets (T, 3) from a robust smoothing of its path (T, 3): Whittaker smoothing, then again with
+    the frames beyond 3 robust spreads nearly ignored (a jump does not pull the path towards itself)."""
+    from workflows.denoise import whittaker
+
+    weights = np.ones_like(root)
+    for _ in range(2):
+        offset = root - whittaker(root, weights, np.full(3, ROOT_GLITCH_SMOOTHNESS))
+        spread = 1.4826 * np.median(np.abs(offset - np.median(offset, axis=0)), axis=0)
+        weights = np.where(np.abs(offset) > 3.0 * np.maximum(spread, 1e-6), 1e-3, 1.0)
+    return offset
+
+
 def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, sigmas: float = 5.5) -> np.ndarray:
     """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3) (a pose that jumps away and comes back,
     as when a tracker briefly swaps limbs or misjudges the depth).
@@ -302,7 +319,7 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     p[:, 0] = p_world[:, 0]
     spike = np.zeros_like(p)
     spike[2:-2] = -(p[:-4] - 4 * p[1:-3] + 6 * p[2:-2] - 4 * p[3:-1] + p[4:]) / 4.0
-    spike[1:-1, 0] = p[1:-1, 0] - 0.5 * (p[2:, 0] + p[:-2, 0])  # the root moves smoothly: its midpoint offset
+    spike[:, 0] = _root_outliers(p[:, 0])
     inner = spike[2:-2]
     spread = np.maximum(1.4826 * np.median(np.abs(inner - np.median(inner, axis=0)), axis=0), 1e-4)  # (J, 3)
     score = np.linalg.norm(spike / spread, axis=-1)  # (T, J)
