@@ -239,7 +239,6 @@ def write_amass(poses: list[Pose], path: Path) -> None:
     from scipy.spatial.transform import Rotation
 
     from workflows.animation import rest_joints
-
     from workflows.estimators.base import estimator_rest_pelvis
 
     R_zup_yup = Rotation.from_euler("x", 90, degrees=True)
@@ -310,6 +309,10 @@ def main() -> None:
         from smplik.solver import IKSolver
 
         solver = IKSolver.load(None)
+        warm = load_truth(next(iter(clips)), 30)
+        if warm is not None:  # first-call imports and caches (torch, the readers) are not the pipeline's speed
+            with tempfile.TemporaryDirectory() as tmp:
+                end_to_end(make_estimate(warm, "independent", 98).poses, solver, Path(tmp))
         for name in [n for n in clips if "walk" in clips[n] or "fast" in clips[n]][:3]:
             truth = load_truth(name, args.frames)
             if truth is not None:

@@ -619,7 +619,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         J_rest = rest_joints(body[0], body[1])
         keys = select_keyframes(R, transl, J_rest, keyframe_threshold(raw, clean, config.keyframe_threshold_m),
                                 scale=body[2], max_gap=config.max_keyframe_gap,
-                                max_keys=int(np.ceil(config.max_keyframe_share * len(poses))))
+                                max_keys=int(config.max_keyframe_share * len(poses)))
         aa = _axis_angle(R)
         name = f"person_{tid}"
         tracks.append(AnimationTrack(name, tid, body[1], body[0], body[2], skeleton, rows[0][0], aa[:, 0],

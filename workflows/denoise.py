@@ -4,12 +4,12 @@ A channel is one number per frame: a component of a joint's local rotation (a si
 or one axis of the root's position (x, y, depth). All functions are pure numpy over ``(T, C)`` arrays (time
 first, ``C`` channels).
 
-* **Noise** (:func:`estimate_noise`): the residual of a local cubic fit over :data:`NOISE_WINDOW` frames
-  (Savitzky-Golay), whose median absolute deviation, rescaled by the fit's residual gain, is the channel's
-  frame-to-frame noise ``sigma`` (robust to glitches and to the motion itself, which a cubic follows over a
-  quarter second); the residual's lag-1 autocorrelation tells independent noise (about :data:`WHITE_LAG1`,
-  the fit's own) from noise correlated over frames (higher; only its fast part is measured and removed: the
-  slow part looks like motion).
+* **Noise** (:func:`estimate_noise`): the residual of a local cubic fit over :data:`NOISE_WINDOW` frames (Savitzky-
+  Golay), whose rms within 3 robust spreads (median absolute deviations) of zero, rescaled by the truncation and the
+  fit's residual gain, is the channel's frame-to-frame noise ``sigma`` (robust to glitches and to the motion itself,
+  which a cubic follows over a quarter second); the residual's lag-1 autocorrelation tells independent noise (about
+  :data:`WHITE_LAG1`, the fit's own) from noise correlated over frames (higher; only its fast part is measured and
+  removed: the slow part looks like motion).
 * **Smoothing** (:func:`whittaker`): the Whittaker-Henderson smoother, ``z`` minimising
   ``sum_t w_t (z_t - y_t)^2 + sum_t lam_t (z_t+1 - 2 z_t + z_t-1)^2`` (one banded solve per channel), the
   data weight ``w_t`` per frame (fast motion: the estimate is trusted more, :func:`motion_weights`).
@@ -35,6 +35,8 @@ _E = -savgol_coeffs(NOISE_WINDOW, NOISE_ORDER)
 _E[NOISE_WINDOW // 2] += 1.0
 WHITE_LAG1 = float((_E[1:] * _E[:-1]).sum() / (_E * _E).sum())
 """Lag-1 autocorrelation of the fit's residual for independent noise (the residual filter's own)."""
+TRUNCATED_VARIANCE = 0.97334
+"""Variance of a unit normal truncated at +-3 (the trimmed rms of :func:`estimate_noise` is divided by its root)."""
 LAMBDA_GRID = np.logspace(-2, 5, 29)
 """Smoothness values :func:`sure_smoothness` chooses from."""
 
@@ -64,7 +66,9 @@ def estimate_noise(y: np.ndarray) -> ChannelNoise:
     r = y - savgol_filter(y, NOISE_WINDOW, NOISE_ORDER, axis=0, mode="interp")
     r = r[NOISE_WINDOW // 2:T - NOISE_WINDOW // 2]
     mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0)
-    sigma = 1.4826 * mad / _RESIDUAL_GAIN
+    inside = np.abs(r) <= 3.0 * 1.4826 * mad  # glitches and outliers left out ...
+    trimmed = np.sqrt((np.where(inside, r, 0.0) ** 2).sum(0) / np.maximum(inside.sum(0), 1) / TRUNCATED_VARIANCE)
+    sigma = np.where(mad > 0, trimmed, 0.0) / _RESIDUAL_GAIN  # ... the rest's rms: a steadier scale than the MAD
     clip = np.clip(r, -3 * 1.4826 * mad, 3 * 1.4826 * mad)  # glitches do not decide the correlation
     num = (clip[1:] * clip[:-1]).sum(0)
     den = np.maximum((clip * clip).sum(0), 1e-30)

@@ -704,7 +704,8 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
 def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1) -> np.ndarray:
     """Contacts (T, 2) with every run cut where its foot leaves its lock: a foot (T, 2, 3) positions (ground frame,
     smoothed) more than ``release`` from the mean of its run so far (a lift or a step of that size) ends the run
-    there, and a new run starts at the next frame still in contact; runs shorter than ``min_frames`` are dropped.
+    there (that frame is left free), and a new run starts at the next frame; runs shorter than ``min_frames`` are
+    dropped.
     """
     out = np.zeros_like(contact)
     for side in range(contact.shape[1]):
@@ -718,7 +719,7 @@ def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_fra
                     stop += 1
                 if stop - start >= min_frames:
                     out[start:stop, side] = True
-                start = stop
+                start = stop + 1  # the frame that left the lock is free: the next run is a run of its own
     return out
 
 
