@@ -231,10 +231,10 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
     return quaternions_to_matrices(q_s), t_s
 
 
-CORRELATION_SLOPE = 50.0
+CORRELATION_SLOPE = 100.0
 """Gain per unit of excess lag-1 residual autocorrelation (:func:`correlation_gain`; chosen on validation clips,
 ``benchmarks/animation_truth.py --split validation``)."""
-CORRELATION_GAIN_MAX = 8.0
+CORRELATION_GAIN_MAX = 20.0
 """Most :func:`correlation_gain` multiplies the smoothness by."""
 
 
