@@ -258,3 +258,12 @@ def test_keyframes_are_capped_worst_interval_first():
     capped = select_keyframes(R, transl, J, 0.001, max_keys=9)
     assert len(free) > 9 and len(capped) == 9 and {0, 59} <= set(capped)
     assert select_keyframes(R, transl, J, 0.001, max_keys=len(free) + 5) == free
+
+
+def test_new_cleaning_settings_are_checked_with_one_line():
+    from workflows.motion_clean import CleanError
+
+    for bad in ({"release_m": 0.0}, {"blend_max_m": -0.02}, {"glitch_sigmas": float("nan")}, {"noise_gain": 0.0},
+                {"motion_trust": -1.0}, {"root_lock_smoothness": 0.0}, {"smoothing": "wiener"}):
+        with pytest.raises(CleanError, match=next(iter(bad)).split("_")[0]):
+            CleanConfig(**bad)

@@ -2,9 +2,13 @@
 
 All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
 
-The default cleaning, :func:`sequence_clean`, is a sequence solve (:mod:`smplik.sequence`): the joints' paths
-smoothed over the whole clip with the foot locks among their data, then every frame's body fitted to them.
-The filters below are the measured baselines.
+The default cleaning, ``"adaptive"`` (:func:`denoise_motion`), smooths every channel (each joint's quaternion
+components, the root's axes) as much as its own measured noise asks (:mod:`workflows.denoise`), after repairing
+single-frame glitches found against the clip's own noise (:func:`glitch_frames`); foot locks then release on a
+lift (:func:`split_on_lift`), blend by offset at most ``blend_max_m`` per frame (:func:`lock_targets`) and move
+the root by the locked feet's offsets first (:func:`root_shift_from_locks`). :func:`sequence_clean` (a sequence
+solve, :mod:`smplik.sequence`, with an optional pose budget) and the filters below are the other choices, measured
+against a known truth in ``benchmarks/animation_truth.py``.
 
 Smoothing (:func:`smooth_motion`) filters the local joint rotations as unit quaternions (scalar
 first, made sign-continuous over time, renormalised after filtering) and the root translation:
@@ -22,7 +26,7 @@ pitch in camera space; y is up) **and** slow (per axis below ``speed_mps`` or ``
 clip's own foot noise on that axis, :func:`foot_noise`, whichever is larger: a monocular estimator's depth
 jitters several times its image axes); runs extend over neighbouring low frames up to ``release_ratio``
 times that (hysteresis), and runs shorter than ``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the
-foot to its mean position over each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
+foot to its mean position over each contact run (blended in and out, :func:`lock_targets`) by a two-bone IK of the leg
 (:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
 lands on the locked point exactly when the leg can reach it.
 
@@ -141,7 +145,7 @@ class CleanConfig:
                              f"{self.smoothing!r}.")
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
                      "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
-                     "noise_gain", "blend_max_m", "release_m"):
+                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
@@ -541,20 +545,6 @@ def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
     for j, p in enumerate(PARENTS):
         G[..., j, :, :] = R_parent_joint[..., j, :, :] if p < 0 else G[..., p, :, :] @ R_parent_joint[..., j, :, :]
     return G
-
-
-def lock_weights(contact: np.ndarray, blend_frames: int) -> list[tuple[np.ndarray, int, int]]:
-    """Per contact run of a (T,) mask: a (T,) weight (1 inside the run, ramping to 0 over ``blend_frames``
-    outside it) and the run's (start, end_exclusive)."""
-    T = contact.shape[0]
-    out = []
-    t = np.arange(T)
-    for s, e in _runs(contact):
-        before = np.clip(1.0 - (s - t) / (blend_frames + 1), 0.0, 1.0)
-        after = np.clip(1.0 - (t - (e - 1)) / (blend_frames + 1), 0.0, 1.0)
-        w = np.where(t < s, before, np.where(t >= e, after, 1.0))
-        out.append((w, s, e))
-    return out
 
 
 def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3,
