@@ -773,7 +773,10 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
         noise = foot_noise(p_raw, smooth, fps) * scale
         ground = ground_of(smooth, fps, cfg, scale, noise)
         contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale, noise)
-        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground)
+        drift = ground * np.arange(T)[:, None, None]
+        contacts = split_on_lift((smooth[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
+                                 cfg.contact_min_frames)
+        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         w_lock = cfg.lock_weight * lock
         foot_idx = list(FOOT_JOINTS)
         targets[:, foot_idx] = (p_raw[:, foot_idx] + w_lock[..., None] * feet) / (1.0 + w_lock[..., None])
@@ -786,7 +789,7 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
         R_out, t_out = R_s.numpy(), t_s.numpy()
         if contacts.any():  # the fitted feet are near their locks; two-bone IK puts them on it exactly
             p_s = forward_kinematics(R_s, J, t_s)[1].numpy()
-            R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground)
+            R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         if cfg.pose_budget_mm is None or smoothness == 0.0 or not contacts.any():
             break
         p_out = forward_kinematics(torch.as_tensor(R_out), J, t_s)[1].numpy()
