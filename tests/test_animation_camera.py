@@ -158,8 +158,8 @@ def test_a_noisy_estimate_is_cleaned_within_the_pose_budget():
 
     aa, transl = video_motion(45, seed=2, fmt="romp")  # 0.02 rad per-frame noise: PHALP-like jitter (~45 mm)
     poses = [Pose(aa[i, 0], aa[i, 1:], transl[i] * [1, -1, -1], np.zeros(10)) for i in range(len(aa))]
-    budget = clean_track(poses, 30.0, CleanConfig(), 1.0)
-    free = clean_track(poses, 30.0, CleanConfig(pose_budget_mm=None), 1.0)
+    budget = clean_track(poses, 30.0, CleanConfig(smoothing="sequence", pose_budget_mm=5.0), 1.0)  # an option
+    free = clean_track(poses, 30.0, CleanConfig(smoothing="sequence"), 1.0)  # no budget by default
     raw = budget[3]
     held = motion_metrics(budget[4], raw, budget[2])
     assert held.mpjpe_mm <= 5.0 and jitter(budget[4]) < 0.8 * jitter(raw)

@@ -12,9 +12,10 @@ Steps (:func:`animate_file`):
    at its world position).
 3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, then (default) a sequence solve over all frames
    with the foot locks (:func:`workflows.motion_clean.sequence_clean`), or a filter and foot locking.
-4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, recursively, the frame
+4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, worst interval first, the frame
    where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
-   errs most, while that error (mean joint distance, character space) is above a threshold.
+   errs most, while that error (mean joint distance, character space) is above a threshold (at least the
+   estimate's noise, :func:`keyframe_threshold`) and the keyframes are at most ``max_keyframe_share`` of the frames.
 5. **Effectors on keyframes**: :func:`workflows.recovery.recover_many` on all keyframes of all
    tracks in one batch.
 
@@ -40,14 +41,17 @@ from smplik.effectors import Effector
 from smplik.pose import Pose
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
 from workflows.motion_clean import (
+    FOOT_JOINTS,
     CleanConfig,
     foot_contacts,
     foot_noise,
     glitch_frames,
     ground_of,
     lock_feet,
+    root_shift_from_locks,
     sequence_clean,
     smooth_motion,
+    split_on_lift,
 )
 from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
 from workflows.scene import SkeletonSource
@@ -82,6 +86,9 @@ class AnimateConfig:
     """Add a keyframe where interpolating the neighbouring ones errs more than this (mean joint error, m)."""
     max_keyframe_gap: int = 0
     """Also split any keyframe interval longer than this many frames (0: no limit)."""
+    max_keyframe_share: float = 0.15
+    """Most keyframes per track, as a share of its frames (the worst-interpolated intervals are split first; the
+    threshold itself is also raised to the estimate's noise, :func:`keyframe_threshold`)."""
     recovery: RecoveryConfig = field(default_factory=lambda: RecoveryConfig(max_effectors=6, threshold=0.03))
     """Effector recovery on keyframes."""
     camera_fov_deg: float | None = NORMAL_FOV_DEG
@@ -97,6 +104,8 @@ class AnimateConfig:
                                                     and NEAR_ORTHOGRAPHIC_FOV_DEG <= self.camera_fov_deg < 170):
             raise AnimationError(f"camera field of view must be in [{NEAR_ORTHOGRAPHIC_FOV_DEG:g}, 170) degrees, got "
                                  f"{self.camera_fov_deg}.")
+        if not 0 < self.max_keyframe_share <= 1:
+            raise AnimationError(f"max keyframe share must be in (0, 1], got {self.max_keyframe_share}.")
         if self.max_keyframe_gap < 0:
             raise AnimationError(f"max keyframe gap must be >= 0, got {self.max_keyframe_gap}.")
 
@@ -511,29 +520,51 @@ def interpolate_poses(R_a: np.ndarray, R_b: np.ndarray, t_a: np.ndarray, t_b: np
 
 
 def select_keyframes(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, threshold_m: float, *,
-                     scale: float = 1.0, max_gap: int = 0) -> list[int]:
+                     scale: float = 1.0, max_gap: int = 0, max_keys: int | None = None) -> list[int]:
     """Keyframe rows (sorted) of a motion (see the module docstring, step 4). Errors in character space
-    (``scale`` times SMPL space). R_parent_joint (T, 24, 3, 3), transl (T, 3), J_rest (24, 3)."""
+    (``scale`` times SMPL space). R_parent_joint (T, 24, 3, 3), transl (T, 3), J_rest (24, 3).
+
+    The interval whose interpolation errs most is split first, so with ``max_keys`` (at least 2) the keyframes
+    kept are those that matter most."""
+    import heapq
+
     T = R_parent_joint.shape[0]
     if T <= 2:
         return list(range(T))
     p = joints_of(R_parent_joint, transl, J_rest)
     keys = {0, T - 1}
-    stack = [(0, T - 1)]
-    while stack:
-        a, b = stack.pop()
+    heap: list[tuple[float, int, int, int]] = []
+
+    def push(a: int, b: int) -> None:
         if b - a < 2:
-            continue
+            return
         rows = np.arange(a + 1, b)
         w = (rows - a) / (b - a)
         R_i, t_i = interpolate_poses(R_parent_joint[a], R_parent_joint[b], transl[a], transl[b], w)
         err = scale * np.linalg.norm(joints_of(R_i, t_i, J_rest) - p[rows], axis=-1).mean(-1)
         worst = int(np.argmax(err))
-        if err[worst] > threshold_m or (max_gap and b - a > max_gap):
-            k = int(rows[worst]) if err[worst] > threshold_m else (a + b) // 2
-            keys.add(k)
-            stack += [(a, k), (k, b)]
+        if err[worst] > threshold_m:
+            heapq.heappush(heap, (-float(err[worst]), int(rows[worst]), a, b))
+        elif max_gap and b - a > max_gap:
+            heapq.heappush(heap, (0.0, (a + b) // 2, a, b))
+
+    push(0, T - 1)
+    while heap and (max_keys is None or len(keys) < max(2, max_keys)):
+        _, k, a, b = heapq.heappop(heap)
+        keys.add(k)
+        push(a, k)
+        push(k, b)
     return sorted(keys)
+
+
+def keyframe_threshold(raw: np.ndarray, clean: np.ndarray, threshold_m: float) -> float:
+    """The keyframe threshold of a track (m): ``threshold_m``, raised to the estimate's noise (the mean joint
+    distance between the raw and the cleaned joints, pelvis-aligned, the median over frames; raw, clean
+    (T, 24, 3) character space): keyframes finer than the estimator's own noise would only follow it."""
+    if raw.shape[0] == 0:
+        return threshold_m
+    moved = np.linalg.norm((raw - raw[:, :1]) - (clean - clean[:, :1]), axis=-1).mean(-1)
+    return max(threshold_m, float(np.median(moved)))
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -591,7 +622,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     raw = joints_of(R, transl, J_rest) * scale
     glitches = np.zeros(len(poses), dtype=bool)
     if cfg.repair_glitches:
-        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio)
+        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio, cfg.glitch_sigmas)
         if glitches.any():
             R, transl = repair_frames(R, transl, glitches)
     if cfg.smoothing == "sequence":
@@ -601,11 +632,20 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     p_s = joints_of(R_s, t_s, J_rest)
     noise = foot_noise(raw, p_s * scale, fps)
     ground = ground_of(p_s, fps, cfg, scale, noise)
+    if cfg.smoothing == "adaptive":  # its paths keep little of the raw noise: contacts on their own speed
+        noise = None
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground)
+        drift = ground * np.arange(len(poses))[:, None, None]
+        contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
+                                 cfg.contact_min_frames)
+        if cfg.root_from_locks and cfg.smoothing == "adaptive":
+            t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,
+                                              cfg.root_lock_smoothness)
+            p_s = joints_of(R_s, t_s, J_rest)
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
 
@@ -655,8 +695,9 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         poses = [retarget_to_body(p, *body) for p in people]
         R, transl, contacts, raw, clean, glitches = clean_track(poses, rate, clean_cfg, body[2])
         J_rest = rest_joints(body[0], body[1])
-        keys = select_keyframes(R, transl, J_rest, config.keyframe_threshold_m, scale=body[2],
-                                max_gap=config.max_keyframe_gap)
+        keys = select_keyframes(R, transl, J_rest, keyframe_threshold(raw, clean, config.keyframe_threshold_m),
+                                scale=body[2], max_gap=config.max_keyframe_gap,
+                                max_keys=int(config.max_keyframe_share * len(poses)))
         aa = _axis_angle(R)
         name = f"person_{tid}"
         tracks.append(AnimationTrack(name, tid, body[1], body[0], body[2], skeleton, rows[0][0], aa[:, 0],

@@ -45,12 +45,13 @@ def animate_cmd(
     max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
     root: RootOption = None,
     smoothing: Annotated[str, typer.Option(
-        "--smoothing", help="sequence (a sequence solve, the default), one_euro, savgol or none.")] = "sequence",
+        "--smoothing", help="adaptive (each channel smoothed as its measured noise asks, the default), sequence "
+        "(a joint-space sequence solve), one_euro, savgol or none.")] = "adaptive",
     smoothness: Annotated[float, typer.Option("--smoothness", help="sequence cleaning: weight of the joints' "
                                               "acceleration; higher smooths more.")] = 2.0,
     pose_budget: Annotated[float, typer.Option("--pose-budget", help="sequence cleaning: most the smoothing may "
                                                "move the pose from the estimate (pelvis-aligned MPJPE, mm); "
-                                               "0: no cap.")] = 5.0,
+                                               "0: no cap.")] = 0.0,
     keep_depth: Annotated[bool, typer.Option("--keep-depth", help="Camera-space tracks of near-orthographic "
                                              "estimators (4D-Humans/PHALP): keep their depth instead of placing "
                                              "the body for a 60-degree camera.")] = False,

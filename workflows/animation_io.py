@@ -10,7 +10,7 @@ track's body fields are a scene character's, read by the scene reader's rules)::
       "fps": 30.0,                                                 # the source frame rate
       "space": "camera" | "world",                                 # estimator camera frame or world trajectory
       "camera": null | {...scene camera...},
-      "clean": null | {"smoothing": "sequence", "smoothness": 2.0, ...},   # workflows.motion_clean.CleanConfig
+      "clean": null | {"smoothing": "adaptive", "smoothness": 2.0, ...},   # workflows.motion_clean.CleanConfig
       "tracks": [
         {
           "name": "person_0", "track_id": "0", "gender": "neutral", "betas": [10 numbers], "scale": 1.0,

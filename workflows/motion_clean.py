@@ -2,9 +2,13 @@
 
 All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
 
-The default cleaning, :func:`sequence_clean`, is a sequence solve (:mod:`smplik.sequence`): the joints' paths
-smoothed over the whole clip with the foot locks among their data, then every frame's body fitted to them.
-The filters below are the measured baselines.
+The default cleaning, ``"adaptive"`` (:func:`denoise_motion`), smooths every channel (each joint's quaternion
+components, the root's axes) as much as its own measured noise asks (:mod:`workflows.denoise`), after repairing
+single-frame glitches found against the clip's own noise (:func:`glitch_frames`); foot locks then release on a
+lift (:func:`split_on_lift`), blend by offset at most ``blend_max_m`` per frame (:func:`lock_targets`) and move
+the root by the locked feet's offsets first (:func:`root_shift_from_locks`). :func:`sequence_clean` (a sequence
+solve, :mod:`smplik.sequence`, with an optional pose budget) and the filters below are the other choices, measured
+against a known truth in ``benchmarks/animation_truth.py``.
 
 Smoothing (:func:`smooth_motion`) filters the local joint rotations as unit quaternions (scalar
 first, made sign-continuous over time, renormalised after filtering) and the root translation:
@@ -22,7 +26,7 @@ pitch in camera space; y is up) **and** slow (per axis below ``speed_mps`` or ``
 clip's own foot noise on that axis, :func:`foot_noise`, whichever is larger: a monocular estimator's depth
 jitters several times its image axes); runs extend over neighbouring low frames up to ``release_ratio``
 times that (hysteresis), and runs shorter than ``min_frames`` are dropped. Locking (:func:`lock_feet`) pins the
-foot to its mean position over each contact run (blended in and out over ``blend_frames``) by a two-bone IK of the leg
+foot to its mean position over each contact run (blended in and out, :func:`lock_targets`) by a two-bone IK of the leg
 (:func:`two_bone_ik`: hip, knee, ankle) that keeps the ankle's world rotation, so the foot joint
 lands on the locked point exactly when the leg can reach it.
 
@@ -53,7 +57,7 @@ LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["l
               (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"]))
 """(hip, knee, ankle) per side (left, right)."""
 
-SmoothingMethod = Literal["sequence", "one_euro", "savgol", "none"]
+SmoothingMethod = Literal["adaptive", "sequence", "one_euro", "savgol", "none"]
 
 
 class CleanError(ValueError):
@@ -64,16 +68,23 @@ class CleanError(ValueError):
 class CleanConfig:
     """How :func:`smooth_motion` and :func:`lock_feet` clean a motion."""
 
-    smoothing: SmoothingMethod = "sequence"
-    """``"sequence"`` (a sequence solve on the estimator's joints, foot locks included: :func:`sequence_clean`),
-    ``"one_euro"`` (adaptive, zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
+    smoothing: SmoothingMethod = "adaptive"
+    """``"adaptive"`` (the default: each channel smoothed as much as its measured noise asks,
+    :func:`denoise_motion`), ``"sequence"`` (a sequence solve on the estimator's joints, foot locks included:
+    :func:`sequence_clean`), ``"one_euro"`` (zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
+    noise_gain: float = 1.0
+    """Adaptive: multiplier of each channel's smoothness (chosen by :func:`workflows.denoise.sure_smoothness`);
+    noise correlated over frames raises it further (:func:`correlation_gain`)."""
+    motion_trust: float = 1.0
+    """Adaptive: how much more the data count where the smoothing would bend fast motion
+    (:func:`workflows.denoise.motion_weights`; 0: not at all)."""
     smoothness: float = 2.0
     """Sequence: weight of the joints' squared acceleration (m/frame^2) against their squared offset (m) from
     the estimate (:class:`smplik.sequence.SequenceConfig`); higher smooths more."""
-    pose_budget_mm: float | None = 5.0
+    pose_budget_mm: float | None = None
     """Sequence: most the smoothing may move the pose from the estimate (pelvis-aligned MPJPE of the smoothed
-    joint paths, character space, mm): ``smoothness`` is halved until it does not (:func:`budgeted_smoothness`),
-    so a noisy estimator (4D-Humans/PHALP) is smoothed less than its noise alone would ask. None: no cap."""
+    joint paths, character space, mm): ``smoothness`` is halved until it does not (:func:`budgeted_smoothness`).
+    None (the default): no cap. (A cap keeps the estimator's own error: the aim is the true motion.)"""
     lock_weight: float = 1000.0
     """Sequence: weight of a locked foot's position against the estimate's (1)."""
     min_cutoff_hz: float = 3.0
@@ -102,7 +113,17 @@ class CleanConfig:
     contact_min_frames: int = 3
     """Contact runs shorter than this are dropped."""
     blend_frames: int = 3
-    """Frames over which a lock is blended in before and out after a contact run."""
+    """Frames over which a lock is blended in before and out after a contact run (at least; more where the
+    offset to blend is larger than ``blend_max_m`` per frame)."""
+    blend_max_m: float = 0.02
+    """Most a lock's blend moves the foot from one frame to the next (m): no snap at a release."""
+    root_from_locks: bool = True
+    """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
+    (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
+    root_lock_smoothness: float = 10.0
+    """Smoothness (frames^2 weight of the squared acceleration) of that root shift."""
+    release_m: float = 0.03
+    """A lock releases when the (smoothed) foot leaves its locked point by this much (m): a lift or a step."""
     ground_moves: bool = False
     """The ground may move through the frame at a constant velocity (a camera-space clip: a camera panning with
     the person, a treadmill): contacts are feet slow *relative to the ground* and locks move with it
@@ -110,21 +131,28 @@ class CleanConfig:
     for camera-space clips."""
     repair_glitches: bool = True
     """Detect single-frame glitches (:func:`glitch_frames`) and replace them by interpolation before smoothing."""
-    glitch_min_m: float = 0.1
-    """A glitch moves some joint at least this far (m) from the midpoint of its neighbouring frames ..."""
+    glitch_sigmas: float = 5.5
+    """A glitch moves some joint from the midpoint of its neighbouring frames by more than this many times the
+    clip's own robust spread of that offset (per joint and axis: :func:`glitch_frames`) ..."""
+    glitch_min_m: float = 0.03
+    """... and at least this far (m; only matters on a nearly noise-free clip) ..."""
     glitch_ratio: float = 2.0
     """... and more than this many times the distance between those neighbours (fast real motion does not)."""
 
     def __post_init__(self) -> None:
-        if self.smoothing not in ("sequence", "one_euro", "savgol", "none"):
-            raise CleanError(f"smoothing must be 'sequence', 'one_euro', 'savgol' or 'none', got {self.smoothing!r}.")
+        if self.smoothing not in ("adaptive", "sequence", "one_euro", "savgol", "none"):
+            raise CleanError(f"smoothing must be 'adaptive', 'sequence', 'one_euro', 'savgol' or 'none', got "
+                             f"{self.smoothing!r}.")
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
-                     "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio"):
+                     "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
+                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
         if self.pose_budget_mm is not None and not (np.isfinite(self.pose_budget_mm) and self.pose_budget_mm > 0):
             raise CleanError(f"pose_budget_mm must be a positive number or None, got {self.pose_budget_mm}.")
+        if not (np.isfinite(self.motion_trust) and self.motion_trust >= 0):
+            raise CleanError(f"motion_trust must be >= 0, got {self.motion_trust}.")
         if not (np.isfinite(self.beta) and self.beta >= 0):
             raise CleanError(f"beta must be >= 0, got {self.beta}.")
         if self.savgol_window < 3 or self.savgol_window % 2 == 0 or self.savgol_order >= self.savgol_window:
@@ -191,6 +219,8 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
     """Smooth local rotations (T, 24, 3, 3) and root translation (T, 3) over time (see the module docstring)."""
     if cfg.smoothing == "none" or R_parent_joint.shape[0] < 3:
         return R_parent_joint.copy(), transl.copy()
+    if cfg.smoothing == "adaptive":
+        return denoise_motion(R_parent_joint, transl, cfg)
     q = continuous_quaternions(R_parent_joint)
     if cfg.smoothing == "savgol":
         window = min(cfg.savgol_window, q.shape[0] - (1 - q.shape[0] % 2))
@@ -205,21 +235,113 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
     return quaternions_to_matrices(q_s), t_s
 
 
+CORRELATION_SLOPE = 100.0
+"""Gain per unit of excess lag-1 residual autocorrelation (:func:`correlation_gain`; chosen on validation clips,
+``benchmarks/animation_truth.py --split validation``)."""
+CORRELATION_GAIN_MAX = 20.0
+"""Most :func:`correlation_gain` multiplies the smoothness by."""
+
+
+def correlation_gain(lag1: np.ndarray) -> float:
+    """Smoothness multiplier for a group of channels whose fit residuals have lag-1 autocorrelations ``lag1``
+    (C,) (:class:`workflows.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
+    estimator's slow drift) looks partly like motion to the unbiased risk, which then smooths too little: up to
+    :data:`CORRELATION_GAIN_MAX` times more, from the median excess over :data:`workflows.denoise.WHITE_LAG1`."""
+    from workflows.denoise import WHITE_LAG1
+
+    excess = float(np.median(lag1)) - WHITE_LAG1 - 0.03
+    return float(np.clip(1.0 + CORRELATION_SLOPE * excess, 1.0, CORRELATION_GAIN_MAX))
+
+
+def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanConfig
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The adaptive smoothing (``smoothing="adaptive"``, the default) of local rotations (T, 24, 3, 3) and the root
+    (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
+    own noise level (:func:`workflows.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
+    choice, :func:`workflows.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
+    rotation channels or of the root's), then a Whittaker smoothing; with ``motion_trust``, a second pass weighs
+    the estimate more where the first bent fast motion (:func:`workflows.denoise.motion_weights`).
+
+    Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
+    from workflows.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
+
+    T, J = R_parent_joint.shape[:2]
+    if T < 3:
+        return R_parent_joint.copy(), np.array(transl, dtype=np.float64)
+    q = continuous_quaternions(R_parent_joint).reshape(T, 4 * J)
+    y = np.concatenate([q, np.asarray(transl, dtype=np.float64)], axis=1)  # (T, 4J + 3)
+    noise = estimate_noise(y)
+    lam = cfg.noise_gain * sure_smoothness(y, noise.sigma)
+    lam[:4 * J] *= correlation_gain(noise.lag1[:4 * J])
+    lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
+    z = whittaker(y, np.ones_like(y), lam)
+    if cfg.motion_trust > 0:
+        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust), lam)
+    return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
+
+
 # ----------------------------------------------------------------------------- plausibility
 
 
-def glitch_frames(p_world: np.ndarray, min_m: float = 0.1, ratio: float = 2.0) -> np.ndarray:
-    """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3): frames where some joint jumps away
-    from the midpoint of its neighbouring frames by more than ``min_m`` and by more than ``ratio`` times the
-    distance between those neighbours (a pose that jumps and comes back; smooth motion, however fast, bends
-    its path by far less than it advances). The first and last frames are never flagged."""
-    flags = np.zeros(p_world.shape[0], dtype=bool)
-    if p_world.shape[0] < 3:
+ROOT_GLITCH_SMOOTHNESS = 10.0
+"""Smoothness of the robust root path that :func:`glitch_frames` measures the root's jumps from."""
+
+
+def _root_outliers(root: np.ndarray) -> np.ndarray:
+    """The root's offsets (T, 3) from a robust smoothing of its path (T, 3): Whittaker smoothing, then again with
+    the frames beyond 3 robust spreads nearly ignored (a jump does not pull the path towards itself)."""
+    from workflows.denoise import whittaker
+
+    weights = np.ones_like(root)
+    for _ in range(2):
+        offset = root - whittaker(root, weights, np.full(3, ROOT_GLITCH_SMOOTHNESS))
+        spread = 1.4826 * np.median(np.abs(offset - np.median(offset, axis=0)), axis=0)
+        weights = np.where(np.abs(offset) > 3.0 * np.maximum(spread, 1e-6), 1e-3, 1.0)
+    return offset
+
+
+def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, sigmas: float = 5.5) -> np.ndarray:
+    """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3) (a pose that jumps away and comes back,
+    as when a tracker briefly swaps limbs or misjudges the depth).
+
+    The root (joint 0) is tested on its world path, every other joint relative to the root (so the root's noise, a
+    monocular depth's above all, does not hide a limb's glitch). Per joint and axis, the spike of a frame is its
+    fourth difference ``-(p[t-2] - 4 p[t-1] + 6 p[t] - 4 p[t+1] + p[t+2]) / 4`` (1.5 times a single-frame jump;
+    smooth motion, even with a strong acceleration, gives almost none; the root, whose path is smooth, uses its
+    offset from the midpoint of its neighbouring frames, which measures its noise better), in units of the clip's
+    own robust spread of it (1.4826 times its median absolute deviation over the clip, per joint and axis: the depth
+    is noisier than the image axes). A frame is a glitch where some joint's scaled spike is above ``sigmas``, is the
+    largest of its frame and the two neighbouring frames (a jump's neighbours see two thirds of it), moves the joint
+    at least ``min_m`` from the midpoint of the neighbouring frames and, for joints other than the root, more than
+    ``ratio`` times the distance between those neighbours (a fast limb advances more than it bends). The first and
+    last two frames are never flagged."""
+    T = p_world.shape[0]
+    flags = np.zeros(T, dtype=bool)
+    if T < 5:
         return flags
-    mid = 0.5 * (p_world[2:] + p_world[:-2])
-    away = np.linalg.norm(p_world[1:-1] - mid, axis=-1)  # (T-2, J)
-    gap = np.linalg.norm(p_world[2:] - p_world[:-2], axis=-1)
-    flags[1:-1] = ((away > min_m) & (away > ratio * gap)).any(-1)
+    p = p_world - p_world[:, :1]
+    p[:, 0] = p_world[:, 0]
+    spike = np.zeros_like(p)
+    spike[2:-2] = -(p[:-4] - 4 * p[1:-3] + 6 * p[2:-2] - 4 * p[3:-1] + p[4:]) / 4.0
+    spike[:, 0] = _root_outliers(p[:, 0])
+    inner = spike[2:-2]
+    spread = np.maximum(1.4826 * np.median(np.abs(inner - np.median(inner, axis=0)), axis=0), 1e-4)  # (J, 3)
+    score = np.linalg.norm(spike / spread, axis=-1)  # (T, J)
+    peak = np.zeros_like(score, dtype=bool)
+    peak[1:-1] = (score[1:-1] >= score[:-2]) & (score[1:-1] >= score[2:])
+    offset = np.zeros(p.shape[:2])
+    gap = np.zeros(p.shape[:2])
+    offset[1:-1] = np.linalg.norm(p[1:-1] - 0.5 * (p[2:] + p[:-2]), axis=-1)
+    gap[1:-1] = np.linalg.norm(p[2:] - p[:-2], axis=-1)
+    jumps = offset > ratio * gap
+    jumps[:, 0] = True
+    hit = (score > sigmas) & peak & (offset >= min_m) & jumps
+    strength = np.where(hit, score, 0.0).max(-1)  # (T,)
+    for t in np.argsort(-strength):  # a strong jump's neighbours two frames away may pass too: keep the jump
+        if strength[t] == 0.0:
+            break
+        if 2 <= t < T - 2 and not flags[max(0, t - 2):t + 3].any():
+            flags[t] = True
     return flags
 
 
@@ -425,22 +547,8 @@ def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
     return G
 
 
-def lock_weights(contact: np.ndarray, blend_frames: int) -> list[tuple[np.ndarray, int, int]]:
-    """Per contact run of a (T,) mask: a (T,) weight (1 inside the run, ramping to 0 over ``blend_frames``
-    outside it) and the run's (start, end_exclusive)."""
-    T = contact.shape[0]
-    out = []
-    t = np.arange(T)
-    for s, e in _runs(contact):
-        before = np.clip(1.0 - (s - t) / (blend_frames + 1), 0.0, 1.0)
-        after = np.clip(1.0 - (t - (e - 1)) / (blend_frames + 1), 0.0, 1.0)
-        w = np.where(t < s, before, np.where(t >= e, after, 1.0))
-        out.append((w, s, e))
-    return out
-
-
 def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3,
-              ground: np.ndarray | None = None) -> np.ndarray:
+              ground: np.ndarray | None = None, blend_max: float | None = None) -> np.ndarray:
     """Pin each foot joint to its lock (:func:`lock_targets`) over each contact run by two-bone leg IK.
 
     Args:
@@ -453,7 +561,7 @@ def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarr
     """
     R_out = R_parent_joint.copy()
     G = local_to_world(R_parent_joint)
-    targets, weights = lock_targets(p_world, contact, blend_frames, ground)
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
     for side, ((hip, knee, ankle), foot) in enumerate(zip(LEG_CHAINS, FOOT_JOINTS, strict=True)):
         rows = np.nonzero(weights[:, side] > 0)[0]
         if rows.size == 0:
@@ -523,26 +631,86 @@ def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray, gr
 # ----------------------------------------------------------------------------- sequence cleaning
 
 
-def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None,
+                 blend_max: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs.
 
     Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right), ground (3,) the ground's
-    velocity (units per frame; default still).
+    velocity (units per frame; default still); blend_max: most the target may move relative to the foot from one
+    frame to the next during a blend (units; None: no limit).
 
-    Returns: foot targets (T, 2, 3) (the run's mean foot position relative to the ground, moving with the
-    ground, blended in and out over ``blend_frames``; the foot itself elsewhere) and weights (T, 2).
+    Returns: foot targets (T, 2, 3) and weights (T, 2). Inside a run, the target is the run's mean foot position
+    relative to the ground (moving with the ground). Around it the lock is blended as an offset: before the run,
+    the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the run's first frame (k = 1..n, n frames);
+    after it, the foot plus the shrinking offset of its last frame, so the foot follows its own motion and the
+    offset changes by the same step each frame: ``n`` is ``blend_frames``, or more where the offset divided by
+    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way.
     """
+    T = p_world.shape[0]
     targets = p_world[:, list(FOOT_JOINTS)].copy()
     weights = np.zeros(contact.shape)
-    drift = (np.zeros(3) if ground is None else np.asarray(ground)) * np.arange(p_world.shape[0])[:, None]
+    drift = (np.zeros(3) if ground is None else np.asarray(ground)) * np.arange(T)[:, None]
     for side, foot in enumerate(FOOT_JOINTS):
-        for w, s, e in lock_weights(contact[:, side], blend_frames):
+        for s, e in _runs(contact[:, side]):
             lock = (p_world[s:e, foot] - drift[s:e]).mean(0) + drift  # (T, 3)
-            take = w > weights[:, side]
-            targets[take, side] = (1.0 - w[take, None]) * p_world[take, foot] + w[take, None] * lock[take]
-            weights[:, side] = np.maximum(weights[:, side], w)
+            inside = np.arange(s, e)
+            targets[inside, side] = lock[inside]
+            weights[inside, side] = 1.0
+            for edge, direction in ((s, -1), (e - 1, 1)):
+                offset = lock[edge] - p_world[edge, foot]
+                n = blend_frames
+                if blend_max is not None and blend_max > 0:
+                    n = max(n, int(np.ceil(np.linalg.norm(offset) / blend_max)) - 1)
+                for k in range(1, n + 1):
+                    t = edge + direction * k
+                    if not 0 <= t < T:
+                        break
+                    w = 1.0 - k / (n + 1)
+                    if w > weights[t, side]:
+                        targets[t, side] = p_world[t, foot] + w * (offset + drift[t] - drift[edge])
+                        weights[t, side] = w
     return targets, weights
+
+
+def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None,
+                          blend_max: float | None, smoothness: float) -> np.ndarray:
+    """How far to move the root (T, 3) so that the locked feet's offsets go into the root, not the legs.
+
+    A still foot of a noisy estimate moves with the root's noise (a monocular depth's above all); pinning it by leg
+    IK alone bends the legs by that noise. The lock-weighted mean offset (lock target minus foot,
+    :func:`lock_targets`) of the feet in contact, per frame, is smoothed over time (Whittaker, ``smoothness``; data
+    weight the summed lock weights, a small pull to zero where no foot is locked): that is the root's noise the
+    locks see, and the root takes it. p_world (T, 24, 3), contact (T, 2)."""
+    from workflows.denoise import whittaker
+
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
+    offset = targets - p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    total = weights.sum(1)  # (T,)
+    mean = (weights[..., None] * offset).sum(1) / np.maximum(total, 1e-9)[:, None]
+    w = np.repeat((total + 1e-3)[:, None], 3, axis=1)
+    return whittaker(mean, w, np.full(3, smoothness))
+
+
+def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1) -> np.ndarray:
+    """Contacts (T, 2) with every run cut where its foot leaves its lock: a foot (T, 2, 3) positions (ground frame,
+    smoothed) more than ``release`` from the mean of its run so far (a lift or a step of that size) ends the run
+    there (that frame is left free), and a new run starts at the next frame; runs shorter than ``min_frames`` are
+    dropped.
+    """
+    out = np.zeros_like(contact)
+    for side in range(contact.shape[1]):
+        for s, e in _runs(contact[:, side]):
+            start = s
+            while start < e:
+                total = feet[start, side].copy()
+                stop = start + 1
+                while stop < e and np.linalg.norm(feet[stop, side] - total / (stop - start)) <= release:
+                    total += feet[stop, side]
+                    stop += 1
+                if stop - start >= min_frames:
+                    out[start:stop, side] = True
+                start = stop + 1  # the frame that left the lock is free: the next run is a run of its own
+    return out
 
 
 BUDGET_MARGIN = 0.85
@@ -605,7 +773,10 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
         noise = foot_noise(p_raw, smooth, fps) * scale
         ground = ground_of(smooth, fps, cfg, scale, noise)
         contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale, noise)
-        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground)
+        drift = ground * np.arange(T)[:, None, None]
+        contacts = split_on_lift((smooth[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
+                                 cfg.contact_min_frames)
+        feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         w_lock = cfg.lock_weight * lock
         foot_idx = list(FOOT_JOINTS)
         targets[:, foot_idx] = (p_raw[:, foot_idx] + w_lock[..., None] * feet) / (1.0 + w_lock[..., None])
@@ -618,7 +789,7 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
         R_out, t_out = R_s.numpy(), t_s.numpy()
         if contacts.any():  # the fitted feet are near their locks; two-bone IK puts them on it exactly
             p_s = forward_kinematics(R_s, J, t_s)[1].numpy()
-            R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground)
+            R_out = lock_feet(R_out, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         if cfg.pose_budget_mm is None or smoothness == 0.0 or not contacts.any():
             break
         p_out = forward_kinematics(torch.as_tensor(R_out), J, t_s)[1].numpy()
