@@ -66,7 +66,9 @@ class TrackingTrainConfig:
     max_steps: int = 1_000_000
     """Step budget (whichever of the two ends first)."""
     kl_weight: float = 1e-3
-    """Weight of the KL(q || p) term (per latent dimension and frame)."""
+    """Weight of the KL(q || p) term (summed over latent dimensions, mean over frames)."""
+    free_bits: float = 0.25
+    """KL below this many nats per latent dimension (batch mean) is not penalised (keeps the latent in use)."""
     contact_weight: float = 0.1
     """Weight of the foot-contact binary cross-entropy (the paper's gamma)."""
     rotation_weight: float = 0.1

@@ -73,7 +73,8 @@ class WindowSampler:
         self.body_models = body_models
         self.trackers = torch.tensor([JOINT_INDEX[n] for n in trackers])
         self.length, self.batch, self.generator = length, batch, generator
-        self.beta_noise, self.noise_m, self.rotation_dropout, self.augment = beta_noise, noise_m, rotation_dropout, augment
+        self.beta_noise, self.noise_m = beta_noise, noise_m
+        self.rotation_dropout, self.augment = rotation_dropout, augment
         self.fps = dataset.fps
         self.pose = dataset.pose.float()
         self.transl = dataset.transl.float()

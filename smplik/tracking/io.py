@@ -157,8 +157,9 @@ def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndar
     from smplik.conventions import JOINT_INDEX
     from smplik.kinematics import forward_kinematics
 
-    R_w, p = forward_kinematics(torch.as_tensor(R_local, dtype=torch.float64), torch.as_tensor(J_rest, dtype=torch.float64),
-                                torch.as_tensor(transl, dtype=torch.float64))
+    f64 = torch.float64
+    R_w, p = forward_kinematics(torch.as_tensor(R_local, dtype=f64), torch.as_tensor(J_rest, dtype=f64),
+                                torch.as_tensor(transl, dtype=f64))
     idx = [JOINT_INDEX[n] for n in names]
     P, R = p[:, idx].numpy(), R_w[:, idx].numpy()
     if noise_m > 0 or noise_deg > 0:

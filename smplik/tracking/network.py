@@ -75,7 +75,7 @@ class TrackingNet(nn.Module):
     def forward_train(self, x: Tensor, body: Tensor, target: Tensor, generator: torch.Generator | None = None
                       ) -> tuple[Tensor, Tensor]:
         """Training pass. x (B, T, d_x), body (B, 13), target (B, T, TARGET_DIM) ->
-        ``(outputs (B, T, OUT_DIM) decoded from posterior samples, KL (B, T) summed over latent dims)``."""
+        ``(outputs (B, T, OUT_DIM) decoded from posterior samples, KL (B, T, Z) per latent dimension)``."""
         h, _ = self.condition(x, body)
         mu_p, ls_p = self.prior_params(h)
         mu_q, ls_q = self.posterior(torch.cat([h, target], dim=-1)).chunk(2, dim=-1)
@@ -83,7 +83,7 @@ class TrackingNet(nn.Module):
         eps = torch.randn(mu_q.shape, generator=generator)
         z = mu_q + ls_q.exp() * eps
         out = self.decode(h, z, body[:, None, :].expand(-1, x.shape[1], -1))
-        kl = (ls_p - ls_q + ((2 * ls_q).exp() + (mu_q - mu_p) ** 2) / (2 * (2 * ls_p).exp()) - 0.5).sum(-1)
+        kl = ls_p - ls_q + ((2 * ls_q).exp() + (mu_q - mu_p) ** 2) / (2 * (2 * ls_p).exp()) - 0.5
         return out, kl
 
     def forward(self, x: Tensor, body: Tensor, eps: Tensor | None = None) -> Tensor:
@@ -118,7 +118,7 @@ class WindowMLP(nn.Module):
     def forward_train(self, x: Tensor, body: Tensor, target: Tensor, generator: torch.Generator | None = None
                       ) -> tuple[Tensor, Tensor]:
         out = self.forward(x, body)
-        return out, out.new_zeros(out.shape[:2])
+        return out, out.new_zeros(*out.shape[:2], 1)
 
 
 def build_network(cfg: TrackingNetConfig) -> TrackingNet | WindowMLP:

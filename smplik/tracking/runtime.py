@@ -33,11 +33,16 @@ import torch
 from torch import Tensor
 
 from smplik.conventions import JOINT_INDEX, Gender
-from smplik.kinematics import forward_kinematics
-from smplik.rotations import matrix_to_axis_angle, quaternion_to_matrix
 from smplik.tracking.config import TrackerRuntimeConfig
 from smplik.tracking.data import body_vector
-from smplik.tracking.features import decode_pose, tracker_features
+from smplik.tracking.fast import (
+    NumpyTrackingNet,
+    axis_angle_np,
+    decode_np,
+    fk_np,
+    quaternion_to_matrix_np,
+    yaw_matrix,
+)
 from smplik.tracking.io import TrackerSignals
 from smplik.tracking.model_io import TrackingModel, load_model
 from smplik.tracking.network import TrackingNet
@@ -53,16 +58,35 @@ _LEGS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_a
          (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"], JOINT_INDEX["right_foot"]))
 
 
-def anomaly_scores(R_local: Tensor, p_world: Tensor, pose_lo: Tensor, pose_hi: Tensor, floor_y: float = 0.0) -> Tensor:
+def anomaly_scores(R_local: np.ndarray, p_world: np.ndarray, pose_lo: np.ndarray, pose_hi: np.ndarray,
+                   floor_y: float = 0.0) -> np.ndarray:
     """Implausibility (N,) of poses: metres of joints below the floor (past :data:`BELOW_FLOOR_M`) + metres of leg
     self-intersection (knees, ankles or feet closer than :data:`CROSS_MIN_M`) + 0.1 x radians of local
     axis-angle components outside the training range [pose_lo, pose_hi] (24, 3). R_local (N, 24, 3, 3),
     p_world (N, 24, 3). 0 for a plausible pose."""
-    below = torch.relu(floor_y - BELOW_FLOOR_M - p_world[..., 1]).sum(-1)
-    cross = sum(torch.relu(CROSS_MIN_M - (p_world[..., a, :] - p_world[..., b, :]).norm(dim=-1)) for a, b in CROSS_PAIRS)
-    aa = matrix_to_axis_angle(R_local[..., 1:, :, :])
-    out = (torch.relu(pose_lo[1:] - aa) + torch.relu(aa - pose_hi[1:])).sum((-1, -2))
+    below = np.maximum(floor_y - BELOW_FLOOR_M - p_world[..., 1], 0.0).sum(-1)
+    cross = sum(np.maximum(CROSS_MIN_M - np.linalg.norm(p_world[..., a, :] - p_world[..., b, :], axis=-1), 0.0)
+                for a, b in CROSS_PAIRS)
+    aa = axis_angle_np(R_local[..., 1:, :, :])
+    out = (np.maximum(pose_lo[1:] - aa, 0.0) + np.maximum(aa - pose_hi[1:], 0.0)).sum((-1, -2))
     return below + cross + 0.1 * out
+
+
+def frame_features(p: np.ndarray, R: np.ndarray, p_prev: np.ndarray, yaw_prev: float, has_rot: np.ndarray,
+                   fps: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """One frame of :func:`smplik.tracking.features.tracker_features` in numpy: p (K, 3), R (K, 3, 3), the
+    previous frame's positions and heading -> ``(x (K * 13 + 2,), yaw, origin (3,))``."""
+    yaw = float(np.arctan2(R[0, 0, 2], R[0, 2, 2]))
+    Y_inv = yaw_matrix(-yaw)
+    origin = np.array([p[0, 0], 0.0, p[0, 2]], dtype=np.float32)
+    pos = (p - origin) @ Y_inv.T
+    vel = ((p - p_prev) * fps) @ Y_inv.T
+    R_h = Y_inv @ R
+    mask = has_rot.astype(np.float32)
+    rot = np.concatenate([R_h[:, :, 0], R_h[:, :, 1]], axis=1) * mask[:, None]
+    per = np.concatenate([pos, vel * 0.1, rot, mask[:, None]], axis=1)
+    d = yaw - yaw_prev
+    return np.concatenate([per.ravel(), [np.sin(d), np.cos(d)]]).astype(np.float32), yaw, origin
 
 
 @dataclass(frozen=True)
@@ -135,10 +159,12 @@ class Tracker:
         self.model, self.net, self.cfg = model, model.net, config
         self.trackers = model.cfg.trackers
         self.fps = model.cfg.fps
-        self.J_rest = J_rest  # (24, 3)
-        self.body = body  # (13,)
-        g = torch.Generator().manual_seed(config.seed)
-        self.eps = torch.randn(config.samples, model.cfg.latent, generator=g)
+        self.J_rest = J_rest.numpy().astype(np.float32)  # (24, 3)
+        self.body = body.numpy().astype(np.float32)  # (13,)
+        self.fast = NumpyTrackingNet(model.net)
+        self.pose_lo, self.pose_hi = model.pose_lo.numpy(), model.pose_hi.numpy()
+        rng = np.random.default_rng(config.seed)
+        self.eps = rng.standard_normal((config.samples, model.cfg.latent)).astype(np.float32)
         self.eps[0] = 0.0
         self.reset()
 
@@ -165,12 +191,12 @@ class Tracker:
             raise ValueError(f"has_rotation has shape {has.shape}; expected ({K},).")
         if not has[0]:
             raise ValueError(f"the {self.trackers[0]} tracker needs a rotation (the heading reference).")
-        self.has_rot = torch.from_numpy(has)
-        self.h: Tensor | None = None
-        self.prev: tuple[Tensor, Tensor] | None = None
+        self.has_rot = has
+        self.h = np.zeros(self.fast.H, dtype=np.float32)
+        self.prev: tuple[np.ndarray, float] | None = None
         self.frame_in = 0
         self.frame_out = 0
-        self.buffer: deque[tuple[Tensor, Tensor, Tensor]] = deque()
+        self.buffer: deque[tuple[np.ndarray, float, np.ndarray]] = deque()
         self.current = 0
         self.transition: tuple[int, int, int] | None = None  # (from, to, first output frame)
         self.lock = _FootLock(self.cfg.contact_threshold, self.cfg.release_frames)
@@ -180,32 +206,32 @@ class Tracker:
         """Frames between an input and its output pose."""
         return self.cfg.lookahead if self.cfg.samples > 1 else 0
 
-    @torch.inference_mode()
     def step(self, positions: np.ndarray, rotations: np.ndarray | None = None) -> TrackedPose | None:
         """One frame: positions (K, 3) metres, rotations (K, 4) unit quaternions (w, x, y, z) (rows of trackers
         without rotation are ignored), in the model's tracker order (:attr:`trackers`). Returns the output pose of
         frame ``frame_in - latency``, or None while the look-ahead buffer fills."""
-        p = torch.as_tensor(np.asarray(positions, dtype=np.float32)).reshape(len(self.trackers), 3)
+        K = len(self.trackers)
+        p = np.asarray(positions, dtype=np.float32).reshape(K, 3)
         if rotations is None:
-            R = torch.eye(3).expand(len(self.trackers), 3, 3)
+            R = np.broadcast_to(np.eye(3, dtype=np.float32), (K, 3, 3))
         else:
-            q = torch.as_tensor(np.asarray(rotations, dtype=np.float32)).reshape(len(self.trackers), 4)
-            R = quaternion_to_matrix(q / q.norm(dim=-1, keepdim=True).clamp_min(1e-8))
-        prev = self.prev if self.prev is not None else (p, R)
-        self.prev = (p, R)
-        x, yaw, origin = tracker_features(torch.stack([prev[0], p]), torch.stack([prev[1], R]), self.has_rot, self.fps)
-        h, self.h = self.net.condition(x[None, 1:], self.body[None], self.h)
-        h = h[0, 0]
+            R = quaternion_to_matrix_np(np.asarray(rotations, dtype=np.float32).reshape(K, 4))
+        p_prev, yaw_prev = self.prev if self.prev is not None else (p, None)
+        x, yaw, origin = frame_features(p, R, p_prev, yaw_prev if yaw_prev is not None else 0.0, self.has_rot,
+                                        self.fps)
+        if yaw_prev is None:  # the first frame: no heading change (as the batch features)
+            x[-2:] = (0.0, 1.0)
+        self.prev = (p, yaw)
+        self.h = self.fast.condition_step(x, self.body, self.h)
         self.frame_in += 1
         if self.cfg.samples == 1:
-            return self._emit(h, yaw[1], origin[1], self.eps[0])
-        self._select(h, yaw[1], origin[1])
-        self.buffer.append((h, yaw[1], origin[1]))
+            return self._emit(self.h, yaw, origin, self.eps[0])
+        self._select(self.h, yaw, origin)
+        self.buffer.append((self.h, yaw, origin))
         if len(self.buffer) > self.cfg.lookahead:
             return self._pop()
         return None
 
-    @torch.inference_mode()
     def flush(self) -> list[TrackedPose]:
         """The poses still in the look-ahead buffer (call once at the end of a recording)."""
         out = []
@@ -213,22 +239,23 @@ class Tracker:
             out.append(self._pop())
         return out
 
-    def _select(self, h: Tensor, yaw: Tensor, origin: Tensor) -> None:
+    def _score(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return anomaly_scores(R, p, self.pose_lo, self.pose_hi, self.cfg.floor_y)
+
+    def _select(self, h: np.ndarray, yaw: float, origin: np.ndarray) -> None:
         """Score the N samples at the newest frame; start a transition when the current one is an outlier."""
-        N = self.cfg.samples
-        out = self.net.sample(h.expand(N, -1), self.eps, self.body.expand(N, -1))
-        R, transl, _ = decode_pose(out, yaw, origin, self.J_rest)
-        _, p = forward_kinematics(R, self.J_rest, transl)
-        s = anomaly_scores(R, p, self.model.pose_lo, self.model.pose_hi, self.cfg.floor_y)
+        out = self.fast.sample(h, self.eps, self.body)
+        R, transl, _ = decode_np(out, yaw, origin, self.J_rest)
+        _, p = fk_np(R, self.J_rest, transl)
+        s = self._score(R, p)
         if self.transition is not None:
             return
-        r = float(s.median() - s.min())
+        r = float(np.median(s) - s.min())
         cur = float(s[self.current])
         if cur > ANOMALY_THRESHOLD and cur > 2.0 * r:
             best = int(s.argmin())
             if best != self.current:
-                first = self.frame_out  # the next output frame
-                self.transition = (self.current, best, first)
+                self.transition = (self.current, best, self.frame_out)
 
     def _pop(self) -> TrackedPose:
         h, yaw, origin = self.buffer.popleft()
@@ -241,17 +268,16 @@ class Tracker:
                 self.current, self.transition = b, None
         return self._emit(h, yaw, origin, eps)
 
-    def _emit(self, h: Tensor, yaw: Tensor, origin: Tensor, eps: Tensor) -> TrackedPose:
-        out = self.net.sample(h[None], eps[None], self.body[None])
-        R, transl, prob = decode_pose(out, yaw, origin, self.J_rest)
-        R_w, p = forward_kinematics(R, self.J_rest, transl)
-        score = float(anomaly_scores(R, p, self.model.pose_lo, self.model.pose_hi, self.cfg.floor_y)[0])
-        R_np, prob_np = R[0].numpy().astype(np.float64), prob[0].numpy()
+    def _emit(self, h: np.ndarray, yaw: float, origin: np.ndarray, eps: np.ndarray) -> TrackedPose:
+        out = self.fast.sample(h, eps[None], self.body)
+        R, transl, prob = decode_np(out, yaw, origin, self.J_rest)
+        R_w, p = fk_np(R, self.J_rest, transl)
+        score = float(self._score(R, p)[0])
+        R_np, prob_np = R[0].astype(np.float64), prob[0]
         if self.cfg.foot_lock:
-            R_np = self.lock.apply(R_np, R_w[0].numpy().astype(np.float64), p[0].numpy().astype(np.float64), prob_np)
-        pose = TrackedPose(self.frame_out, R_np, transl[0].numpy().astype(np.float64),
-                           prob_np > self.cfg.contact_threshold, self.current if self.transition is None
-                           else self.transition[1], score)
+            R_np = self.lock.apply(R_np, R_w[0].astype(np.float64), p[0].astype(np.float64), prob_np)
+        pose = TrackedPose(self.frame_out, R_np, transl[0].astype(np.float64), prob_np > self.cfg.contact_threshold,
+                           self.current if self.transition is None else self.transition[1], score)
         self.frame_out += 1
         return pose
 

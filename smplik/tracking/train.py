@@ -3,7 +3,8 @@
 Loss per frame (Milef et al. eq. 1, with our terms): mean joint position error of the FK of the predicted pose
 (metres, world frame) + ``velocity_weight`` times the frame-to-frame joint velocity error (m/s / 10) +
 ``rotation_weight`` times the L1 of the local 6D rotations + ``contact_weight`` times the contact BCE +
-``kl_weight`` times KL(q || p). Validation: deterministic (eps = 0) MPJPE on fixed windows of the validation
+``kl_weight`` times KL(q || p) (with ``free_bits`` nats per latent dimension, against posterior collapse).
+Validation: deterministic (eps = 0) MPJPE on fixed windows of the validation
 split; the best state is the one saved.
 
 Usage: ``python -m smplik.tracking.train CACHE OUT.pt [--minutes M] [--kind cvae|mlp]``.
@@ -45,8 +46,9 @@ def batch_loss(net: TrackingNet | WindowMLP, b: WindowBatch, cfg: TrackingTrainC
     vel = dv.norm(dim=-1).mean()
     rot = (out[..., :NUM_OUT_ROT] - b.target[..., :NUM_OUT_ROT]).abs().mean()
     bce = torch.nn.functional.binary_cross_entropy_with_logits(out[..., NUM_OUT_ROT + 3:], b.contact)
-    kl_m = kl.mean()
-    loss = pos + cfg.velocity_weight * vel + cfg.rotation_weight * rot + cfg.contact_weight * bce + cfg.kl_weight * kl_m
+    kl_m = kl.sum(-1).mean()
+    kl_free = torch.clamp(kl.mean((0, 1)), min=cfg.free_bits).sum()  # free bits per latent dimension
+    loss = pos + cfg.velocity_weight * vel + cfg.rotation_weight * rot + cfg.contact_weight * bce + cfg.kl_weight * kl_free
     return loss, {"pos_mm": 1000 * pos.item(), "vel": vel.item(), "rot": rot.item(), "bce": bce.item(),
                   "kl": kl_m.item()}
 
