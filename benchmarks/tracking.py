@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import save, shared_dir  # noqa: E402
@@ -122,6 +123,7 @@ def main() -> None:
     ap.add_argument("--no-clean", action="store_true", help="Skip the IK + cleaning baseline.")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    threadpool_limits(1)  # numpy's BLAS on one thread too (the per-frame path is numpy)
     from smplik.data.dataset import build_cache, find_sources, load_cache
 
     cache = Path(args.cache)

@@ -210,7 +210,7 @@ def test_streaming_equals_batch(model):
     """The numpy per-frame path (GRU state carried frame to frame) equals the torch network over the whole
     sequence at once."""
     sig, *_ = synthetic_signals(40)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False))
     res = track_sequence(tracker, sig)
     from smplik.tracking.fast import quaternion_to_matrix_np
 
@@ -223,6 +223,22 @@ def test_streaming_equals_batch(model):
     R, transl, _ = decode_pose(out, yaw, origin, torch.as_tensor(rest_joints(), dtype=torch.float32))
     np.testing.assert_allclose(res.R_local, R.numpy(), atol=2e-4)
     np.testing.assert_allclose(res.transl, transl.numpy(), atol=2e-4)
+
+
+def test_tracker_fit_meets_wrists_and_pelvis(model):
+    """With ``tracker_fit`` (default) the pelvis and wrists land on their trackers, the wrists and the head take the
+    trackers' rotations."""
+    from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
+
+    sig, *_ = synthetic_signals(30)
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False))
+    res = track_sequence(tracker, sig)
+    G, p = fk_np(res.R_local.astype(np.float32), tracker.J_rest, res.transl.astype(np.float32))
+    R_trk = quaternion_to_matrix_np(sig.rotations)
+    for k, joint in ((1, 20), (2, 21), (3, 0)):
+        np.testing.assert_allclose(p[:, joint], sig.positions[:, k], atol=1e-4)
+        np.testing.assert_allclose(G[:, joint], R_trk[:, k], atol=1e-4)
+    np.testing.assert_allclose(G[:, 15], R_trk[:, 0], atol=1e-4)
 
 
 def test_samples_differ_and_deterministic_mode_is_deterministic(model):

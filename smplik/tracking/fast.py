@@ -87,19 +87,30 @@ def decode_np(out: np.ndarray, yaw: float, origin: np.ndarray, J_rest: np.ndarra
 _OFFSET_PARENTS = np.array([max(p, 0) for p in PARENTS])
 
 
+def _depth_levels() -> list[tuple[np.ndarray, np.ndarray]]:
+    depth = [0] * len(PARENTS)
+    for j in range(1, len(PARENTS)):
+        depth[j] = depth[PARENTS[j]] + 1
+    return [(np.array([j for j in range(len(PARENTS)) if depth[j] == d]),
+             np.array([PARENTS[j] for j in range(len(PARENTS)) if depth[j] == d])) for d in range(1, max(depth) + 1)]
+
+
+_LEVELS = _depth_levels()
+
+
 def fk_np(R_local: np.ndarray, J_rest: np.ndarray, transl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """FK of (N, 24, 3, 3) local rotations on rest joints (24, 3) with transl (N, 3) ->
-    ``(R_world (N, 24, 3, 3), p_world (N, 24, 3))``."""
+    ``(R_world (N, 24, 3, 3), p_world (N, 24, 3))``, one batched step per tree depth."""
     N = R_local.shape[0]
     offsets = J_rest - J_rest[_OFFSET_PARENTS]
     G = np.empty_like(R_local)
     p = np.empty((N, 24, 3), dtype=R_local.dtype)
     G[:, 0] = R_local[:, 0]
     p[:, 0] = J_rest[0] + transl
-    for j in range(1, 24):
-        q = PARENTS[j]
-        G[:, j] = G[:, q] @ R_local[:, j]
-        p[:, j] = p[:, q] + G[:, q] @ offsets[j]
+    for js, ps in _LEVELS:
+        Gp = G[:, ps]
+        G[:, js] = Gp @ R_local[:, js]
+        p[:, js] = p[:, ps] + (Gp @ offsets[js][..., None])[..., 0]
     return G, p
 
 

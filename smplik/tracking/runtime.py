@@ -54,6 +54,8 @@ CROSS_MIN_M = 0.06
 """Left and right knees, ankles or feet closer than this intersect."""
 BELOW_FLOOR_M = 0.02
 """A joint more than this below the floor penetrates it."""
+_COLLARS = {JOINT_INDEX[f"{s}_shoulder"]: JOINT_INDEX[f"{s}_collar"] for s in ("left", "right")}
+_COLLARS = np.array([_COLLARS.get(j, 0) for j in range(24)])
 _LEGS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"], JOINT_INDEX["left_foot"]),
          (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"], JOINT_INDEX["right_foot"]))
 
@@ -103,11 +105,19 @@ class TrackedPose:
 
 
 class _FootLock:
-    """Causal foot locking on a stream of poses (module docstring, step 4)."""
+    """Causal foot locking on a stream of poses (module docstring, step 4). A foot locks where its predicted
+    contact starts while the network's foot is low (within ``max_height_m`` of the floor) and slow (below
+    ``max_speed_mps``, the animation pipeline's contact speed), and stays locked while the contact lasts, the
+    network's foot moves below 1.5 times that speed and stays within ``max_drift_m`` of the lock (a contact label
+    the pose disagrees with is dropped rather than stretching the leg)."""
 
-    def __init__(self, threshold: float, release_frames: int) -> None:
-        self.threshold, self.release_frames = threshold, release_frames
-        self.lock = [None, None]
+    def __init__(self, threshold: float, release_frames: int, floor_y: float = 0.0, fps: float = 60.0,
+                 max_height_m: float = 0.12, max_speed_mps: float = 0.35, max_drift_m: float = 0.08) -> None:
+        self.threshold, self.release_frames, self.fps = threshold, release_frames, fps
+        self.floor_y, self.max_height_m, self.max_drift_m = floor_y, max_height_m, max_drift_m
+        self.max_speed_mps = max_speed_mps
+        self.prev_feet: np.ndarray | None = None
+        self.lock: list[np.ndarray | None] = [None, None]
         self.release = [0, 0]
         self.release_from = [np.zeros(3), np.zeros(3)]
 
@@ -116,12 +126,20 @@ class _FootLock:
         from workflows.motion_clean import two_bone_ik
 
         rows, targets = [], []
+        feet = p[[leg[3] for leg in _LEGS]]
+        speed = (np.zeros(2) if self.prev_feet is None
+                 else np.linalg.norm(feet - self.prev_feet, axis=-1) * self.fps)
+        self.prev_feet = feet.copy()
         for side, (_, _, _, foot) in enumerate(_LEGS):
-            if prob[side] > self.threshold:
-                if self.lock[side] is None:
-                    self.lock[side] = p[foot].copy()
+            lock = self.lock[side]
+            contact = prob[side] > self.threshold
+            if (contact and lock is None and p[foot, 1] - self.floor_y < self.max_height_m
+                    and speed[side] < self.max_speed_mps):
+                lock = self.lock[side] = p[foot].copy()
+            if (contact and lock is not None and np.linalg.norm(p[foot] - lock) < self.max_drift_m
+                    and speed[side] < 1.5 * self.max_speed_mps):
                 rows.append(side)
-                targets.append(self.lock[side])
+                targets.append(lock)
                 continue
             if self.lock[side] is not None:
                 self.release[side], self.release_from[side] = self.release_frames, self.lock[side]
@@ -196,10 +214,10 @@ class Tracker:
         self.prev: tuple[np.ndarray, float] | None = None
         self.frame_in = 0
         self.frame_out = 0
-        self.buffer: deque[tuple[np.ndarray, float, np.ndarray]] = deque()
+        self.buffer: deque[tuple[np.ndarray, float, np.ndarray, tuple[np.ndarray, np.ndarray]]] = deque()
         self.current = 0
         self.transition: tuple[int, int, int] | None = None  # (from, to, first output frame)
-        self.lock = _FootLock(self.cfg.contact_threshold, self.cfg.release_frames)
+        self.lock = _FootLock(self.cfg.contact_threshold, self.cfg.release_frames, self.cfg.floor_y, self.fps)
 
     @property
     def latency(self) -> int:
@@ -225,9 +243,9 @@ class Tracker:
         self.h = self.fast.condition_step(x, self.body, self.h)
         self.frame_in += 1
         if self.cfg.samples == 1:
-            return self._emit(self.h, yaw, origin, self.eps[0])
+            return self._emit(self.h, yaw, origin, self.eps[0], (p, R))
         self._select(self.h, yaw, origin)
-        self.buffer.append((self.h, yaw, origin))
+        self.buffer.append((self.h, yaw, origin, (p, R)))
         if len(self.buffer) > self.cfg.lookahead:
             return self._pop()
         return None
@@ -241,6 +259,40 @@ class Tracker:
 
     def _score(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
         return anomaly_scores(R, p, self.pose_lo, self.pose_hi, self.cfg.floor_y)
+
+    def _fit_trackers(self, R: np.ndarray, transl: np.ndarray, p_trk: np.ndarray, R_trk: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Meet the trackers (:attr:`TrackerRuntimeConfig.tracker_fit`). R (1, 24, 3, 3), transl (1, 3)."""
+        from workflows.motion_clean import two_bone_ik
+
+        R, transl = R.copy(), transl.copy()
+        idx = {name: k for k, name in enumerate(self.trackers)}
+        if "pelvis" in idx:
+            k = idx["pelvis"]
+            if self.has_rot[k]:
+                R[0, 0] = R_trk[k]
+            transl[0] = p_trk[k] - self.J_rest[0]
+        arms = [(side, idx[f"{side}_wrist"]) for side in ("left", "right") if f"{side}_wrist" in idx]
+        if arms:
+            G, p = fk_np(R, self.J_rest, transl)
+            G, p = G[0], p[0]
+            chains = np.array([[JOINT_INDEX[f"{s}_shoulder"], JOINT_INDEX[f"{s}_elbow"], JOINT_INDEX[f"{s}_wrist"]]
+                               for s, _ in arms])
+            a, b, c = chains.T
+            target = p_trk[[k for _, k in arms]]
+            # a straight arm bends about the elbow's local y axis (used only when the arm is straight)
+            R_a, R_b = two_bone_ik(p[a], p[b], p[c], target, G[b][:, :, 1])
+            G_a = R_a @ G[a]
+            G_b = R_a @ R_b @ G[b]
+            R[0, a] = np.swapaxes(G[_COLLARS[a]], -1, -2) @ G_a
+            R[0, b] = np.swapaxes(G_a, -1, -2) @ G_b
+            for (_, k), elbow_world, wrist in zip(arms, G_b, c, strict=True):
+                if self.has_rot[k]:  # else the wrist keeps its local rotation and follows the forearm
+                    R[0, wrist] = elbow_world.T @ R_trk[k]
+        if "head" in idx and self.has_rot[idx["head"]]:
+            G, _ = fk_np(R, self.J_rest, transl)
+            R[0, JOINT_INDEX["head"]] = G[0, JOINT_INDEX["neck"]].T @ R_trk[idx["head"]]
+        return R, transl
 
     def _select(self, h: np.ndarray, yaw: float, origin: np.ndarray) -> None:
         """Score the N samples at the newest frame; start a transition when the current one is an outlier."""
@@ -258,7 +310,7 @@ class Tracker:
                 self.transition = (self.current, best, self.frame_out)
 
     def _pop(self) -> TrackedPose:
-        h, yaw, origin = self.buffer.popleft()
+        h, yaw, origin, signals = self.buffer.popleft()
         eps = self.eps[self.current]
         if self.transition is not None:
             a, b, first = self.transition
@@ -266,17 +318,22 @@ class Tracker:
             eps = (1 - w) * self.eps[a] + w * self.eps[b]
             if w >= 1.0:
                 self.current, self.transition = b, None
-        return self._emit(h, yaw, origin, eps)
+        return self._emit(h, yaw, origin, eps, signals)
 
-    def _emit(self, h: np.ndarray, yaw: float, origin: np.ndarray, eps: np.ndarray) -> TrackedPose:
+    def _emit(self, h: np.ndarray, yaw: float, origin: np.ndarray, eps: np.ndarray,
+              signals: tuple[np.ndarray, np.ndarray]) -> TrackedPose:
         out = self.fast.sample(h, eps[None], self.body)
         R, transl, prob = decode_np(out, yaw, origin, self.J_rest)
+        if self.cfg.tracker_fit:
+            R, transl = self._fit_trackers(R, transl, *signals)
         R_w, p = fk_np(R, self.J_rest, transl)
         score = float(self._score(R, p)[0])
         R_np, prob_np = R[0].astype(np.float64), prob[0]
         if self.cfg.foot_lock:
             R_np = self.lock.apply(R_np, R_w[0].astype(np.float64), p[0].astype(np.float64), prob_np)
-        pose = TrackedPose(self.frame_out, R_np, transl[0].astype(np.float64), prob_np > self.cfg.contact_threshold,
+        contacts = (np.array([lk is not None for lk in self.lock.lock]) if self.cfg.foot_lock
+                    else prob_np > self.cfg.contact_threshold)
+        pose = TrackedPose(self.frame_out, R_np, transl[0].astype(np.float64), contacts,
                            self.current if self.transition is None else self.transition[1], score)
         self.frame_out += 1
         return pose

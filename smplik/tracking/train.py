@@ -48,7 +48,8 @@ def batch_loss(net: TrackingNet | WindowMLP, b: WindowBatch, cfg: TrackingTrainC
     bce = torch.nn.functional.binary_cross_entropy_with_logits(out[..., NUM_OUT_ROT + 3:], b.contact)
     kl_m = kl.sum(-1).mean()
     kl_free = torch.clamp(kl.mean((0, 1)), min=cfg.free_bits).sum()  # free bits per latent dimension
-    loss = pos + cfg.velocity_weight * vel + cfg.rotation_weight * rot + cfg.contact_weight * bce + cfg.kl_weight * kl_free
+    loss = (pos + cfg.velocity_weight * vel + cfg.rotation_weight * rot + cfg.contact_weight * bce
+            + cfg.kl_weight * kl_free)
     return loss, {"pos_mm": 1000 * pos.item(), "vel": vel.item(), "rot": rot.item(), "bce": bce.item(),
                   "kl": kl_m.item()}
 
@@ -67,8 +68,10 @@ def evaluate(net: TrackingNet | WindowMLP, batches: list[WindowBatch]) -> float:
     return 1000 * float(torch.stack(errs).mean())
 
 
-def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print) -> dict[str, Any]:
-    """Train, validate, save the best checkpoint at ``out`` (+ ``out`` with ``.json``: config and figures)."""
+def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print, init: str | Path | None = None
+          ) -> dict[str, Any]:
+    """Train, validate, save the best checkpoint at ``out`` (+ ``out`` with ``.json``: config and figures).
+    ``init``: a model file to continue from (its weights and input statistics; a fresh optimizer and schedule)."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     g = torch.Generator().manual_seed(cfg.seed)
@@ -86,9 +89,17 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print) -> dict[s
                                 augment=False)
     val_batches = [val_sampler.sample() for _ in range(4)]
     net = build_network(cfg.net)
-    xs = torch.cat([sampler.sample().x.flatten(0, 1) for _ in range(10)])
-    net.x_mean.copy_(xs.mean(0))
-    net.x_std.copy_(xs.std(0).clamp_min(1e-3))
+    previous: dict[str, Any] = {}
+    if init is not None:
+        from smplik.tracking.model_io import load_model
+
+        start_model = load_model(init)
+        net.load_state_dict(start_model.net.state_dict())
+        previous = {k: start_model.info.get(k) for k in ("steps", "seconds", "val_mpjpe_mm")}
+    else:
+        xs = torch.cat([sampler.sample().x.flatten(0, 1) for _ in range(10)])
+        net.x_mean.copy_(xs.mean(0))
+        net.x_std.copy_(xs.std(0).clamp_min(1e-3))
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     start = time.perf_counter()
     best, best_state, history, step = math.inf, None, [], 0
@@ -121,7 +132,7 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print) -> dict[s
     hi = torch.quantile(pose[::7].flatten(1), 0.999, dim=0).reshape(24, 3)
     info = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "net": cfg.net.to_dict(),
             "train": {k: v for k, v in cfg.to_dict().items() if k != "net"}, "val_mpjpe_mm": best, "steps": step,
-            "seconds": round(time.perf_counter() - start, 1), "history": history}
+            "seconds": round(time.perf_counter() - start, 1), "history": history, "continued_from": previous or None}
     save_checkpoint(out, net, info, pose_lo=lo, pose_hi=hi)
     write_json_atomic(Path(out).with_suffix(".json"), info)
     return info
@@ -136,13 +147,15 @@ def main() -> None:
     ap.add_argument("--trackers", choices=["3", "4"], default="4")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--init", default=None, help="Model file to continue from.")
     args = ap.parse_args()
     from smplik.tracking.config import TRACKER_SETS
 
     net = TrackingNetConfig(kind=args.kind, trackers=TRACKER_SETS[args.trackers])
     cfg = dataclasses.replace(TrackingTrainConfig(), cache=args.cache, net=net, minutes=args.minutes,
-                              threads=args.threads, seed=args.seed)
-    info = train(cfg, args.out, log=lambda s: print(s, flush=True))
+                              threads=args.threads, seed=args.seed + (1 if args.init else 0),
+                              lr=TrackingTrainConfig.lr * (0.5 if args.init else 1.0))
+    info = train(cfg, args.out, log=lambda s: print(s, flush=True), init=args.init)
     print(f"best validation MPJPE {info['val_mpjpe_mm']:.1f} mm after {info['steps']} steps")
 
 
