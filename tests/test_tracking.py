@@ -264,7 +264,8 @@ def test_samples_differ_and_deterministic_mode_is_deterministic(model):
 
 
 def test_contacts_lock_the_feet():
-    """A body gliding forward 5 mm per frame with the left foot in contact: the lock holds the foot still."""
+    """A body gliding forward 3 mm per frame (0.18 m/s) with the left foot in contact: the lock holds the foot still
+    (within the lock's 8 cm drift limit)."""
     from smplik.tracking.fast import fk_np
 
     J = rest_joints().astype(np.float32)
@@ -274,7 +275,7 @@ def test_contacts_lock_the_feet():
     lock = _FootLock(threshold=0.5, release_frames=5)
     feet_raw, feet_locked = [], []
     for t in range(20):
-        transl = np.array([[0.0, 0.0, 0.005 * t]], np.float32)
+        transl = np.array([[0.0, 0.0, 0.003 * t]], np.float32)
         Rw, p = fk_np(R[None], J, transl)
         R_out = lock.apply(R.astype(np.float64), Rw[0].astype(np.float64), p[0].astype(np.float64),
                            np.array([0.9, 0.1]))
@@ -283,7 +284,7 @@ def test_contacts_lock_the_feet():
         feet_locked.append(p2[0, 10])
         np.testing.assert_allclose(p2[0, 11], p[0, 11], atol=1e-6)  # the free foot is untouched
     speed = lambda f: np.linalg.norm(np.diff(np.array(f), axis=0), axis=-1).mean()  # noqa: E731
-    assert speed(feet_raw) > 4e-3
+    assert speed(feet_raw) > 2.5e-3
     assert speed(feet_locked) < 2e-4
 
 
