@@ -9,7 +9,7 @@ exact or with noise (position sigma 1 cm, rotation 2 degrees, per frame).
 Methods:
 * ``ours``: the shipped tracking model, deterministic (``samples=1``), with foot locks;
 * ``ours_16``: 16 samples with sample selection (look-ahead 10 frames);
-* ``ours_nolock``: deterministic, without foot locks (ablation);
+* ``ours_nofit``: deterministic, without the tracker fit (the network and the foot locks alone; ablation);
 * ``ik``: the shipped per-frame IK solver (``IKSolver.load()``) given the 4 trackers as exact position and
   rotation effectors (8 effectors), frame by frame, and ``ik_clean``: that motion after the animation
   pipeline's cleaning (:func:`workflows.motion_clean.sequence_clean`, foot locks included);
@@ -121,6 +121,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=600, help="Most frames per test clip.")
     ap.add_argument("--mlp", default=None, help="The AvatarPoser-style baseline's model file.")
     ap.add_argument("--no-clean", action="store_true", help="Skip the IK + cleaning baseline.")
+    ap.add_argument("--reuse", default=None, help="A previous results file: its ik, ik_clean, mlp and truth rows are "
+                    "kept and those methods not rerun (same --frames and cache).")
     args = ap.parse_args()
     torch.set_num_threads(1)
     threadpool_limits(1)  # numpy's BLAS on one thread too (the per-frame path is numpy)
@@ -144,6 +146,17 @@ def main() -> None:
     rng = np.random.default_rng(0)
     rows: dict[str, dict[str, list[dict[str, float]]]] = {n: {} for n in NOISES}
     seconds: dict[str, float] = {}
+    reused = ("ik", "ik_clean", "mlp", "truth")
+    if args.reuse:
+        import json
+
+        old = json.loads(Path(args.reuse).read_text())
+        if old.get("frames_per_clip") != args.frames:
+            raise SystemExit(f"{args.reuse} was run with --frames {old.get('frames_per_clip')}, not {args.frames}.")
+        for noise in NOISES:
+            rows[noise].update({k: v for k, v in old["per_clip"][noise].items() if k in reused})
+        seconds.update({k: v for k, v in old["seconds"].items() if k in reused})
+        mlp_info = old.get("mlp")
     for c in np.unique(data.clip_id.numpy()):
         clip = data.select(data.clip_id == int(c))
         T = min(args.frames, len(clip))
@@ -159,22 +172,25 @@ def main() -> None:
             sig = signals_from_motion(R_true, transl_true, J, model.cfg.trackers, fps, noise_m=sigma_m,
                                       noise_deg=sigma_deg, rng=np.random.default_rng(int(c)))
             methods = {}
-            for label, samples, lock in (("ours", 1, True), ("ours_16", 16, True), ("ours_nolock", 1, False)):
+            for label, samples, fit in (("ours", 1, True), ("ours_16", 16, True), ("ours_nofit", 1, False)):
                 t0 = time.perf_counter()
                 tr = Tracker.load(betas=betas, gender=gender,
-                                  config=TrackerRuntimeConfig(samples=samples, foot_lock=lock))
+                                  config=TrackerRuntimeConfig(samples=samples, tracker_fit=fit))
                 res = track_sequence(tr, sig)
                 seconds[label] = seconds.get(label, 0.0) + time.perf_counter() - t0
                 methods[label] = (res.R_local, res.transl)
-            t0 = time.perf_counter()
-            methods["ik"] = ik_motion(solver, sig, betas, gender)
-            seconds["ik"] = seconds.get("ik", 0.0) + time.perf_counter() - t0
-            if not args.no_clean:
+            if args.reuse:
+                pass
+            else:
+                t0 = time.perf_counter()
+                methods["ik"] = ik_motion(solver, sig, betas, gender)
+                seconds["ik"] = seconds.get("ik", 0.0) + time.perf_counter() - t0
+            if not args.no_clean and not args.reuse:
                 t0 = time.perf_counter()
                 Rc, tc, _ = sequence_clean(*methods["ik"], J, fps, CleanConfig())
                 methods["ik_clean"] = (Rc, tc)
                 seconds["ik_clean"] = seconds.get("ik_clean", 0.0) + time.perf_counter() - t0
-            if mlp is not None:
+            if mlp is not None and not args.reuse:
                 methods["mlp"] = mlp_motion(mlp, sig, betas, gender, J)
             for label, (R, transl) in methods.items():
                 m = metrics(R, joints(R, transl, J)[1], p_true, contact, fps, lo, hi)
@@ -182,8 +198,9 @@ def main() -> None:
                 print(f"{noise:6s} {name:16s} {label:12s} MPJPE {m['mpjpe_mm']:6.1f} mm  MPJVE "
                       f"{m['mpjve_cm_s']:6.1f} cm/s  MPJAE {m['mpjae_cm_s2']:7.1f} cm/s2  skating "
                       f"{m['skating_mm_per_frame']:5.2f} mm/f  anomalies {m['anomaly_rate']:.3f}", flush=True)
-        truth_m = metrics(R_true, p_true, p_true, contact, fps, lo, hi)
-        rows["exact"].setdefault("truth", []).append({"clip": name, **truth_m})
+        if not args.reuse:
+            truth_m = metrics(R_true, p_true, p_true, contact, fps, lo, hi)
+            rows["exact"].setdefault("truth", []).append({"clip": name, **truth_m})
     summary = {}
     for noise, by_method in rows.items():
         summary[noise] = {}
@@ -199,11 +216,13 @@ def main() -> None:
         for label, m in table.items():
             print(f"  {label:12s} " + "  ".join(f"{k} {v}" for k, v in m.items()))
     print("per-frame cost (1 thread):", cost)
+    if not args.reuse:
+        mlp_info = None if mlp is None else {k: mlp.info.get(k) for k in ("net", "val_mpjpe_mm", "steps", "seconds",
+                                                                          "continued_from")}
     path = save("tracking", {"summary": summary, "per_clip": rows, "per_frame_cost_ms": cost,
                              "seconds": {k: round(v, 1) for k, v in seconds.items()}, "frames_per_clip": args.frames,
                              "model": {k: model.info.get(k) for k in ("net", "val_mpjpe_mm", "steps", "seconds")},
-                             "mlp": None if mlp is None else {k: mlp.info.get(k) for k in ("net", "val_mpjpe_mm",
-                                                                                             "steps", "seconds")}})
+                             "mlp": mlp_info})
     print(f"wrote {path}")
 
 

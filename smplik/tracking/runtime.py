@@ -54,6 +54,9 @@ CROSS_MIN_M = 0.06
 """Left and right knees, ankles or feet closer than this intersect."""
 BELOW_FLOOR_M = 0.02
 """A joint more than this below the floor penetrates it."""
+RANGE_MARGIN_RAD = 0.2
+"""Tolerance around the training set's rotation range (retargeted BVH leaves some joints, e.g. the hands, at
+zero rotation: a few hundredths of a radian there are no anomaly)."""
 _COLLARS = {JOINT_INDEX[f"{s}_shoulder"]: JOINT_INDEX[f"{s}_collar"] for s in ("left", "right")}
 _COLLARS = np.array([_COLLARS.get(j, 0) for j in range(24)])
 _LEGS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"], JOINT_INDEX["left_foot"]),
@@ -64,13 +67,14 @@ def anomaly_scores(R_local: np.ndarray, p_world: np.ndarray, pose_lo: np.ndarray
                    floor_y: float = 0.0) -> np.ndarray:
     """Implausibility (N,) of poses: metres of joints below the floor (past :data:`BELOW_FLOOR_M`) + metres of leg
     self-intersection (knees, ankles or feet closer than :data:`CROSS_MIN_M`) + 0.1 x radians of local
-    axis-angle components outside the training range [pose_lo, pose_hi] (24, 3). R_local (N, 24, 3, 3),
-    p_world (N, 24, 3). 0 for a plausible pose."""
+    axis-angle components outside the training range [pose_lo, pose_hi] (24, 3) widened by
+    :data:`RANGE_MARGIN_RAD`. R_local (N, 24, 3, 3), p_world (N, 24, 3). 0 for a plausible pose."""
     below = np.maximum(floor_y - BELOW_FLOOR_M - p_world[..., 1], 0.0).sum(-1)
     cross = sum(np.maximum(CROSS_MIN_M - np.linalg.norm(p_world[..., a, :] - p_world[..., b, :], axis=-1), 0.0)
                 for a, b in CROSS_PAIRS)
     aa = axis_angle_np(R_local[..., 1:, :, :])
-    out = (np.maximum(pose_lo[1:] - aa, 0.0) + np.maximum(aa - pose_hi[1:], 0.0)).sum((-1, -2))
+    out = (np.maximum(pose_lo[1:] - RANGE_MARGIN_RAD - aa, 0.0)
+           + np.maximum(aa - pose_hi[1:] - RANGE_MARGIN_RAD, 0.0)).sum((-1, -2))
     return below + cross + 0.1 * out
 
 

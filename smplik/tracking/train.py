@@ -148,13 +148,15 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init", default=None, help="Model file to continue from.")
+    ap.add_argument("--rotation-weight", type=float, default=TrackingTrainConfig.rotation_weight)
     args = ap.parse_args()
     from smplik.tracking.config import TRACKER_SETS
 
     net = TrackingNetConfig(kind=args.kind, trackers=TRACKER_SETS[args.trackers])
     cfg = dataclasses.replace(TrackingTrainConfig(), cache=args.cache, net=net, minutes=args.minutes,
                               threads=args.threads, seed=args.seed + (1 if args.init else 0),
-                              lr=TrackingTrainConfig.lr * (0.5 if args.init else 1.0))
+                              lr=TrackingTrainConfig.lr * (0.5 if args.init else 1.0),
+                              rotation_weight=args.rotation_weight)
     info = train(cfg, args.out, log=lambda s: print(s, flush=True), init=args.init)
     print(f"best validation MPJPE {info['val_mpjpe_mm']:.1f} mm after {info['steps']} steps")
 
