@@ -42,6 +42,7 @@ def walking_motion(T: int = 120, fps: float = 60.0) -> tuple[np.ndarray, np.ndar
     aa[:, 1, 0], aa[:, 2, 0] = swing, -swing  # hips
     aa[:, 4, 0], aa[:, 5, 0] = np.maximum(0, -swing), np.maximum(0, swing)  # knees bend on the back swing
     aa[:, 16, 2], aa[:, 17, 2] = -1.2, 1.2  # arms down
+    aa[:, 18, 1], aa[:, 19, 1] = -0.8, 0.8  # elbows bent
     transl = np.stack([np.zeros(T), np.zeros(T), 1.0 * t], -1)
     return axis_angle_to_matrix(torch.as_tensor(aa)).numpy(), transl
 
@@ -226,8 +227,8 @@ def test_streaming_equals_batch(model):
 
 
 def test_tracker_fit_meets_wrists_and_pelvis(model):
-    """With ``tracker_fit`` (default) the pelvis and wrists land on their trackers, the wrists and the head take the
-    trackers' rotations."""
+    """With ``tracker_fit`` (default) the pelvis lands on its tracker, the wrists on theirs wherever the arm can
+    reach them, and the wrists and the head take the trackers' rotations."""
     from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
 
     sig, *_ = synthetic_signals(30)
@@ -235,9 +236,17 @@ def test_tracker_fit_meets_wrists_and_pelvis(model):
     res = track_sequence(tracker, sig)
     G, p = fk_np(res.R_local.astype(np.float32), tracker.J_rest, res.transl.astype(np.float32))
     R_trk = quaternion_to_matrix_np(sig.rotations)
-    for k, joint in ((1, 20), (2, 21), (3, 0)):
-        np.testing.assert_allclose(p[:, joint], sig.positions[:, k], atol=1e-4)
-        np.testing.assert_allclose(G[:, joint], R_trk[:, k], atol=1e-4)
+    np.testing.assert_allclose(p[:, 0], sig.positions[:, 3], atol=1e-4)
+    np.testing.assert_allclose(G[:, 0], R_trk[:, 3], atol=1e-4)
+    J = tracker.J_rest
+    for k, (shoulder, elbow, wrist) in ((1, (16, 18, 20)), (2, (17, 19, 21))):
+        arm = np.linalg.norm(J[elbow] - J[shoulder]) + np.linalg.norm(J[wrist] - J[elbow])
+        reach = np.linalg.norm(sig.positions[:, k] - p[:, shoulder], axis=-1) < arm - 1e-3
+        assert reach.sum() >= 5
+        np.testing.assert_allclose(p[reach, wrist], sig.positions[reach, k], atol=1e-4)
+        far = np.linalg.norm(p[:, wrist] - sig.positions[:, k], axis=-1)
+        assert (far < 0.02).all()  # beyond reach: the straight arm points at the tracker
+        np.testing.assert_allclose(G[:, wrist], R_trk[:, k], atol=1e-4)
     np.testing.assert_allclose(G[:, 15], R_trk[:, 0], atol=1e-4)
 
 
