@@ -227,12 +227,12 @@ def test_streaming_equals_batch(model):
 
 
 def test_tracker_fit_meets_wrists_and_pelvis(model):
-    """With ``tracker_fit`` (default) the pelvis lands on its tracker, the wrists on theirs wherever the arm can
+    """With ``tracker_fit`` the pelvis lands on its tracker, the wrists on theirs wherever the arm can
     reach them, and the wrists and the head take the trackers' rotations."""
     from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
 
     sig, *_ = synthetic_signals(30)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True))
     res = track_sequence(tracker, sig)
     G, p = fk_np(res.R_local.astype(np.float32), tracker.J_rest, res.transl.astype(np.float32))
     R_trk = quaternion_to_matrix_np(sig.rotations)

@@ -41,7 +41,7 @@ def _axis_angle(R: np.ndarray) -> np.ndarray:
 def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas: Sequence[float] | None = None,
                gender: Gender | str = Gender.NEUTRAL, character_path: str | Path | None = None,
                character_options: Any = None, formats: Sequence[str] = ("bvh",), checkpoint: str | Path | None = None,
-               seed: int = 0) -> TrackOutputs:
+               seed: int = 0, fit_trackers: bool = False) -> TrackOutputs:
     """Tracker recording -> ``out_dir/animation.json`` (+ ``formats``: bvh, glb). Raises the project's one-line
     errors (tracker file, model file, character, export)."""
     from smplik.tracking.config import TrackerRuntimeConfig
@@ -71,7 +71,7 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
         skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
         signals = replace(signals, positions=signals.positions / scale)
     tracker = Tracker.load(checkpoint, betas=body_betas, gender=body_gender,
-                           config=TrackerRuntimeConfig(samples=samples, seed=seed))
+                           config=TrackerRuntimeConfig(samples=samples, seed=seed, tracker_fit=fit_trackers))
     result = track_sequence(tracker, signals)
     aa = _axis_angle(result.R_local)
     track = AnimationTrack("person_0", "0", body_gender, body_betas, scale, skeleton, 0, aa[:, 0], aa[:, 1:],

@@ -46,6 +46,8 @@ def track_cmd(
     export: Annotated[str, typer.Option("--export", help="Animated files, comma-separated: bvh, glb; '' for "
                                         "none.")] = "bvh",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the latent samples.")] = 0,
+    fit_trackers: Annotated[bool, typer.Option("--fit-trackers", help="Set the root, wrists and head from the "
+                                               "trackers (two-bone arm IK).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Tracking model file (default: "
                                                     "shipped).")] = None,
 ) -> None:
@@ -65,6 +67,7 @@ def track_cmd(
         options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
         outputs = track_file(trackers, out, samples=samples, betas=values, gender=gender, character_path=character,
                              character_options=options, checkpoint=checkpoint, seed=seed,
+                             fit_trackers=fit_trackers,
                              formats=[f.strip().lower() for f in export.split(",") if f.strip()])
     anim = outputs.animation
     say(f"{anim.tracks[0].num_frames} frames at {anim.fps:g} frames/s, anomaly rate {outputs.anomaly_rate:.3f}, "
