@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export-model": ("smplik.cli.models:export_command", "Compact inference model and/or ONNX graph of a checkpoint."),
     "average-models": ("smplik.cli.models:average_command", "Average models fine-tuned from one start (model soup)."),
     "benchmark": ("smplik.cli.benchmark:app", "Randomized-effector IK benchmark: make files, run methods, calibrate."),
+    "track": ("workflows.tracking_cli:track_cmd", "Full body from VR trackers (head, wrists, pelvis) -> animation."),
 }
 """Every top-level command, in the order ``smplik --help`` lists them."""
 

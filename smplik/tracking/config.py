@@ -1,0 +1,119 @@
+"""Configuration of the tracking model (full body from a few VR trackers): one frozen dataclass per component.
+
+Torch-free, so that the CLI can read defaults without importing torch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+TRACKER_SETS: dict[str, tuple[str, ...]] = {
+    "4": ("head", "left_wrist", "right_wrist", "pelvis"),
+    "3": ("head", "left_wrist", "right_wrist"),
+}
+"""Named tracker sets: SMPL joint names, in the network's input order."""
+
+FEATURES_PER_TRACKER = 13
+"""Per tracker and frame: position (3), velocity (3), rotation 6D (6), rotation-present flag (1)."""
+
+
+@dataclass(frozen=True)
+class TrackingNetConfig:
+    """The conditional VAE over tracker sequences (:class:`smplik.tracking.network.TrackingNet`)."""
+
+    trackers: tuple[str, ...] = TRACKER_SETS["4"]
+    """Tracked SMPL joints, in input order; the first one is the heading reference and needs a rotation."""
+    hidden: int = 192
+    """Width of the condition encoder and of its GRU state."""
+    decoder: int = 256
+    """Width of the decoder MLP (run once per sample)."""
+    latent: int = 16
+    """Size of the latent z (per frame; a sample keeps its noise vector over time)."""
+    kind: Literal["cvae", "mlp"] = "cvae"
+    """``cvae``: the GRU conditional VAE; ``mlp``: the AvatarPoser-style per-frame MLP over a window (baseline)."""
+    window: int = 20
+    """Frames of tracker features the ``mlp`` baseline sees (ignored by ``cvae``)."""
+    fps: float = 60.0
+    """Tracker rate the model was trained at."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrackingNetConfig:
+        d = dict(d)
+        d["trackers"] = tuple(d["trackers"])
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class TrackingTrainConfig:
+    """Training of :class:`TrackingNetConfig` on a pose cache (:mod:`smplik.tracking.train`)."""
+
+    cache: str = ""
+    """Pose cache (``smplik data build --fps 60``) with train and validation splits."""
+    net: TrackingNetConfig = field(default_factory=TrackingNetConfig)
+    """The network."""
+    batch: int = 24
+    """Windows per batch."""
+    length: int = 64
+    """Frames per training window (the GRU starts from a zero state at its first frame)."""
+    lr: float = 1e-3
+    """Adam learning rate (cosine decay to 5 % over ``minutes``)."""
+    minutes: float = 25.0
+    """Wall-clock training budget."""
+    max_steps: int = 1_000_000
+    """Step budget (whichever of the two ends first)."""
+    kl_weight: float = 1e-3
+    """Weight of the KL(q || p) term (summed over latent dimensions, mean over frames)."""
+    free_bits: float = 0.25
+    """KL below this many nats per latent dimension (batch mean) is not penalised (keeps the latent in use)."""
+    contact_weight: float = 0.1
+    """Weight of the foot-contact binary cross-entropy (the paper's gamma)."""
+    rotation_weight: float = 0.1
+    """Weight of the local 6D rotation L1 term."""
+    velocity_weight: float = 1.0
+    """Weight of the joint-velocity term (positions in the heading frame, frame to frame)."""
+    noise_m: float = 0.01
+    """Upper bound of the per-window tracker position noise (Gaussian sigma drawn in [0, noise_m])."""
+    rotation_dropout: float = 0.1
+    """Probability that a non-reference tracker comes without rotation in a window."""
+    beta_noise: float = 1.0
+    """Body shape: dataset beta plus this times N(0, I) (BVH clips: N(0, I)), gender uniform (DESIGN section 4)."""
+    validate_every: int = 250
+    """Steps between validations (deterministic MPJPE on fixed validation windows; the best is kept)."""
+    seed: int = 0
+    """Seed of the batch stream and initialisation."""
+    threads: int = 1
+    """Torch CPU threads."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TrackerRuntimeConfig:
+    """Streaming inference (:class:`smplik.tracking.runtime.Tracker`)."""
+
+    samples: int = 1
+    """Latent samples run in one batch; 1 = deterministic (the prior's mean), no look-ahead."""
+    lookahead: int = 10
+    """Frames of look-ahead (tau) for sample selection when ``samples`` > 1 (output latency)."""
+    blend: int = 10
+    """Frames over which the latent noise is interpolated when switching samples."""
+    contact_threshold: float = 0.5
+    """Predicted contact probability above which a foot is locked."""
+    release_frames: int = 5
+    """Frames over which a released foot blends back from its lock to the network's foot."""
+    floor_y: float = 0.0
+    """Floor height (y up, metres) for the anomaly score's below-floor term and the foot locks' height."""
+    seed: int = 0
+    """Seed of the latent noise vectors (sample 0 is always the zero vector: the prior's mean)."""
+    foot_lock: bool = True
+    """Lock feet on predicted contacts (two-bone leg IK)."""
+    tracker_fit: bool = False
+    """Meet the trackers exactly where the skeleton allows: the root from the pelvis tracker (position, and
+    rotation when given), the wrists by two-bone arm IK to their positions and their rotations (when given), the
+    head's rotation (the paper's suggested extra IK pass on the arms). Off by default: with the shipped model it
+    raises the error (benchmarks/results/tracking.json, ``ours_fit``) and passes tracker noise straight through."""

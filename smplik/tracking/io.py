@@ -1,0 +1,290 @@
+"""Tracker recordings: the ``smplik-trackers`` JSON format (version 1) and a SteamVR JSON-lines log reader.
+
+``smplik-trackers`` version 1 (see docs/formats.md)::
+
+    {"format": "smplik-trackers", "version": 1, "fps": 60,
+     "trackers": {"<smpl joint name>": {"position": [[x, y, z], ...], "rotation": [[w, x, y, z], ...]}}}
+
+Metres, y up, world frame (the floor at y = 0), one row per frame, every tracker the same number of rows;
+``rotation`` (unit quaternions, scalar first, the joint's world rotation in SMPL's frame: +z forward, +y up)
+is optional per tracker. Errors are one line naming the file and the JSON path (:class:`TrackerFileError`).
+
+SteamVR log (:func:`read_steamvr_jsonl`): the JSON lines written by a SteamVR logger polling OpenVR
+(``{"timestamp": s, "devices": [{"index": i, "class": "HMD" | "Controller" | "Tracker", "pose": {"valid": b,
+"position": {"x", "y", "z"}, "quaternion": {"x", "y", "z", "w"}} | null, ...}]}`` per line, OpenVR's
+standing universe: metres, y up, -z forward, floor at y = 0).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smplik.conventions import JOINT_NAMES
+from smplik.validation import JSONPathError, finite_array, read_json, short_repr
+
+TRACKERS_FORMAT = "smplik-trackers"
+TRACKERS_VERSION = 1
+MAX_FRAMES = 1_000_000
+_ROOT_KEYS = {"format", "version", "fps", "trackers"}
+_TRACKER_KEYS = {"position", "rotation"}
+
+
+class TrackerFileError(ValueError):
+    """A tracker file is invalid (one line naming the file and the JSON path)."""
+
+
+@dataclass(frozen=True)
+class TrackerSignals:
+    """A tracker recording. T frames, K trackers.
+
+    Attributes: fps; names (K,) SMPL joint names; positions (T, K, 3) metres, y up; rotations (T, K, 4) unit
+    quaternions (w, x, y, z), identity where ``has_rotation`` is False; has_rotation (K,) bool; source.
+    """
+
+    fps: float
+    names: tuple[str, ...]
+    positions: np.ndarray
+    rotations: np.ndarray
+    has_rotation: np.ndarray
+    source: str = ""
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    def select(self, names: tuple[str, ...]) -> TrackerSignals:
+        """The trackers ``names`` in that order. Raises TrackerFileError naming the first missing one."""
+        missing = [n for n in names if n not in self.names]
+        if missing:
+            raise TrackerFileError(f"{self.source}: trackers.{missing[0]}: missing; the model needs trackers "
+                                   f"{', '.join(names)} (found {', '.join(self.names)}).")
+        idx = [self.names.index(n) for n in names]
+        return TrackerSignals(self.fps, tuple(names), self.positions[:, idx], self.rotations[:, idx],
+                              self.has_rotation[idx], self.source)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``smplik-trackers`` document."""
+        trackers: dict[str, Any] = {}
+        for k, name in enumerate(self.names):
+            entry: dict[str, Any] = {"position": np.round(self.positions[:, k], 6).tolist()}
+            if self.has_rotation[k]:
+                entry["rotation"] = np.round(self.rotations[:, k], 7).tolist()
+            trackers[name] = entry
+        return {"format": TRACKERS_FORMAT, "version": TRACKERS_VERSION, "fps": self.fps, "trackers": trackers}
+
+
+def signals_from_dict(data: Any, source: str = "trackers") -> TrackerSignals:
+    """Validate a ``smplik-trackers`` document (module docstring). Raises TrackerFileError."""
+    err = JSONPathError(source, TrackerFileError)
+    if not isinstance(data, dict):
+        raise err("", f"expected a JSON object, got {short_repr(data)}.")
+    unknown = sorted(set(data) - _ROOT_KEYS)
+    if unknown:
+        raise err(unknown[0], f"unknown key (expected {', '.join(sorted(_ROOT_KEYS))}).")
+    for key in ("format", "version", "fps", "trackers"):
+        if key not in data:
+            raise err(key, "missing.")
+    if data["format"] != TRACKERS_FORMAT:
+        raise err("format", f"is {short_repr(data['format'])}; expected {TRACKERS_FORMAT!r}.")
+    if data["version"] != TRACKERS_VERSION or isinstance(data["version"], bool):
+        raise err("version", f"is {short_repr(data['version'])}; this smplik reads version {TRACKERS_VERSION}.")
+    fps = data["fps"]
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (0 < fps <= 1000):
+        raise err("fps", f"must be a frame rate in (0, 1000], got {short_repr(fps)}.")
+    trackers = data["trackers"]
+    if not isinstance(trackers, dict) or not trackers:
+        raise err("trackers", f"must be a non-empty object of SMPL joint names, got {short_repr(trackers)}.")
+    names, positions, rotations, has = [], [], [], []
+    T: int | None = None
+    for name, entry in trackers.items():
+        path = f"trackers.{name}"
+        if name not in JOINT_NAMES:
+            raise err(path, f"unknown joint; tracker names are SMPL joint names ({', '.join(JOINT_NAMES[:4])}, ...).")
+        if not isinstance(entry, dict):
+            raise err(path, f"expected an object with 'position' (and 'rotation'), got {short_repr(entry)}.")
+        bad = sorted(set(entry) - _TRACKER_KEYS)
+        if bad:
+            raise err(f"{path}.{bad[0]}", "unknown key (expected position, rotation).")
+        if "position" not in entry:
+            raise err(f"{path}.position", "missing.")
+        rows = entry["position"]
+        if not isinstance(rows, list) or not rows:
+            raise err(f"{path}.position", f"must be a non-empty list of [x, y, z] rows, got {short_repr(rows)}.")
+        if len(rows) > MAX_FRAMES:
+            raise err(f"{path}.position", f"{len(rows)} frames; at most {MAX_FRAMES} are read.")
+        if T is None:
+            T = len(rows)
+        if len(rows) != T:
+            raise err(f"{path}.position", f"has {len(rows)} rows; the first tracker has {T} (one row per frame).")
+        p = finite_array(rows, (T, 3), f"{source}: {path}.position", TrackerFileError, max_abs=1000.0)
+        if "rotation" in entry:
+            q = finite_array(entry["rotation"], (T, 4), f"{source}: {path}.rotation", TrackerFileError)
+            norm = np.linalg.norm(q, axis=-1)
+            if (norm < 1e-6).any():
+                raise err(f"{path}.rotation[{int(np.argmax(norm < 1e-6))}]", "is a zero quaternion.")
+            rotations.append(q / norm[:, None])
+            has.append(True)
+        else:
+            rotations.append(np.tile([1.0, 0.0, 0.0, 0.0], (T, 1)))
+            has.append(False)
+        names.append(name)
+        positions.append(p)
+    return TrackerSignals(float(fps), tuple(names), np.stack(positions, 1), np.stack(rotations, 1),
+                          np.asarray(has), source)
+
+
+def read_trackers(path: str | Path) -> TrackerSignals:
+    """Read a tracker file: ``smplik-trackers`` JSON, or a SteamVR JSON-lines log (``.jsonl``)."""
+    path = Path(path)
+    if path.suffix.lower() == ".jsonl":
+        return read_steamvr_jsonl(path)
+    return signals_from_dict(read_json(path, TrackerFileError, what="tracker file"), str(path))
+
+
+def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, names: tuple[str, ...],
+                        fps: float, *, noise_m: float = 0.0, noise_deg: float = 0.0,
+                        rng: np.random.Generator | None = None) -> TrackerSignals:
+    """Synthetic trackers of a motion: the joints ``names``' world positions and rotations (SMPL's joint frames),
+    with optional Gaussian noise (position sigma ``noise_m``, rotation angle sigma ``noise_deg`` about a random
+    axis). R_local (T, 24, 3, 3), transl (T, 3), J_rest (24, 3)."""
+    import torch
+
+    from smplik.conventions import JOINT_INDEX
+    from smplik.kinematics import forward_kinematics
+
+    f64 = torch.float64
+    R_w, p = forward_kinematics(torch.as_tensor(R_local, dtype=f64), torch.as_tensor(J_rest, dtype=f64),
+                                torch.as_tensor(transl, dtype=f64))
+    idx = [JOINT_INDEX[n] for n in names]
+    P, R = p[:, idx].numpy(), R_w[:, idx].numpy()
+    if noise_m > 0 or noise_deg > 0:
+        from scipy.spatial.transform import Rotation
+
+        rng = np.random.default_rng(0) if rng is None else rng
+        P = P + rng.normal(0.0, noise_m, P.shape)
+        v = rng.normal(0.0, np.deg2rad(noise_deg), P.shape)
+        R = Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(R.shape) @ R
+    return TrackerSignals(float(fps), tuple(names), P, _matrix_to_quat(R), np.ones(len(names), bool), "synthetic")
+
+
+# ----------------------------------------------------------------------------- SteamVR JSON lines
+
+HMD_TO_HEAD_M = np.array([0.0, -0.07, 0.09])
+"""The SMPL head joint relative to the headset, in the headset's OpenVR frame (-z forward): 7 cm down,
+9 cm behind the eyes (an average adult; a calibration would measure it)."""
+
+
+def _quat_xyzw(d: Any) -> np.ndarray:
+    return np.array([d["w"], d["x"], d["y"], d["z"]], dtype=np.float64)
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 4) (w, x, y, z) -> (..., 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(np.concatenate([q[..., 1:], q[..., :1]], -1).reshape(-1, 4)).as_matrix().reshape(
+        *q.shape[:-1], 3, 3)
+
+
+def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    xyzw = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat().reshape(*R.shape[:-2], 4)
+    return np.concatenate([xyzw[..., 3:], xyzw[..., :3]], -1)
+
+
+def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
+    """Read a SteamVR JSON-lines log (module docstring) into ``head``, ``left_wrist``, ``right_wrist`` (and
+    ``pelvis`` when one generic tracker is present), resampled to ``fps`` by linear interpolation over the
+    timestamps.
+
+    Mapping: the HMD gives the head (its rotation turned half a turn about its y axis, so that +z is forward as
+    for SMPL's head; its position moved by :data:`HMD_TO_HEAD_M`); the two controllers give the wrists by
+    position only (their rotations are in the device's own frame, not the wrist's: left out), left being the
+    one on the headset's left at the first frame where both are valid; a single generic tracker gives the
+    pelvis by position. Frames where a device's pose is invalid are interpolated from its valid neighbours.
+    """
+    from smplik.limits import TEXT_BYTES, LimitError, read_bounded
+
+    path = Path(path)
+    err = JSONPathError(str(path), TrackerFileError)
+    try:
+        text = read_bounded(path, TEXT_BYTES).decode("utf-8")
+    except LimitError as exc:
+        raise TrackerFileError(f"Tracker file {exc}") from None
+    except FileNotFoundError:
+        raise TrackerFileError(f"Tracker file not found: {path}") from None
+    except UnicodeDecodeError:
+        raise TrackerFileError(f"{path}: not UTF-8 text.") from None
+    times: list[float] = []
+    tracks: dict[tuple[str, int], dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+    for n, line in enumerate(text.splitlines()):
+        if not line.strip():
+            continue
+        try:
+            frame = json.loads(line)
+            t = float(frame["timestamp"])
+            devices = frame["devices"]
+            row = len(times)
+            for dev in devices:
+                pose = dev.get("pose")
+                if not pose or not pose.get("valid", False):
+                    continue
+                p = np.array([pose["position"][k] for k in "xyz"], dtype=np.float64)
+                q = _quat_xyzw(pose["quaternion"])
+                if not (np.isfinite(p).all() and np.isfinite(q).all()) or np.linalg.norm(q) < 1e-6:
+                    continue
+                tracks.setdefault((str(dev["class"]), int(dev["index"])), {})[row] = (p, q / np.linalg.norm(q))
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise err(f"line {n + 1}", f"not a SteamVR log record ({type(exc).__name__}: {exc}).") from None
+        times.append(t)
+    if len(times) < 2:
+        raise err("", "fewer than 2 frames.")
+    stamps = np.asarray(times)
+    if not (np.diff(stamps) > 0).all():
+        raise err("timestamp", "timestamps must increase from line to line.")
+    hmds = [k for k in tracks if k[0] == "HMD"]
+    ctrls = sorted(k for k in tracks if k[0] == "Controller")
+    generic = [k for k in tracks if k[0] == "Tracker"]
+    if not hmds:
+        raise err("devices", "no HMD with a valid pose.")
+    if len(ctrls) != 2:
+        raise err("devices", f"expected 2 controllers with valid poses, found {len(ctrls)}.")
+    out_t = np.arange(stamps[0], stamps[-1] + 1e-9, 1.0 / fps)
+
+    def resample(key: tuple[str, int]) -> tuple[np.ndarray, np.ndarray]:
+        rows = sorted(tracks[key])
+        t = stamps[rows]
+        P = np.stack([tracks[key][r][0] for r in rows])
+        Q = np.stack([tracks[key][r][1] for r in rows])
+        for i in range(1, len(Q)):  # sign-continuous before interpolating
+            if Q[i] @ Q[i - 1] < 0:
+                Q[i] = -Q[i]
+        p = np.stack([np.interp(out_t, t, P[:, i]) for i in range(3)], -1)
+        q = np.stack([np.interp(out_t, t, Q[:, i]) for i in range(4)], -1)
+        return p, q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+    p_hmd, q_hmd = resample(hmds[0])
+    R_hmd = _quat_to_matrix(q_hmd)
+    half_turn = np.diag([-1.0, 1.0, -1.0])
+    R_head = R_hmd @ half_turn
+    p_head = p_hmd + (R_hmd @ HMD_TO_HEAD_M[:, None])[..., 0]
+    (pa, _), (pb, _) = resample(ctrls[0]), resample(ctrls[1])
+    # left = on the headset's left: SMPL's head frame has +x to the body's left
+    side = ((pa[0] - pb[0]) @ R_head[0][:, 0])
+    left, right = (pa, pb) if side > 0 else (pb, pa)
+    names = ["head", "left_wrist", "right_wrist"]
+    P = [p_head, left, right]
+    Q = [_matrix_to_quat(R_head), np.tile([1.0, 0, 0, 0], (len(out_t), 1)), np.tile([1.0, 0, 0, 0], (len(out_t), 1))]
+    has = [True, False, False]
+    if len(generic) == 1:
+        names.append("pelvis")
+        P.append(resample(generic[0])[0])
+        Q.append(np.tile([1.0, 0, 0, 0], (len(out_t), 1)))
+        has.append(False)
+    return TrackerSignals(float(fps), tuple(names), np.stack(P, 1), np.stack(Q, 1), np.asarray(has), str(path))

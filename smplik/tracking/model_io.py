@@ -1,0 +1,78 @@
+"""Tracking model files: a ``torch.save`` dict of tensors and plain values, read with ``weights_only=True``.
+
+Layout: ``{"info": {"format": "smplik-tracking", "version": 1, "net": TrackingNetConfig dict, "train": ...,
+"val_mpjpe_mm": ...}, "state_dict": {...}, "pose_lo": (24, 3), "pose_hi": (24, 3)}`` (the 0.1 and 99.9
+percentiles of the training set's axis-angle local rotations, for the anomaly score).
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from smplik.atomic import write_bytes_atomic
+from smplik.tracking.config import TrackingNetConfig
+from smplik.tracking.network import TrackingNet, WindowMLP, build_network
+
+CHECKPOINT_FORMAT = "smplik-tracking"
+CHECKPOINT_VERSION = 1
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "smplik_tracking.pt"
+
+
+class TrackingModelError(ValueError):
+    """A tracking model file cannot be used (one line, names the file)."""
+
+
+@dataclass(frozen=True)
+class TrackingModel:
+    """A loaded model: the network (eval mode), its config, the training rotation range and the file's info."""
+
+    net: TrackingNet | WindowMLP
+    cfg: TrackingNetConfig
+    pose_lo: Tensor
+    pose_hi: Tensor
+    info: dict[str, Any]
+
+
+def save_checkpoint(path: str | Path, net: TrackingNet | WindowMLP, info: dict[str, Any], *, pose_lo: Tensor,
+                    pose_hi: Tensor) -> Path:
+    """Write a model file atomically."""
+    buf = io.BytesIO()
+    torch.save({"info": info, "state_dict": {k: v.detach().clone() for k, v in net.state_dict().items()},
+                "pose_lo": pose_lo.clone(), "pose_hi": pose_hi.clone()}, buf)
+    path = Path(path)
+    write_bytes_atomic(path, buf.getvalue())
+    return path
+
+
+def load_model(path: str | Path | None = None) -> TrackingModel:
+    """Read a model file (default: the shipped one) with ``torch.load(weights_only=True)``.
+
+    Raises: TrackingModelError (missing file, another format, mismatched weights).
+    """
+    path = Path(path) if path is not None else DEFAULT_CHECKPOINT
+    if not path.is_file():
+        raise TrackingModelError(f"{path}: tracking model not found.")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for a bad file
+        raise TrackingModelError(f"{path}: not a readable tracking model ({type(exc).__name__}).") from None
+    if not isinstance(blob, dict) or not isinstance(blob.get("info"), dict):
+        raise TrackingModelError(f"{path}: not a tracking model (no 'info').")
+    info = blob["info"]
+    if info.get("format") != CHECKPOINT_FORMAT or info.get("version") != CHECKPOINT_VERSION:
+        raise TrackingModelError(f"{path}: format {info.get('format')!r} version {info.get('version')!r}; expected "
+                                 f"{CHECKPOINT_FORMAT!r} version {CHECKPOINT_VERSION}.")
+    try:
+        cfg = TrackingNetConfig.from_dict(info["net"])
+        net = build_network(cfg)
+        net.load_state_dict(blob["state_dict"])
+    except (KeyError, TypeError, RuntimeError) as exc:
+        raise TrackingModelError(f"{path}: weights do not match the config ({str(exc).splitlines()[0]}).") from None
+    net.eval()
+    return TrackingModel(net=net, cfg=cfg, pose_lo=blob["pose_lo"], pose_hi=blob["pose_hi"], info=info)

@@ -1,0 +1,392 @@
+"""Full body from a few trackers (smplik.tracking, workflows.tracking): the smplik-trackers format, the network,
+streaming inference, samples, foot locks, ONNX, the command, and the shipped model on real held-out motion."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from smplik.conventions import Gender
+from smplik.tracking.config import TRACKER_SETS, TrackerRuntimeConfig, TrackingNetConfig
+from smplik.tracking.data import body_vector
+from smplik.tracking.features import OUT_DIM, decode_pose, pose_targets, tracker_features
+from smplik.tracking.io import (
+    TrackerFileError,
+    read_steamvr_jsonl,
+    read_trackers,
+    signals_from_dict,
+    signals_from_motion,
+)
+from smplik.tracking.model_io import TrackingModelError, load_model
+from smplik.tracking.network import TrackingNet, WindowMLP, input_dim
+from smplik.tracking.runtime import Tracker, _FootLock, track_sequence
+
+TRACKERS = TRACKER_SETS["4"]
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+def walking_motion(T: int = 120, fps: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
+    """A simple synthetic motion: the rest pose walking forward (+z) at 1 m/s with swinging legs and arms."""
+    from smplik.rotations import axis_angle_to_matrix
+
+    t = np.arange(T) / fps
+    aa = np.zeros((T, 24, 3))
+    swing = 0.4 * np.sin(2 * np.pi * 1.0 * t)
+    aa[:, 1, 0], aa[:, 2, 0] = swing, -swing  # hips
+    aa[:, 4, 0], aa[:, 5, 0] = np.maximum(0, -swing), np.maximum(0, swing)  # knees bend on the back swing
+    aa[:, 16, 2], aa[:, 17, 2] = -1.2, 1.2  # arms down
+    aa[:, 18, 1], aa[:, 19, 1] = -0.8, 0.8  # elbows bent
+    transl = np.stack([np.zeros(T), np.zeros(T), 1.0 * t], -1)
+    return axis_angle_to_matrix(torch.as_tensor(aa)).numpy(), transl
+
+
+def rest_joints(betas=None, gender=Gender.NEUTRAL) -> np.ndarray:
+    from smplik.body_model import BodyModelSet
+
+    b = torch.zeros(10) if betas is None else torch.as_tensor(betas, dtype=torch.float32)
+    return BodyModelSet.load().rest_joints(b, torch.tensor(gender.index)).double().numpy()
+
+
+def synthetic_signals(T: int = 120) -> tuple:
+    R, transl = walking_motion(T)
+    J = rest_joints()
+    transl[:, 1] += -min(0.0, 0.0)  # the rest pose stands on y = 0 in the built-in body
+    return signals_from_motion(R, transl, J, TRACKERS, 60.0), R, transl, J
+
+
+def doc(**overrides) -> dict:
+    d = {"format": "smplik-trackers", "version": 1, "fps": 60,
+         "trackers": {"head": {"position": [[0, 1.6, 0], [0, 1.6, 0.01]], "rotation": [[1, 0, 0, 0], [1, 0, 0, 0]]},
+                      "left_wrist": {"position": [[0.3, 1.0, 0], [0.3, 1.0, 0.01]]}}}
+    d.update(overrides)
+    return d
+
+
+# ----------------------------------------------------------------------------- format
+
+
+def test_trackers_document_reads_back():
+    sig = signals_from_dict(doc(), "t.json")
+    assert sig.names == ("head", "left_wrist") and sig.positions.shape == (2, 2, 3)
+    assert sig.has_rotation.tolist() == [True, False]
+    again = signals_from_dict(json.loads(json.dumps(sig.to_dict())), "t.json")
+    np.testing.assert_allclose(again.positions, sig.positions)
+    np.testing.assert_allclose(again.rotations, sig.rotations)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"format": "smplik-scene"}, 'format: is "smplik-scene"'),
+    ({"version": 2}, "version: is 2"),
+    ({"fps": 0}, "fps: must be a frame rate"),
+    ({"fps": True}, "fps: must be a frame rate"),
+    ({"extra": 1}, "extra: unknown key"),
+    ({"trackers": {}}, "trackers: must be a non-empty object"),
+    ({"trackers": {"nose": {"position": [[0, 0, 0]]}}}, "trackers.nose: unknown joint"),
+    ({"trackers": {"head": {"rotation": [[1, 0, 0, 0]]}}}, "trackers.head.position: missing"),
+    ({"trackers": {"head": {"position": [[0, 0]]}}}, "trackers.head.position: has shape (1, 2); expected (1, 3)"),
+    ({"trackers": {"head": {"position": [[0, 0, float("nan")]]}}}, "trackers.head.position: contains NaN"),
+    ({"trackers": {"head": {"position": [[0, 1, 0]], "rotation": [[0, 0, 0, 0]]}}},
+     "trackers.head.rotation[0]: is a zero quaternion"),
+    ({"trackers": {"head": {"position": [[0, 1, 0]]}, "pelvis": {"position": [[0, 1, 0], [0, 1, 0]]}}},
+     "trackers.pelvis.position: has 2 rows; the first tracker has 1"),
+    ({"trackers": {"head": {"position": [[0, 1, 0]], "scale": 1}}}, "trackers.head.scale: unknown key"),
+])
+def test_trackers_document_errors_name_the_problem(change, message):
+    with pytest.raises(TrackerFileError) as err:
+        signals_from_dict(doc(**change), "t.json")
+    assert str(err.value).startswith("t.json: ") and message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_missing_tracker_for_the_model_is_named():
+    sig = signals_from_dict(doc(), "t.json")
+    with pytest.raises(TrackerFileError, match="trackers.right_wrist: missing; the model needs"):
+        sig.select(TRACKERS)
+
+
+def test_steamvr_log_reader(tmp_path):
+    """JSON lines in the layout of a SteamVR logger polling OpenVR (poll_frame: {"timestamp", "devices": [{"index",
+    "class", "pose": {"valid", "position": {x, y, z}, "quaternion": {x, y, z, w}}}]}), 90 Hz, standing universe."""
+    lines = []
+    for n in range(46):
+        t = 100.0 + n / 90.0
+        hmd = {"index": 0, "class": "HMD", "pose": {"valid": True, "position": {"x": 0.0, "y": 1.7, "z": -0.5 * t + 50},
+                                                     "quaternion": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+        # the user looks along OpenVR's -z; their left hand is at -x
+        q0 = {"x": 0, "y": 0, "z": 0, "w": 1}
+        left = {"index": 3, "class": "Controller",
+                "pose": {"valid": True, "position": {"x": -0.3, "y": 1.0, "z": 0.0}, "quaternion": q0}}
+        right = {"index": 4, "class": "Controller",
+                 "pose": {"valid": n != 7, "position": {"x": 0.3, "y": 1.0, "z": 0.0}, "quaternion": q0},
+                 "inputs": {"buttons": {}}}
+        lines.append(json.dumps({"timestamp": t, "devices": [hmd, right, left]}))
+    path = tmp_path / "captures.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    sig = read_trackers(path)
+    assert sig.names == ("head", "left_wrist", "right_wrist") and sig.fps == 60.0
+    assert sig.num_frames == 31  # 0.5 s at 60 Hz
+    np.testing.assert_allclose(sig.positions[:, 1, 0], -0.3)  # the controller on the user's left
+    # the head looks along -z (OpenVR's forward): SMPL's +z axis of the head points to -z in the world
+    from smplik.tracking.fast import quaternion_to_matrix_np
+
+    np.testing.assert_allclose(quaternion_to_matrix_np(sig.rotations[0, 0])[:, 2], [0, 0, -1], atol=1e-6)
+    assert sig.has_rotation.tolist() == [True, False, False]
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text(lines[0] + "\n{not json\n")
+    with pytest.raises(TrackerFileError, match="bad.jsonl: line 2: not a SteamVR log record"):
+        read_steamvr_jsonl(bad)
+
+
+# ----------------------------------------------------------------------------- network and features
+
+
+def test_shapes_and_heading_invariance():
+    cfg = TrackingNetConfig(hidden=32, decoder=32, latent=4)
+    net = TrackingNet(cfg)
+    sig, R, transl, J = synthetic_signals(30)
+    from smplik.tracking.fast import quaternion_to_matrix_np
+
+    p = torch.as_tensor(sig.positions, dtype=torch.float32)
+    Rq = torch.as_tensor(quaternion_to_matrix_np(sig.rotations), dtype=torch.float32)
+    x, yaw, origin = tracker_features(p, Rq, torch.ones(4, dtype=torch.bool), 60.0)
+    assert x.shape == (30, input_dim(cfg)) and yaw.shape == (30,) and origin.shape == (30, 3)
+    # turning and moving the whole recording leaves the features unchanged
+    from smplik.symmetry import rotation_about_y
+
+    Y = rotation_about_y(torch.tensor(1.1))
+    x2, _, _ = tracker_features(p @ Y.T + torch.tensor([3.0, 0.0, -2.0]), Y @ Rq, torch.ones(4, dtype=torch.bool), 60.0)
+    torch.testing.assert_close(x2, x, atol=1e-4, rtol=0)
+    body = body_vector(torch.zeros(2, 10), torch.tensor([0, 2]))
+    out = net(x[None].expand(2, -1, -1), body)
+    assert out.shape == (2, 30, OUT_DIM)
+    target = pose_targets(torch.as_tensor(R, dtype=torch.float32), torch.zeros(30, 3), yaw, origin)
+    out_t, kl = net.forward_train(x[None].expand(2, -1, -1), body, target[None].expand(2, -1, -1))
+    assert out_t.shape == (2, 30, OUT_DIM) and kl.shape == (2, 30, 4) and (kl >= -1e-5).all()
+    Rl, tr, prob = decode_pose(out, yaw, origin, torch.as_tensor(J, dtype=torch.float32))
+    assert Rl.shape == (2, 30, 24, 3, 3) and tr.shape == (2, 30, 3) and ((prob >= 0) & (prob <= 1)).all()
+    assert WindowMLP(TrackingNetConfig(kind="mlp", window=5))(x[None], body[:1]).shape == (1, 30, OUT_DIM)
+
+
+def test_targets_decode_back_to_the_pose():
+    sig, R, transl, J = synthetic_signals(10)
+    from smplik.kinematics import forward_kinematics
+    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.tracking.features import NUM_OUT_ROT
+
+    Rt = torch.as_tensor(R, dtype=torch.float32)
+    Jt = torch.as_tensor(J, dtype=torch.float32)
+    _, p = forward_kinematics(Rt, Jt, torch.as_tensor(transl, dtype=torch.float32))
+    x, yaw, origin = tracker_features(torch.as_tensor(sig.positions, dtype=torch.float32),
+                                      torch.as_tensor(quaternion_to_matrix_np(sig.rotations), dtype=torch.float32),
+                                      torch.ones(4, dtype=torch.bool), 60.0)
+    target = pose_targets(Rt, p[:, 0], yaw, origin)
+    out = torch.cat([target, torch.zeros(10, OUT_DIM - NUM_OUT_ROT - 3)], -1)
+    R2, t2, _ = decode_pose(out, yaw, origin, Jt)
+    torch.testing.assert_close(R2, Rt, atol=1e-5, rtol=0)
+    torch.testing.assert_close(t2, torch.as_tensor(transl, dtype=torch.float32), atol=1e-5, rtol=0)
+
+
+# ----------------------------------------------------------------------------- runtime
+
+
+def test_one_pose_per_input_frame(model):
+    sig, *_ = synthetic_signals(45)
+    for samples in (1, 4):
+        res = track_sequence(Tracker.load(config=TrackerRuntimeConfig(samples=samples)), sig)
+        assert res.R_local.shape == (45, 24, 3, 3) and res.transl.shape == (45, 3) and res.contacts.shape == (45, 2)
+        assert np.isfinite(res.R_local).all() and np.isfinite(res.transl).all()
+    # a 30 Hz recording is resampled to the model's 60 Hz and mapped back: still one pose per input frame
+    half = type(sig)(30.0, sig.names, sig.positions[::2], sig.rotations[::2], sig.has_rotation, "half")
+    assert track_sequence(Tracker.load(), half).R_local.shape[0] == 23
+
+
+def test_streaming_equals_batch(model):
+    """The numpy per-frame path (GRU state carried frame to frame) equals the torch network over the whole
+    sequence at once."""
+    sig, *_ = synthetic_signals(40)
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False))
+    res = track_sequence(tracker, sig)
+    from smplik.tracking.fast import quaternion_to_matrix_np
+
+    x, yaw, origin = tracker_features(torch.as_tensor(sig.positions, dtype=torch.float32),
+                                      torch.as_tensor(quaternion_to_matrix_np(sig.rotations), dtype=torch.float32),
+                                      torch.ones(4, dtype=torch.bool), 60.0)
+    body = body_vector(torch.zeros(10), torch.tensor(0))
+    with torch.no_grad():
+        out = model.net(x[None], body[None])[0]
+    R, transl, _ = decode_pose(out, yaw, origin, torch.as_tensor(rest_joints(), dtype=torch.float32))
+    np.testing.assert_allclose(res.R_local, R.numpy(), atol=2e-4)
+    np.testing.assert_allclose(res.transl, transl.numpy(), atol=2e-4)
+
+
+def test_tracker_fit_meets_wrists_and_pelvis(model):
+    """With ``tracker_fit`` the pelvis lands on its tracker, the wrists on theirs wherever the arm can
+    reach them, and the wrists and the head take the trackers' rotations."""
+    from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
+
+    sig, *_ = synthetic_signals(30)
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True))
+    res = track_sequence(tracker, sig)
+    G, p = fk_np(res.R_local.astype(np.float32), tracker.J_rest, res.transl.astype(np.float32))
+    R_trk = quaternion_to_matrix_np(sig.rotations)
+    np.testing.assert_allclose(p[:, 0], sig.positions[:, 3], atol=1e-4)
+    np.testing.assert_allclose(G[:, 0], R_trk[:, 3], atol=1e-4)
+    J = tracker.J_rest
+    for k, (shoulder, elbow, wrist) in ((1, (16, 18, 20)), (2, (17, 19, 21))):
+        arm = np.linalg.norm(J[elbow] - J[shoulder]) + np.linalg.norm(J[wrist] - J[elbow])
+        reach = np.linalg.norm(sig.positions[:, k] - p[:, shoulder], axis=-1) < arm - 1e-3
+        assert reach.sum() >= 5
+        np.testing.assert_allclose(p[reach, wrist], sig.positions[reach, k], atol=1e-4)
+        far = np.linalg.norm(p[:, wrist] - sig.positions[:, k], axis=-1)
+        assert (far < 0.02).all()  # beyond reach: the straight arm points at the tracker
+        np.testing.assert_allclose(G[:, wrist], R_trk[:, k], atol=1e-4)
+    np.testing.assert_allclose(G[:, 15], R_trk[:, 0], atol=1e-4)
+
+
+def test_samples_differ_and_deterministic_mode_is_deterministic(model):
+    sig, *_ = synthetic_signals(40)
+    a = track_sequence(Tracker.load(), sig)
+    b = track_sequence(Tracker.load(), sig)
+    np.testing.assert_array_equal(a.R_local, b.R_local)
+    # the N samples of one frame differ (the latent is in use)
+    tracker = Tracker.load(config=TrackerRuntimeConfig(samples=8))
+    h = np.zeros(tracker.fast.H, np.float32)
+    x = np.zeros(len(model.net.x_mean), np.float32)
+    h = tracker.fast.condition_step(model.net.x_mean.numpy(), tracker.body, h)
+    out = tracker.fast.sample(h, tracker.eps, tracker.body)
+    from smplik.tracking.features import NUM_OUT_ROT
+
+    spread = out[:, :NUM_OUT_ROT].std(0).max()
+    assert spread > 1e-3, f"samples do not differ (max std {spread})"
+    assert x.shape == model.net.x_mean.shape
+    # the sampling mode is reproducible with a seed
+    c = track_sequence(Tracker.load(config=TrackerRuntimeConfig(samples=8, seed=3)), sig)
+    d = track_sequence(Tracker.load(config=TrackerRuntimeConfig(samples=8, seed=3)), sig)
+    np.testing.assert_array_equal(c.R_local, d.R_local)
+
+
+def test_contacts_lock_the_feet():
+    """A body gliding forward 3 mm per frame (0.18 m/s) with the left foot in contact: the lock holds the foot still
+    (within the lock's 8 cm drift limit)."""
+    from smplik.tracking.fast import fk_np
+
+    J = rest_joints().astype(np.float32)
+    R = np.tile(np.eye(3, dtype=np.float32), (24, 1, 1))
+    R[[1, 2]] = np.array([[1, 0, 0], [0, np.cos(0.2), -np.sin(0.2)], [0, np.sin(0.2), np.cos(0.2)]], np.float32)
+    R[[4, 5]] = np.array([[1, 0, 0], [0, np.cos(-0.4), -np.sin(-0.4)], [0, np.sin(-0.4), np.cos(-0.4)]], np.float32)
+    lock = _FootLock(threshold=0.5, release_frames=5)
+    feet_raw, feet_locked = [], []
+    for t in range(20):
+        transl = np.array([[0.0, 0.0, 0.003 * t]], np.float32)
+        Rw, p = fk_np(R[None], J, transl)
+        R_out = lock.apply(R.astype(np.float64), Rw[0].astype(np.float64), p[0].astype(np.float64),
+                           np.array([0.9, 0.1]))
+        _, p2 = fk_np(R_out[None].astype(np.float32), J, transl)
+        feet_raw.append(p[0, 10])
+        feet_locked.append(p2[0, 10])
+        np.testing.assert_allclose(p2[0, 11], p[0, 11], atol=1e-6)  # the free foot is untouched
+    speed = lambda f: np.linalg.norm(np.diff(np.array(f), axis=0), axis=-1).mean()  # noqa: E731
+    assert speed(feet_raw) > 2.5e-3
+    assert speed(feet_locked) < 2e-4
+
+
+def test_model_file_errors(tmp_path):
+    with pytest.raises(TrackingModelError, match="not found"):
+        load_model(tmp_path / "none.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(TrackingModelError, match="not a readable tracking model"):
+        load_model(bad)
+    torch.save({"info": {"format": "other"}}, tmp_path / "other.pt")
+    with pytest.raises(TrackingModelError, match="format 'other'"):
+        load_model(tmp_path / "other.pt")
+
+
+def test_onnx_step_agrees_with_torch(model, tmp_path):
+    ort = pytest.importorskip("onnxruntime", reason="onnxruntime missing: pip install -e '.[fast]'")
+    from smplik.tracking.model_io import DEFAULT_CHECKPOINT
+    from smplik.tracking.onnx_export import _Step, export_tracking_onnx
+
+    shipped = DEFAULT_CHECKPOINT.with_suffix(".onnx")
+    path = shipped if shipped.exists() else export_tracking_onnx(model.net, tmp_path / "t.onnx")
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    x = (model.net.x_mean.numpy() + rng.normal(0, 1, model.net.x_mean.shape) * model.net.x_std.numpy())[None]
+    feeds = {"x": x.astype(np.float32), "body": rng.normal(0, 1, (1, 13)).astype(np.float32),
+             "h": rng.normal(0, 0.3, (1, model.cfg.hidden)).astype(np.float32),
+             "eps": rng.normal(0, 1, (5, model.cfg.latent)).astype(np.float32)}
+    h_next, out = sess.run(None, feeds)
+    with torch.no_grad():
+        th, to = _Step(model.net)(*(torch.from_numpy(feeds[k]) for k in ("x", "body", "h", "eps")))
+    np.testing.assert_allclose(h_next, th.numpy(), atol=1e-4)
+    np.testing.assert_allclose(out, to.numpy(), atol=1e-4)
+
+
+# ----------------------------------------------------------------------------- command
+
+
+def test_track_command_writes_an_animation(tmp_path):
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+    from workflows.animation_io import load_animation
+
+    sig, *_ = synthetic_signals(30)
+    src = tmp_path / "trackers.json"
+    src.write_text(json.dumps(sig.to_dict()))
+    res = CliRunner().invoke(app, ["track", str(src), "--out", str(tmp_path / "out"), "--samples", "3",
+                                   "--export", "bvh"])
+    assert res.exit_code == 0, res.output
+    anim = load_animation(tmp_path / "out" / "animation.json")
+    assert anim.tracks[0].num_frames == 30 and anim.fps == 60.0 and anim.space == "world"
+    assert (tmp_path / "out" / "person_0.bvh").exists()
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc(version=3)))
+    res = CliRunner().invoke(app, ["track", str(bad), "--out", str(tmp_path / "o2")])
+    assert res.exit_code == 1
+    assert res.output.strip().splitlines()[-1].startswith("error: ") and "version: is 3" in res.output
+    assert not (tmp_path / "o2" / "animation.json").exists()
+
+
+# ----------------------------------------------------------------------------- real held-out motion
+
+
+def test_shipped_model_beats_a_trivial_baseline_on_held_out_cmu(shared_data, model):
+    """CMU 02_01 (subject 02: test split): trackers from the motion; the model's MPJPE is far below the rest pose
+    placed at the pelvis tracker, turned to the head's heading."""
+    from smplik.data.dataset import find_sources, read_source, subsample_indices
+    from smplik.kinematics import forward_kinematics
+    from smplik.rotations import axis_angle_to_matrix
+    from smplik.symmetry import rotation_about_y
+    from smplik.tracking.features import heading_yaw
+
+    path = shared_data.cmu("02_01.bvh")
+    src = next(s for s in find_sources(path.parent, "bvh") if s.path.name == "02_01.bvh")
+    seq = read_source(src)
+    idx = subsample_indices(seq.num_frames, seq.fps, 60.0)[:240]
+    R = axis_angle_to_matrix(torch.as_tensor(seq.pose[idx], dtype=torch.float64)).numpy()
+    transl = seq.transl[idx].astype(np.float64)
+    J = rest_joints()
+    sig = signals_from_motion(R, transl, J, TRACKERS, 60.0)
+    res = track_sequence(Tracker.load(), sig)
+    f64 = torch.float64
+    _, p_true = forward_kinematics(torch.as_tensor(R), torch.as_tensor(J), torch.as_tensor(transl))
+    _, p_ours = forward_kinematics(torch.as_tensor(res.R_local), torch.as_tensor(J), torch.as_tensor(res.transl))
+    from smplik.tracking.fast import quaternion_to_matrix_np
+
+    yaw = heading_yaw(torch.as_tensor(quaternion_to_matrix_np(sig.rotations[:, 0]), dtype=f64))
+    R_rest = torch.eye(3, dtype=f64).repeat(len(idx), 24, 1, 1)
+    R_rest[:, 0] = rotation_about_y(yaw)
+    t_rest = torch.as_tensor(sig.positions[:, 3]) - torch.as_tensor(J[0])
+    _, p_rest = forward_kinematics(R_rest, torch.as_tensor(J), t_rest)
+    ours = (p_ours - p_true).norm(dim=-1).mean().item()
+    trivial = (p_rest - p_true).norm(dim=-1).mean().item()
+    assert res.R_local.shape[0] == len(idx)
+    assert ours < 0.6 * trivial, (ours, trivial)
