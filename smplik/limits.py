@@ -105,9 +105,10 @@ ALL_LIMITS = (INPUT_BYTES, ARRAY_BYTES, ARRAY_ELEMENTS, JSON_BYTES, TEXT_BYTES, 
               PICKLE_OBJECTS, PICKLE_BYTES, MEMORY_BYTES)
 """Every limit (the docs' security page lists each with its variable and default; a test keeps them in step)."""
 
-RENDER_BYTES_PER_PIXEL = 48
+RENDER_BYTES_PER_PIXEL = 64
 """Memory an offscreen render takes per output pixel (GL colour and depth buffers, their read-back, the float32
-compositing of overlay and marker passes): 8192 x 8192 measured 2.97 GB, i.e. 44 bytes a pixel."""
+compositing of overlay and marker passes, the PNG written): ``body render --width 8192 --height 8192`` (two
+4096 x 8192 views) peaked at 2.97 GB, i.e. 44 bytes a pixel of the views, plus a margin."""
 
 
 def check_array(shape: Iterable[Any], itemsize: int, source: str) -> int:

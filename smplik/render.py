@@ -164,6 +164,9 @@ def render(
     width, height = int(size[0]), int(size[1])
     if width < 1 or height < 1 or width > 16384 or height > 16384:
         raise RenderError(f"Image size {width} x {height} is outside 1..16384 pixels.")
+    from smplik.limits import check_render_size
+
+    check_render_size(width, height)  # the buffers a render of this size takes, before any is made
     pyrender = _pyrender()
     import trimesh
 

@@ -298,6 +298,12 @@ def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progres
            callback: Callable[[int, float], None] | None) -> dict[str, float]:
     from smplik.data.sampler import PoseSampler
 
+    from smplik.configs import check_network_memory
+
+    # the memory these sizes imply at this batch (weights, gradients, Adam, kept activations), before anything
+    # is allocated or written: every size may be inside its range while their product is not
+    check_network_memory(cfg.network, "training config", batch=cfg.batch_size, tokens=cfg.effectors.max_effectors,
+                         training=True)
     rank, world, own_group = _distributed()
     run = Path(cfg.out)
     if rank == 0:
