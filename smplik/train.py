@@ -296,9 +296,8 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
 
 def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progress: bool,
            callback: Callable[[int, float], None] | None) -> dict[str, float]:
-    from smplik.data.sampler import PoseSampler
-
     from smplik.configs import check_network_memory
+    from smplik.data.sampler import PoseSampler
 
     # the memory these sizes imply at this batch (weights, gradients, Adam, kept activations), before anything
     # is allocated or written: every size may be inside its range while their product is not

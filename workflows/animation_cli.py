@@ -83,16 +83,22 @@ def animate_cmd(
 
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True) as bar:
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
                                            foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
         task = bar.add_task("reading", total=None)
+        shown: list[tuple[str, int]] = []
 
         def progress(done: int, total: int, what: str) -> None:
             bar.update(task, completed=done, total=total, description=what)
+            if not console.is_terminal:  # a log or a pipe: plain lines, at each step and every 10 %
+                tenth = 10 * done // max(total, 1)
+                if not shown or shown[-1] != (what, tenth):
+                    shown.append((what, tenth))
+                    say(f"{what}: {done}/{total}")
 
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,

@@ -111,7 +111,7 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True) as bar:
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("effector recovery", total=None)
 
         def progress(done: int, total: int, name: str) -> None:

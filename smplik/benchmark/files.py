@@ -109,8 +109,9 @@ def _effector_data(rng: np.random.Generator, joint: np.ndarray, kind: np.ndarray
 
 
 SAMPLE_BYTES = 16384
-"""Memory one sample of a set takes (an upper estimate) while :func:`make_benchmark` builds it (float64 local and world rotations,
-positions, rest joints, effector layout and data, their float32 copies), checked before a set is drawn."""
+"""Memory one sample of a set takes (an upper estimate) while :func:`make_benchmark` builds it (float64 local and
+world rotations, positions, rest joints, effector layout and data, their float32 copies), checked before a set is
+drawn."""
 
 
 def make_benchmark(data: str | Path, out: str | Path, *, split: str = "test", seed: int = 0,
