@@ -170,7 +170,7 @@ class CappedReader:
         left = self.cap - self.count
         if size is None or size < 0:
             return left + 1
-        if size > left + 1:
+        if size > left:
             self._take(size)
         return size
 
