@@ -26,6 +26,16 @@ matrix's dense size is checked before it is expanded. So ``builtins.bytearray(2e
 ``numpy.ndarray((10**9,))`` or an object array of declared shape (10**9,) are refused before any memory
 is taken. Any other global raises :class:`UnsafePickleError` naming it.
 
+**Every call's cost is bounded by its arguments and counted before it runs.** ``str``/``int``/``float``/
+``complex``/``bool``/``slice`` take only numbers, text and bytes (``str(list_dag)`` would format 2**27 lists:
+refused by name); the items container constructors copy and the bytes calls and array states materialise are
+added to a per-stream budget (:data:`smplik.limits.PICKLE_OBJECTS`, :data:`smplik.limits.MEMORY_BYTES`) before
+the call; a dict key or set member whose hash would walk more than :data:`MAX_KEY_OBJECTS` objects (a tuple DAG)
+is refused before it is hashed (SETITEM(S), DICT, ADDITEMS, FROZENSET and ``dict``/``set`` calls). The whole
+object graph is checked once more after loading (:func:`check_object_graph`). Files are read as a stream
+capped at :data:`smplik.limits.PICKLE_BYTES` (:class:`smplik.limits.CappedReader`): a compressed pickle is
+inflated only as far as the unpickler reads, never whole.
+
 Opt-in for files you produced yourself: ``trust_pickle=True`` (CLI ``--trust-pickle``) loads estimator
 pickles with plain :func:`joblib.load`, i.e. runs whatever the file says.
 """
