@@ -22,6 +22,10 @@ from shape_inversion.options import (
 from smplik.cli.errors import say, user_errors
 from smplik.limits import DEFAULT_MAX_JOINTS
 
+PLAIN_PROGRESS_FROM = 1000
+"""Without a terminal (a log, a pipe), steps of at least this many items (frames, keyframes) print a progress line
+every 10 %; shorter ones print nothing but their result."""
+
 
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
@@ -94,7 +98,7 @@ def animate_cmd(
 
         def progress(done: int, total: int, what: str) -> None:
             bar.update(task, completed=done, total=total, description=what)
-            if not console.is_terminal:  # a log or a pipe: plain lines, at each step and every 10 %
+            if not console.is_terminal and total >= PLAIN_PROGRESS_FROM:  # a log or a pipe: every 10 % of long steps
                 tenth = 10 * done // max(total, 1)
                 if not shown or shown[-1] != (what, tenth):
                     shown.append((what, tenth))
