@@ -50,9 +50,8 @@ def cases(work: Path) -> dict[str, list[str]]:
     out["gzip .pkl declaring 4 GiB"] = ["scene", "from-estimate", str(d / "results.pkl"), "--out", str(d / "o"),
                                         "--no-previews"]
     d = folder("stride0")
-    view = torch.zeros(1).expand(199_000_000)
-    torch.save({"smpl_params_global": {"body_pose": view, "betas": view.clone().expand(199_000_000)}},
-               d / "hmr4d_results.pt")
+    torch.save({"smpl_params_global": {"body_pose": torch.zeros(1).expand(199_000_000),  # 4 bytes stored each
+                                       "betas": torch.zeros(1).expand(199_000_000)}}, d / "hmr4d_results.pt")
     out["two stride-0 .pt tensors of 199M elements (float64 conversion)"] = [
         "scene", "from-estimate", str(d / "hmr4d_results.pt"), "--out", str(d / "o"), "--no-previews"]
     d = folder("compressed_pt")
