@@ -28,6 +28,8 @@ from urllib.parse import unquote
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from smplik.limits import LimitError, check_array, check_input_file
+
 MAX_GLTF_BYTES = 512 * 1024 * 1024
 """Largest glTF/GLB file or external buffer read (bytes)."""
 
@@ -111,10 +113,12 @@ def _buffer_bytes(path: Path, gltf, index: int) -> bytes:
         if folder not in target.parents:
             raise GltfError(f"{where}: buffer uri {uri[:80]!r} leaves the glTF file's folder")
         try:
-            size = target.stat().st_size
+            size = check_input_file(target, "external buffer")  # a named pipe would block for ever: refused
             if size > MAX_GLTF_BYTES:
                 raise GltfError(f"{where}: external buffer {target.name} is {size} bytes (limit {MAX_GLTF_BYTES})")
             data = target.read_bytes()
+        except LimitError as exc:
+            raise GltfError(f"{where}: {exc}") from None
         except OSError as exc:
             raise GltfError(f"{where}: cannot read external buffer {uri[:80]!r}: {exc.strerror or exc}") from None
     length = buf.byteLength
@@ -159,9 +163,11 @@ def load_gltf(path: str | Path) -> GltfFile:
 
     path = Path(path)
     try:
-        size = path.stat().st_size
+        size = check_input_file(path, "glTF file")  # through links: z.glb -> /dev/zero is a device, refused
         with open(path, "rb") as fh:
             magic = fh.read(4)
+    except LimitError as exc:
+        raise GltfError(str(exc)) from None
     except OSError as exc:
         raise GltfError(f"Cannot read glTF file {path}: {exc.strerror or exc}") from None
     if size > MAX_GLTF_BYTES:
@@ -196,8 +202,12 @@ def read_accessor(doc: GltfFile, index: int) -> np.ndarray:
     if dtype is None or ncomp is None:
         raise GltfError(f"{where}: unsupported componentType {acc.componentType!r} / type {acc.type!r}")
     count = acc.count
-    if not isinstance(count, int) or count < 0:
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise GltfError(f"{where}: invalid count {count!r}")
+    try:  # the float64 array this accessor becomes, before anything is allocated (a count of 5e7 MAT4s: 6.4 GB)
+        check_array((count, ncomp), 8, f"{where} ({acc.type} x {count})")
+    except LimitError as exc:
+        raise GltfError(str(exc)) from None
     if acc.bufferView is None:
         out = np.zeros((count, ncomp))
     else:

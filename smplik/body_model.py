@@ -91,8 +91,10 @@ def read_model_arrays(path: str | Path) -> dict[str, np.ndarray]:
         if path.suffix == ".npz":
             raw: Any = read_npz(path, allow_objects=False)
         elif path.suffix == ".pkl":
+            from smplik.limits import PICKLE_BYTES, CappedReader
+
             with open(path, "rb") as fh:
-                raw = RestrictedUnpickler(fh, encoding="latin1").load()
+                raw = RestrictedUnpickler(CappedReader(fh, str(path), PICKLE_BYTES), encoding="latin1").load()
         else:
             raise ModelFileError(f"{path}: unsupported model file type {path.suffix!r} (expected .npz or .pkl).")
     except ModelFileError:

@@ -65,6 +65,64 @@ class NetworkConfig:
         return asdict(self)
 
 
+INFERENCE_BATCH = 4096
+"""Rows one solve may run at once (effector recovery tries every candidate of a step in one batch; a test-time
+ensemble multiplies the rows): the batch at which a model file's inference memory is estimated."""
+INFERENCE_TOKENS = 16
+"""Effectors per row at which a model file's inference memory is estimated."""
+_NUM_JOINTS, _COND, _SLOT_FEATURES = 24, 13, 21  # joints, beta (10) + gender one-hot (3), per-joint slot features
+
+
+def network_parameter_count(cfg: NetworkConfig) -> int:
+    """The number of weights :class:`smplik.network.ProtoResIK` allocates for ``cfg`` (computed, nothing built)."""
+    w, L, E, J = cfg.width, cfg.layers_per_block, cfg.embedding_dim, _NUM_JOINTS
+
+    def block(in_dim: int, out_dim: int, last: bool) -> int:
+        mlp = in_dim * w + w + (L - 1) * (w * w + w)
+        return mlp + (0 if last else in_dim * w + w) + w * out_dim + out_dim
+
+    def stack(in_dim: int, out_dim: int, blocks: int) -> int:
+        return sum(block(in_dim if r == 0 else w, out_dim, r == blocks - 1) for r in range(blocks))
+
+    token = 6 + 1 + 2 * E + _COND
+    slots = J * _SLOT_FEATURES if cfg.effector_slots else 0
+    context = w + _COND + slots
+    return ((J + 3) * E + stack(token, w, cfg.encoder_blocks) + stack(context, 3 * J, cfg.decoder_blocks)
+            + stack(context + 3 * J, 6 * J, cfg.decoder_blocks))
+
+
+def network_memory_bytes(cfg: NetworkConfig, *, batch: int, tokens: int, training: bool) -> int:
+    """Bytes a network of ``cfg`` takes at ``batch`` rows of ``tokens`` effectors, float32: the weights (times 4
+    when ``training``: gradients and Adam's two moments), plus the activations: every layer's output of the
+    encoder (``batch * tokens`` rows) and of both decoders (``batch`` rows), all of them kept for the backward
+    pass when ``training`` (and their gradients), else the few alive at once."""
+    w, L = cfg.width, cfg.layers_per_block
+    per_block = 2 * L + 4  # linear + relu outputs of each layer, skip, residual sum, block output, prototype step
+    encoder = batch * tokens * w * per_block * cfg.encoder_blocks
+    decoders = 2 * batch * w * per_block * cfg.decoder_blocks
+    if training:
+        activations = 2 * (encoder + decoders)
+    else:
+        activations = 4 * max(batch * tokens * w, batch * w)
+    return 4 * (network_parameter_count(cfg) * (4 if training else 1) + activations)
+
+
+def check_network_memory(cfg: NetworkConfig, source: str, *, batch: int = INFERENCE_BATCH,
+                         tokens: int = INFERENCE_TOKENS, training: bool = False) -> None:
+    """Refuse a network whose :func:`network_memory_bytes` is over :data:`smplik.limits.MEMORY_BYTES`, before
+    any layer is allocated (every size may be inside :data:`NETWORK_RANGES` while their product is not).
+
+    Raises:
+        smplik.limits.LimitError: naming ``source``, the sizes and ``SMPLIK_MAX_MEMORY_BYTES``.
+    """
+    from smplik.limits import MEMORY_BYTES
+
+    kind = f"training at batch {batch} x {tokens} effectors" if training else f"inference at batch {batch}"
+    MEMORY_BYTES.check(network_memory_bytes(cfg, batch=batch, tokens=tokens, training=training),
+                       f"{source}: a network of width {cfg.width}, {cfg.encoder_blocks}+{cfg.decoder_blocks}x2 "
+                       f"blocks of {cfg.layers_per_block} layers ({network_parameter_count(cfg)} weights), {kind}")
+
+
 @dataclass(frozen=True)
 class LossConfig:
     """Weights of the total loss (Algorithm 1):

@@ -20,7 +20,18 @@ limit                       environment variable              default
 :data:`PICKLE_OBJECTS`      ``SMPLIK_MAX_PICKLE_OBJECTS``     10**7 objects, shared references counted
                                                               as often as they are reachable (a DAG
                                                               counts as the tree it expands to)
+:data:`PICKLE_BYTES`        ``SMPLIK_MAX_PICKLE_BYTES``       512 MiB: a pickle stream once decompressed
+                                                              (``.pkl``/joblib, an object member of an
+                                                              ``.npz``/``.npy``), read with a running cap
+:data:`MEMORY_BYTES`        ``SMPLIK_MAX_MEMORY_BYTES``       1.5 GiB: what one step of work will allocate,
+                                                              estimated before it starts (a model's weights
+                                                              and activations, a render or decoded image, a
+                                                              dtype conversion, a parsed motion, a set of
+                                                              benchmark samples)
 ==========================  ================================  ============================================
+
+Inputs must be regular files (:func:`check_input_file`): a named pipe, a device (``/dev/zero``) or a
+socket, directly or through a symlink, is refused before it is opened, and sizes are read through links.
 
 Values are integers, optionally with a ``K``/``M``/``G`` suffix (powers of 1024): ``SMPLIK_MAX_INPUT_BYTES=8G``.
 The defaults keep any one input under 2 GB, which fits a 24 GB machine with room to spare.
@@ -34,8 +45,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ARRAY_BYTES", "ARRAY_ELEMENTS", "BVH_FRAMES", "IMAGE_PIXELS", "INPUT_BYTES", "JSON_BYTES", "PICKLE_OBJECTS",
-           "TEXT_BYTES", "Limit", "LimitError", "check_array", "check_npz", "check_tensors",
+__all__ = ["ALL_LIMITS", "ARRAY_BYTES", "ARRAY_ELEMENTS", "BVH_FRAMES", "IMAGE_PIXELS", "INPUT_BYTES", "JSON_BYTES",
+           "MEMORY_BYTES", "PICKLE_BYTES", "PICKLE_OBJECTS", "TEXT_BYTES", "CappedReader", "Limit", "LimitError",
+           "check_array", "check_input_file", "check_npz", "check_render_size", "check_tensors", "check_torch_zip",
            "read_bounded"]
 
 _SUFFIX = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
@@ -87,6 +99,16 @@ TEXT_BYTES = Limit("bytes (text file)", "SMPLIK_MAX_TEXT_BYTES", 128 << 20)
 IMAGE_PIXELS = Limit("pixels", "SMPLIK_MAX_IMAGE_PIXELS", 64_000_000)
 BVH_FRAMES = Limit("frames", "SMPLIK_MAX_BVH_FRAMES", 1_000_000)
 PICKLE_OBJECTS = Limit("objects (shared references counted each time)", "SMPLIK_MAX_PICKLE_OBJECTS", 10_000_000)
+PICKLE_BYTES = Limit("bytes (decompressed pickle stream)", "SMPLIK_MAX_PICKLE_BYTES", 512 << 20)
+MEMORY_BYTES = Limit("bytes (estimated memory of the work)", "SMPLIK_MAX_MEMORY_BYTES", 3 << 29)
+ALL_LIMITS = (INPUT_BYTES, ARRAY_BYTES, ARRAY_ELEMENTS, JSON_BYTES, TEXT_BYTES, IMAGE_PIXELS, BVH_FRAMES,
+              PICKLE_OBJECTS, PICKLE_BYTES, MEMORY_BYTES)
+"""Every limit (the docs' security page lists each with its variable and default; a test keeps them in step)."""
+
+RENDER_BYTES_PER_PIXEL = 64
+"""Memory an offscreen render takes per output pixel (GL colour and depth buffers, their read-back, the float32
+compositing of overlay and marker passes, the PNG written): ``body render --width 8192 --height 8192`` (two
+4096 x 8192 views) peaked at 2.97 GB, i.e. 44 bytes a pixel of the views, plus a margin."""
 
 
 def check_array(shape: Iterable[Any], itemsize: int, source: str) -> int:
@@ -104,13 +126,96 @@ def check_array(shape: Iterable[Any], itemsize: int, source: str) -> int:
     return size
 
 
+def check_input_file(path: str | Path, what: str = "input file") -> int:
+    """Check that ``path`` names a regular file, following symlinks (``z.glb -> /dev/zero`` is the device it
+    points at), before anything opens it: a named pipe would block the reader forever and a device reports
+    size 0 but never ends. Returns the real size in bytes (read through any link).
+
+    Raises:
+        FileNotFoundError / PermissionError: as ``os.stat`` (the CLI prints them as one line).
+        LimitError: a folder, a named pipe, a device or a socket (named).
+    """
+    import stat
+
+    st = os.stat(path)  # follows symlinks
+    mode = st.st_mode
+    if stat.S_ISREG(mode):
+        return int(st.st_size)
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a named pipe (FIFO)" if stat.S_ISFIFO(mode)
+            else "a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    link = f" (through a link to {os.path.realpath(path)})" if os.path.islink(path) else ""
+    raise LimitError(f"{path}: {what} is {kind}{link}; smplik reads only regular files.")
+
+
+class CappedReader:
+    """A binary file object that reads at most ``limit``'s value bytes from ``raw`` (a decompressing stream:
+    gzip/zlib/bz2/lzma) and raises :class:`LimitError` naming ``source`` as soon as a read would pass it, so a
+    decompression bomb stops at the cap instead of being inflated whole. A single read asking for more than
+    what is left is refused before anything is allocated. ``read``, ``readline``, ``readinto`` and ``peek``
+    (what :mod:`pickle` and joblib use) are supported."""
+
+    def __init__(self, raw: Any, source: str, limit: Limit | None = None) -> None:
+        self.raw, self.source = raw, source
+        self.limit = PICKLE_BYTES if limit is None else limit
+        self.cap = self.limit.value
+        self.count = 0
+
+    def _take(self, n: int) -> None:
+        if self.count + n > self.cap:
+            raise LimitError(f"{self.source}: more than {self.cap} {self.limit.what} (set {self.limit.env} to "
+                             "raise the limit if the file is genuine).")
+
+    def _room(self, size: int | None) -> int:
+        left = self.cap - self.count
+        if size is None or size < 0:
+            return left + 1
+        if size > left:
+            self._take(size)
+        return size
+
+    def room(self, size: int) -> None:
+        """Raise :class:`LimitError` when ``size`` more bytes would pass the cap (before they are allocated)."""
+        self._take(size)
+
+    def read(self, size: int | None = -1) -> bytes:
+        data = self.raw.read(self._room(size))
+        self.count += len(data)
+        self._take(0)
+        return data
+
+    def readline(self, size: int | None = -1) -> bytes:
+        data = self.raw.readline(self._room(size))
+        self.count += len(data)
+        self._take(0)
+        return data
+
+    def readinto(self, buffer: Any) -> int:
+        view = memoryview(buffer).cast("B")
+        data = self.read(len(view))
+        view[:len(data)] = data
+        return len(data)
+
+    def peek(self, size: int = 1) -> bytes:
+        peek = getattr(self.raw, "peek", None)
+        return peek(size) if peek is not None else b""
+
+    def seekable(self) -> bool:
+        return False
+
+    def readable(self) -> bool:
+        return True
+
+
 def read_bounded(path: str | Path, limit: Limit = TEXT_BYTES) -> bytes:
-    """The bytes of ``path``, reading at most ``limit`` + 1 of them (so ``/dev/zero``, a FIFO fed forever or
-    a file that grows while read cannot exhaust memory); :class:`LimitError` when there are more.
+    """The bytes of ``path``, reading at most ``limit`` + 1 of them (so a file that grows while read cannot
+    exhaust memory); :class:`LimitError` when there are more. ``path`` must be a regular file
+    (:func:`check_input_file`: a named pipe or a device is refused before it is opened).
 
     Raises:
         OSError: the file cannot be opened or read (the caller names it).
     """
+    check_input_file(path)
     cap = limit.value
     with open(path, "rb") as fh:
         data = fh.read(cap + 1)
@@ -151,7 +256,8 @@ def check_npz(path: str | Path) -> dict[str, tuple[tuple[int, ...], Any]]:
                                    else np.lib.format.read_array_header_2_0)
                     shape, _, dtype = read_header(fh, max_header_size=10000)
                     header_bytes = fh.tell()
-                if dtype.hasobject:
+                if dtype.hasobject:  # a pickle stream: its declared size within the pickle cap, before reading
+                    PICKLE_BYTES.check(info.file_size - header_bytes, f"{path}: object array '{name}' (a pickle)")
                     out[name] = (tuple(shape), dtype)
                     continue
                 size = check_array(tuple(shape), dtype.itemsize, f"{path}: array '{name}'")
@@ -172,29 +278,75 @@ def check_npz(path: str | Path) -> dict[str, tuple[tuple[int, ...], Any]]:
     return out
 
 
-def check_tensors(obj: Any, source: str, *, max_depth: int = 50) -> None:
+def check_tensors(obj: Any, source: str, *, max_depth: int = 50, as_itemsize: int | None = None) -> None:
     """Check every tensor in a loaded ``.pt`` structure (dicts, lists, tuples) before it is used: each
     tensor's *logical* size (shape x element size, what ``.numpy()``, ``.contiguous()`` or arithmetic
     allocate; a stride-0 view of one stored number counts as its full shape) within :func:`check_array`,
     and all of them together within :data:`INPUT_BYTES`.
 
+    ``as_itemsize``: the caller converts every floating-point tensor to this element size (8 for
+    ``.double()``): the elements that conversion materialises, across the whole file, must also fit
+    :data:`MEMORY_BYTES`, checked before any conversion.
+
     Raises:
         LimitError: naming ``source``, the key path and the limit's environment variable.
     """
-    total = 0
+    total = converted = 0
     stack: list[tuple[Any, str, int]] = [(obj, "", 0)]
     while stack:
         node, where, depth = stack.pop()
         if depth > max_depth:
             raise LimitError(f"{source}: nested deeper than {max_depth} levels.")
         if hasattr(node, "untyped_storage") and hasattr(node, "element_size"):  # a torch.Tensor
-            total += check_array(tuple(int(n) for n in node.shape), int(node.element_size()),
-                                 f"{source}: tensor {where or '(root)'}")
+            shape = tuple(int(n) for n in node.shape)
+            size = check_array(shape, int(node.element_size()), f"{source}: tensor {where or '(root)'}")
+            total += size
+            if as_itemsize is not None and node.is_floating_point():
+                converted += size // max(int(node.element_size()), 1) * as_itemsize
         elif isinstance(node, dict):
             stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in node.items())
         elif isinstance(node, (list, tuple)):
             stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(node))
     INPUT_BYTES.check(total, f"{source} (all tensors)")
+    if as_itemsize is not None:
+        MEMORY_BYTES.check(converted, f"{source} (all tensors as {8 * as_itemsize}-bit floats)")
+
+
+TORCH_COMPRESSED_MEMBER_BYTES = 64 << 20
+"""Largest compressed member a ``.pt`` zip may hold: ``torch.save`` stores every member uncompressed, so a
+large compressed one can only be a decompression bomb (refused from the zip directory, nothing inflated)."""
+
+
+def check_torch_zip(path: str | Path) -> None:
+    """Check a ``torch.save`` zip from its directory before ``torch.load`` reads anything: every storage
+    member's declared size within :data:`ARRAY_BYTES`, all together within :data:`INPUT_BYTES`, and no
+    compressed member over :data:`TORCH_COMPRESSED_MEMBER_BYTES` (torch never compresses). A file that is
+    not a zip (a legacy ``.pt``) is left to the loader.
+
+    Raises:
+        LimitError: over a limit (named, with its variable). ValueError: a compressed storage.
+    """
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = zf.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError):
+        return
+    for info in infos:
+        ARRAY_BYTES.check(info.file_size, f"{path}: member '{info.filename}'")
+        if info.compress_type != zipfile.ZIP_STORED and info.file_size > TORCH_COMPRESSED_MEMBER_BYTES:
+            raise LimitError(f"{path}: member '{info.filename}' is compressed and inflates to {info.file_size} "
+                             "bytes; torch.save never compresses, so this is not a torch file.")
+    INPUT_BYTES.check(sum(i.file_size for i in infos), f"{path} (uncompressed members)")
+
+
+def check_render_size(width: int, height: int, source: str = "render") -> None:
+    """An offscreen render of ``width`` x ``height`` within :data:`IMAGE_PIXELS` and, at
+    :data:`RENDER_BYTES_PER_PIXEL`, within :data:`MEMORY_BYTES` (checked before any buffer is made)."""
+    IMAGE_PIXELS.check(width * height, f"{source} ({width} x {height} image)")
+    MEMORY_BYTES.check(width * height * RENDER_BYTES_PER_PIXEL,
+                       f"{source} ({width} x {height} image at {RENDER_BYTES_PER_PIXEL} bytes a pixel)")
 
 
 DEFAULT_MAX_JOINTS = 10_000

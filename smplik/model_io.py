@@ -44,7 +44,7 @@ import numpy as np
 import torch
 
 from smplik.atomic import atomic_path
-from smplik.limits import check_tensors
+from smplik.limits import check_tensors, check_torch_zip
 from smplik.network import NetworkConfig, ProtoResIK
 
 __all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "average_models", "export_model",
@@ -150,10 +150,20 @@ def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[s
 
 
 def _network_config(state: Mapping[str, Any], path: Path) -> NetworkConfig:
+    """The file's network config, its implied memory (weights + activations at the inference batch) checked
+    against ``SMPLIK_MAX_MEMORY_BYTES`` before any layer is allocated."""
+    from smplik.configs import check_network_memory
+    from smplik.limits import LimitError
+
     try:
-        return NetworkConfig(**state["network"])
+        cfg = NetworkConfig(**state["network"])
     except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: key 'network' is not a network config ({exc}).") from None
+    try:
+        check_network_memory(cfg, f"{path}: key 'network'")
+    except LimitError as exc:
+        raise CheckpointError(str(exc)) from None
+    return cfg
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -233,6 +243,7 @@ def _safe_load(path: Path, *, legacy: bool) -> Any:
     if not path.is_file():
         raise FileNotFoundError(f"Model file not found: {path}")
     _check_archive(path)
+    check_torch_zip(path)  # declared member sizes within the input limits, before torch reads anything
     extra = legacy_numpy_globals() if legacy else []
     try:
         with warnings.catch_warnings(), torch.serialization.safe_globals(extra):

@@ -154,6 +154,9 @@ class Renderer:
         width, height = int(size[0]), int(size[1])
         if width < 1 or height < 1 or width > 16384 or height > 16384:
             raise RenderError(f"Image size {width} x {height} is outside 1..16384 pixels.")
+        from smplik.limits import check_render_size
+
+        check_render_size(width, height)  # the buffers a render of this size takes, before any is made
         self.size = (width, height)
         self._meshes: dict[int, tuple[MeshItem, object]] = {}  # id -> (item, pyrender mesh): items drawn again
         pyrender = _pyrender()

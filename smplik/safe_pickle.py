@@ -26,6 +26,16 @@ matrix's dense size is checked before it is expanded. So ``builtins.bytearray(2e
 ``numpy.ndarray((10**9,))`` or an object array of declared shape (10**9,) are refused before any memory
 is taken. Any other global raises :class:`UnsafePickleError` naming it.
 
+**Every call's cost is bounded by its arguments and counted before it runs.** ``str``/``int``/``float``/
+``complex``/``bool``/``slice`` take only numbers, text and bytes (``str(list_dag)`` would format 2**27 lists:
+refused by name); the items container constructors copy and the bytes calls and array states materialise are
+added to a per-stream budget (:data:`smplik.limits.PICKLE_OBJECTS`, :data:`smplik.limits.MEMORY_BYTES`) before
+the call; a dict key or set member whose hash would walk more than :data:`MAX_KEY_OBJECTS` objects (a tuple DAG)
+is refused before it is hashed (SETITEM(S), DICT, ADDITEMS, FROZENSET and ``dict``/``set`` calls). The whole
+object graph is checked once more after loading (:func:`check_object_graph`). Files are read as a stream
+capped at :data:`smplik.limits.PICKLE_BYTES` (:class:`smplik.limits.CappedReader`): a compressed pickle is
+inflated only as far as the unpickler reads, never whole.
+
 Opt-in for files you produced yourself: ``trust_pickle=True`` (CLI ``--trust-pickle``) loads estimator
 pickles with plain :func:`joblib.load`, i.e. runs whatever the file says.
 """
@@ -243,7 +253,7 @@ class _StorageRecordUnpickler(pickle._Unpickler):  # type: ignore[name-defined, 
         return pid
 
     def _instantiate(self, klass: Any, args: Any) -> None:
-        _check_call(klass, tuple(args))
+        _check_call(klass, tuple(args), budget=_budget(self))
         super()._instantiate(klass, args)
 
 
@@ -368,8 +378,65 @@ def _check_declared(shape: tuple, itemsize: int) -> None:
         raise UnsafePickleError(f"Refusing {exc}") from None
 
 
-def _check_call(func: Any, args: Any, kwargs: Any = None) -> None:
-    """Refuse a call from the pickle stream that could allocate from a number (see the module docstring)."""
+_SCALARS = (type(None), bool, int, float, complex, str, bytes, bytearray)
+"""What a scalar constructor (``int``, ``float``, ``str``, ``complex``, ``bool``, ``slice``) may take: its cost is
+the argument's own length, never a walk over objects (``str(list_dag)`` would format 2**27 lists)."""
+MAX_KEY_OBJECTS = 10_000
+"""Most objects a dict key or set member may expand to: hashing a tuple walks it (shared references each
+time), so a tuple DAG of a few bytes as a key would hash for ever."""
+
+
+class _CallBudget:
+    """What the calls of one pickle stream have materialised so far: container items they copied (within
+    :data:`smplik.limits.PICKLE_OBJECTS`) and bytes they allocated (within :data:`smplik.limits.MEMORY_BYTES`).
+    Every call adds its cost, computed from its arguments, *before* it runs."""
+
+    def __init__(self) -> None:
+        from smplik.limits import MEMORY_BYTES, PICKLE_OBJECTS
+
+        self.objects = self.bytes = 0
+        self.object_limit, self.byte_limit = PICKLE_OBJECTS, MEMORY_BYTES
+        self.max_objects, self.max_bytes = PICKLE_OBJECTS.value, MEMORY_BYTES.value
+
+    def add(self, *, objects: int = 0, nbytes: int = 0) -> None:
+        self.objects += objects
+        self.bytes += nbytes
+        for used, cap, limit in ((self.objects, self.max_objects, self.object_limit),
+                                 (self.bytes, self.max_bytes, self.byte_limit)):
+            if used > cap:
+                raise UnsafePickleError(f"Refusing a pickle whose calls would materialise more than {cap} "
+                                        f"{limit.what} (set {limit.env} to raise the limit if the file is genuine).")
+
+
+def _check_key(key: Any) -> None:
+    """A dict key / set member whose hash costs at most :data:`MAX_KEY_OBJECTS` objects (tuples walked with
+    shared references counted each time, sizes memoised: linear in the distinct objects)."""
+    if not isinstance(key, (tuple, frozenset)):
+        return
+    size: dict[int, int] = {}
+    stack: list[tuple[Any, bool]] = [(key, False)]
+    while stack:
+        node, done = stack.pop()
+        if done:
+            total = 1 + sum(size.get(id(c), 1) for c in node)
+            if total > MAX_KEY_OBJECTS:
+                raise UnsafePickleError(f"Refusing a dict key or set member that expands to more than "
+                                        f"{MAX_KEY_OBJECTS} objects in a pickle (hashing it would not end).")
+            size[id(node)] = total
+            continue
+        if id(node) in size:
+            continue
+        if len(stack) > MAX_KEY_OBJECTS:
+            raise UnsafePickleError(f"Refusing a dict key or set member of more than {MAX_KEY_OBJECTS} objects in "
+                                    "a pickle.")
+        stack.append((node, True))
+        stack.extend((c, False) for c in node if isinstance(c, (tuple, frozenset)) and id(c) not in size)
+
+
+def _check_call(func: Any, args: Any, kwargs: Any = None, budget: _CallBudget | None = None) -> None:
+    """Refuse a call from the pickle stream whose cost is not bounded by its arguments' own sizes (see the
+    module docstring), and add that cost to ``budget`` before the call runs."""
+    budget = _CallBudget() if budget is None else budget
     if kwargs:
         raise UnsafePickleError("Refusing a call with keyword arguments in a pickle.")
     if not isinstance(args, tuple):
@@ -386,29 +453,66 @@ def _check_call(func: Any, args: Any, kwargs: Any = None) -> None:
         if args and not isinstance(args[0], (bytes, bytearray, str)):
             raise UnsafePickleError(f"Refusing builtins.{name}({type(args[0]).__name__}) in a pickle: only bytes "
                                     "from the file are allowed, never a size.")
+        if len(args) > 1 and not all(isinstance(a, str) for a in args[1:]):
+            raise UnsafePickleError(f"Refusing builtins.{name} with a non-text encoding in a pickle.")
+        budget.add(nbytes=len(args[0]) if args else 0)
         return
     if func in (list, tuple, set, frozenset, dict, collections.OrderedDict):
-        if args and not isinstance(args[0], (list, tuple, set, frozenset, dict)):
+        if len(args) > 1 or (args and not isinstance(args[0], (list, tuple, set, frozenset, dict))):
             raise UnsafePickleError(f"Refusing builtins.{name}({type(args[0]).__name__}) in a pickle.")
+        if args:
+            budget.add(objects=len(args[0]))
+            if func in (set, frozenset) and not isinstance(args[0], (set, frozenset, dict)):
+                for item in args[0]:  # hashed by the call (members of a set or keys of a dict are hashed already)
+                    _check_key(item)
+            elif func in (dict, collections.OrderedDict) and not isinstance(args[0], dict):
+                for item in args[0]:  # (key, value) pairs
+                    _check_key(item[0] if isinstance(item, (tuple, list)) and item else item)
         return
     if func is collections.defaultdict:
-        if args and args[0] not in (None, list, dict, set, tuple, int, float, str):
+        if len(args) > 1 or (args and args[0] not in (None, list, dict, set, tuple, int, float, str)):
             raise UnsafePickleError("Refusing collections.defaultdict with a custom factory in a pickle.")
         return
     if func is storage_bytes_to_array:
         if len(args) != 1 or not isinstance(args[0], (bytes, bytearray)):
             raise UnsafePickleError("Refusing torch.storage._load_from_bytes of anything but bytes in a pickle.")
+        budget.add(nbytes=len(args[0]))
         return
-    if func in (np.dtype, ma.scalar, _frombuffer_function(), _encode_latin1, _reconstructor, rebuild_tensor_as_array,
-                int, float, str, complex, slice, bool):
+    if func in (int, float, str, complex, slice, bool):
+        bad = next((a for a in args if not isinstance(a, _SCALARS)), None)
+        if bad is not None or len(args) > 3:
+            raise UnsafePickleError(f"Refusing builtins.{name}({type(bad).__name__}) in a pickle: only numbers, text "
+                                    "and bytes are converted, never other objects (whose formatting has no bound).")
+        budget.add(nbytes=sum(len(a) for a in args if isinstance(a, (str, bytes, bytearray))))
         return
-    if isinstance(func, type) and issubclass(func, np.dtype):
+    if func is _encode_latin1:
+        budget.add(nbytes=len(args[0]) if args and isinstance(args[0], str) else 0)
+        return
+    if func is np.dtype or (isinstance(func, type) and issubclass(func, np.dtype)):
+        if not all(isinstance(a, (str, bool, int, type(None))) for a in args) or any(
+                isinstance(a, str) and len(a) > 64 for a in args):
+            raise UnsafePickleError(f"Refusing numpy.dtype{args!r:.60} in a pickle (a short type code only).")
+        return
+    if func is ma.scalar:
+        if not args or not isinstance(args[0], np.dtype) or len(args) > 2 or (
+                len(args) == 2 and not isinstance(args[1], (bytes, bytearray, int, float, complex, str))):
+            raise UnsafePickleError("Refusing numpy scalar() of anything but a dtype and its bytes in a pickle.")
+        _check_declared((1,), args[0].itemsize)
+        budget.add(nbytes=args[0].itemsize)
+        return
+    if func is rebuild_tensor_as_array:
+        size = args[2] if len(args) > 2 else None
+        if isinstance(args[0] if args else None, np.ndarray) and isinstance(size, tuple):
+            budget.add(nbytes=_declared_bytes(size, args[0].dtype.itemsize))
+        return
+    if func in (_frombuffer_function(), _reconstructor):  # a view of the file's bytes / an empty object
         return
     raise UnsafePickleError(f"Refusing to call {getattr(func, '__module__', '?')}.{name} in a pickle.")
 
 
-def _check_array_state(inst: np.ndarray, state: Any) -> None:
-    """An array's ``__setstate__`` allocates its declared shape before checking the data: check first."""
+def _check_array_state(inst: np.ndarray, state: Any, budget: _CallBudget | None = None) -> None:
+    """An array's ``__setstate__`` allocates its declared shape before checking the data: check first (and add
+    the copy it makes to ``budget``)."""
     if not (isinstance(state, tuple) and len(state) in (4, 5)):
         raise UnsafePickleError("Refusing an array state of unexpected form in a pickle.")
     shape, dtype, data = state[-4], state[-3], state[-1]
@@ -422,6 +526,22 @@ def _check_array_state(inst: np.ndarray, state: Any) -> None:
             raise UnsafePickleError(f"Refusing an object array of shape {shape} whose data does not match it.")
     elif not isinstance(data, (bytes, bytearray)) or len(data) != size:
         raise UnsafePickleError(f"Refusing an array of shape {shape} whose data does not match it.")
+    if budget is not None:
+        budget.add(objects=count if dtype.hasobject else 0, nbytes=size)
+
+
+def _budget(unpickler: Any) -> _CallBudget:
+    """The call budget of one unpickler (made at its first call)."""
+    budget = getattr(unpickler, "_smplik_budget", None)
+    if budget is None:
+        budget = unpickler._smplik_budget = _CallBudget()
+    return budget
+
+
+def _after_mark(unpickler: Any) -> list:
+    """The items a MARK-terminated opcode (SETITEMS, ADDITEMS, FROZENSET, DICT) is about to take: the stack
+    above the last mark (the pure-Python unpickler keeps them in ``stack`` and older stacks in ``metastack``)."""
+    return list(unpickler.stack)
 
 
 def _restricted_dispatch(base: dict) -> dict:
@@ -429,8 +549,32 @@ def _restricted_dispatch(base: dict) -> dict:
     table = base.copy()
 
     def load_reduce(self: Any) -> None:
-        _check_call(self.stack[-2], self.stack[-1])
+        _check_call(self.stack[-2], self.stack[-1], budget=_budget(self))
         base[pickle.REDUCE[0]](self)
+
+    def load_setitem(self: Any) -> None:
+        _check_key(self.stack[-2])
+        base[pickle.SETITEM[0]](self)
+
+    def load_setitems(self: Any) -> None:
+        for key in _after_mark(self)[::2]:
+            _check_key(key)
+        base[pickle.SETITEMS[0]](self)
+
+    def load_additems(self: Any) -> None:
+        for key in _after_mark(self):
+            _check_key(key)
+        base[pickle.ADDITEMS[0]](self)
+
+    def load_frozenset(self: Any) -> None:
+        for key in _after_mark(self):
+            _check_key(key)
+        base[pickle.FROZENSET[0]](self)
+
+    def load_dict(self: Any) -> None:
+        for key in _after_mark(self)[::2]:
+            _check_key(key)
+        base[pickle.DICT[0]](self)
 
     def load_newobj(self: Any) -> None:
         if self.stack[-1] != ():
@@ -446,10 +590,15 @@ def _restricted_dispatch(base: dict) -> dict:
     def load_build(self: Any) -> None:
         inst = self.stack[-2]
         if isinstance(inst, np.ndarray):
-            _check_array_state(inst, self.stack[-1])
+            _check_array_state(inst, self.stack[-1], _budget(self))
         base[pickle.BUILD[0]](self)
 
     table[pickle.REDUCE[0]] = load_reduce
+    table[pickle.SETITEM[0]] = load_setitem
+    table[pickle.SETITEMS[0]] = load_setitems
+    table[pickle.ADDITEMS[0]] = load_additems
+    table[pickle.FROZENSET[0]] = load_frozenset
+    table[pickle.DICT[0]] = load_dict
     table[pickle.NEWOBJ[0]] = load_newobj
     table[pickle.NEWOBJ_EX[0]] = load_newobj_ex
     table[pickle.BUILD[0]] = load_build
@@ -468,7 +617,7 @@ class RestrictedUnpickler(pickle._Unpickler):  # type: ignore[name-defined, misc
         return allowed_global(module, name)
 
     def _instantiate(self, klass: Any, args: Any) -> None:  # INST and OBJ opcodes
-        _check_call(klass, tuple(args))
+        _check_call(klass, tuple(args), budget=_budget(self))
         super()._instantiate(klass, args)
 
     def load(self) -> Any:
@@ -501,12 +650,12 @@ def _joblib_unpickler_class() -> type:
             return allowed_global(module, name)
 
         def _instantiate(self, klass: Any, args: Any) -> None:
-            _check_call(klass, tuple(args))
+            _check_call(klass, tuple(args), budget=_budget(self))
             super()._instantiate(klass, args)
 
         def load_build(self) -> None:
             if isinstance(self.stack[-2], np.ndarray):
-                _check_array_state(self.stack[-2], self.stack[-1])
+                _check_array_state(self.stack[-2], self.stack[-1], _budget(self))
             pickle._Unpickler.load_build(self)  # type: ignore[attr-defined]
             top = self.stack[-1]
             if not isinstance(top, NumpyArrayWrapper):
@@ -517,8 +666,11 @@ def _joblib_unpickler_class() -> type:
                                         f"arrays are allowed. {TRUST_HINT}")
             if not isinstance(wrapper.dtype, np.dtype):
                 raise UnsafePickleError("Refusing a joblib array without a dtype.")
-            _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
+            nbytes = _declared_bytes(tuple(wrapper.shape), wrapper.dtype.itemsize)
             _check_declared(tuple(wrapper.shape), wrapper.dtype.itemsize)
+            room = getattr(self.file_handle, "room", None)
+            if room is not None and not wrapper.dtype.hasobject:
+                room(nbytes)  # the stream cannot hold that many more bytes: refused before np.empty
             if wrapper.dtype.hasobject:  # a nested pickle stream: read it with the same restrictions
                 self.stack.append(RestrictedUnpickler(self.file_handle).load())
             else:
@@ -545,7 +697,7 @@ def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
         ValueError: missing, unreadable or corrupt file (named).
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ValueError(f"File not found: {path}")
     if trust_pickle:
         import joblib
@@ -553,26 +705,36 @@ def load_pickle(path: str | Path, *, trust_pickle: bool = False) -> Any:
         return joblib.load(path)
     from joblib.numpy_pickle_utils import _validate_fileobject_and_memmap
 
-    try:
+    from smplik.limits import CappedReader, LimitError, check_input_file
+
+    check_input_file(path, "pickle")
+
+    def load(encoding: str | None) -> Any:
+        """Unpickle straight from the (decompressing) stream, capped at :data:`smplik.limits.PICKLE_BYTES`."""
         with open(path, "rb") as raw, _validate_fileobject_and_memmap(raw, str(path), None) as (fobj, _):
             if isinstance(fobj, str):
                 raise ValueError(f"{path}: a joblib < 0.10 multi-file pickle; re-save it with a recent joblib.")
-            data = fobj.read()
-    except ValueError:
-        raise
-    except (OSError, EOFError, MemoryError) as exc:
-        raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc}).") from exc
+            stream = CappedReader(fobj, f"{path} (decompressed)")
+            if encoding is None:
+                return _joblib_unpickler_class()(str(path), stream, True).load()
+            return RestrictedUnpickler(stream, encoding=encoding).load()
+
     try:
         try:
-            obj = _joblib_unpickler_class()(str(path), io.BytesIO(data), True).load()
+            obj = load(None)
         except UnicodeDecodeError:  # Python 2 pickles of numpy arrays need latin1
-            obj = RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+            obj = load("latin1")
         check_object_graph(obj)
         return obj
+    except LimitError:
+        raise
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None
     except _READ_ERRORS as exc:
-        raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {str(exc)[:200]}).") from None
+        message = str(exc)
+        if isinstance(exc, ValueError) and message.startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable pickle ({type(exc).__name__}: {message[:200]}).") from None
 
 
 def read_npz(path: str | Path, *, allow_objects: bool = True) -> dict[str, Any]:
@@ -592,11 +754,12 @@ def read_npz(path: str | Path, *, allow_objects: bool = True) -> dict[str, Any]:
     """
     import zlib
 
-    from smplik.limits import check_npz
+    from smplik.limits import CappedReader, check_input_file, check_npz
 
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ValueError(f"File not found: {path}")
+    check_input_file(path, ".npz")
     declared = check_npz(path)
     out: dict[str, Any] = {}
     try:
@@ -611,7 +774,8 @@ def read_npz(path: str | Path, *, allow_objects: bool = True) -> dict[str, Any]:
                         header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                                   else np.lib.format.read_array_header_2_0)
                         header(fh, max_header_size=10000)
-                        value = RestrictedUnpickler(io.BytesIO(fh.read()), encoding="latin1").load()
+                        value = RestrictedUnpickler(CappedReader(fh, f"{path}: array '{name}'"),
+                                                    encoding="latin1").load()
                         if isinstance(value, np.ndarray) and value.shape == () and value.dtype.hasobject:
                             value = value.item()
                         out[name] = value
@@ -639,9 +803,12 @@ def read_npy(path: str | Path) -> Any:
         UnsafePickleError: a refused global in the object array (named).
         ValueError: a missing or corrupt file (named).
     """
+    from smplik.limits import CappedReader, LimitError, check_input_file
+
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ValueError(f"File not found: {path}")
+    check_input_file(path, ".npy")
     try:
         with open(path, "rb") as fh:
             version = np.lib.format.read_magic(fh)
@@ -651,7 +818,9 @@ def read_npy(path: str | Path) -> Any:
             if not dtype.hasobject:
                 fh.seek(0)
                 return np.load(fh, allow_pickle=False)
-            value = RestrictedUnpickler(fh, encoding="latin1").load()
+            value = RestrictedUnpickler(CappedReader(fh, str(path)), encoding="latin1").load()
+    except LimitError:
+        raise
     except UnsafePickleError as exc:
         raise UnsafePickleError(f"{path}: {exc}") from None
     except _READ_ERRORS as exc:

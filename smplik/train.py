@@ -306,8 +306,13 @@ def train(cfg: TrainConfig, *, resume: bool = True, progress: bool = True,
 
 def _train(cfg: TrainConfig, interrupt: _InterruptFlag, *, resume: bool, progress: bool,
            callback: Callable[[int, float], None] | None) -> dict[str, float]:
+    from smplik.configs import check_network_memory
     from smplik.data.sampler import PoseSampler
 
+    # the memory these sizes imply at this batch (weights, gradients, Adam, kept activations), before anything
+    # is allocated or written: every size may be inside its range while their product is not
+    check_network_memory(cfg.network, "training config", batch=cfg.batch_size, tokens=cfg.effectors.max_effectors,
+                         training=True)
     rank, world, own_group = _distributed()
     run = Path(cfg.out)
     if rank == 0:

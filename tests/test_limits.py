@@ -7,6 +7,7 @@ raising that variable lets the same input through (so the check is the limit, no
 from __future__ import annotations
 
 import io
+import os
 import pickle
 import subprocess
 import sys
@@ -173,8 +174,19 @@ def test_image_pixels_are_checked_from_the_header(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("args", [["solve", "/dev/zero", "--out", "{tmp}/o.json"],
                                   ["scene", "solve", "/dev/zero", "--out", "{tmp}/o.json"]])
-def test_json_readers_read_a_bounded_amount(tmp_path, args):
+def test_json_readers_refuse_devices_and_read_a_bounded_amount(tmp_path, args):
     proc = subprocess.run([sys.executable, "-m", "smplik.cli", *[a.format(tmp=tmp_path) for a in args]],
                           capture_output=True, text=True, cwd=ROOT, timeout=300)
     lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 1 and len(lines) == 1 and "SMPLIK_MAX_JSON_BYTES" in lines[0], proc.stderr
+    assert proc.returncode == 1 and len(lines) == 1 and "/dev/zero: input file is a character device" in lines[0], \
+        proc.stderr
+    from smplik.limits import JSON_BYTES, read_bounded
+
+    big = tmp_path / "big.json"
+    big.write_bytes(b" " * 2000)
+    os.environ["SMPLIK_MAX_JSON_BYTES"] = "1000"
+    try:
+        with pytest.raises(LimitError, match="SMPLIK_MAX_JSON_BYTES"):
+            read_bounded(big, JSON_BYTES)
+    finally:
+        del os.environ["SMPLIK_MAX_JSON_BYTES"]

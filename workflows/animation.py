@@ -338,9 +338,11 @@ def read_folder_clip(path: Path, *, format: str = "auto", trust_pickle: bool = F
 
 def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
               max_people: int | None = None, max_bytes: int | None = None, solver: Any = None,
-              frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES) -> Clip:
-    """Read the people of every frame (or frames A..B-1; at most ``max_frames``) of an estimator file, by track."""
-    from workflows.estimators import MAX_BYTES, MAX_PEOPLE, _load_raw, detect_format, people_from_data
+              frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES,
+              progress: Callable[[int, int, str], None] | None = None) -> Clip:
+    """Read the people of every frame (or frames A..B-1; at most ``max_frames``) of an estimator file, by track;
+    ``progress(done, total, "reading frames")`` is called every 1 % of the frames."""
+    from workflows.estimators import MAX_BYTES, _load_raw, detect_format
 
     path = Path(path)
     if path.is_dir():
@@ -365,13 +367,32 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
     if len(wanted) > max_frames:
         raise AnimationError(f"{path}: {len(wanted)} frames to read; refusing more than {max_frames} "
                              "(--frames A:B reads a part; max_frames / --max-frames raises the cap).")
-    tracks: dict[str, list[tuple[int, EstimatedPerson]]] = {}
+    every = max(1, len(wanted) // 100)
+    from workflows.estimators.base import reading_frames
+
     notes: dict[str, None] = {}
     if fmt == "phalp" and isinstance(data, dict) and data:  # frames are named: say how the numbers map to names
         names = sorted(data, key=str)
         notes[f"{path}: {length} frames, numbered 0..{length - 1} in name order (frame 0 is {str(names[0])!r}, "
               f"frame {length - 1} is {str(names[-1])!r}); --frames A:B counts the same way."] = None
-    for f in wanted:
+    with reading_frames():  # each array converted once, not once per frame
+        tracks = _read_frames(data, path, fmt, wanted, max_people, space, solver, progress, every, notes)
+    if not tracks:
+        raise AnimationError(f"{path}: no people in frames {start}..{stop - 1}.")
+    return Clip(str(path), fmt, length, tracks, stored_fps(data, fmt), "world" if is_world else "camera",
+                tuple(notes))
+
+
+def _read_frames(data: Any, path: Path, fmt: str, wanted: Sequence[int], max_people: int | None, space: str | None,
+                 solver: Any, progress: Callable[[int, int, str], None] | None, every: int,
+                 notes: dict[str, None]) -> dict[str, list[tuple[int, EstimatedPerson]]]:
+    """The people of the ``wanted`` frames by track; the readers' notes are added to ``notes``."""
+    from workflows.estimators import MAX_PEOPLE, people_from_data
+
+    tracks: dict[str, list[tuple[int, EstimatedPerson]]] = {}
+    for n, f in enumerate(wanted):
+        if progress is not None and n % every == 0:
+            progress(n, len(wanted), "reading frames")
         try:
             people = _noted(lambda f=f: people_from_data(
                 data, source=str(path), format=fmt, frame=f,  # type: ignore[arg-type]
@@ -383,10 +404,7 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
             raise
         for p in people:
             tracks.setdefault(str(p.person_id), []).append((f, p))
-    if not tracks:
-        raise AnimationError(f"{path}: no people in frames {start}..{stop - 1}.")
-    return Clip(str(path), fmt, length, tracks, stored_fps(data, fmt), "world" if is_world else "camera",
-                tuple(notes))
+    return tracks
 
 
 def check_track(track_id: str, rows: list[tuple[int, EstimatedPerson]], frames: tuple[int, int] | None,
@@ -686,6 +704,8 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
     clean_cfg = camera_clean(config.clean, clip.space)
     tracks, motions, targets, scales, owners = [], [], [], [], []
     for n, tid in enumerate(ids):
+        if progress is not None:
+            progress(n, len(ids), "cleaning")
         rows = clip.tracks[tid]
         people = [p for _, p in rows]
         if character is None:
@@ -760,7 +780,7 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
         character = load_character(character_path, options)
         skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
     clip = read_clip(results_path, format=format, trust_pickle=trust_pickle, space=space, max_people=max_people,
-                     max_bytes=max_bytes, solver=solver, frames=span, max_frames=max_frames)
+                     max_bytes=max_bytes, solver=solver, frames=span, max_frames=max_frames, progress=progress)
     first = next(iter(clip.tracks.values()))[0][1]
     animation, motions = animation_from_clip(clip, solver, fps=fps, track=track, frames=span, character=character,
                                              skeleton=skeleton, config=config, camera=first.camera,

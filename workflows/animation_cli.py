@@ -22,6 +22,10 @@ from shape_inversion.options import (
 from smplik.cli.errors import say, user_errors
 from smplik.limits import DEFAULT_MAX_JOINTS
 
+PLAIN_PROGRESS_FROM = 1000
+"""Without a terminal (a log, a pipe), steps of at least this many items (frames, keyframes) print a progress line
+every 10 %; shorter ones print nothing but their result."""
+
 
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
@@ -99,9 +103,15 @@ def animate_cmd(
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
         task = bar.add_task("reading", total=None)
+        shown: list[tuple[str, int]] = []
 
         def progress(done: int, total: int, what: str) -> None:
             bar.update(task, completed=done, total=total, description=what)
+            if not console.is_terminal and total >= PLAIN_PROGRESS_FROM:  # a log or a pipe: every 10 % of long steps
+                tenth = 10 * done // max(total, 1)
+                if not shown or shown[-1] != (what, tenth):
+                    shown.append((what, tenth))
+                    say(f"{what}: {done}/{total}")
 
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,

@@ -170,8 +170,12 @@ def render_cmd(
             raise FileNotFoundError(errno.ENOENT, "--image: no such file", str(image))
         background = None
         if src is not None and src.is_file() and loaded.camera is not None:
+            from smplik.limits import LimitError
+
             try:
                 background = load_image(src)
+            except LimitError:
+                raise  # over a limit: its own line (names the variable)
             except (OSError, ValueError, SyntaxError, MemoryError) as exc:  # PIL/matplotlib on a bad file
                 fail(f"{src}: not a readable image ({type(exc).__name__}: {exc})")
         save_png(render_scene(loaded, image=background), out)

@@ -221,21 +221,25 @@ def plot_recovery_errors(errors_m: Sequence[float], path: str | Path, *, title: 
 
 
 def load_image(path: str | Path) -> np.ndarray:
-    """An image file as RGB uint8 (H, W, 3); its pixel count (from the header, before decoding) within
-    :data:`smplik.limits.IMAGE_PIXELS`."""
-    import matplotlib.image
+    """An image file as RGB uint8 (H, W, 3), decoded straight to uint8 (never float32). Before decoding: a
+    regular file (:func:`smplik.limits.check_input_file`), its pixel count (from the header) within
+    :data:`smplik.limits.IMAGE_PIXELS` and its decoded size (4 bytes a pixel, twice: the decoded image and
+    its RGB copy) within :data:`smplik.limits.MEMORY_BYTES`."""
     from PIL import Image
 
-    from smplik.limits import IMAGE_PIXELS
+    from smplik.limits import IMAGE_PIXELS, MEMORY_BYTES, check_input_file
 
-    with warnings.catch_warnings():  # PIL warns over 89 Mpx (several stderr lines); the limit below decides
+    check_input_file(path, "image")
+    with warnings.catch_warnings():  # PIL warns over 89 Mpx (several stderr lines); the limits below decide
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-        with Image.open(path) as header:  # reads the header only
-            width, height = header.size
-    IMAGE_PIXELS.check(width * height, f"{path} ({width} x {height} image)")
-    img = matplotlib.image.imread(str(path))
-    if img.dtype != np.uint8:
-        img = (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
-    if img.ndim == 2:
-        img = np.repeat(img[..., None], 3, axis=-1)
-    return np.ascontiguousarray(img[..., :3])
+        with Image.open(path) as img:  # reads the header only
+            width, height = img.size
+            IMAGE_PIXELS.check(width * height, f"{path} ({width} x {height} image)")
+            MEMORY_BYTES.check(width * height * 8, f"{path} ({width} x {height} image decoded at 8 bytes a pixel)")
+            if img.mode in ("I", "I;16", "I;16B", "I;16L", "I;16N"):  # 16-bit grey: keep the top 8 bits
+                grey = (np.asarray(img).astype(np.uint32) >> 8).clip(0, 255).astype(np.uint8)
+                return np.ascontiguousarray(np.repeat(grey[..., None], 3, axis=-1))
+            if img.mode == "F":
+                grey = (np.clip(np.asarray(img), 0.0, 1.0) * 255).astype(np.uint8)
+                return np.ascontiguousarray(np.repeat(grey[..., None], 3, axis=-1))
+            return np.ascontiguousarray(np.asarray(img.convert("RGB"), dtype=np.uint8))

@@ -108,6 +108,12 @@ def _effector_data(rng: np.random.Generator, joint: np.ndarray, kind: np.ndarray
     return data
 
 
+SAMPLE_BYTES = 16384
+"""Memory one sample of a set takes (an upper estimate) while :func:`make_benchmark` builds it (float64 local and
+world rotations, positions, rest joints, effector layout and data, their float32 copies), checked before a set is
+drawn."""
+
+
 def make_benchmark(data: str | Path, out: str | Path, *, split: str = "test", seed: int = 0,
                    samples_per_count: int = 500, model_dir: str | Path | None = None) -> Path:
     """Write the benchmark files (see the module docstring) into ``out``; returns the manifest path.
@@ -119,6 +125,10 @@ def make_benchmark(data: str | Path, out: str | Path, *, split: str = "test", se
 
     if samples_per_count < 1:
         raise ValueError(f"samples_per_count must be positive, got {samples_per_count}.")
+    from smplik.limits import MEMORY_BYTES
+
+    MEMORY_BYTES.check(samples_per_count * SAMPLE_BYTES, f"--samples-per-count {samples_per_count} (one set's "
+                       f"arrays at {SAMPLE_BYTES} bytes a sample)")
     dataset = load_cache(data).subset(split)
     if len(dataset) == 0:
         raise ValueError(f"{data}: the {split!r} split is empty.")

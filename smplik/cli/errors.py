@@ -86,11 +86,15 @@ def say(message: str) -> None:
 @contextlib.contextmanager
 def user_errors() -> Iterator[None]:
     """Inside a command: a user error (or a ``ValueError`` from the library's validation) becomes the one
-    line and exit 1 (:func:`fail`); anything else propagates with its traceback."""
+    line and exit 1 (:func:`fail`); Ctrl-C becomes one ``error: interrupted`` line and exit 130; anything else
+    propagates with its traceback."""
     try:
         yield
     except typer.BadParameter as exc:  # raised by a command body: one line too
         fail(exc.format_message())
+    except KeyboardInterrupt:  # Ctrl-C: one line, the shell's status for SIGINT; writes are atomic
+        print_error("interrupted (Ctrl-C): stopped; no file was left half-written.")
+        raise typer.Exit(130) from None
     except (typer.Exit, typer.Abort, SystemExit, _CLICK_EXCEPTION):
         raise
     except Exception as exc:

@@ -120,6 +120,9 @@ def _to_numpy(value: Any, depth: int = 0) -> Any:
 def _load_torch(path: Path) -> Any:
     import torch
 
+    from smplik.limits import check_torch_zip
+
+    check_torch_zip(path)  # declared sizes and no compressed storage, before torch reads anything
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError, TypeError, AttributeError,
@@ -129,7 +132,8 @@ def _load_torch(path: Path) -> Any:
                                   f"{first[:200]}).") from None
     from smplik.limits import check_tensors
 
-    check_tensors(data, str(path))  # before .numpy(): a stride-0 view expands to its full shape
+    # before .numpy(): a stride-0 view expands to its full shape, and .double() makes every float tensor real
+    check_tensors(data, str(path), as_itemsize=8)
     return _to_numpy(data)
 
 
@@ -141,13 +145,13 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
         raise EstimateFormatError(f"{path}: {MESH_HINT}")
     if suffix not in SUFFIXES:
         raise EstimateFormatError(f"{path}: unsupported file type {suffix!r} (expected {', '.join(SUFFIXES)}).")
+    from smplik.limits import JSON_BYTES, check_input_file, read_bounded
+
+    size = check_input_file(path, "estimator output")  # a pipe or a device is refused; the size read through links
     if suffix in (".npz", ".pt", ".pth"):
         _check_zip(path, max_bytes)
-    elif suffix == ".npy" and path.stat().st_size > max_bytes:
-        raise EstimateFormatError(f"{path}: {path.stat().st_size / 2**20:.0f} MiB is over the "
-                                  f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
-    elif path.stat().st_size > max_bytes:
-        raise EstimateFormatError(f"{path}: {path.stat().st_size / 2**20:.0f} MiB is over the "
+    elif size > max_bytes:
+        raise EstimateFormatError(f"{path}: {size / 2**20:.0f} MiB is over the "
                                   f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
     try:
         if suffix == ".npz":
@@ -158,7 +162,7 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
             return read_npy(path)
         if suffix == ".json":
             try:
-                return json.loads(path.read_text(encoding="utf-8"))
+                return json.loads(read_bounded(path, JSON_BYTES).decode("utf-8"))
             except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
                 raise EstimateFormatError(f"{path}: cannot read JSON ({type(exc).__name__}: "
                                           f"{str(exc)[:200]}).") from None

@@ -39,7 +39,9 @@ then exactly the estimator's camera, so previews overlay the source image with
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -263,8 +265,36 @@ def camera_to_world(global_orient_cam: np.ndarray, pelvis_cam: np.ndarray,
     return go, pelvis_cam @ M_WORLD_CAMERA.T - J0
 
 
+_FINITE_CACHE: dict[int, tuple[Any, np.ndarray]] | None = None
+
+
+@contextlib.contextmanager
+def reading_frames() -> Iterator[None]:
+    """While active, :func:`finite` converts and checks each array once: reading a clip frame by frame calls a
+    reader with the whole file per frame, and converting every array again made that quadratic in the frames
+    (100,000 AIST++ frames: 0.1 s a frame). Arrays are keyed by identity and kept alive until the end."""
+    global _FINITE_CACHE
+    previous, _FINITE_CACHE = _FINITE_CACHE, {}
+    try:
+        yield
+    finally:
+        _FINITE_CACHE = previous
+
+
 def finite(value: Any, name: str, source: str) -> np.ndarray:
     """``value`` as a finite float64 array, or an :class:`EstimateFormatError` naming ``name``."""
+    cache = _FINITE_CACHE
+    if cache is not None and isinstance(value, np.ndarray):
+        hit = cache.get(id(value))
+        if hit is not None and hit[0] is value:
+            return hit[1]
+        arr = _finite(value, name, source)  # shared by every frame (as a float64 input always was)
+        cache[id(value)] = (value, arr)
+        return arr
+    return _finite(value, name, source)
+
+
+def _finite(value: Any, name: str, source: str) -> np.ndarray:
     if isinstance(value, (str, bytes, dict)) or value is None:
         raise EstimateFormatError(f"{source}: '{name}' must be numbers, got {type(value).__name__}.")
     try:

@@ -48,8 +48,10 @@ def _meta(npz: Path, source: str) -> tuple[np.ndarray, np.ndarray] | None:
     path = npz.parent.parent / "meta" / f"{npz.stem}.json"
     if not path.is_file():
         return None
+    from smplik.limits import JSON_BYTES, read_bounded
+
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
+        meta = json.loads(read_bounded(path, JSON_BYTES).decode("utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise EstimateFormatError(f"{path}: cannot read JSON ({type(exc).__name__}).") from None
     focal = base.finite(base.require(meta, "focal", str(path)), "focal", str(path)).reshape(-1)
