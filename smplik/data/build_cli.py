@@ -29,7 +29,7 @@ class StorageDtype(str, Enum):
 OutOpt = Annotated[Path, typer.Option("--out", help="Cache file to write (.npz); replaced atomically.")]
 SplitOpt = Annotated[Path | None, typer.Option("--split", help="Split file (CMU split.json format; default: every "
                                                 "clip in train, or see --split-by-subject).")]
-SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar="SEED", help="Instead of a split "
+SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar="SEED", min=0, help="Instead of a split "
                                                   "file: a seeded random split of the subjects (10 % validation, "
                                                   "10 % test).")]
 BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH files (searched recursively).")]
