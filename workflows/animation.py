@@ -207,7 +207,7 @@ def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
             return len(data["smpl_poses"])
         if fmt == "amass":
             return len(data["poses"])
-    except (KeyError, TypeError, ValueError, AttributeError):
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):  # inf/1e300 frame ids, ...
         pass  # the per-frame reader names the problem
     return 1
 
