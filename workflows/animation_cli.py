@@ -20,6 +20,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.cli.errors import say, user_errors
+from smplik.cli.options import check_fps
 from smplik.limits import DEFAULT_MAX_JOINTS
 
 
@@ -83,6 +84,7 @@ def animate_cmd(
 
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
+    check_fps(fps)
     with user_errors(), Progress(console=console, transient=True) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
                                            foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
