@@ -82,9 +82,9 @@ def animate_cmd(
     from workflows.motion_clean import CleanConfig
     from workflows.recovery import RecoveryConfig
 
+    check_fps(fps)
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
-    check_fps(fps)
     with user_errors(), Progress(console=console, transient=True) as bar:
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
                                            foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
