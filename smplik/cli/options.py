@@ -88,7 +88,7 @@ def check_image(path: Path | None, option: str = "--image") -> Path | None:
         with Image.open(path) as image:  # the header only
             image.size  # noqa: B018 - parsed from the header
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
-        raise typer.BadParameter(f"{text} is not a readable image ({type(exc).__name__}).", param_hint=option) \
+        raise typer.BadParameter(f"{text}: not a readable image ({type(exc).__name__}).", param_hint=option) \
             from None
     return path
 
