@@ -64,10 +64,11 @@ class EnsembleConfig:
         """``"none"``, ``"mirror"``, ``"yawK"`` or ``"mirror+yawK"`` (e.g. ``mirror+yaw4``); strictly: no empty
         part, no part twice, ``none`` alone."""
         parts = [p.strip() for p in str(text).lower().split("+")]
-        expected = f"must be none, mirror, yawK or mirror+yawK (e.g. mirror+yaw4), got {text!r:.40}."
+        unknown = (f"Unknown ensemble {text!r:.40}; expected none, mirror, yawK or mirror+yawK (e.g. mirror+yaw4), "
+                   "each part once.")
         if any(not p for p in parts) or len(set(parts)) != len(parts) or len(parts) > 2 \
                 or ("none" in parts and len(parts) > 1):
-            raise ValueError(f"the ensemble {expected}")
+            raise ValueError(unknown)
         if parts == ["none"]:
             return cls()
         yaw, mirror = 1, False
@@ -78,7 +79,7 @@ class EnsembleConfig:
             elif yaw_match and sum(p.startswith("yaw") for p in parts) == 1:
                 yaw = int(yaw_match.group(1))
             else:
-                raise ValueError(f"the ensemble {expected}")
+                raise ValueError(unknown)
         return cls(yaw=yaw, mirror=mirror)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -175,7 +176,7 @@ def test_ensemble_accepts_each_part_once(text, yaw, mirror):
 def test_ensemble_refuses_empty_repeated_or_unknown_parts(text):
     from smplik.ensemble import EnsembleConfig
 
-    with pytest.raises(ValueError, match="ensemble must be"):
+    with pytest.raises(ValueError, match=re.escape(f"Unknown ensemble {text!r}")):
         EnsembleConfig.parse(text)
 
 
