@@ -20,6 +20,10 @@ files and estimator files, mutated benchmark manifests, BVH files declaring 10**
 ``smplik edit`` with raw WebSocket clients from foreign and null origins and with missing or wrong tokens
 (a client that gets in counts as ``payload_run``). Outputs that a run may replace hold a sentinel first:
 a failed run must leave it, a successful one must write a complete file (else ``corrupted_output``).
+Then the round-3 cases of issue 36 (``benchmarks/fuzz_round3.py``: config values, pose-cache values, WHAM
+``frame_ids``, glTF numbers and bufferViews, outputs that are inputs or empty, strict options); an input a
+case names in ``keep`` must come out byte-identical (else ``input_overwritten``). ``--round3-only`` runs
+just those (``benchmarks/results/fuzz_round3.json``).
 
     PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 240 --workers 2
 

@@ -47,6 +47,14 @@ def _paths(value: Any) -> list[Path]:
     return [Path(v) for v in items if isinstance(v, (str, Path)) and str(v)]
 
 
+def _exists(path: Path, *, file: bool = False) -> bool:
+    """``path.exists()`` (``is_file()`` with ``file``), False for a name the OS cannot look up (too long, NUL)."""
+    try:
+        return path.is_file() if file else path.exists()
+    except (OSError, ValueError):
+        return False
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return os.path.samefile(a, b)
@@ -60,7 +68,7 @@ def check_outputs(command_path: str, params: dict[str, Any]) -> None:
     ``command_path`` is the command's name without the program (``"scene export"``); ``params`` click's
     parsed parameters (name -> value)."""
     outputs = [(name, p) for name in OUTPUT_PARAMS & params.keys() for p in _paths(params[name])]
-    outputs = [(name, p) for name, p in outputs if p.exists()]
+    outputs = [(name, p) for name, p in outputs if _exists(p)]
     if not outputs:
         return
     allowed = IN_PLACE.get(command_path)
@@ -68,7 +76,7 @@ def check_outputs(command_path: str, params: dict[str, Any]) -> None:
               for p in _paths(value)]
     for out_name, out in outputs:
         for in_name, inp in inputs:
-            if inp.is_file() and _same_file(out, inp):
+            if _exists(inp, file=True) and _same_file(out, inp):
                 option = "--" + ("render" if out_name == "render_png" else out_name).replace("_", "-")
                 raise OutputPathError(f"{option} {out} is the input file {inp} ({in_name.replace('_', '-')}): "
                                       "refusing to overwrite an input; give another output path.")
