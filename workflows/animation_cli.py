@@ -82,7 +82,8 @@ def animate_cmd(
     from workflows.motion_clean import CleanConfig
     from workflows.recovery import RecoveryConfig
 
-    check_fps(fps)
+    with user_errors():  # one line also when the command runs outside smplik's top level
+        check_fps(fps)
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:

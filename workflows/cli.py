@@ -109,7 +109,8 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
     if space not in (None, "camera", "world"):
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
-    check_image(image)
+    with user_errors():
+        check_image(image)
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True) as bar:
