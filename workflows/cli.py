@@ -183,6 +183,8 @@ def render_cmd(
             src = scene.parent / src
         check_image(image)
         background = None
+        if image is not None and loaded.camera is None:
+            say(f"notice: the scene holds no camera, so --image {image} is not drawn under the characters.")
         if src is not None and src.is_file() and loaded.camera is not None:
             try:
                 background = load_image(src)

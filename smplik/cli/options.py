@@ -63,9 +63,9 @@ def check_fps(fps: float | None, option: str = "--fps") -> float | None:
 
 
 def check_image(path: Path | None, option: str = "--image") -> Path | None:
-    """``path`` when None or a local, non-empty, regular file whose header is an image PIL knows (its size is
-    checked where it is decoded); else one ``typer.BadParameter``: a URL, a folder, a device or pipe, an empty
-    file or a non-image are never ignored silently."""
+    """``path`` when None or a local, non-empty, regular file; else one ``typer.BadParameter``: a URL, a folder,
+    a device or pipe, a missing or empty file are never ignored silently. Its content is checked where it is
+    decoded (``scene from-estimate --no-previews`` only records the path)."""
     if path is None:
         return None
     text = str(path)
@@ -82,14 +82,6 @@ def check_image(path: Path | None, option: str = "--image") -> Path | None:
                                  param_hint=option)
     if info.st_size == 0:
         raise typer.BadParameter(f"{text} is empty; give an image file.", param_hint=option)
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as image:  # the header only
-            image.size  # noqa: B018 - parsed from the header
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
-        raise typer.BadParameter(f"{text}: not a readable image ({type(exc).__name__}).", param_hint=option) \
-            from None
     return path
 
 
