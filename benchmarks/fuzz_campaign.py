@@ -20,6 +20,10 @@ files and estimator files, mutated benchmark manifests, BVH files declaring 10**
 ``smplik edit`` with raw WebSocket clients from foreign and null origins and with missing or wrong tokens
 (a client that gets in counts as ``payload_run``). Outputs that a run may replace hold a sentinel first:
 a failed run must leave it, a successful one must write a complete file (else ``corrupted_output``).
+Then the round-3 cases of issue 36 (``benchmarks/fuzz_round3.py``: config values, pose-cache values, WHAM
+``frame_ids``, glTF numbers and bufferViews, outputs that are inputs or empty, strict options); an input a
+case names in ``keep`` must come out byte-identical (else ``input_overwritten``). ``--round3-only`` runs
+just those (``benchmarks/results/fuzz_round3.json``).
 
     PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 240 --workers 2
 
@@ -55,7 +59,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "fuzz_campaign.json"
 MEMORY_CAP = 2 << 30
 OUTCOMES = ("accepted", "clean_error", "unclear_error", "traceback", "hang", "crash", "payload_run",
-            "corrupted_output")
+            "corrupted_output", "input_overwritten")
 SENTINEL = b"smplik-fuzz: the previous output, which a failed run must leave in place\n"
 
 # ----------------------------------------------------------------------------- mutations
@@ -284,6 +288,10 @@ class Case:
     output: Path | None = None
     """An output file the run may replace: it holds a sentinel before the run; after a failed run it must
     still hold it, after a successful one it must be a complete file (else ``corrupted_output``)."""
+    keep: Path | None = None
+    """An input file the run must leave byte-identical (else ``input_overwritten``)."""
+    cwd: Path | None = None
+    """The run's working folder (default: the repository root)."""
 
 
 def _limit() -> None:
@@ -296,9 +304,10 @@ def run_case(case: Case, timeout: float, env: dict[str, str]) -> dict[str, Any]:
     if case.output is not None:
         case.output.parent.mkdir(parents=True, exist_ok=True)
         case.output.write_bytes(SENTINEL)
+    kept = case.keep.read_bytes() if case.keep is not None else None
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         proc = subprocess.Popen([sys.executable, "-m", "smplik.cli", *case.args], stdout=out, stderr=err,
-                                env=env, cwd=ROOT, preexec_fn=_limit)
+                                env=env, cwd=case.cwd or ROOT, preexec_fn=_limit)
         deadline = time.monotonic() + timeout
         status, rusage, hung = 0, None, False
         while True:
@@ -318,6 +327,8 @@ def run_case(case: Case, timeout: float, env: dict[str, str]) -> dict[str, Any]:
     peak_mb = rusage.ru_maxrss / 1024 if rusage else 0.0
     if case.marker is not None and case.marker.exists():
         outcome = "payload_run"
+    elif case.keep is not None and (not case.keep.is_file() or case.keep.read_bytes() != kept):
+        outcome = "input_overwritten"
     elif case.output is not None and not hung and not _output_intact(case.output, rc == 0):
         outcome = "corrupted_output"
     elif hung:
@@ -811,7 +822,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--readers", default="", help="Comma-separated subset of random readers (default: all).")
     parser.add_argument("--no-crafted", action="store_true", help="Skip the crafted cases and the editor.")
+    parser.add_argument("--round3-only", action="store_true", help="Run only the round-3 cases of issue 36 "
+                        "(benchmarks/fuzz_round3.py); results default to benchmarks/results/fuzz_round3.json.")
     args = parser.parse_args()
+    if args.round3_only and args.out == RESULTS:
+        args.out = RESULTS.with_name("fuzz_round3.json")
 
     work = Path(tempfile.mkdtemp(prefix="smplik-fuzz-"))
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1",
@@ -830,12 +845,22 @@ def main() -> None:
                   f"{res['note'][:40]:<40} {res['last_line'][:90]}", flush=True)
 
     try:
-        valid = make_valid_inputs(work / "valid")
-        makers = case_makers(valid, work)
-        if not args.no_crafted:
+        if args.round3_only:
+            from fuzz_round3 import round3_cases
+
+            with ThreadPoolExecutor(args.workers) as pool:
+                for res in pool.map(lambda c: run_case(c, args.timeout, env), round3_cases(work / "round3")):
+                    record(res)
+            args.seconds = 0.0
+        valid = make_valid_inputs(work / "valid") if not args.round3_only else {}
+        makers = case_makers(valid, work) if not args.round3_only else {}
+        if not args.no_crafted and not args.round3_only:
             for res in editor_cases(valid, work, args.timeout, env):
                 record(res)
             crafted = crafted_cases(valid, work)
+            from fuzz_round3 import round3_cases  # issue 36: each case must be a clean error
+
+            crafted += round3_cases(work / "round3")
             with ThreadPoolExecutor(args.workers) as pool:
                 for res in pool.map(lambda c: run_case(c, args.timeout, env), crafted):
                     record(res)

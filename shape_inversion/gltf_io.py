@@ -157,6 +157,59 @@ def _world_matrices(path: Path, gltf) -> tuple[np.ndarray, tuple[int, ...]]:
     return world, tuple(parent)
 
 
+def _nonfinite_key(node: object, where: str = "") -> str | None:
+    """The JSON path (``accessors[0].count``) of the first non-finite number in ``node``, else None."""
+    if isinstance(node, float) and not np.isfinite(node):
+        return where or "the top level"
+    items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
+    for key, value in items:
+        found = _nonfinite_key(value, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}".lstrip("."))
+        if found:
+            return found
+    return None
+
+
+def _check_json_numbers(path: Path, binary: bool) -> None:
+    """Refuse a glTF whose JSON holds ``Infinity``, ``NaN`` or a number beyond float range (not JSON; Python's
+    parser and pygltflib take them and fail later with an ``OverflowError``), naming the key."""
+    data = path.read_bytes()
+    if binary:
+        if len(data) < 20 or data[16:20] != b"JSON":
+            return  # pygltflib names the broken header
+        data = data[20:20 + struct.unpack_from("<I", data, 12)[0]]
+    try:
+        doc = json.loads(data)
+    except (ValueError, RecursionError):
+        return  # pygltflib names the problem
+    key = _nonfinite_key(doc)
+    if key is not None:
+        raise GltfError(f"{path}: '{key}' holds a non-finite number (Infinity, NaN or beyond float range)")
+
+
+def _is_index(value: object, low: int = 0, high: float = float("inf")) -> bool:
+    """``value`` is a JSON integer (not a bool, not a float) in [low, high]."""
+    return type(value) is int and low <= value <= high
+
+
+def _check_buffer_views(path: Path, gltf, buffers: tuple[bytes, ...]) -> None:
+    """Every bufferView names a loaded buffer and lies inside it (glTF 2.0 §5.11: ``buffer`` and ``byteLength``
+    are required integers), so that every command reading the file (SMPL-SI, the mesh, scene export) agrees."""
+    for i, view in enumerate(gltf.bufferViews or []):
+        where = f"{path}: bufferViews[{i}]"
+        if not _is_index(view.buffer, 0, len(buffers) - 1):
+            raise GltfError(f"{where}: 'buffer' must be the index of one of its {len(buffers)} buffers, got "
+                            f"{view.buffer!r:.40}")
+        offset = 0 if view.byteOffset is None else view.byteOffset
+        if not _is_index(offset) or not _is_index(view.byteLength, 1):
+            raise GltfError(f"{where}: 'byteOffset'/'byteLength' must be integers (byteLength >= 1), got "
+                            f"{view.byteOffset!r:.40}/{view.byteLength!r:.40}")
+        if offset + view.byteLength > len(buffers[view.buffer]):
+            raise GltfError(f"{where}: bytes {offset}..{offset + view.byteLength} lie outside buffer {view.buffer} "
+                            f"({len(buffers[view.buffer])} bytes)")
+        if view.byteStride is not None and not _is_index(view.byteStride, 4, 252):
+            raise GltfError(f"{where}: 'byteStride' must be an integer in [4, 252], got {view.byteStride!r:.40}")
+
+
 def load_gltf(path: str | Path) -> GltfFile:
     """Load a ``.gltf`` (JSON, external or data-URI buffers) or ``.glb`` file; raises :class:`GltfError`."""
     import pygltflib
@@ -172,14 +225,16 @@ def load_gltf(path: str | Path) -> GltfFile:
         raise GltfError(f"Cannot read glTF file {path}: {exc.strerror or exc}") from None
     if size > MAX_GLTF_BYTES:
         raise GltfError(f"{path}: {size} bytes exceeds the glTF size limit {MAX_GLTF_BYTES}")
+    _check_json_numbers(path, magic == b"glTF")
     try:
         gltf = pygltflib.GLTF2.load_binary(path) if magic == b"glTF" else pygltflib.GLTF2.load_json(path)
-    except (ValueError, KeyError, TypeError, AttributeError, IndexError, struct.error, UnicodeDecodeError,
-            json.JSONDecodeError, RecursionError, OSError) as exc:  # pygltflib's many failure types
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError, struct.error,
+            UnicodeDecodeError, json.JSONDecodeError, RecursionError, OSError) as exc:  # pygltflib's failure types
         raise GltfError(f"Cannot read glTF file {path}: {type(exc).__name__}: {str(exc)[:120]}") from None
     if gltf is None:
         raise GltfError(f"Cannot read glTF file {path}: not a glTF document")
     buffers = tuple(_buffer_bytes(path, gltf, i) for i in range(len(gltf.buffers or [])))
+    _check_buffer_views(path, gltf, buffers)
     try:
         world, parent = _world_matrices(path, gltf)
     except (TypeError, ValueError) as exc:

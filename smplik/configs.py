@@ -25,6 +25,34 @@ TRAIN_RANGES = {"steps": (0, 10**9), "batch_size": (1, 1 << 20), "lr": (0.0, 10.
                 "beta_noise": (0.0, 100.0), "part_swap": (0.0, 1.0), "distill_weight": (0.0, 1e6)}
 """Accepted range of each number of a training config (a config file's or a checkpoint's)."""
 
+LOSS_RANGE = (0.0, 1e9)
+"""Accepted range of every loss weight (:class:`LossConfig`)."""
+
+EFFECTOR_SAMPLING_RANGES = {"min_effectors": (1, 1024), "max_effectors": (1, 1024), "sigma_max": (0.0, 100.0),
+                            "eta": (0.0, 1000.0), "weight_max": (1e-9, 1e12), "lookat_distance_std": (0.0, 1000.0),
+                            "limb_first": (0.0, 1.0)}
+"""Accepted range of each number of :class:`EffectorSamplingConfig`."""
+
+PRECISIONS = ("fp32", "bf16")
+
+
+class ConfigError(ValueError):
+    """A config value out of its documented range or of the wrong type (a flag, a config file, a checkpoint):
+    the CLI reports it as one ``error:`` line."""
+
+
+def _check_ranges(obj: Any, ranges: Mapping[str, tuple[float, float]], *, integers: bool = False) -> None:
+    """Raise :class:`ConfigError` naming ``Class.field`` when a field of ``obj`` is not a number (an integer
+    with ``integers``) in its closed range; NaN and infinities fail."""
+    cls = type(obj).__name__
+    for name, (low, high) in ranges.items():
+        value = getattr(obj, name)
+        kinds = numbers.Integral if integers else (numbers.Integral, numbers.Real)
+        if isinstance(value, bool) or not isinstance(value, kinds) or not low <= value <= high:  # NaN fails too
+            bounds = f"[{low}, {high}]" if integers else f"[{low:g}, {high:g}]"
+            raise ConfigError(f"{cls}.{name} must be {'an integer' if integers else 'a number'} in {bounds}, "
+                              f"got {value!r:.40}.")
+
 
 @dataclass(frozen=True)
 class NetworkConfig:
@@ -48,14 +76,11 @@ class NetworkConfig:
     effector values. False is the paper's architecture."""
 
     def __post_init__(self) -> None:
-        for name, (low, high) in NETWORK_RANGES.items():
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
-                raise ValueError(f"NetworkConfig.{name} must be an integer in [{low}, {high}], got {value!r:.40}.")
+        _check_ranges(self, NETWORK_RANGES, integers=True)
         if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
-            raise ValueError(f"NetworkConfig.dropout must be a number in [0, 1), got {self.dropout!r:.40}.")
+            raise ConfigError(f"NetworkConfig.dropout must be a number in [0, 1), got {self.dropout!r:.40}.")
         if not isinstance(self.effector_slots, bool):
-            raise ValueError(f"NetworkConfig.effector_slots must be true or false, got {self.effector_slots!r:.40}.")
+            raise ConfigError(f"NetworkConfig.effector_slots must be true or false, got {self.effector_slots!r:.40}.")
 
     @classmethod
     def paper(cls) -> NetworkConfig:
@@ -140,6 +165,9 @@ class LossConfig:
     w_lookat: float = 1.0
     """Weight of the look-at angle term."""
 
+    def __post_init__(self) -> None:
+        _check_ranges(self, {f.name: LOSS_RANGE for f in fields(self)})
+
 
 @dataclass(frozen=True)
 class EffectorSamplingConfig:
@@ -162,6 +190,14 @@ class EffectorSamplingConfig:
     effectors on a random joint of each limb zone (:data:`~smplik.conventions.LIMB_ZONES`: hands
     and feet pinned first, as animators do and as the benchmark's random sets start); the rest
     follow the paper's sampling. 0 is the paper's sampling (and draws no extra random numbers)."""
+
+    def __post_init__(self) -> None:
+        _check_ranges(self, {k: v for k, v in EFFECTOR_SAMPLING_RANGES.items() if k.endswith("_effectors")},
+                      integers=True)
+        _check_ranges(self, {k: v for k, v in EFFECTOR_SAMPLING_RANGES.items() if not k.endswith("_effectors")})
+        if self.min_effectors > self.max_effectors:
+            raise ConfigError(f"EffectorSamplingConfig.min_effectors ({self.min_effectors}) must not exceed "
+                              f"max_effectors ({self.max_effectors}).")
 
 
 @dataclass(frozen=True)
@@ -219,10 +255,11 @@ class TrainConfig:
     effectors: EffectorSamplingConfig = field(default_factory=EffectorSamplingConfig)
 
     def __post_init__(self) -> None:
-        for name, (low, high) in TRAIN_RANGES.items():
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-                raise ValueError(f"TrainConfig.{name} must be a number in [{low:g}, {high:g}], got {value!r:.40}.")
+        _check_ranges(self, TRAIN_RANGES)
+        _check_ranges(self, {"seed": (0, 2**31 - 1)}, integers=True)
+        if self.precision not in PRECISIONS:
+            raise ConfigError(f"TrainConfig.precision must be one of {', '.join(PRECISIONS)}, got "
+                              f"{self.precision!r:.40}.")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -244,9 +281,9 @@ class TrainConfig:
             raise FileNotFoundError(f"Config file not found: {path}")
         from smplik.validation import read_json
 
-        obj = read_json(path, ValueError, what="config file")  # bounded read (smplik.limits.JSON_BYTES)
+        obj = read_json(path, ConfigError, what="config file")  # bounded read (smplik.limits.JSON_BYTES)
         if not isinstance(obj, dict):
-            raise ValueError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
+            raise ConfigError(f"{path}: a config file must hold a JSON object, got {type(obj).__name__}.")
         return cls.from_dict({**required, **obj}, str(path))
 
 
@@ -254,12 +291,12 @@ def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
     """A (nested, frozen) config dataclass from a dict, strictly: every key known, every value typed."""
     where = prefix.rstrip(".") or "the top level"
     if not isinstance(d, Mapping):
-        raise ValueError(f"{source}: '{where}' must be an object, got {type(d).__name__}.")
+        raise ConfigError(f"{source}: '{where}' must be an object, got {type(d).__name__}.")
     hints = typing.get_type_hints(cls)
     names = [f.name for f in fields(cls)]
     unknown = [k for k in d if k not in names]
     if unknown:
-        raise ValueError(f"{source}: unknown key '{prefix}{unknown[0]}'; expected one of: {', '.join(names)}.")
+        raise ConfigError(f"{source}: unknown key '{prefix}{unknown[0]}'; expected one of: {', '.join(names)}.")
     kwargs = {}
     for key, value in d.items():
         typ = hints[key]
@@ -272,12 +309,12 @@ def _dataclass_from_dict(cls: type, d: Any, source: str, prefix: str) -> Any:
                  or (t is str and type(value) is str) for t in allowed)
         if not ok:
             expected = " or ".join("null" if t is type(None) else t.__name__ for t in allowed)
-            raise ValueError(f"{source}: key '{prefix}{key}' must be {expected}, got {value!r:.60}.")
+            raise ConfigError(f"{source}: key '{prefix}{key}' must be {expected}, got {value!r:.60}.")
         kwargs[key] = float(value) if float in allowed and type(value) is int else value
     required = [f.name for f in fields(cls) if f.name not in kwargs and f.default is f.default_factory is MISSING]
     if required:
-        raise ValueError(f"{source}: missing key '{prefix}{required[0]}'.")
+        raise ConfigError(f"{source}: missing key '{prefix}{required[0]}'.")
     try:
         return cls(**kwargs)
     except ValueError as exc:  # a value out of its documented range (the config's __post_init__)
-        raise ValueError(f"{source}: {exc}") from None
+        raise ConfigError(f"{source}: {exc}") from None

@@ -22,6 +22,7 @@ All copies run as one batch of ``size * B`` rows, so for one pose the network's 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 
@@ -60,18 +61,25 @@ class EnsembleConfig:
 
     @classmethod
     def parse(cls, text: str) -> EnsembleConfig:
-        """``"none"``, ``"mirror"``, ``"yawK"`` or ``"mirror+yawK"`` (e.g. ``mirror+yaw4``)."""
+        """``"none"``, ``"mirror"``, ``"yawK"`` or ``"mirror+yawK"`` (e.g. ``mirror+yaw4``); strictly: no empty
+        part, no part twice, ``none`` alone."""
+        parts = [p.strip() for p in str(text).lower().split("+")]
+        unknown = (f"Unknown ensemble {text!r:.40}; expected none, mirror, yawK or mirror+yawK (e.g. mirror+yaw4), "
+                   "each part once.")
+        if any(not p for p in parts) or len(set(parts)) != len(parts) or len(parts) > 2 \
+                or ("none" in parts and len(parts) > 1):
+            raise ValueError(unknown)
+        if parts == ["none"]:
+            return cls()
         yaw, mirror = 1, False
-        for part in text.lower().replace(" ", "").split("+"):
-            if part in ("none", ""):
-                continue
+        for part in parts:
+            yaw_match = re.fullmatch(r"yaw([0-9]{1,6})", part)
             if part == "mirror":
                 mirror = True
-            elif part.startswith("yaw") and part[3:].isdigit():
-                yaw = int(part[3:])
+            elif yaw_match and sum(p.startswith("yaw") for p in parts) == 1:
+                yaw = int(yaw_match.group(1))
             else:
-                raise ValueError(f"Unknown ensemble {text!r}; expected none, mirror, yawK or mirror+yawK "
-                                 "(e.g. mirror+yaw4).")
+                raise ValueError(unknown)
         return cls(yaw=yaw, mirror=mirror)
 
 

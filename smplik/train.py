@@ -34,7 +34,7 @@ import torch.distributed as dist
 
 from smplik.atomic import atomic_path, write_json_atomic, write_text_atomic
 from smplik.body_model import BodyModelSet
-from smplik.configs import TRAIN_RANGES, TrainConfig  # noqa: F401 - re-exported
+from smplik.configs import PRECISIONS, TRAIN_RANGES, TrainConfig  # noqa: F401 - re-exported
 from smplik.data.effector_sampling import sample_effectors
 from smplik.losses import distillation_loss, protores_loss
 from smplik.metrics import local_geodesic, mpjpe, pa_mpjpe
@@ -230,9 +230,6 @@ def _any_rank(flag: bool, world: int) -> bool:
 
 
 # ----------------------------------------------------------------------------- the loop
-
-
-PRECISIONS = ("fp32", "bf16")
 
 
 def _load_teacher(cfg: TrainConfig) -> Callable[..., IKOutput] | None:

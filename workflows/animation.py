@@ -226,7 +226,7 @@ def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
             from workflows.estimators.plain import sequence_length
 
             return sequence_length(data) or 1
-    except (KeyError, TypeError, ValueError, AttributeError):
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):  # inf/1e300 frame ids, ...
         pass  # the per-frame reader names the problem
     return 1
 

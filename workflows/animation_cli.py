@@ -20,6 +20,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.cli.errors import say, user_errors
+from smplik.cli.options import check_fps
 from smplik.limits import DEFAULT_MAX_JOINTS
 
 PLAIN_PROGRESS_FROM = 1000
@@ -88,6 +89,8 @@ def animate_cmd(
     from workflows.motion_clean import CleanConfig
     from workflows.recovery import RecoveryConfig
 
+    with user_errors():  # one line also when the command runs outside smplik's top level
+        check_fps(fps)
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     if preview is not None:  # before the work: a preview that cannot be written fails now, not after it

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import errno
 from pathlib import Path
 from typing import Annotated
 
@@ -21,6 +20,7 @@ from shape_inversion.options import (
     character_options_from_cli,
 )
 from smplik.cli.errors import fail, say, user_errors
+from smplik.cli.options import check_image
 from smplik.limits import DEFAULT_MAX_JOINTS
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
@@ -91,6 +91,8 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
     if space not in (None, "camera", "world"):
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
+    with user_errors():
+        check_image(image)
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
@@ -166,9 +168,10 @@ def render_cmd(
         src = image or (Path(loaded.image) if loaded.image else None)
         if src is not None and not src.is_absolute() and image is None:
             src = scene.parent / src
-        if image is not None and not image.is_file():
-            raise FileNotFoundError(errno.ENOENT, "--image: no such file", str(image))
+        check_image(image)
         background = None
+        if image is not None and loaded.camera is None:
+            say(f"notice: the scene holds no camera, so --image {image} is not drawn under the characters.")
         if src is not None and src.is_file() and loaded.camera is not None:
             from smplik.limits import LimitError
 

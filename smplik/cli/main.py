@@ -21,6 +21,7 @@ import typer
 from typer.core import TyperArgument, TyperGroup
 
 from smplik.cli.errors import error_message, is_user_error, print_error
+from smplik.cli.outputs import guard_outputs
 
 _CLICK = {c.__name__: c for c in typer.BadParameter.__mro__}  # typer's (vendored) click exception classes
 ClickException, UsageError, Abort = _CLICK["ClickException"], _CLICK["UsageError"], typer.Abort
@@ -106,7 +107,7 @@ def load_command(name: str) -> Any:
         obj = single
     command = typer.main.get_command(obj)
     command.name = name
-    return _plain_help(command)
+    return guard_outputs(_plain_help(command))
 
 
 class SmplikGroup(TyperGroup):

@@ -14,6 +14,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from smplik.cli.options import check_fps
+
 __all__ = ["build", "StorageDtype"]
 
 console = Console(stderr=True, soft_wrap=True)  # status lines are never cut mid-number
@@ -29,9 +31,9 @@ class StorageDtype(str, Enum):
 OutOpt = Annotated[Path, typer.Option("--out", help="Cache file to write (.npz); replaced atomically.")]
 SplitOpt = Annotated[Path | None, typer.Option("--split", help="Split file (CMU split.json format; default: every "
                                                 "clip in train, or see --split-by-subject).")]
-SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar="SEED", help="Instead of a split "
-                                                  "file: a seeded random split of the subjects (10 % validation, "
-                                                  "10 % test).")]
+SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar="SEED", min=0, help="Instead of a "
+                                                  "split file: a seeded random split of the subjects (10 % "
+                                                  "validation, 10 % test).")]
 BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH files (searched recursively).")]
 AmassOpt = Annotated[Path | None, typer.Option("--amass", help="Folder of AMASS .npz files (searched recursively).")]
 FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source).")]
@@ -65,8 +67,7 @@ def build(
     assert root is not None
     if out.suffix != ".npz":
         raise typer.BadParameter(f"must end in .npz, got {out}.", param_hint="--out")
-    if not fps > 0:
-        raise typer.BadParameter(f"must be positive, got {fps}.", param_hint="--fps")
+    check_fps(fps)
     try:
         sources = dataset.find_sources(root, kind)  # type: ignore[arg-type]
     except (FileNotFoundError, ValueError) as exc:

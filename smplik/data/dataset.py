@@ -219,6 +219,8 @@ def split_all_train(sources: Sequence[ClipSource]) -> SplitSpec:
 def split_by_subject(sources: Sequence[ClipSource], seed: int) -> SplitSpec:
     """A seeded split of the subjects of ``sources``: 10 % validation and 10 % test (each at least one
     subject from three subjects on; two subjects: one train, one validation; one: train), the rest train."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise ValueError(f"the split seed must be a non-negative integer, got {seed!r:.40}.")
     subjects = sorted({s.subject for s in sources})
     n = len(subjects)
     order = [subjects[i] for i in np.random.default_rng(seed).permutation(n)]
@@ -534,12 +536,62 @@ class PoseDataset:
         return dataclasses.replace(self, **rows)
 
 
+class CacheError(ValueError):
+    """A pose cache that is not readable or whose keys or values are not what :func:`build_cache` writes."""
+
+
+CACHE_VALUE_BOUNDS = {"pose": 1e3, "transl": 1e5, "betas": 1e3}
+"""Largest magnitude accepted in a cache's float arrays (radians, metres, shape units): far beyond any real
+pose, small enough that every rotation and FK stays finite."""
+
+
+def _check_cache_values(path: Path, a: dict[str, np.ndarray]) -> None:
+    """Raise :class:`CacheError` naming the key when an array of a cache has the wrong shape, dtype or values."""
+    if a["pose"].ndim != 3:
+        raise CacheError(f"{path}: key 'pose' has shape {a['pose'].shape}; expected (N, {NUM_JOINTS}, 3).")
+    N = a["pose"].shape[0]
+    expected = {"pose": (N, NUM_JOINTS, 3), "transl": (N, 3), "betas": (N, NUM_BETAS)}
+    expected.update({k: (N,) for k in ("has_betas", "gender", "clip_id", "subject_id", "frame", "split")})
+    for key, shape in expected.items():
+        if a[key].shape != shape:
+            raise CacheError(f"{path}: key '{key}' has shape {a[key].shape}; expected {shape}.")
+    for key, bound in CACHE_VALUE_BOUNDS.items():
+        if a[key].dtype.kind not in "fiu":
+            raise CacheError(f"{path}: key '{key}' must hold numbers, got dtype {a[key].dtype}.")
+        if N and not (np.isfinite(a[key]).all() and np.abs(a[key]).max() <= bound):
+            raise CacheError(f"{path}: key '{key}' holds non-finite values or values beyond ±{bound:g}.")
+    for key in ("has_betas", "gender", "clip_id", "subject_id", "frame", "split"):
+        if a[key].dtype.kind not in "biu":
+            raise CacheError(f"{path}: key '{key}' must hold integers, got dtype {a[key].dtype}.")
+    for key in ("clip_names", "subject_names"):
+        if a[key].ndim != 1 or a[key].dtype.kind != "U":
+            raise CacheError(f"{path}: key '{key}' must be a 1-D array of strings, got {a[key].dtype} "
+                             f"{a[key].shape}.")
+    if a["settings"].shape != () or a["settings"].dtype.kind != "U":
+        raise CacheError(f"{path}: key 'settings' must be one JSON string, got {a['settings'].dtype} "
+                         f"{a['settings'].shape}.")
+    C, S = len(a["clip_names"]), len(a["subject_names"])
+    fps = a["clip_fps"]
+    if fps.shape != (C,) or fps.dtype.kind not in "fiu" or not (np.isfinite(fps).all() and (fps > 0).all()):
+        raise CacheError(f"{path}: key 'clip_fps' must hold {C} positive finite frame rates (one per clip).")
+    ranges = {"clip_id": (0, C - 1, f"'clip_names' ({C} clips)"), "subject_id": (0, S - 1, f"'subject_names' ({S} "
+              "subjects)"), "split": (0, len(SPLIT_NAMES) - 1, f"0..{len(SPLIT_NAMES) - 1}"),
+              "gender": (UNKNOWN_GENDER, len(Gender) - 1, f"{UNKNOWN_GENDER}..{len(Gender) - 1}"),
+              "has_betas": (0, 1, "0..1"), "frame": (0, np.iinfo(np.int64).max, "0 and up")}
+    for key, (low, high, what) in ranges.items():
+        if N and (a[key].min() < low or a[key].max() > high):
+            if key in ("clip_id", "subject_id"):
+                raise CacheError(f"{path}: key '{key}' indexes outside {what}.")
+            raise CacheError(f"{path}: key '{key}' has values outside {what}.")
+
+
 def load_cache(path: str | Path) -> PoseDataset:
-    """Load and validate a cache written by :func:`build_cache`.
+    """Load and validate a cache written by :func:`build_cache`: keys, shapes, dtypes and values (finite,
+    in range, indices inside their tables).
 
     Raises:
-        FileNotFoundError: no such file. ValueError: not a cache, another format version, a
-            missing or misshaped key (named).
+        FileNotFoundError: no such file. CacheError (a ValueError): not a cache, another format version, a
+            missing, misshaped or out-of-range key (named).
     """
     path = Path(path)
     if not path.is_file():
@@ -550,35 +602,35 @@ def load_cache(path: str | Path) -> PoseDataset:
     try:
         npz = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
-        raise ValueError(f"{path}: not a readable .npz pose cache ({exc}).") from None
+        raise CacheError(f"{path}: not a readable .npz pose cache ({exc}).") from None
     with npz:
         missing = [k for k in _CACHE_KEYS if k not in npz.files]
         if "version" in missing:
-            raise ValueError(f"{path}: not a pose cache (no 'version' key).")
-        version = int(npz["version"])
+            raise CacheError(f"{path}: not a pose cache (no 'version' key).")
+        try:
+            version_array = npz["version"]
+        except ValueError as exc:  # e.g. an object array (allow_pickle=False)
+            raise CacheError(f"{path}: key 'version' is not readable ({exc}).") from None
+        if version_array.shape != () or version_array.dtype.kind not in "iu":
+            raise CacheError(f"{path}: key 'version' must be a scalar integer, got {version_array.dtype} "
+                             f"{version_array.shape}.")
+        version = int(version_array)
         if version != CACHE_VERSION:
-            raise ValueError(f"{path}: cache format version {version}, this smplik reads version {CACHE_VERSION}; "
+            raise CacheError(f"{path}: cache format version {version}, this smplik reads version {CACHE_VERSION}; "
                              "rebuild it with `smplik data build`.")
         if missing:
-            raise ValueError(f"{path}: missing key '{missing[0]}'.")
-        a = {k: npz[k] for k in _CACHE_KEYS}
-    N = a["pose"].shape[0]
-    expected = {"pose": (N, NUM_JOINTS, 3), "transl": (N, 3), "betas": (N, NUM_BETAS)}
-    expected.update({k: (N,) for k in ("has_betas", "gender", "clip_id", "subject_id", "frame", "split")})
-    for key, shape in expected.items():
-        if a[key].shape != shape:
-            raise ValueError(f"{path}: key '{key}' has shape {a[key].shape}; expected {shape}.")
-    C, S = len(a["clip_names"]), len(a["subject_names"])
-    if N and (a["clip_id"].min() < 0 or a["clip_id"].max() >= C):
-        raise ValueError(f"{path}: key 'clip_id' indexes outside 'clip_names' ({C} clips).")
-    if N and (a["subject_id"].min() < 0 or a["subject_id"].max() >= S):
-        raise ValueError(f"{path}: key 'subject_id' indexes outside 'subject_names' ({S} subjects).")
-    if N and (a["split"].min() < 0 or a["split"].max() >= len(SPLIT_NAMES)):
-        raise ValueError(f"{path}: key 'split' has values outside 0..{len(SPLIT_NAMES) - 1}.")
+            raise CacheError(f"{path}: missing key '{missing[0]}'.")
+        try:
+            a = {k: npz[k] for k in _CACHE_KEYS}
+        except ValueError as exc:  # an object array (allow_pickle=False) or a corrupt member
+            raise CacheError(f"{path}: a key is not readable ({exc}).") from None
+    _check_cache_values(path, a)
     try:
         settings = json.loads(str(a["settings"]))
     except json.JSONDecodeError:
-        raise ValueError(f"{path}: key 'settings' is not JSON.") from None
+        raise CacheError(f"{path}: key 'settings' is not JSON.") from None
+    if not isinstance(settings, dict):
+        raise CacheError(f"{path}: key 'settings' must hold a JSON object, got {type(settings).__name__}.")
 
     def long(key: str) -> Tensor:
         return torch.from_numpy(a[key].astype(np.int64))

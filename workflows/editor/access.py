@@ -12,7 +12,9 @@ and Export, or ask viser for a public share tunnel. Like Jupyter, ``smplik edit`
   name or an IP literal (a DNS-rebinding page has its own domain name there), and the token matches;
 * accepts a WebSocket only when its ``Origin`` is the editor's own (``http://`` + the ``Host`` it
   asked for): ``Origin: http://evil.example.com``, ``Origin: null`` (a sandboxed frame, a local HTML
-  file), another local port, or no ``Origin`` at all are refused with HTTP 403.
+  file), another local port, or no ``Origin`` at all are refused with HTTP 403;
+* sends ``Referrer-Policy: no-referrer`` with every HTTP response, so the token in the page's URL never
+  leaves in a ``Referer`` header.
 
 The check wraps the ``process_request`` hook that viser passes to :func:`websockets.asyncio.server.serve`
 (viser >= 1.1 serves its page and its WebSocket from that one server): :func:`guarded_serve` replaces
@@ -38,6 +40,9 @@ from urllib.parse import parse_qs, urlsplit
 
 log = logging.getLogger(__name__)
 TOKEN_PARAM = "token"
+REFERRER_POLICY = "no-referrer"
+"""Sent with every HTTP response: the page's URL holds the token, so no request it makes (a link, an image,
+a script) may carry that URL to another site in its ``Referer`` header."""
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]")
 _PATCH_LOCK = threading.Lock()
 
@@ -106,11 +111,15 @@ class AccessGuard:
             reason = self.refusal(request.path, request.headers, port)
             if reason is not None:
                 log.warning("smplik editor: refused a request for %s: %s", request.path.split("?")[0][:80], reason)
-                return connection.respond(http.HTTPStatus.FORBIDDEN, f"smplik editor: {reason}.\n")
+                refused = connection.respond(http.HTTPStatus.FORBIDDEN, f"smplik editor: {reason}.\n")
+                refused.headers["Referrer-Policy"] = REFERRER_POLICY
+                return refused
             response = inner(connection, request) if inner is not None else None
-            if response is not None and self.token_in_query(request.path):
-                response.headers["Set-Cookie"] = (f"{cookie_name(port)}={self.token}; Path=/; HttpOnly; "
-                                                  "SameSite=Strict")
+            if response is not None:
+                response.headers["Referrer-Policy"] = REFERRER_POLICY  # the page's URL carries the token
+                if self.token_in_query(request.path):
+                    response.headers["Set-Cookie"] = (f"{cookie_name(port)}={self.token}; Path=/; HttpOnly; "
+                                                      "SameSite=Strict")
             return response
 
         return process_request

@@ -49,6 +49,7 @@ from workflows.estimators.base import (
     EstimatedPerson,
     EstimateFormatError,
     camera_to_world,
+    check_people,
 )
 
 FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
@@ -303,4 +304,5 @@ def people_from_data(data: Any, *, source: str, format: FormatName = "auto", fra
                                   f"{message}).") from None
     if not people:
         raise EstimateFormatError(f"{source}: no people found.")
+    check_people(people, source)
     return people

@@ -434,6 +434,25 @@ def make_people(
             for i in range(N)]
 
 
+PERSON_BOUNDS = {"global_orient": ((3,), 1e3), "body_pose": ((23, 3), 1e3), "transl": ((3,), 1e5),
+                 "betas": ((NUM_BETAS,), 1e3)}
+"""Shape and largest magnitude (radians, metres, shape units) of each array of an :class:`EstimatedPerson`."""
+
+
+def check_people(people: list[EstimatedPerson], source: str) -> None:
+    """The generic value check every reader's output passes (:func:`workflows.estimators.people_from_data`):
+    each array of each person has its shape and holds finite numbers within :data:`PERSON_BOUNDS`, whatever
+    the reader converted (non-finite values, wrong ndim, absurd magnitudes become one error naming the key)."""
+    for person in people:
+        who = f"{source}: person {person.person_id!r} (frame {person.frame})"
+        for key, (shape, bound) in PERSON_BOUNDS.items():
+            arr = np.asarray(getattr(person, key))
+            if arr.shape != shape or arr.dtype.kind not in "fiu":
+                raise EstimateFormatError(f"{who}: '{key}' has shape {arr.shape}; expected {shape}.")
+            if not (np.isfinite(arr).all() and np.abs(arr).max() <= bound):
+                raise EstimateFormatError(f"{who}: '{key}' holds non-finite values or values beyond ±{bound:g}.")
+
+
 def require(data: Any, key: str, source: str):
     """``data[key]`` or an :class:`EstimateFormatError` naming the key and the keys present."""
     if not isinstance(data, dict) or key not in data:
