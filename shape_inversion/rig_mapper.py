@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -74,7 +75,7 @@ _ROLE_WORDS: dict[str, tuple[str, ...]] = {
     "knee": ("shin", "calf", "knee", "lowerleg", "lowleg", "leg", "tibia"),
     "ankle": ("foot", "ankle"),
     "foot": ("toe", "toes", "toebase", "ball"),
-    "collar": ("collar", "clavicle", "shoulder"),
+    "collar": ("collar", "clavicle", "clavic", "shoulder"),
     "shoulder": ("upperarm", "uparm", "shldr", "arm", "shoulder", "humerus"),
     "elbow": ("forearm", "lowerarm", "lowarm", "elbow"),
     "wrist": ("hand", "wrist"),
@@ -102,11 +103,42 @@ def side_of(name: str) -> str | None:
     return None
 
 
+_COMPOUNDS = {"legupper": "upperleg", "leglower": "lowerleg", "armupper": "upperarm", "armlower": "lowerarm",
+              "legup": "upleg", "armup": "uparm", "leglow": "lowleg", "armlow": "lowarm"}
+"""Reversed compounds of some exporters (Sketchfab's ``Leg_Upper.L_205``) in the usual order."""
+_HELPER_WORDS = ("ik", "pole", "target", "ctrl", "control", "helper", "mch", "twist", "roll", "socket", "prop",
+                 "weapon", "attach", "grip", "pv")
+"""Words of helper bones (IK targets and poles, twist and roll bones, sockets): never an extremity."""
+
+
+def strip_suffix(name: str) -> str:
+    """The name without exporter suffixes: Sketchfab's ``_6``, Blender's ``.001``, an ``_end``/``.end``.
+
+    ``"leg_upper.L_6"`` -> ``"leg_upper.L"``, ``"DEF-thigh.L.001"`` -> ``"DEF-thigh.L"``.
+    """
+    return re.sub(r"(?:[._ ](?:\d+|end|End|END))+$", "", name) or name
+
+
 def _part(name: str) -> str:
-    """The name's words without side, digits and tool prefixes, joined (``"Bip01 L Thigh"`` -> ``"thigh"``)."""
+    """The name's words without side, digits and tool prefixes, joined (``"Bip01 L Thigh"`` -> ``"thigh"``).
+
+    Exporter suffixes go with the digits (``"leg_upper.L_6"`` -> ``"upperleg"``: reversed compounds are put
+    in the usual order).
+    """
     ignored = {"left", "l", "right", "r", "lft", "rgt", "rt", "bip", "biped", "def", "org", "jnt", "joint", "bone",
                "mch", "b", "j", "c", "mixamorig", "cc", "base"}
-    return "".join(w for w in name_words(name) if not w.isdigit() and w not in ignored)
+    part = "".join(w for w in name_words(name) if not w.isdigit() and w not in ignored)
+    for a, b in _COMPOUNDS.items():
+        if part.startswith(a) and not part.startswith(b):
+            return b + part[len(a):]
+    return part
+
+
+def is_helper(name: str) -> bool:
+    """Whether the name says a helper bone (IK target or pole, twist/roll bone, socket, prop, Rigify MCH-)."""
+    words = name_words(name)
+    base = name.rsplit("|", 1)[-1].rsplit(":", 1)[-1].lower()
+    return base.startswith(("mch-", "mch_", "ik-", "ik_", "vis_", "vis-")) or any(w in _HELPER_WORDS for w in words)
 
 
 def _says(name: str, role: str) -> bool:
@@ -133,8 +165,9 @@ def _is_end(name: str) -> bool:
 class _Tree:
     """Parents, children, depths and ancestor tests of one skeleton."""
 
-    def __init__(self, parents: Sequence[int], positions: np.ndarray) -> None:
+    def __init__(self, parents: Sequence[int], positions: np.ndarray, names: Sequence[str] | None = None) -> None:
         self.parents = list(parents)
+        self.names = names
         self.P = positions
         n = len(parents)
         self.children: list[list[int]] = [[] for _ in range(n)]
@@ -212,6 +245,10 @@ class _Body:
 def _candidates(tree: _Tree, members: list[int], k: int = 8) -> list[int]:
     """Up to ``k`` leaves far apart in the tree metric (farthest-point sampling from the root)."""
     leaves = [j for j in members if not tree.children[j]]
+    names = tree.names
+    if names is not None:  # IK targets, poles, twist bones: never a hand, foot or head
+        plain = [j for j in leaves if not is_helper(names[j])]
+        leaves = plain if len(plain) >= 5 else leaves
     if len(leaves) < 5:
         return leaves
     root = members[0]
@@ -480,7 +517,7 @@ def _left_axis(tree: _Tree, feet_chains: list[list[int]], up: np.ndarray) -> np.
 
 
 def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, head_leaf: int, up: np.ndarray,
-               stature: float) -> dict[str, int]:
+               stature: float, hands: tuple[int, ...] = ()) -> dict[str, int]:
     P = tree.P
     out: dict[str, int] = {}
     spine = tree.chain(pelvis, arms_meet) if arms_meet != pelvis else []
@@ -501,6 +538,13 @@ def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, h
     chain = tree.chain(start, head_leaf)
     real = [j for j in chain if not (_is_end(names[j]) and not tree.children[j])] or chain
     heads = [j for j in real if _says(names[j], "head")]
+    if not heads:  # the leaf is a helper's (a hood, a hair strand): a joint named head under the spine wins
+        named = [j for j in tree.subtree(start) if j != start and _part(names[j]) == "head"
+                 and not any(tree.is_ancestor(j, h) for h in hands)]
+        if named:
+            top = max(named, key=lambda j: float(P[j] @ up))
+            chain = tree.chain(start, top)
+            real, heads = chain, [top]
     if heads:
         head = heads[0]
     else:
@@ -535,7 +579,7 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
     P = np.asarray(positions, dtype=np.float64)
     if len(names) != len(parents) or P.shape != (len(names), 3):
         raise RigMappingError("names, parents and positions disagree in length")
-    tree = _Tree(parents, P)
+    tree = _Tree(parents, P, names)
     roots = [j for j, p in enumerate(parents) if p < 0]
     if root is not None:
         chosen = [j for j in roots if names[j] == root] or [j for j, n in enumerate(names) if n == root]
@@ -552,7 +596,7 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
     if not bodies:  # a game rig whose IK-driven feet hang on the root: read each as its shin's child
         reattached = _reattach_detached_feet(tree, names, roots)
         if reattached is not None:
-            tree, notes = _Tree(reattached[0], P), reattached[1]
+            tree, notes = _Tree(reattached[0], P, names), reattached[1]
             for r in roots:
                 members = tree.subtree(r)
                 if len(members) >= 5:
@@ -647,7 +691,7 @@ def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
     for side, x in zip(("left", "right"), hands_lr, strict=True):
         for role, j in arms[body.hands.index(x)].items():
             out[f"{side}_{role}"] = j
-    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature))
+    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature, body.hands))
     if "spine3" not in out:
         notes.append(f"the arms branch from the pelvis joint {names[body.pelvis]!r}: no spine joints mapped")
     ordered = {s: out[s] for s in JOINT_NAMES if s in out}
@@ -735,3 +779,119 @@ def map_doubts(names: Sequence[str], parents: Sequence[int], positions: np.ndarr
                 notes.append(f"no {what} joint after the {side} {'wrist' if what == 'finger' else 'ankle'} "
                              f"{q(end)}: {smpl} unmapped")
     return notes
+
+
+# ----------------------------------------------------------------------------- deform sets and virtual hierarchies
+
+
+_DEF_PREFIX = re.compile(r"^(?:.*[:|])?def[-_.]", re.IGNORECASE)
+
+
+def deform_bones(names: Sequence[str]) -> list[int] | None:
+    """Indices of a Blender Rigify rig's deform bones (``DEF-thigh.L``) when the rig also holds other bones.
+
+    A Rigify control rig holds the deform set (``DEF-``) beside its original (``ORG-``), mechanism (``MCH-``)
+    and control bones (``thigh_ik.L``, ``root``): only the ``DEF-`` bones carry the mesh, so they are the
+    skeleton. None when the rig has fewer than 10 ``DEF-`` bones or nothing else.
+    """
+    keep = [j for j, n in enumerate(names) if _DEF_PREFIX.match(n)]
+    return keep if 10 <= len(keep) < len(names) else None
+
+
+def kept_parents(parents: Sequence[int], keep: Sequence[int]) -> list[int]:
+    """Parent of every joint of ``keep`` as its nearest kept ancestor (an index into the full list, -1 if none)."""
+    kept = set(keep)
+    out = []
+    for j in keep:
+        p = parents[j]
+        while p >= 0 and p not in kept:
+            p = parents[p]
+        out.append(p)
+    return out
+
+
+def bone_axes_consistent(parents: Sequence[int], positions: np.ndarray, axes: np.ndarray) -> bool:
+    """Whether ``axes`` (J, 3) run along the bones: for most joints with one child, towards that child.
+
+    Blender exports every bone with its local +Y from head to tail; other tools' joint axes say nothing.
+    """
+    P = np.asarray(positions, dtype=np.float64)
+    children: dict[int, list[int]] = {}
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children.setdefault(p, []).append(j)
+    cos = []
+    for j, kids in children.items():
+        if len(kids) == 1:
+            d = P[kids[0]] - P[j]
+            n = float(np.linalg.norm(d))
+            if n > 0:
+                cos.append(float(d @ axes[j]) / (n * max(float(np.linalg.norm(axes[j])), 1e-12)))
+    return len(cos) >= 5 and float(np.mean(np.array(cos) > 0.95)) >= 0.8
+
+
+def virtual_parents(names: Sequence[str], parents: Sequence[int], positions: np.ndarray,
+                    axes: np.ndarray | None = None) -> tuple[list[int], list[str]] | None:
+    """A hierarchy for a skeleton whose chains hang apart (each its own root), from names and rest geometry.
+
+    A Rigify export of its deform bones only puts ``DEF-thigh.L``, ``DEF-upper_arm.L``, ``DEF-shoulder.L``
+    and ``DEF-spine`` directly under the armature: the chains keep their links, but nothing links the
+    chains. The body's chain (the longest chain of centre joints, names without a side) is kept; every
+    other chain is hung, nearest first (Prim's algorithm), on the joint it starts at: the nearest joint
+    already linked, or, with bone ``axes`` (J, 3) that run along the bones (:func:`bone_axes_consistent`),
+    the linked leaf bone whose line runs through the chain's first joint (``DEF-shoulder.L`` ends where
+    ``DEF-upper_arm.L`` starts). A chain is never hung on a joint of the other side.
+
+    Returns:
+        (parents, notes): the new parent of every joint (the chains' own links kept) and one note naming
+        the links made; None when the skeleton has one root.
+    """
+    P = np.asarray(positions, dtype=np.float64)
+    tree = _Tree(parents, P, names)
+    roots = [j for j, p in enumerate(parents) if p < 0]
+    if len(roots) < 2:
+        return None
+    use_axes = axes is not None and bone_axes_consistent(parents, P, axes)
+    size = max(float(np.ptp(P, axis=0).max()), 1e-12)
+
+    def chain_length(r: int) -> int:
+        return max(tree.depth[j] for j in tree.subtree(r)) - tree.depth[r] + 1
+
+    centre = [r for r in roots if side_of(strip_suffix(names[r])) is None and not is_helper(names[r])]
+    main = max(centre or roots, key=lambda r: (chain_length(r), len(tree.subtree(r))))
+    linked = set(tree.subtree(main))
+    pending = [r for r in roots if r != main]
+    new = list(parents)
+    links: list[str] = []
+    while pending:
+        best = None
+        for r in pending:
+            side = side_of(strip_suffix(names[r]))
+            for c in linked:
+                other = side_of(strip_suffix(names[c]))
+                if side is not None and other is not None and other != side:
+                    continue
+                d = P[r] - P[c]
+                cost = float(np.linalg.norm(d))
+                if use_axes:  # Blender: a bone starting at another's tail is its child
+                    a = axes[c] / max(float(np.linalg.norm(axes[c])), 1e-12)
+                    along = [k for k in tree.children[c] if float((P[k] - P[c]) @ a) > 0.95 * float(
+                        np.linalg.norm(P[k] - P[c]))]
+                    if along:  # the tail is where the bone's child starts
+                        cost = min(cost, float(np.linalg.norm(P[r] - P[along[0]])) - 1e-3 * size)
+                    elif not tree.children[c] and float(d @ a) > 0:  # a leaf bone: its line
+                        t = float(d @ a)
+                        cost = min(cost, float(np.linalg.norm(d - t * a)) + 1e-3 * size)
+                if best is None or cost < best[0]:
+                    best = (cost, r, c)
+        if best is None:
+            break
+        _, r, c = best
+        new[r] = c
+        linked.update(tree.subtree(r))
+        pending.remove(r)
+        links.append(f"{names[r]} under {names[c]}")
+    shown = ", ".join(links[:8]) + (f" and {len(links) - 8} more" if len(links) > 8 else "")
+    note = (f"the chains hang apart ({len(roots)} roots, no parent links between them): a hierarchy built from "
+            f"the names and rest geometry{' (bone axes)' if use_axes else ''}: {shown}")
+    return new, [note]

@@ -27,7 +27,7 @@ sign, along which the head is farthest from the ankles.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,7 +36,7 @@ import numpy as np
 from shape_inversion.features import named_joints_to_features
 from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_node_rig, read_rig
 from shape_inversion.options import BindSource, CharacterOptions, RestSource
-from shape_inversion.rigs import RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
+from shape_inversion.rigs import RigError, RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
 from smplik.conventions import JOINT_NAMES, PARENTS
 from smplik.data.bvh import DEFAULT_MAX_JOINTS, BVHError, BVHMotion, PositionMode, parse_bvh
 from smplik.data.bvh import read_bvh as bvh_read
@@ -403,6 +403,55 @@ def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
                     skeleton.rest)
 
 
+def reparent_skeleton(skeleton: Skeleton, parents: Sequence[int], keep: Sequence[int] | None = None) -> Skeleton:
+    """``skeleton`` with new ``parents`` (J,) (indices into its joints), reduced to ``keep`` and listed parents first.
+
+    Only the hierarchy changes: rest positions, bind matrices and glTF nodes stay (a GLB export poses the
+    joint nodes from their world transforms, so the file's own node tree is kept).
+    """
+    keep = list(range(len(skeleton.names))) if keep is None else list(keep)
+    kept = set(keep)
+    children: dict[int, list[int]] = {}
+    for j in keep:
+        children.setdefault(parents[j] if parents[j] in kept else -1, []).append(j)
+    order: list[int] = []
+    stack = list(reversed(children.get(-1, [])))
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(children.get(j, [])))
+    full = tuple(parents[j] if parents[j] in kept else -1 for j in range(len(skeleton.names)))
+    return subset_skeleton(dataclasses.replace(skeleton, parents=full), order)
+
+
+def deform_skeleton(skeleton: Skeleton) -> tuple[Skeleton, list[str]]:
+    """A Blender Rigify control rig's deform bones (``DEF-``) as the skeleton, with a note; else ``skeleton``."""
+    from shape_inversion.rig_mapper import deform_bones, kept_parents
+
+    keep = deform_bones(skeleton.names)
+    if keep is None:
+        return skeleton, []
+    parents = list(skeleton.parents)
+    for j, p in zip(keep, kept_parents(skeleton.parents, keep), strict=True):
+        parents[j] = p
+    others = len(skeleton.names) - len(keep)
+    return reparent_skeleton(skeleton, parents, keep), [
+        f"a Blender Rigify rig: its {len(keep)} DEF- (deform) bones are the skeleton, its {others} other bones "
+        "(ORG-, MCH-, controls, IK targets and poles) are ignored"]
+
+
+def linked_skeleton(skeleton: Skeleton) -> tuple[Skeleton, list[str]] | None:
+    """``skeleton`` with its separate chains linked into one hierarchy (``rig_mapper.virtual_parents``); None
+    when it has one root."""
+    from shape_inversion.rig_mapper import virtual_parents
+
+    axes = None if skeleton.gltf is None else skeleton.gltf.T_world_joint_bind[:, :3, 1]
+    made = virtual_parents(skeleton.names, skeleton.parents, skeleton.positions, axes)
+    if made is None:
+        return None
+    return reparent_skeleton(skeleton, made[0]), made[1]
+
+
 def _hierarchy(parents: tuple[int, ...], root: int) -> list[int]:
     keep = {root}
     for j, p in enumerate(parents):  # parents are listed before children
@@ -442,7 +491,18 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
         rig_map = RigMap("vrm", tuple(skeleton.humanoid.items()), "the file's humanoid bone table (VRM)",
                          warnings=tuple(doubts))
     else:
-        rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
+        skeleton, notes = deform_skeleton(skeleton)
+        try:
+            rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
+        except RigError:
+            linked = linked_skeleton(skeleton) if root is None else None
+            if linked is None:
+                raise
+            skeleton, more = linked
+            rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions)
+            notes += more
+        if notes:
+            rig_map = dataclasses.replace(rig_map, warnings=tuple(notes) + tuple(rig_map.warnings))
     found, _ = match_joints(rig_map, skeleton.names)
     roots = [j for j, p in enumerate(skeleton.parents) if p < 0]
     if len(roots) > 1 and "pelvis" in found:  # several roots: keep the hierarchy holding the body
@@ -458,8 +518,6 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     from shape_inversion.rigs import missing_required
 
     if missing_required(rig_map, found):
-        from shape_inversion.rigs import RigError
-
         raise RigError(missing_message(rig_map, found, source=f"Skeleton {skeleton.source}"))
     P = skeleton.positions
     ankles = [P[found[a]] for a in ("left_ankle", "right_ankle") if a in found]
