@@ -27,6 +27,7 @@ sign, along which the head is farthest from the ankles.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -251,17 +252,61 @@ def read_character(path: str | Path, options: CharacterOptions | None = None) ->
     skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
     char = prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
     if o.rest == "auto" and skeleton.bvh is not None and skeleton.rest == "frame0":
-        offsets = bvh_skeleton(skeleton.bvh, "offsets")
-        bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(
-            prepare_character(offsets, rig=char.rig, units=char.units_m).positions, char.smpl_joints)
-        if bend_off + 10.0 < bend0:  # frame 0 is motion, not a rest pose: the OFFSETs define the skeleton
-            char = prepare_character(offsets, rig=char.rig, map_file=None, units=o.units, up=o.up, root=o.root)
-            why = (f"offsets (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the "
-                   f"OFFSET pose {bend_off:.0f} deg)")
-        else:
-            why = f"frame0 (frame 0 is a rest pose: {bend0:.0f} deg of bend; the OFFSET pose {bend_off:.0f} deg)"
-        char = dataclasses.replace(char, skeleton=dataclasses.replace(char.skeleton, rest=why))
+        char = _rest_by_evidence(char, o)
     return char
+
+
+def _rest_by_evidence(char: Character, o: CharacterOptions) -> Character:
+    """Frame 0 or the OFFSET pose as the BVH rest pose, whichever makes the more human skeleton.
+
+    Frame 0 with straight limbs and spine (at most 10 degrees more bend than the OFFSETs) is the rest pose.
+    Otherwise both candidates are mapped (units detected for each) and SMPL-SI fits each: the one with the
+    smaller feature residual wins (a candidate outside the human range loses). Rokoko's OFFSETs are in
+    joint-local frames (2.4 m legs), CMU's frame 0 is mid-motion: neither rule alone reads both.
+    """
+    skeleton = char.skeleton
+    try:
+        offsets = bvh_skeleton(skeleton.bvh, "offsets")
+        off_char = prepare_character(offsets, rig=char.rig, units=o.units, up=o.up, root=o.root)
+    except (SkeletonError, RigError, ValueError):
+        return dataclasses.replace(char, skeleton=dataclasses.replace(
+            skeleton, rest="frame0 (the OFFSET pose cannot be mapped)"))
+    bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(off_char.positions,
+                                                                                    off_char.smpl_joints)
+    if bend0 <= bend_off + 10.0:
+        why = f"frame0 (frame 0 is a rest pose: {bend0:.0f} deg of bend; the OFFSET pose {bend_off:.0f} deg)"
+        return dataclasses.replace(char, skeleton=dataclasses.replace(skeleton, rest=why))
+    r0, r_off = proportion_residual_m(char.features), proportion_residual_m(off_char.features)
+
+    def said(r: float) -> str:
+        return "not a human" if not np.isfinite(r) else f"residual {r * 1000:.0f} mm"
+
+    if r_off <= r0:
+        chosen, rest = off_char, "offsets"
+    else:
+        chosen, rest = char, "frame0"
+    why = (f"{rest} (frame 0 bends {bend0:.0f} deg, the OFFSET pose {bend_off:.0f} deg; the most human by SMPL-SI: "
+           f"frame 0 {said(r0)}, OFFSETs {said(r_off)})")
+    return dataclasses.replace(chosen, skeleton=dataclasses.replace(chosen.skeleton, rest=why))
+
+
+def proportion_residual_m(features: np.ndarray) -> float:
+    """SMPL-SI's largest feature residual (metres) for ``features`` (6,), inf outside the human range."""
+    from shape_inversion.estimator import ShapeInversionError
+
+    try:
+        return float(_neutral_estimator().estimate(features).max_feature_residual_m)
+    except ShapeInversionError:
+        return float("inf")
+
+
+@functools.lru_cache(maxsize=1)
+def _neutral_estimator():
+    from shape_inversion.estimator import ShapeEstimator
+    from smplik.body_model import load_body_model
+    from smplik.conventions import Gender
+
+    return ShapeEstimator.build(load_body_model(Gender.NEUTRAL))
 
 
 def rest_bend_deg(positions: np.ndarray, found: Mapping[str, int]) -> float:
