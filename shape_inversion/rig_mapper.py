@@ -262,7 +262,7 @@ def _candidates(tree: _Tree, members: list[int], k: int = 8) -> list[int]:
     return picked
 
 
-def _find_bodies(tree: _Tree, members: list[int]) -> list[_Body]:
+def _find_bodies(tree: _Tree, members: list[int], why: list[str] | None = None) -> list[_Body]:
     """Every valid assignment of feet, hands and head among the candidate leaves, best first."""
     cands = _candidates(tree, members)
     P = tree.P
@@ -273,13 +273,20 @@ def _find_bodies(tree: _Tree, members: list[int]) -> list[_Body]:
             rest = [j for j in five if j != head]
             for feet in itertools.combinations(rest, 2):
                 hands = tuple(j for j in rest if j not in feet)
-                body = _check(tree, head, feet, hands, size)  # type: ignore[arg-type]
+                body = _check(tree, head, feet, hands, size, why)  # type: ignore[arg-type]
                 if body is not None:
                     found[(head, feet, hands)] = body
     return sorted(found.values(), key=lambda b: b.score)
 
 
-def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int], size: float) -> _Body | None:
+def _reject(why: list[str] | None, reason: str) -> None:
+    if why is not None:
+        why.append(reason)
+    return None
+
+
+def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int], size: float,
+           why: list[str] | None = None) -> _Body | None:
     P = tree.P
     legs_meet = tree.lca(*feet)
     pelvis = tree.lca(legs_meet, head)
@@ -315,21 +322,27 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
     score += abs(np.log(np.mean(arm) / np.mean(leg) / 0.85))  # arms about as long as legs (eyes are not arms)
     score += max(0.0, tree.tree_distance(arms_meet, head) / np.mean(arm) - 0.8)  # the neck shorter than an arm
     if min(h[hands[0]], h[hands[1]]) < 0.3 * height:  # hands on the floor: a quadruped's front legs
-        return None
+        return _reject(why, "four legs: the limbs that would be arms reach the floor like front legs "
+                       f"(their ends at {min(h[hands[0]], h[hands[1]]) / height:.0%} of the height, a human's hands "
+                       "hang above 30%)")
     legs_up = P[pelvis] - (P[feet[0]] + P[feet[1]]) / 2  # along the legs: hands above the knees, the head above
     hip_height = float(np.linalg.norm(legs_up))
     if hip_height > 0:
         legs_up = legs_up / hip_height
         lift = [float((P[j] - (P[feet[0]] + P[feet[1]]) / 2) @ legs_up) / hip_height for j in (*hands, head)]
         if min(lift[:2]) < 0.4 or lift[2] < 1.2:  # a quadruped: front paws on the floor, head ahead of the body
-            return None
+            return _reject(why, "a horizontal body: the head is ahead of the hips, not above them (head at "
+                           f"{lift[2]:.1f} hip heights along the legs, a human's above 1.2)" if lift[2] < 1.2 else
+                           "four legs: the front limbs stand on the floor (their ends below 40% of the hip height)")
     if abs(h[feet[0]] - h[feet[1]]) > 0.25 * height:  # a tail or a raised limb is not the second leg
-        return None
+        return _reject(why, "no two legs of one length: the limbs below the pelvis end at different heights "
+                       "(a tail beside a leg)")
     if float((P[pelvis] - P[feet[0]]) @ up) < 0.25 * height:  # no legs below the pelvis (a half-body avatar)
-        return None
+        return _reject(why, "no legs below the pelvis (a half-body)")
     d0, d1 = P[feet[0]] - P[pelvis], P[feet[1]] - P[pelvis]
     if d0 @ d1 < np.cos(np.radians(55)) * np.linalg.norm(d0) * np.linalg.norm(d1):  # legs 55 deg apart: a tail
-        return None
+        return _reject(why, "no two legs side by side: the limbs off the pelvis point more than 55 deg apart "
+                       "(legs and a tail)")
     score += 2.0 * sum(max(0.0, (min(h[feet[0]], h[feet[1]]) - h[x]) / height) for x in hands)  # feet lowest
     score += abs(h[feet[0]] - h[feet[1]]) / height
     score += max(0.0, 0.5 - float((P[pelvis] - P[feet[0]]) @ up) / height)  # the pelvis well above the feet
@@ -588,10 +601,11 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
                                   f"{', '.join(repr(names[j]) for j in roots)}")
         roots = chosen
     bodies: list[tuple[float, int, _Body]] = []
+    why: list[str] = []
     for r in roots:
         members = tree.subtree(r)
         if len(members) >= 5:
-            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
+            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members, why)]
     notes: list[str] = []
     if not bodies:  # a game rig whose IK-driven feet hang on the root: read each as its shin's child
         reattached = _reattach_detached_feet(tree, names, roots)
@@ -602,8 +616,11 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
                 if len(members) >= 5:
                     bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
     if not bodies:
-        raise RigMappingError("no humanoid found: no hierarchy has two legs and a spine meeting at a pelvis with two "
-                              "arms branching from the spine")
+        order = ("four legs", "a horizontal body", "no legs", "no two legs")  # the most telling feature first
+        why.sort(key=lambda w: next((k for k, o in enumerate(order) if w.startswith(o)), len(order)))
+        feature = f"not a human: {why[0]}; " if why else ""
+        raise RigMappingError(f"no humanoid found: {feature}no hierarchy has two legs and a spine meeting at a pelvis "
+                              "with two arms branching from the spine")
     bodies.sort(key=lambda t: (t[0], t[1]))
     error: RigMappingError | None = None
     for _, _, body in bodies[:20]:  # the best assignment whose chains hold every joint

@@ -285,8 +285,8 @@ def _rest_by_evidence(char: Character, o: CharacterOptions) -> Character:
         chosen, rest = off_char, "offsets"
     else:
         chosen, rest = char, "frame0"
-    why = (f"{rest} (frame 0 bends {bend0:.0f} deg, the OFFSET pose {bend_off:.0f} deg; the most human by SMPL-SI: "
-           f"frame 0 {said(r0)}, OFFSETs {said(r_off)})")
+    why = (f"{rest} (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the OFFSET pose "
+           f"{bend_off:.0f} deg; the more human by SMPL-SI: frame 0 {said(r0)}, OFFSETs {said(r_off)})")
     return dataclasses.replace(chosen, skeleton=dataclasses.replace(chosen.skeleton, rest=why))
 
 
