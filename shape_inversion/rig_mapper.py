@@ -334,6 +334,12 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
             return _reject(why, "a horizontal body: the head is ahead of the hips, not above them (head at "
                            f"{lift[2]:.1f} hip heights along the legs, a human's above 1.2)" if lift[2] < 1.2 else
                            "four legs: the front limbs stand on the floor (their ends below 40% of the hip height)")
+        spine = P[arms_meet] - P[pelvis]
+        n_spine = float(np.linalg.norm(spine))
+        if n_spine > 0.05 * hip_height and float(spine @ legs_up) < 0.5 * n_spine:  # a quadruped's spine runs forward
+            return _reject(why, "a horizontal body: the spine runs forward, not up along the legs ("
+                           f"{np.degrees(np.arccos(np.clip(spine @ legs_up / n_spine, -1, 1))):.0f} deg from them, "
+                           "a human's within 60 deg)")
     if abs(h[feet[0]] - h[feet[1]]) > 0.25 * height:  # a tail or a raised limb is not the second leg
         return _reject(why, "no two legs of one length: the limbs below the pelvis end at different heights "
                        "(a tail beside a leg)")
