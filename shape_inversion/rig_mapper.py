@@ -536,10 +536,23 @@ def _left_axis(tree: _Tree, feet_chains: list[list[int]], up: np.ndarray) -> np.
 
 
 def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, head_leaf: int, up: np.ndarray,
-               stature: float, hands: tuple[int, ...] = ()) -> dict[str, int]:
+               stature: float, hands: tuple[int, ...] = (), shoulder_h: float | None = None,
+               notes: list[str] | None = None) -> dict[str, int]:
+    notes = [] if notes is None else notes
     P = tree.P
     out: dict[str, int] = {}
     spine = tree.chain(pelvis, arms_meet) if arms_meet != pelvis else []
+    meet_h = float((P[arms_meet] - P[pelvis]) @ up)
+    if spine and shoulder_h is not None and 0.02 * stature <= meet_h < 0.45 * shoulder_h:
+        # the arms hang off a low spine joint (a low-poly rig's one chest bone just above the hips): it is
+        # SMPL's spine1 (spine2 the next), not spine3, which sits 70% of the way up to the shoulders
+        out["spine1"] = spine[0]
+        if len(spine) >= 2:
+            out["spine2"] = spine[1]
+        notes.append(f"the arms branch from {names[arms_meet]!r}, low on the spine ({meet_h / shoulder_h:.0%} of "
+                     "the shoulder height above the pelvis; SMPL's spine3 is at about 70%): mapped from spine1 up, "
+                     "spine3 unmapped")
+        spine = []
     if spine:
         out["spine3"] = spine[-1]
         inner = [j for j in spine[:-1] if float((P[j] - P[pelvis]) @ up) >= 0.02 * stature]
@@ -714,8 +727,10 @@ def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
     for side, x in zip(("left", "right"), hands_lr, strict=True):
         for role, j in arms[body.hands.index(x)].items():
             out[f"{side}_{role}"] = j
-    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature, body.hands))
-    if "spine3" not in out:
+    shoulder_h = float(np.mean([(P[arm["shoulder"]] - P[body.pelvis]) @ up for arm in arms]))
+    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature, body.hands,
+                          shoulder_h if shoulder_h > 0 else None, notes))
+    if "spine3" not in out and "spine1" not in out:
         notes.append(f"the arms branch from the pelvis joint {names[body.pelvis]!r}: no spine joints mapped")
     ordered = {s: out[s] for s in JOINT_NAMES if s in out}
     if len(set(ordered.values())) != len(ordered):
