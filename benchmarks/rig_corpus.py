@@ -64,7 +64,7 @@ def round_trip(char, estimate, tmp: Path) -> dict:
     custom = smpl_to_custom(pose, cc)
     _, p_file = custom.positions(cc)
     to_mm = 1000 * cc.units_m
-    out: dict = pose_error(pose, cc, p_file, float(char.head_ankle_height_m / 0.84))
+    out: dict = pose_error(pose, cc, float(char.head_ankle_height_m / 0.84))
     bvh = tmp / "posed.bvh"
     bvh.write_text(custom_bvh_text(cc, [custom]))
     motion = read_bvh(bvh)
@@ -90,24 +90,12 @@ def round_trip(char, estimate, tmp: Path) -> dict:
     return out
 
 
-def pose_error(pose, cc, p_file: np.ndarray, stature: float) -> dict:
-    """How far the retargeted character lands from its SMPL pose: mapped joints, after a rigid alignment.
+def pose_error(pose, cc, stature: float) -> dict:
+    """Mean and largest distance (% of the stature) of the retargeted character's mapped joints from its SMPL
+    pose after a rigid alignment (:func:`workflows.character.retarget_error_m`)."""
+    from workflows.character import retarget_error_m
 
-    The character's mapped joints (character space, metres) against the SMPL joints they map to (the pose on
-    the character's SMPL body, times its scale), aligned by Kabsch; mean and largest distance in percent of
-    the character's stature.
-    """
-    import torch
-
-    from smplik.metrics import rigid_align
-    from workflows.character import _smpl_globals
-
-    _, p_s = _smpl_globals(pose, cc)
-    mapped = [k for k in range(len(cc.names)) if cc.smpl_of[k] >= 0]
-    mine = cc.file_to_canon_points(p_file)[mapped]
-    theirs = cc.scale * p_s[[int(cc.smpl_of[k]) for k in mapped]]
-    fit = rigid_align(torch.as_tensor(mine), torch.as_tensor(theirs), scale=False)
-    err = np.linalg.norm(fit.apply(torch.as_tensor(mine)).numpy() - theirs, axis=1)
+    err = retarget_error_m(pose, cc)
     return {"pose_error_mean_pct": float(100 * err.mean() / stature),
             "pose_error_max_pct": float(100 * err.max() / stature)}
 

@@ -543,12 +543,10 @@ def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, h
     out: dict[str, int] = {}
     spine = tree.chain(pelvis, arms_meet) if arms_meet != pelvis else []
     meet_h = float((P[arms_meet] - P[pelvis]) @ up)
-    if spine and shoulder_h is not None and 0.02 * stature <= meet_h < 0.45 * shoulder_h:
-        # the arms hang off a low spine joint (a low-poly rig's one chest bone just above the hips): it is
-        # SMPL's spine1 (spine2 the next), not spine3, which sits 70% of the way up to the shoulders
+    if len(spine) == 1 and shoulder_h is not None and 0.02 * stature <= meet_h < 0.5 * shoulder_h:
+        # the arms hang off the one spine joint, low (a low-poly rig's chest bone just above the hips): it is
+        # SMPL's spine1, not spine3, which sits 70% of the way up to the shoulders
         out["spine1"] = spine[0]
-        if len(spine) >= 2:
-            out["spine2"] = spine[1]
         notes.append(f"the arms branch from {names[arms_meet]!r}, low on the spine ({meet_h / shoulder_h:.0%} of "
                      "the shoulder height above the pelvis; SMPL's spine3 is at about 70%): mapped from spine1 up, "
                      "spine3 unmapped")
@@ -875,10 +873,13 @@ def virtual_parents(names: Sequence[str], parents: Sequence[int], positions: np.
     A Rigify export of its deform bones only puts ``DEF-thigh.L``, ``DEF-upper_arm.L``, ``DEF-shoulder.L``
     and ``DEF-spine`` directly under the armature: the chains keep their links, but nothing links the
     chains. The body's chain (the longest chain of centre joints, names without a side) is kept; every
-    other chain is hung, nearest first (Prim's algorithm), on the joint it starts at: the nearest joint
-    already linked, or, with bone ``axes`` (J, 3) that run along the bones (:func:`bone_axes_consistent`),
-    the linked leaf bone whose line runs through the chain's first joint (``DEF-shoulder.L`` ends where
-    ``DEF-upper_arm.L`` starts). A chain is never hung on a joint of the other side.
+    other chain is hung, nearest first (Prim's algorithm), on the joint it starts at. With bone ``axes``
+    (J, 3) that run along the bones (:func:`bone_axes_consistent`), that is the linked bone whose tail (its
+    child's head, or for a leaf its line) is nearest the chain's first joint (``DEF-shoulder.L`` ends where
+    ``DEF-upper_arm.L`` starts); without, a chain running down (a leg) hangs on the body chain's first joint
+    (the pelvis) and any other on the nearest linked joint not above its first joint or bone tail (a bone
+    with one child ends at that child: a shoulder starting at the neck's head hangs on the chest). A chain
+    is never hung on a joint of the other side.
 
     Returns:
         (parents, notes): the new parent of every joint (the chains' own links kept) and one note naming
@@ -899,16 +900,25 @@ def virtual_parents(names: Sequence[str], parents: Sequence[int], positions: np.
     main = max(centre or roots, key=lambda r: (chain_length(r), len(tree.subtree(r))))
     linked = set(tree.subtree(main))
     pending = [r for r in roots if r != main]
+    tip = max(tree.subtree(main), key=lambda j: tree.dist[j])
+    up = P[tip] - P[main]
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
+
+    def hangs_down(r: int) -> bool:  # a leg: its chain runs down from its first joint
+        return min(float((P[j] - P[r]) @ up) for j in tree.subtree(r)) < -0.25 * size
     new = list(parents)
     links: list[str] = []
     while pending:
         best = None
         for r in pending:
             side = side_of(strip_suffix(names[r]))
+            down = not use_axes and hangs_down(r)
             for c in linked:
                 other = side_of(strip_suffix(names[c]))
                 if side is not None and other is not None and other != side:
                     continue
+                if not use_axes and (c != main if down else float((P[c] - P[r]) @ up) > 0.02 * size):
+                    continue  # no bone axes: legs hang on the body's first joint, the rest on a joint not above
                 d = P[r] - P[c]
                 cost = float(np.linalg.norm(d))
                 if use_axes:  # Blender: a bone starting at another's tail is its child
@@ -920,6 +930,8 @@ def virtual_parents(names: Sequence[str], parents: Sequence[int], positions: np.
                     elif not tree.children[c] and float(d @ a) > 0:  # a leaf bone: its line
                         t = float(d @ a)
                         cost = min(cost, float(np.linalg.norm(d - t * a)) + 1e-3 * size)
+                elif len(tree.children[c]) == 1:  # a bone's tail is its one child's head: a chain starting there
+                    cost = min(cost, float(np.linalg.norm(P[r] - P[tree.children[c][0]])) - 1e-3 * size)
                 if best is None or cost < best[0]:
                     best = (cost, r, c)
         if best is None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -295,7 +296,9 @@ def proportion_residual_m(features: np.ndarray) -> float:
     from shape_inversion.estimator import ShapeInversionError
 
     try:
-        return float(_neutral_estimator().estimate(features).max_feature_residual_m)
+        with warnings.catch_warnings():  # a weak fit of a candidate is not the character's: no warning
+            warnings.simplefilter("ignore")
+            return float(_neutral_estimator().estimate(features).max_feature_residual_m)
     except ShapeInversionError:
         return float("inf")
 

@@ -333,6 +333,23 @@ def smpl_to_custom(pose: Pose, char: CustomCharacter) -> CustomPose:
     return CustomPose(local, char.canon_to_file_points(p_root))
 
 
+def retarget_error_m(pose: Pose, char: CustomCharacter) -> np.ndarray:
+    """How far ``pose`` retargeted onto ``char`` lands from the SMPL pose: (M,) metres per mapped joint.
+
+    The character's mapped joints (character space) against the SMPL joints they map to (the pose on the
+    character's SMPL body, times its scale), after a rigid alignment (Kabsch, :func:`smplik.metrics.rigid_align`).
+    """
+    from smplik.metrics import rigid_align
+
+    _, p_file = smpl_to_custom(pose, char).positions(char)
+    _, p_s = _smpl_globals(pose, char)
+    mapped = [k for k in range(len(char.names)) if char.smpl_of[k] >= 0]
+    mine = torch.as_tensor(char.file_to_canon_points(p_file)[mapped])
+    theirs = torch.as_tensor(char.scale * p_s[[int(char.smpl_of[k]) for k in mapped]])
+    fit = rigid_align(mine, theirs, scale=False)
+    return np.linalg.norm((fit.apply(mine) - theirs).numpy(), axis=1)
+
+
 def custom_to_smpl(custom: CustomPose, char: CustomCharacter) -> Pose:
     """Retarget a custom-skeleton pose back to SMPL (the character's SMPL body, SMPL space)."""
     R_file, _ = custom.positions(char)
