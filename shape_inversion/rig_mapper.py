@@ -883,13 +883,14 @@ def virtual_parents(names: Sequence[str], parents: Sequence[int], positions: np.
 
     Returns:
         (parents, notes): the new parent of every joint (the chains' own links kept) and one note naming
-        the links made; None when the skeleton has one root.
+        the links made; None when the skeleton has one root, or more roots than a third of its joints (loose
+        points, not chains).
     """
     P = np.asarray(positions, dtype=np.float64)
     tree = _Tree(parents, P, names)
     roots = [j for j, p in enumerate(parents) if p < 0]
-    if len(roots) < 2:
-        return None
+    if len(roots) < 2 or len(roots) > len(names) / 3 or sum(1 for r in roots if tree.children[r]) < 2:
+        return None  # one hierarchy, or no chains at all (loose named points are not chains to link)
     use_axes = axes is not None and bone_axes_consistent(parents, P, axes)
     size = max(float(np.ptp(P, axis=0).max()), 1e-12)
 

@@ -209,7 +209,7 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
             why = f"{why}; name matching: {exc}"
     if "not a human: " in why:  # the mapper saw a body and its geometry is not a human's: say so first
         feature = why.split("not a human: ", 1)[1].split(";", 1)[0]
-        raise RigError(f"Not a human: {feature} (the rig mapper found no humanoid: no hierarchy has two legs and a "
+        raise RigError(f"Not a human: {feature} (rig mapper: no humanoid found: no hierarchy has two legs and a "
                        "spine meeting at a pelvis with two arms branching from the spine).")
     sample = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
     raise RigError(f"Could not detect the rig from the joint names ({sample}); presets: "
