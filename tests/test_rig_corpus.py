@@ -281,3 +281,33 @@ def test_a_draco_mesh_without_a_decoder_says_so_in_one_warning(tmp_path, monkeyp
     with pytest.warns(UserWarning, match="Draco-compressed.*cannot be shown") as caught:
         assert skinned_mesh(rig) is None
     assert len(caught) == 1 and "\n" not in str(caught[0].message)
+
+
+# ----------------------------------------------------------------------------- previews
+
+
+def test_a_root_joint_left_on_the_floor_draws_no_stray_bone(tmp_path, estimator):
+    """Bandai-Namco's layout (their research motion dataset's BVH): ``ROOT joint_Root`` at the origin with six
+    channels, the hips a joint below it, moved by their own position channels: no bone drawn to the root."""
+    from workflows.character import build_character, smpl_to_custom
+    from workflows.examples_gen import example_poses, write_mixamo_character
+    from workflows.previews import custom_skeleton_segments
+
+    text = write_mixamo_character(tmp_path / "m.bvh").read_text()
+    head, _, motion = text.partition("MOTION")
+    head = head.replace("ROOT mixamorig:Hips", "ROOT joint_Root\n{\n\tOFFSET 0 0 0\n\tCHANNELS 6 Xposition Yposition "
+                        "Zposition Zrotation Xrotation Yrotation\n\tJOINT mixamorig:Hips", 1).rstrip() + "\n}\n"
+    lines = motion.strip().splitlines()
+    frames = ["0 0 0 0 0 0 " + " ".join(["0", "96.65", "-452"] + line.split()[3:]) for line in lines[2:]]
+    path = tmp_path / "bandai_layout.bvh"
+    path.write_text(head + "MOTION\n" + "\n".join(lines[:2] + frames) + "\n")
+    char = read_character(path)
+    assert char.joint_map["pelvis"] == "mixamorig:Hips" and "joint_Root" in char.skeleton.names
+    cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    pose = dataclasses.replace(example_poses()[0].pose, betas=cc.betas, gender=cc.gender)
+    custom = smpl_to_custom(pose, cc)
+    segments = custom_skeleton_segments(cc, custom)
+    assert len(segments) == len(cc.names) - 2  # every bone but the one from joint_Root to the hips
+    _, p_file = custom.positions(cc)
+    root = cc.file_to_canon_points(p_file)[cc.names.index("joint_Root")]
+    assert all(not np.allclose(s.start, root) for s in segments)
