@@ -13,6 +13,8 @@ Per humanoid, exactly as ``smplik invert-shape`` / ``scene from-estimate --chara
   the humanoid table ignored);
 * units, up, rest pose, scale -> stature (the SMPL-SI estimate's scale and the skeleton's stature);
 * fit residual (largest of the six SMPL-SI features, mm) and effective samples;
+* pose error: the example pose retargeted onto the character against its SMPL pose (mapped joints after a
+  rigid alignment, mean and largest distance in % of the stature; a BVH character should be within 3 %);
 * export round trip: a pose (the example ``reach`` pose) retargeted onto the character, written as BVH
   (re-read with smplik's BVH reader) and, for glTF/VRM characters, as GLB (re-read with pygltflib and
   trimesh; the GLB is in the scene's world frame and keeps the source's animation clips); largest joint
@@ -213,7 +215,8 @@ def main() -> None:
                   f"stature {row['stature_m']:.2f} m -> scale {row['scale']:.3f}  residual "
                   f"{row['fit_residual_mm']:5.1f} mm  n_eff {row['effective_samples']:5.1f}  round trip bvh "
                   f"{row['bvh_max_error_mm']:.2g} mm" + (f", glb {row['glb_max_error_mm']:.2g} mm"
-                                                         if "glb_max_error_mm" in row else ""))
+                                                         if "glb_max_error_mm" in row else "")
+                  + f"  pose {row['pose_error_mean_pct']:.2f}% of stature")
         non_human = []
         for entry in manifest.get("non_humanoids", []):  # real non-humanoid rigs: refused in one line
             path = resolve(entry["file"], args.corpus)
@@ -236,7 +239,10 @@ def main() -> None:
     tools = sorted({r["tool"].split(",")[0] for r in rows})
     summary = {"humanoids": len(rows), "passed": sum(r["passed"] for r in rows), "skipped": len(skipped),
                "tools": len(tools), "non_humanoids_refused": sum(r["passed"] for r in non_human),
-               "non_humanoids": len(non_human)}
+               "non_humanoids": len(non_human),
+               "bvh_pose_within_3pct": sum(r.get("pose_error_mean_pct", 99) <= 3.0 for r in rows
+                                           if r.get("file", "").endswith(".bvh")),
+               "bvh_characters": sum(r.get("file", "").endswith(".bvh") and "error" not in r for r in rows)}
     print(f"{summary['passed']}/{summary['humanoids']} humanoid rigs pass with no options ({summary['tools']} tools "
           f"or pipelines, {len(skipped)} skipped); {summary['non_humanoids_refused']}/{len(non_human)} non-humanoids "
           "refused in one line")
