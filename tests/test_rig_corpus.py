@@ -90,6 +90,17 @@ def test_exporter_suffixes_are_stripped(name, stripped):
     assert strip_suffix(name) == stripped
 
 
+def test_presets_match_names_with_exporter_suffixes():
+    """Sketchfab numbers every node (``mixamorig:Hips_01``): a preset still finds each joint by its stem."""
+    from shape_inversion.rigs import load_preset, match_joints
+
+    rig = load_preset("mixamo")
+    names = [f"{n}_{k:02d}" for k, (_, n) in enumerate(rig.joints)] + ["mixamorig:Spine1_99", "mixamorig:Spine1.001"]
+    found, exact = match_joints(rig, names)
+    assert exact == 0 and {s: names[i] for s, i in found.items()} == {
+        s: f"{n}_{k:02d}" for k, (s, n) in enumerate(rig.joints) if not n.endswith("Spine1")}  # two Spine1 stems
+
+
 def test_sketchfab_names_with_reversed_compounds_and_an_ik_bone_under_the_collar_map(tmp_path):
     """Sketchfab's ``Leg_Upper.L_205`` / ``Arm_Lower_1.L_155`` names, an elbow IK target under each collar."""
     sk = read_skeleton(RIGS / "VRMC_materials_mtoon_UV_Animation_Test.vrm")
