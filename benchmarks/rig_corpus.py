@@ -13,6 +13,8 @@ Per humanoid, exactly as ``smplik invert-shape`` / ``scene from-estimate --chara
   the humanoid table ignored);
 * units, up, rest pose, scale -> stature (the SMPL-SI estimate's scale and the skeleton's stature);
 * fit residual (largest of the six SMPL-SI features, mm) and effective samples;
+* pose error: the example pose retargeted onto the character against its SMPL pose (mapped joints after a
+  rigid alignment, mean and largest distance in % of the stature; a BVH character should be within 3 %);
 * export round trip: a pose (the example ``reach`` pose) retargeted onto the character, written as BVH
   (re-read with smplik's BVH reader) and, for glTF/VRM characters, as GLB (re-read with pygltflib and
   trimesh; the GLB is in the scene's world frame and keeps the source's animation clips); largest joint
@@ -64,7 +66,7 @@ def round_trip(char, estimate, tmp: Path) -> dict:
     custom = smpl_to_custom(pose, cc)
     _, p_file = custom.positions(cc)
     to_mm = 1000 * cc.units_m
-    out: dict = {}
+    out: dict = pose_error(pose, cc, float(char.head_ankle_height_m / 0.84))
     bvh = tmp / "posed.bvh"
     bvh.write_text(custom_bvh_text(cc, [custom]))
     motion = read_bvh(bvh)
@@ -88,6 +90,16 @@ def round_trip(char, estimate, tmp: Path) -> dict:
         scene = trimesh.load(glb, force="scene")
         out["glb_trimesh_geometries"] = len(scene.geometry)
     return out
+
+
+def pose_error(pose, cc, stature: float) -> dict:
+    """Mean and largest distance (% of the stature) of the retargeted character's mapped joints from its SMPL
+    pose after a rigid alignment (:func:`workflows.character.retarget_error_m`)."""
+    from workflows.character import retarget_error_m
+
+    err = retarget_error_m(pose, cc)
+    return {"pose_error_mean_pct": float(100 * err.mean() / stature),
+            "pose_error_max_pct": float(100 * err.max() / stature)}
 
 
 def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
@@ -203,7 +215,8 @@ def main() -> None:
                   f"stature {row['stature_m']:.2f} m -> scale {row['scale']:.3f}  residual "
                   f"{row['fit_residual_mm']:5.1f} mm  n_eff {row['effective_samples']:5.1f}  round trip bvh "
                   f"{row['bvh_max_error_mm']:.2g} mm" + (f", glb {row['glb_max_error_mm']:.2g} mm"
-                                                         if "glb_max_error_mm" in row else ""))
+                                                         if "glb_max_error_mm" in row else "")
+                  + f"  pose {row['pose_error_mean_pct']:.2f}% of stature")
         non_human = []
         for entry in manifest.get("non_humanoids", []):  # real non-humanoid rigs: refused in one line
             path = resolve(entry["file"], args.corpus)
@@ -226,7 +239,10 @@ def main() -> None:
     tools = sorted({r["tool"].split(",")[0] for r in rows})
     summary = {"humanoids": len(rows), "passed": sum(r["passed"] for r in rows), "skipped": len(skipped),
                "tools": len(tools), "non_humanoids_refused": sum(r["passed"] for r in non_human),
-               "non_humanoids": len(non_human)}
+               "non_humanoids": len(non_human),
+               "bvh_pose_within_3pct": sum(r.get("pose_error_mean_pct", 99) <= 3.0 for r in rows
+                                           if r.get("file", "").endswith(".bvh")),
+               "bvh_characters": sum(r.get("file", "").endswith(".bvh") and "error" not in r for r in rows)}
     print(f"{summary['passed']}/{summary['humanoids']} humanoid rigs pass with no options ({summary['tools']} tools "
           f"or pipelines, {len(skipped)} skipped); {summary['non_humanoids_refused']}/{len(non_human)} non-humanoids "
           "refused in one line")

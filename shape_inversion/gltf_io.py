@@ -445,3 +445,67 @@ def joint_parents(rig: GltfRig) -> tuple[int, ...]:
     """(J,) parent joint index of every joint of ``rig`` (nearest joint ancestor), -1 for roots."""
     index = {n: k for k, n in enumerate(rig.joint_nodes)}
     return tuple(_joint_parent(rig.doc, n, index) for n in rig.joint_nodes)
+
+
+DRACO_EXTENSION = "KHR_draco_mesh_compression"
+
+
+class DracoUnavailableError(GltfError):
+    """A primitive is Draco-compressed and no Draco decoder (DracoPy) is installed."""
+
+
+def draco_primitive(doc: GltfFile, prim) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
+    """The decoded vertex attributes and triangles (F, 3) of a Draco-compressed primitive, else None.
+
+    ``KHR_draco_mesh_compression`` (the Khronos extension): the primitive's ``extensions`` name a bufferView
+    holding one Draco mesh and the Draco unique id of each attribute (``POSITION``, ``JOINTS_0``,
+    ``WEIGHTS_0``...); the accessors keep only counts and types. Decoded with DracoPy
+    (``pip install 'smplik[draco]'``); attributes are float64 (normalized integers as in glTF) or int64.
+
+    Raises: DracoUnavailableError without DracoPy; GltfError on a malformed extension or Draco buffer.
+    """
+    ext = (getattr(prim, "extensions", None) or {}).get(DRACO_EXTENSION)
+    if ext is None:
+        return None
+    where = f"{doc.path}: {DRACO_EXTENSION}"
+    if not isinstance(ext, dict) or not isinstance(ext.get("bufferView"), int) \
+            or not isinstance(ext.get("attributes"), dict):
+        raise GltfError(f"{where}: needs an integer bufferView and an attributes object")
+    try:
+        import DracoPy
+    except ImportError:
+        raise DracoUnavailableError(f"{doc.path}: the mesh is Draco-compressed ({DRACO_EXTENSION}) and DracoPy is "
+                                    "not installed (pip install 'smplik[draco]')") from None
+    gltf = doc.gltf
+    index = ext["bufferView"]
+    if not 0 <= index < len(gltf.bufferViews or []):
+        raise GltfError(f"{where}: bufferView {index!r} out of range")
+    view = gltf.bufferViews[index]
+    if not 0 <= view.buffer < len(doc.buffers):
+        raise GltfError(f"{where}: buffer {view.buffer!r} out of range")
+    start, length = view.byteOffset or 0, view.byteLength or 0
+    data = doc.buffers[view.buffer]
+    if start < 0 or length <= 0 or start + length > len(data):
+        raise GltfError(f"{where}: bufferView {index} reads past the end of its buffer")
+    try:
+        mesh = DracoPy.decode(bytes(data[start:start + length]))
+    except Exception as exc:  # DracoPy raises its own error types for corrupt buffers
+        raise GltfError(f"{where}: cannot decode the Draco buffer ({type(exc).__name__})") from None
+    by_id = {a["unique_id"]: np.asarray(a["data"]) for a in getattr(mesh, "attributes", []) or []}
+    out: dict[str, np.ndarray] = {}
+    for name, uid in ext["attributes"].items():
+        values = by_id.get(uid)
+        if values is None and name == "POSITION":
+            values = np.asarray(mesh.points)
+        if values is None:
+            continue
+        values = values.reshape(len(values), -1)
+        accessor = getattr(prim.attributes, name, None)
+        acc = gltf.accessors[accessor] if isinstance(accessor, int) and 0 <= accessor < len(gltf.accessors or []) \
+            else None
+        if acc is not None and acc.normalized and values.dtype.kind in "iu":
+            values = values / np.iinfo(values.dtype).max
+        out[name] = values.astype(np.float64) if values.dtype.kind == "f" or name.startswith("WEIGHTS") \
+            else values.astype(np.int64)
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    return out, faces

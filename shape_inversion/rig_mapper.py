@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -74,7 +75,7 @@ _ROLE_WORDS: dict[str, tuple[str, ...]] = {
     "knee": ("shin", "calf", "knee", "lowerleg", "lowleg", "leg", "tibia"),
     "ankle": ("foot", "ankle"),
     "foot": ("toe", "toes", "toebase", "ball"),
-    "collar": ("collar", "clavicle", "shoulder"),
+    "collar": ("collar", "clavicle", "clavic", "shoulder"),
     "shoulder": ("upperarm", "uparm", "shldr", "arm", "shoulder", "humerus"),
     "elbow": ("forearm", "lowerarm", "lowarm", "elbow"),
     "wrist": ("hand", "wrist"),
@@ -102,11 +103,42 @@ def side_of(name: str) -> str | None:
     return None
 
 
+_COMPOUNDS = {"legupper": "upperleg", "leglower": "lowerleg", "armupper": "upperarm", "armlower": "lowerarm",
+              "legup": "upleg", "armup": "uparm", "leglow": "lowleg", "armlow": "lowarm"}
+"""Reversed compounds of some exporters (Sketchfab's ``Leg_Upper.L_205``) in the usual order."""
+_HELPER_WORDS = ("ik", "pole", "target", "ctrl", "control", "helper", "mch", "twist", "roll", "socket", "prop",
+                 "weapon", "attach", "grip", "pv")
+"""Words of helper bones (IK targets and poles, twist and roll bones, sockets): never an extremity."""
+
+
+def strip_suffix(name: str) -> str:
+    """The name without exporter suffixes: Sketchfab's ``_6``, Blender's ``.001``, an ``_end``/``.end``.
+
+    ``"leg_upper.L_6"`` -> ``"leg_upper.L"``, ``"DEF-thigh.L.001"`` -> ``"DEF-thigh.L"``.
+    """
+    return re.sub(r"(?:[._ ](?:\d+|end|End|END))+$", "", name) or name
+
+
 def _part(name: str) -> str:
-    """The name's words without side, digits and tool prefixes, joined (``"Bip01 L Thigh"`` -> ``"thigh"``)."""
+    """The name's words without side, digits and tool prefixes, joined (``"Bip01 L Thigh"`` -> ``"thigh"``).
+
+    Exporter suffixes go with the digits (``"leg_upper.L_6"`` -> ``"upperleg"``: reversed compounds are put
+    in the usual order).
+    """
     ignored = {"left", "l", "right", "r", "lft", "rgt", "rt", "bip", "biped", "def", "org", "jnt", "joint", "bone",
                "mch", "b", "j", "c", "mixamorig", "cc", "base"}
-    return "".join(w for w in name_words(name) if not w.isdigit() and w not in ignored)
+    part = "".join(w for w in name_words(name) if not w.isdigit() and w not in ignored)
+    for a, b in _COMPOUNDS.items():
+        if part.startswith(a) and not part.startswith(b):
+            return b + part[len(a):]
+    return part
+
+
+def is_helper(name: str) -> bool:
+    """Whether the name says a helper bone (IK target or pole, twist/roll bone, socket, prop, Rigify MCH-)."""
+    words = name_words(name)
+    base = name.rsplit("|", 1)[-1].rsplit(":", 1)[-1].lower()
+    return base.startswith(("mch-", "mch_", "ik-", "ik_", "vis_", "vis-")) or any(w in _HELPER_WORDS for w in words)
 
 
 def _says(name: str, role: str) -> bool:
@@ -133,8 +165,9 @@ def _is_end(name: str) -> bool:
 class _Tree:
     """Parents, children, depths and ancestor tests of one skeleton."""
 
-    def __init__(self, parents: Sequence[int], positions: np.ndarray) -> None:
+    def __init__(self, parents: Sequence[int], positions: np.ndarray, names: Sequence[str] | None = None) -> None:
         self.parents = list(parents)
+        self.names = names
         self.P = positions
         n = len(parents)
         self.children: list[list[int]] = [[] for _ in range(n)]
@@ -212,6 +245,10 @@ class _Body:
 def _candidates(tree: _Tree, members: list[int], k: int = 8) -> list[int]:
     """Up to ``k`` leaves far apart in the tree metric (farthest-point sampling from the root)."""
     leaves = [j for j in members if not tree.children[j]]
+    names = tree.names
+    if names is not None:  # IK targets, poles, twist bones: never a hand, foot or head
+        plain = [j for j in leaves if not is_helper(names[j])]
+        leaves = plain if len(plain) >= 5 else leaves
     if len(leaves) < 5:
         return leaves
     root = members[0]
@@ -225,7 +262,7 @@ def _candidates(tree: _Tree, members: list[int], k: int = 8) -> list[int]:
     return picked
 
 
-def _find_bodies(tree: _Tree, members: list[int]) -> list[_Body]:
+def _find_bodies(tree: _Tree, members: list[int], why: list[str] | None = None) -> list[_Body]:
     """Every valid assignment of feet, hands and head among the candidate leaves, best first."""
     cands = _candidates(tree, members)
     P = tree.P
@@ -236,13 +273,20 @@ def _find_bodies(tree: _Tree, members: list[int]) -> list[_Body]:
             rest = [j for j in five if j != head]
             for feet in itertools.combinations(rest, 2):
                 hands = tuple(j for j in rest if j not in feet)
-                body = _check(tree, head, feet, hands, size)  # type: ignore[arg-type]
+                body = _check(tree, head, feet, hands, size, why)  # type: ignore[arg-type]
                 if body is not None:
                     found[(head, feet, hands)] = body
     return sorted(found.values(), key=lambda b: b.score)
 
 
-def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int], size: float) -> _Body | None:
+def _reject(why: list[str] | None, reason: str) -> None:
+    if why is not None:
+        why.append(reason)
+    return None
+
+
+def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int], size: float,
+           why: list[str] | None = None) -> _Body | None:
     P = tree.P
     legs_meet = tree.lca(*feet)
     pelvis = tree.lca(legs_meet, head)
@@ -278,21 +322,33 @@ def _check(tree: _Tree, head: int, feet: tuple[int, int], hands: tuple[int, int]
     score += abs(np.log(np.mean(arm) / np.mean(leg) / 0.85))  # arms about as long as legs (eyes are not arms)
     score += max(0.0, tree.tree_distance(arms_meet, head) / np.mean(arm) - 0.8)  # the neck shorter than an arm
     if min(h[hands[0]], h[hands[1]]) < 0.3 * height:  # hands on the floor: a quadruped's front legs
-        return None
+        return _reject(why, "four legs: the limbs that would be arms reach the floor like front legs "
+                       f"(their ends at {min(h[hands[0]], h[hands[1]]) / height:.0%} of the height, a human's hands "
+                       "hang above 30%)")
     legs_up = P[pelvis] - (P[feet[0]] + P[feet[1]]) / 2  # along the legs: hands above the knees, the head above
     hip_height = float(np.linalg.norm(legs_up))
     if hip_height > 0:
         legs_up = legs_up / hip_height
         lift = [float((P[j] - (P[feet[0]] + P[feet[1]]) / 2) @ legs_up) / hip_height for j in (*hands, head)]
         if min(lift[:2]) < 0.4 or lift[2] < 1.2:  # a quadruped: front paws on the floor, head ahead of the body
-            return None
+            return _reject(why, "a horizontal body: the head is ahead of the hips, not above them (head at "
+                           f"{lift[2]:.1f} hip heights along the legs, a human's above 1.2)" if lift[2] < 1.2 else
+                           "four legs: the front limbs stand on the floor (their ends below 40% of the hip height)")
+        spine = P[arms_meet] - P[pelvis]
+        n_spine = float(np.linalg.norm(spine))
+        if n_spine > 0.05 * hip_height and float(spine @ legs_up) < 0.5 * n_spine:  # a quadruped's spine runs forward
+            return _reject(why, "a horizontal body: the spine runs forward, not up along the legs ("
+                           f"{np.degrees(np.arccos(np.clip(spine @ legs_up / n_spine, -1, 1))):.0f} deg from them, "
+                           "a human's within 60 deg)")
     if abs(h[feet[0]] - h[feet[1]]) > 0.25 * height:  # a tail or a raised limb is not the second leg
-        return None
+        return _reject(why, "no two legs of one length: the limbs below the pelvis end at different heights "
+                       "(a tail beside a leg)")
     if float((P[pelvis] - P[feet[0]]) @ up) < 0.25 * height:  # no legs below the pelvis (a half-body avatar)
-        return None
+        return _reject(why, "no legs below the pelvis (a half-body)")
     d0, d1 = P[feet[0]] - P[pelvis], P[feet[1]] - P[pelvis]
     if d0 @ d1 < np.cos(np.radians(55)) * np.linalg.norm(d0) * np.linalg.norm(d1):  # legs 55 deg apart: a tail
-        return None
+        return _reject(why, "no two legs side by side: the limbs off the pelvis point more than 55 deg apart "
+                       "(legs and a tail)")
     score += 2.0 * sum(max(0.0, (min(h[feet[0]], h[feet[1]]) - h[x]) / height) for x in hands)  # feet lowest
     score += abs(h[feet[0]] - h[feet[1]]) / height
     score += max(0.0, 0.5 - float((P[pelvis] - P[feet[0]]) @ up) / height)  # the pelvis well above the feet
@@ -480,10 +536,21 @@ def _left_axis(tree: _Tree, feet_chains: list[list[int]], up: np.ndarray) -> np.
 
 
 def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, head_leaf: int, up: np.ndarray,
-               stature: float) -> dict[str, int]:
+               stature: float, hands: tuple[int, ...] = (), shoulder_h: float | None = None,
+               notes: list[str] | None = None) -> dict[str, int]:
+    notes = [] if notes is None else notes
     P = tree.P
     out: dict[str, int] = {}
     spine = tree.chain(pelvis, arms_meet) if arms_meet != pelvis else []
+    meet_h = float((P[arms_meet] - P[pelvis]) @ up)
+    if len(spine) == 1 and shoulder_h is not None and 0.02 * stature <= meet_h < 0.5 * shoulder_h:
+        # the arms hang off the one spine joint, low (a low-poly rig's chest bone just above the hips): it is
+        # SMPL's spine1, not spine3, which sits 70% of the way up to the shoulders
+        out["spine1"] = spine[0]
+        notes.append(f"the arms branch from {names[arms_meet]!r}, low on the spine ({meet_h / shoulder_h:.0%} of "
+                     "the shoulder height above the pelvis; SMPL's spine3 is at about 70%): mapped from spine1 up, "
+                     "spine3 unmapped")
+        spine = []
     if spine:
         out["spine3"] = spine[-1]
         inner = [j for j in spine[:-1] if float((P[j] - P[pelvis]) @ up) >= 0.02 * stature]
@@ -501,6 +568,13 @@ def _map_spine(tree: _Tree, names: Sequence[str], pelvis: int, arms_meet: int, h
     chain = tree.chain(start, head_leaf)
     real = [j for j in chain if not (_is_end(names[j]) and not tree.children[j])] or chain
     heads = [j for j in real if _says(names[j], "head")]
+    if not heads:  # the leaf is a helper's (a hood, a hair strand): a joint named head under the spine wins
+        named = [j for j in tree.subtree(start) if j != start and _part(names[j]) == "head"
+                 and not any(tree.is_ancestor(j, h) for h in hands)]
+        if named:
+            top = max(named, key=lambda j: float(P[j] @ up))
+            chain = tree.chain(start, top)
+            real, heads = chain, [top]
     if heads:
         head = heads[0]
     else:
@@ -535,7 +609,7 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
     P = np.asarray(positions, dtype=np.float64)
     if len(names) != len(parents) or P.shape != (len(names), 3):
         raise RigMappingError("names, parents and positions disagree in length")
-    tree = _Tree(parents, P)
+    tree = _Tree(parents, P, names)
     roots = [j for j, p in enumerate(parents) if p < 0]
     if root is not None:
         chosen = [j for j in roots if names[j] == root] or [j for j, n in enumerate(names) if n == root]
@@ -544,22 +618,26 @@ def map_skeleton(names: Sequence[str], parents: Sequence[int], positions: np.nda
                                   f"{', '.join(repr(names[j]) for j in roots)}")
         roots = chosen
     bodies: list[tuple[float, int, _Body]] = []
+    why: list[str] = []
     for r in roots:
         members = tree.subtree(r)
         if len(members) >= 5:
-            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
+            bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members, why)]
     notes: list[str] = []
     if not bodies:  # a game rig whose IK-driven feet hang on the root: read each as its shin's child
         reattached = _reattach_detached_feet(tree, names, roots)
         if reattached is not None:
-            tree, notes = _Tree(reattached[0], P), reattached[1]
+            tree, notes = _Tree(reattached[0], P, names), reattached[1]
             for r in roots:
                 members = tree.subtree(r)
                 if len(members) >= 5:
                     bodies += [(b.score, -len(members), b) for b in _find_bodies(tree, members)]
     if not bodies:
-        raise RigMappingError("no humanoid found: no hierarchy has two legs and a spine meeting at a pelvis with two "
-                              "arms branching from the spine")
+        order = ("four legs", "a horizontal body", "no legs", "no two legs")  # the most telling feature first
+        why.sort(key=lambda w: next((k for k, o in enumerate(order) if w.startswith(o)), len(order)))
+        feature = f"not a human: {why[0]}; " if why else ""
+        raise RigMappingError(f"no humanoid found: {feature}no hierarchy has two legs and a spine meeting at a pelvis "
+                              "with two arms branching from the spine")
     bodies.sort(key=lambda t: (t[0], t[1]))
     error: RigMappingError | None = None
     for _, _, body in bodies[:20]:  # the best assignment whose chains hold every joint
@@ -647,8 +725,10 @@ def _map_body(tree: _Tree, names: Sequence[str], body: _Body) -> RigMapping:
     for side, x in zip(("left", "right"), hands_lr, strict=True):
         for role, j in arms[body.hands.index(x)].items():
             out[f"{side}_{role}"] = j
-    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature))
-    if "spine3" not in out:
+    shoulder_h = float(np.mean([(P[arm["shoulder"]] - P[body.pelvis]) @ up for arm in arms]))
+    out.update(_map_spine(tree, names, body.pelvis, arms_meet, body.head, up, stature, body.hands,
+                          shoulder_h if shoulder_h > 0 else None, notes))
+    if "spine3" not in out and "spine1" not in out:
         notes.append(f"the arms branch from the pelvis joint {names[body.pelvis]!r}: no spine joints mapped")
     ordered = {s: out[s] for s in JOINT_NAMES if s in out}
     if len(set(ordered.values())) != len(ordered):
@@ -735,3 +815,134 @@ def map_doubts(names: Sequence[str], parents: Sequence[int], positions: np.ndarr
                 notes.append(f"no {what} joint after the {side} {'wrist' if what == 'finger' else 'ankle'} "
                              f"{q(end)}: {smpl} unmapped")
     return notes
+
+
+# ----------------------------------------------------------------------------- deform sets and virtual hierarchies
+
+
+_DEF_PREFIX = re.compile(r"^(?:.*[:|])?def[-_.]", re.IGNORECASE)
+
+
+def deform_bones(names: Sequence[str]) -> list[int] | None:
+    """Indices of a Blender Rigify rig's deform bones (``DEF-thigh.L``) when the rig also holds other bones.
+
+    A Rigify control rig holds the deform set (``DEF-``) beside its original (``ORG-``), mechanism (``MCH-``)
+    and control bones (``thigh_ik.L``, ``root``): only the ``DEF-`` bones carry the mesh, so they are the
+    skeleton. None when the rig has fewer than 10 ``DEF-`` bones or nothing else.
+    """
+    keep = [j for j, n in enumerate(names) if _DEF_PREFIX.match(n)]
+    return keep if 10 <= len(keep) < len(names) else None
+
+
+def kept_parents(parents: Sequence[int], keep: Sequence[int]) -> list[int]:
+    """Parent of every joint of ``keep`` as its nearest kept ancestor (an index into the full list, -1 if none)."""
+    kept = set(keep)
+    out = []
+    for j in keep:
+        p = parents[j]
+        while p >= 0 and p not in kept:
+            p = parents[p]
+        out.append(p)
+    return out
+
+
+def bone_axes_consistent(parents: Sequence[int], positions: np.ndarray, axes: np.ndarray) -> bool:
+    """Whether ``axes`` (J, 3) run along the bones: for most joints with one child, towards that child.
+
+    Blender exports every bone with its local +Y from head to tail; other tools' joint axes say nothing.
+    """
+    P = np.asarray(positions, dtype=np.float64)
+    children: dict[int, list[int]] = {}
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children.setdefault(p, []).append(j)
+    cos = []
+    for j, kids in children.items():
+        if len(kids) == 1:
+            d = P[kids[0]] - P[j]
+            n = float(np.linalg.norm(d))
+            if n > 0:
+                cos.append(float(d @ axes[j]) / (n * max(float(np.linalg.norm(axes[j])), 1e-12)))
+    return len(cos) >= 5 and float(np.mean(np.array(cos) > 0.95)) >= 0.8
+
+
+def virtual_parents(names: Sequence[str], parents: Sequence[int], positions: np.ndarray,
+                    axes: np.ndarray | None = None) -> tuple[list[int], list[str]] | None:
+    """A hierarchy for a skeleton whose chains hang apart (each its own root), from names and rest geometry.
+
+    A Rigify export of its deform bones only puts ``DEF-thigh.L``, ``DEF-upper_arm.L``, ``DEF-shoulder.L``
+    and ``DEF-spine`` directly under the armature: the chains keep their links, but nothing links the
+    chains. The body's chain (the longest chain of centre joints, names without a side) is kept; every
+    other chain is hung, nearest first (Prim's algorithm), on the joint it starts at. With bone ``axes``
+    (J, 3) that run along the bones (:func:`bone_axes_consistent`), that is the linked bone whose tail (its
+    child's head, or for a leaf its line) is nearest the chain's first joint (``DEF-shoulder.L`` ends where
+    ``DEF-upper_arm.L`` starts); without, a chain running down (a leg) hangs on the body chain's first joint
+    (the pelvis) and any other on the nearest linked joint not above its first joint or bone tail (a bone
+    with one child ends at that child: a shoulder starting at the neck's head hangs on the chest). A chain
+    is never hung on a joint of the other side.
+
+    Returns:
+        (parents, notes): the new parent of every joint (the chains' own links kept) and one note naming
+        the links made; None when the skeleton has one root, or more roots than a third of its joints (loose
+        points, not chains).
+    """
+    P = np.asarray(positions, dtype=np.float64)
+    tree = _Tree(parents, P, names)
+    roots = [j for j, p in enumerate(parents) if p < 0]
+    if len(roots) < 2 or len(roots) > len(names) / 3 or sum(1 for r in roots if tree.children[r]) < 2:
+        return None  # one hierarchy, or no chains at all (loose named points are not chains to link)
+    use_axes = axes is not None and bone_axes_consistent(parents, P, axes)
+    size = max(float(np.ptp(P, axis=0).max()), 1e-12)
+
+    def chain_length(r: int) -> int:
+        return max(tree.depth[j] for j in tree.subtree(r)) - tree.depth[r] + 1
+
+    centre = [r for r in roots if side_of(strip_suffix(names[r])) is None and not is_helper(names[r])]
+    main = max(centre or roots, key=lambda r: (chain_length(r), len(tree.subtree(r))))
+    linked = set(tree.subtree(main))
+    pending = [r for r in roots if r != main]
+    tip = max(tree.subtree(main), key=lambda j: tree.dist[j])
+    up = P[tip] - P[main]
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
+
+    def hangs_down(r: int) -> bool:  # a leg: its chain runs down from its first joint
+        return min(float((P[j] - P[r]) @ up) for j in tree.subtree(r)) < -0.25 * size
+    new = list(parents)
+    links: list[str] = []
+    while pending:
+        best = None
+        for r in pending:
+            side = side_of(strip_suffix(names[r]))
+            down = not use_axes and hangs_down(r)
+            for c in linked:
+                other = side_of(strip_suffix(names[c]))
+                if side is not None and other is not None and other != side:
+                    continue
+                if not use_axes and (c != main if down else float((P[c] - P[r]) @ up) > 0.02 * size):
+                    continue  # no bone axes: legs hang on the body's first joint, the rest on a joint not above
+                d = P[r] - P[c]
+                cost = float(np.linalg.norm(d))
+                if use_axes:  # Blender: a bone starting at another's tail is its child
+                    a = axes[c] / max(float(np.linalg.norm(axes[c])), 1e-12)
+                    along = [k for k in tree.children[c] if float((P[k] - P[c]) @ a) > 0.95 * float(
+                        np.linalg.norm(P[k] - P[c]))]
+                    if along:  # the tail is where the bone's child starts
+                        cost = min(cost, float(np.linalg.norm(P[r] - P[along[0]])) - 1e-3 * size)
+                    elif not tree.children[c] and float(d @ a) > 0:  # a leaf bone: its line
+                        t = float(d @ a)
+                        cost = min(cost, float(np.linalg.norm(d - t * a)) + 1e-3 * size)
+                elif len(tree.children[c]) == 1:  # a bone's tail is its one child's head: a chain starting there
+                    cost = min(cost, float(np.linalg.norm(P[r] - P[tree.children[c][0]])) - 1e-3 * size)
+                if best is None or cost < best[0]:
+                    best = (cost, r, c)
+        if best is None:
+            break
+        _, r, c = best
+        new[r] = c
+        linked.update(tree.subtree(r))
+        pending.remove(r)
+        links.append(f"{names[r]} under {names[c]}")
+    shown = ", ".join(links[:8]) + (f" and {len(links) - 8} more" if len(links) > 8 else "")
+    note = (f"the chains hang apart ({len(roots)} roots, no parent links between them): a hierarchy built from "
+            f"the names and rest geometry{' (bone axes)' if use_axes else ''}: {shown}")
+    return new, [note]

@@ -111,16 +111,21 @@ def load_map_file(path: str | Path) -> RigMap:
 
 
 def match_joints(rig: RigMap, names: Iterable[str]) -> tuple[dict[str, int], int]:
-    """Indices of the rig's joints in ``names``.
+    """Indices of the rig's joints in ``names``: exact names, then without prefixes and case, then without
+    exporter suffixes (``mixamorig:Hips_01``, ``Hips.001``) when one joint has that stem.
 
     Returns:
         ``{smpl_name: index into names}`` for every mapped joint found, and how many matched exactly.
     """
     names = list(names)
     exact = {n: i for i, n in enumerate(names)}
+    from shape_inversion.rig_mapper import strip_suffix
+
     loose: dict[str, int] = {}
+    stripped: dict[str, list[int]] = {}
     for i, n in enumerate(names):
         loose.setdefault(_normalise(n), i)
+        stripped.setdefault(_normalise(strip_suffix(n)), []).append(i)
     found: dict[str, int] = {}
     n_exact = 0
     for smpl, rig_name in rig.joints:
@@ -129,6 +134,8 @@ def match_joints(rig: RigMap, names: Iterable[str]) -> tuple[dict[str, int], int
             n_exact += 1
         elif _normalise(rig_name) in loose:
             found[smpl] = loose[_normalise(rig_name)]
+        elif len(stripped.get(_normalise(rig_name), [])) == 1:  # Sketchfab's mixamorig:Hips_01: one joint only
+            found[smpl] = stripped[_normalise(rig_name)][0]
     return found, n_exact
 
 
@@ -207,6 +214,10 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
                           + ", ".join(f"{s}={r}" for s, r in pairs))
         except NameMatchError as exc:
             why = f"{why}; name matching: {exc}"
+    if "not a human: " in why:  # the mapper saw a body and its geometry is not a human's: say so first
+        feature = why.split("not a human: ", 1)[1].split(";", 1)[0]
+        raise RigError(f"Not a human: {feature} (rig mapper: no humanoid found: no hierarchy has two legs and a "
+                       "spine meeting at a pelvis with two arms branching from the spine).")
     sample = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
     raise RigError(f"Could not detect the rig from the joint names ({sample}); presets: "
                    f"{', '.join(available_presets())}; {why}. Closest preset: "

@@ -27,7 +27,9 @@ sign, along which the head is farthest from the ankles.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import functools
+import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,7 +38,7 @@ import numpy as np
 from shape_inversion.features import named_joints_to_features
 from shape_inversion.gltf_io import GltfError, GltfRig, joint_parents, load_gltf, read_node_rig, read_rig
 from shape_inversion.options import BindSource, CharacterOptions, RestSource
-from shape_inversion.rigs import RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
+from shape_inversion.rigs import RigError, RigMap, detect_rig, load_map_file, load_preset, match_joints, missing_message
 from smplik.conventions import JOINT_NAMES, PARENTS
 from smplik.data.bvh import DEFAULT_MAX_JOINTS, BVHError, BVHMotion, PositionMode, parse_bvh
 from smplik.data.bvh import read_bvh as bvh_read
@@ -251,17 +253,63 @@ def read_character(path: str | Path, options: CharacterOptions | None = None) ->
     skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
     char = prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
     if o.rest == "auto" and skeleton.bvh is not None and skeleton.rest == "frame0":
-        offsets = bvh_skeleton(skeleton.bvh, "offsets")
-        bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(
-            prepare_character(offsets, rig=char.rig, units=char.units_m).positions, char.smpl_joints)
-        if bend_off + 10.0 < bend0:  # frame 0 is motion, not a rest pose: the OFFSETs define the skeleton
-            char = prepare_character(offsets, rig=char.rig, map_file=None, units=o.units, up=o.up, root=o.root)
-            why = (f"offsets (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the "
-                   f"OFFSET pose {bend_off:.0f} deg)")
-        else:
-            why = f"frame0 (frame 0 is a rest pose: {bend0:.0f} deg of bend; the OFFSET pose {bend_off:.0f} deg)"
-        char = dataclasses.replace(char, skeleton=dataclasses.replace(char.skeleton, rest=why))
+        char = _rest_by_evidence(char, o)
     return char
+
+
+def _rest_by_evidence(char: Character, o: CharacterOptions) -> Character:
+    """Frame 0 or the OFFSET pose as the BVH rest pose, whichever makes the more human skeleton.
+
+    Frame 0 with straight limbs and spine (at most 10 degrees more bend than the OFFSETs) is the rest pose.
+    Otherwise both candidates are mapped (units detected for each) and SMPL-SI fits each: the one with the
+    smaller feature residual wins (a candidate outside the human range loses). Rokoko's OFFSETs are in
+    joint-local frames (2.4 m legs), CMU's frame 0 is mid-motion: neither rule alone reads both.
+    """
+    skeleton = char.skeleton
+    try:
+        offsets = bvh_skeleton(skeleton.bvh, "offsets")
+        off_char = prepare_character(offsets, rig=char.rig, units=o.units, up=o.up, root=o.root)
+    except (SkeletonError, RigError, ValueError):
+        return dataclasses.replace(char, skeleton=dataclasses.replace(
+            skeleton, rest="frame0 (the OFFSET pose cannot be mapped)"))
+    bend0, bend_off = rest_bend_deg(char.positions, char.smpl_joints), rest_bend_deg(off_char.positions,
+                                                                                    off_char.smpl_joints)
+    if bend0 <= bend_off + 10.0:
+        why = f"frame0 (frame 0 is a rest pose: {bend0:.0f} deg of bend; the OFFSET pose {bend_off:.0f} deg)"
+        return dataclasses.replace(char, skeleton=dataclasses.replace(skeleton, rest=why))
+    r0, r_off = proportion_residual_m(char.features), proportion_residual_m(off_char.features)
+
+    def said(r: float) -> str:
+        return "not a human" if not np.isfinite(r) else f"residual {r * 1000:.0f} mm"
+
+    if r_off <= r0:
+        chosen, rest = off_char, "offsets"
+    else:
+        chosen, rest = char, "frame0"
+    why = (f"{rest} (frame 0 is not a rest pose: its limbs and spine bend {bend0:.0f} deg in all, the OFFSET pose "
+           f"{bend_off:.0f} deg; the more human by SMPL-SI: frame 0 {said(r0)}, OFFSETs {said(r_off)})")
+    return dataclasses.replace(chosen, skeleton=dataclasses.replace(chosen.skeleton, rest=why))
+
+
+def proportion_residual_m(features: np.ndarray) -> float:
+    """SMPL-SI's largest feature residual (metres) for ``features`` (6,), inf outside the human range."""
+    from shape_inversion.estimator import ShapeInversionError
+
+    try:
+        with warnings.catch_warnings():  # a weak fit of a candidate is not the character's: no warning
+            warnings.simplefilter("ignore")
+            return float(_neutral_estimator().estimate(features).max_feature_residual_m)
+    except ShapeInversionError:
+        return float("inf")
+
+
+@functools.lru_cache(maxsize=1)
+def _neutral_estimator():
+    from shape_inversion.estimator import ShapeEstimator
+    from smplik.body_model import load_body_model
+    from smplik.conventions import Gender
+
+    return ShapeEstimator.build(load_body_model(Gender.NEUTRAL))
 
 
 def rest_bend_deg(positions: np.ndarray, found: Mapping[str, int]) -> float:
@@ -403,6 +451,55 @@ def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
                     skeleton.rest)
 
 
+def reparent_skeleton(skeleton: Skeleton, parents: Sequence[int], keep: Sequence[int] | None = None) -> Skeleton:
+    """``skeleton`` with new ``parents`` (J,) (indices into its joints), reduced to ``keep`` and listed parents first.
+
+    Only the hierarchy changes: rest positions, bind matrices and glTF nodes stay (a GLB export poses the
+    joint nodes from their world transforms, so the file's own node tree is kept).
+    """
+    keep = list(range(len(skeleton.names))) if keep is None else list(keep)
+    kept = set(keep)
+    children: dict[int, list[int]] = {}
+    for j in keep:
+        children.setdefault(parents[j] if parents[j] in kept else -1, []).append(j)
+    order: list[int] = []
+    stack = list(reversed(children.get(-1, [])))
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(children.get(j, [])))
+    full = tuple(parents[j] if parents[j] in kept else -1 for j in range(len(skeleton.names)))
+    return subset_skeleton(dataclasses.replace(skeleton, parents=full), order)
+
+
+def deform_skeleton(skeleton: Skeleton) -> tuple[Skeleton, list[str]]:
+    """A Blender Rigify control rig's deform bones (``DEF-``) as the skeleton, with a note; else ``skeleton``."""
+    from shape_inversion.rig_mapper import deform_bones, kept_parents
+
+    keep = deform_bones(skeleton.names)
+    if keep is None:
+        return skeleton, []
+    parents = list(skeleton.parents)
+    for j, p in zip(keep, kept_parents(skeleton.parents, keep), strict=True):
+        parents[j] = p
+    others = len(skeleton.names) - len(keep)
+    return reparent_skeleton(skeleton, parents, keep), [
+        f"a Blender Rigify rig: its {len(keep)} DEF- (deform) bones are the skeleton, its {others} other bones "
+        "(ORG-, MCH-, controls, IK targets and poles) are ignored"]
+
+
+def linked_skeleton(skeleton: Skeleton) -> tuple[Skeleton, list[str]] | None:
+    """``skeleton`` with its separate chains linked into one hierarchy (``rig_mapper.virtual_parents``); None
+    when it has one root."""
+    from shape_inversion.rig_mapper import virtual_parents
+
+    axes = None if skeleton.gltf is None else skeleton.gltf.T_world_joint_bind[:, :3, 1]
+    made = virtual_parents(skeleton.names, skeleton.parents, skeleton.positions, axes)
+    if made is None:
+        return None
+    return reparent_skeleton(skeleton, made[0]), made[1]
+
+
 def _hierarchy(parents: tuple[int, ...], root: int) -> list[int]:
     keep = {root}
     for j, p in enumerate(parents):  # parents are listed before children
@@ -442,7 +539,18 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
         rig_map = RigMap("vrm", tuple(skeleton.humanoid.items()), "the file's humanoid bone table (VRM)",
                          warnings=tuple(doubts))
     else:
-        rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
+        skeleton, notes = deform_skeleton(skeleton)
+        try:
+            rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions, root=root)
+        except RigError:
+            linked = linked_skeleton(skeleton) if root is None else None
+            if linked is None:
+                raise
+            skeleton, more = linked
+            rig_map = detect_rig(skeleton.names, skeleton.parents, skeleton.positions)
+            notes += more
+        if notes:
+            rig_map = dataclasses.replace(rig_map, warnings=tuple(notes) + tuple(rig_map.warnings))
     found, _ = match_joints(rig_map, skeleton.names)
     roots = [j for j, p in enumerate(skeleton.parents) if p < 0]
     if len(roots) > 1 and "pelvis" in found:  # several roots: keep the hierarchy holding the body
@@ -458,8 +566,6 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     from shape_inversion.rigs import missing_required
 
     if missing_required(rig_map, found):
-        from shape_inversion.rigs import RigError
-
         raise RigError(missing_message(rig_map, found, source=f"Skeleton {skeleton.source}"))
     P = skeleton.positions
     ankles = [P[found[a]] for a in ("left_ankle", "right_ankle") if a in found]

@@ -16,8 +16,9 @@ UNIT_NAMES: dict[str, float] = {
 }
 """Metres per unit of every accepted unit name."""
 
-DETECTABLE_UNITS: tuple[str, ...] = ("m", "dm", "cmu", "in", "cm", "mm")
-"""Units :func:`detect_units` chooses among (feet are too close to decimetres to tell apart)."""
+DETECTABLE_UNITS: tuple[str, ...] = ("m", "ft", "dm", "cmu", "in", "cm", "mm")
+"""Units :func:`detect_units` chooses among: every unit of a real skeleton file (a 5.6 ft character is 1.7 m in
+feet, 0.56 m in decimetres; a 17 dm one 1.7 m in decimetres, 5.2 m in feet)."""
 
 
 def parse_units(units: str | float, error: type[ValueError] = ValueError) -> float:

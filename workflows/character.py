@@ -277,6 +277,42 @@ def _smpl_globals(pose: Pose, char: CustomCharacter) -> tuple[np.ndarray, np.nda
     return R.numpy(), p.numpy()
 
 
+def _mapped_below(char: CustomCharacter, k: int) -> list[int]:
+    """The nearest mapped custom joints below custom joint ``k`` (one per branch)."""
+    out, stack = [], [c for c, p in enumerate(char.parents) if p == k]
+    while stack:
+        c = stack.pop()
+        if char.smpl_of[c] >= 0:
+            out.append(c)
+        else:
+            stack.extend(d for d, p in enumerate(char.parents) if p == c)
+    return out
+
+
+def _skipping_rotation(char: CustomCharacter, k: int, G_s: np.ndarray, p_s: np.ndarray) -> np.ndarray:
+    """SMPL's global rotation for custom joint ``k``, turned so that bones skipping SMPL joints land right.
+
+    Where the custom bone from ``k`` to its next mapped joint spans several SMPL bones (a spine of one joint
+    mapped to spine3 above the pelvis: SMPL's spine1 and spine2 are skipped), SMPL's rotation of ``k``'s own
+    joint does not say where that bone points: the rotation is the one taking SMPL's rest vectors from
+    ``k``'s SMPL joint to the mapped joints below it onto their posed vectors (Kabsch; one vector: SMPL's
+    rotation swung onto it). Chains without skipped joints keep SMPL's rotation exactly.
+    """
+    j = int(char.smpl_of[k])
+    below = [int(char.smpl_of[c]) for c in _mapped_below(char, k)]
+    if not below or all(PARENTS[m] == j for m in below):
+        return G_s[j]
+    rest = np.stack([char.smpl_rest[m] - char.smpl_rest[j] for m in below])
+    posed = np.stack([p_s[m] - p_s[j] for m in below])
+    if len(below) == 1:
+        return swing_rotation(G_s[j] @ rest[0], posed[0]) @ G_s[j]
+    rest = rest / np.maximum(np.linalg.norm(rest, axis=1, keepdims=True), 1e-12)
+    posed = posed / np.maximum(np.linalg.norm(posed, axis=1, keepdims=True), 1e-12)
+    U, _, Vt = np.linalg.svd(posed.T @ rest)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
 def smpl_to_custom(pose: Pose, char: CustomCharacter) -> CustomPose:
     """Retarget an SMPL pose (on the character's SMPL body, SMPL space) onto the custom skeleton."""
     G_s, p_s = _smpl_globals(pose, char)
@@ -285,7 +321,7 @@ def smpl_to_custom(pose: Pose, char: CustomCharacter) -> CustomPose:
     for k, par in enumerate(char.parents):
         j = int(char.smpl_of[k])
         if j >= 0:
-            G[k] = G_s[j] @ char.align[k]
+            G[k] = _skipping_rotation(char, k, G_s, p_s) @ char.align[k]
         else:
             G[k] = G[par] if par >= 0 else G_s[0]
     root_smpl = int(char.smpl_of[0]) if char.smpl_of[0] >= 0 else 0
@@ -295,6 +331,23 @@ def smpl_to_custom(pose: Pose, char: CustomCharacter) -> CustomPose:
     for k, par in enumerate(char.parents):
         local[k] = G_file[k] if par < 0 else G_file[par].T @ G_file[k]
     return CustomPose(local, char.canon_to_file_points(p_root))
+
+
+def retarget_error_m(pose: Pose, char: CustomCharacter) -> np.ndarray:
+    """How far ``pose`` retargeted onto ``char`` lands from the SMPL pose: (M,) metres per mapped joint.
+
+    The character's mapped joints (character space) against the SMPL joints they map to (the pose on the
+    character's SMPL body, times its scale), after a rigid alignment (Kabsch, :func:`smplik.metrics.rigid_align`).
+    """
+    from smplik.metrics import rigid_align
+
+    _, p_file = smpl_to_custom(pose, char).positions(char)
+    _, p_s = _smpl_globals(pose, char)
+    mapped = [k for k in range(len(char.names)) if char.smpl_of[k] >= 0]
+    mine = torch.as_tensor(char.file_to_canon_points(p_file)[mapped])
+    theirs = torch.as_tensor(char.scale * p_s[[int(char.smpl_of[k]) for k in mapped]])
+    fit = rigid_align(mine, theirs, scale=False)
+    return np.linalg.norm((fit.apply(mine) - theirs).numpy(), axis=1)
 
 
 def custom_to_smpl(custom: CustomPose, char: CustomCharacter) -> Pose:

@@ -11,11 +11,12 @@ world units and axes; :meth:`CustomCharacter.file_to_canon_points` takes it to c
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from shape_inversion.gltf_io import GltfError, GltfRig, read_accessor
+from shape_inversion.gltf_io import DracoUnavailableError, GltfError, GltfRig, draco_primitive, read_accessor
 from workflows.character import CustomCharacter, CustomPose
 
 MAX_MESH_VERTICES = 2_000_000
@@ -40,7 +41,11 @@ class SkinnedMesh:
 
 
 def skinned_mesh(rig: GltfRig) -> SkinnedMesh | None:
-    """The triangles of every mesh node that uses ``rig``'s skin, or None when there is none."""
+    """The triangles of every mesh node that uses ``rig``'s skin, or None when there is none.
+
+    Draco-compressed primitives (``KHR_draco_mesh_compression``) are decoded with DracoPy; without it, one
+    warning says the mesh cannot be shown and None is returned (never a silently empty mesh).
+    """
     gltf, doc = rig.doc.gltf, rig.doc
     remap = np.empty(len(rig.skin_order), dtype=np.int64)
     remap[list(rig.skin_order)] = np.arange(len(rig.skin_order))  # skin joint index -> rig index
@@ -54,14 +59,29 @@ def skinned_mesh(rig: GltfRig) -> SkinnedMesh | None:
             if prim.mode not in (None, 4) or attrs.POSITION is None or attrs.JOINTS_0 is None \
                     or attrs.WEIGHTS_0 is None:
                 continue  # only skinned triangle lists
-            v = read_accessor(doc, attrs.POSITION)
-            j = read_accessor(doc, attrs.JOINTS_0)
-            w = read_accessor(doc, attrs.WEIGHTS_0)
+            try:
+                draco = draco_primitive(doc, prim)
+            except DracoUnavailableError as exc:
+                warnings.warn(f"{exc}: the character's own mesh cannot be shown", stacklevel=2)
+                return None
+            if draco is not None:
+                decoded, f_draco = draco
+                if any(k not in decoded for k in ("POSITION", "JOINTS_0", "WEIGHTS_0")):
+                    raise GltfError(f"{doc.path}: mesh {node.mesh}: the Draco buffer lacks POSITION, JOINTS_0 or "
+                                    "WEIGHTS_0")
+                v, j, w = decoded["POSITION"], decoded["JOINTS_0"], decoded["WEIGHTS_0"]
+            else:
+                v = read_accessor(doc, attrs.POSITION)
+                j = read_accessor(doc, attrs.JOINTS_0)
+                w = read_accessor(doc, attrs.WEIGHTS_0)
             if v.shape[1:] != (3,) or j.shape != (len(v), 4) or w.shape != (len(v), 4):
                 raise GltfError(f"{doc.path}: mesh {node.mesh}: POSITION/JOINTS_0/WEIGHTS_0 shapes do not match")
             if j.min(initial=0) < 0 or j.max(initial=0) >= len(remap):
                 raise GltfError(f"{doc.path}: mesh {node.mesh}: JOINTS_0 names a joint outside skin #{rig.skin}")
-            f = read_accessor(doc, prim.indices).reshape(-1) if prim.indices is not None else np.arange(len(v))
+            if draco is not None:
+                f = f_draco.reshape(-1)
+            else:
+                f = read_accessor(doc, prim.indices).reshape(-1) if prim.indices is not None else np.arange(len(v))
             if f.size % 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
                 raise GltfError(f"{doc.path}: mesh {node.mesh}: invalid triangle indices")
             count += len(v)

@@ -74,10 +74,20 @@ def effector_markers(character: SceneCharacter, radius: float = 0.03) -> tuple[l
 
 def custom_skeleton_segments(char: CustomCharacter, pose: CustomPose, color=(0.95, 0.5, 0.1, 1.0),
                              radius: float = 0.012) -> list[Segment]:
-    """Bones of a posed custom skeleton as segments in character space (canon frame)."""
+    """Bones of a posed custom skeleton as segments in character space (canon frame).
+
+    Bones above the pelvis (an unmapped root joint left on the floor, such as Bandai-Namco's ``joint_Root``,
+    while the hips move) are not drawn: they are no part of the body and would draw a stray line.
+    """
     _, p_file = pose.positions(char)
     p = (p_file * char.units_m) @ char.C_canon_file.T - char.shift
-    return [Segment(p[par], p[k], radius, color) for k, par in enumerate(char.parents) if par >= 0]
+    above = set()  # unmapped joints above the pelvis (Bandai-Namco's joint_Root on the floor): no bone drawn
+    pelvis = next((k for k in range(len(char.parents)) if char.smpl_of[k] == 0), -1)
+    k = char.parents[pelvis] if pelvis >= 0 else -1
+    while k >= 0:
+        above.add(k)
+        k = char.parents[k]
+    return [Segment(p[par], p[k], radius, color) for k, par in enumerate(char.parents) if par >= 0 and par not in above]
 
 
 def scene_items(scene: Scene, *, markers: bool = True) -> tuple[list[MeshItem], list[Sphere], list[Segment]]:
