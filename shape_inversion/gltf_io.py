@@ -475,7 +475,8 @@ def draco_primitive(doc: GltfFile, prim) -> tuple[dict[str, np.ndarray], np.ndar
         import DracoPy
     except ImportError:
         raise DracoUnavailableError(f"{doc.path}: the mesh is Draco-compressed ({DRACO_EXTENSION}) and DracoPy is "
-                                    "not installed (pip install 'smplik[draco]')") from None
+                                    "not installed (pip install -e '.[draco]' in the smplik checkout, or "
+                                    "pip install DracoPy)") from None
     gltf = doc.gltf
     index = ext["bufferView"]
     if not 0 <= index < len(gltf.bufferViews or []):

@@ -74,7 +74,7 @@ OUTPUT_NAMES = ("R_local", "R_world", "p_world", "draft", "transl")
 _INPUT_DTYPES = tuple(map(np.dtype, (np.int64, np.int64, np.float32, np.float32, np.bool_, np.float32, np.int64)))
 Runtime = Literal["torch", "onnx", "auto"]
 RUNTIMES = ("torch", "onnx", "auto")
-INSTALL_HINT = "pip install 'smplik[fast]' (onnxruntime and onnx)"
+INSTALL_HINT = 'pip install -e ".[fast]" in the smplik checkout (onnxruntime and onnx)'
 
 
 class OnnxUnavailableError(ImportError):

@@ -232,7 +232,7 @@ def resolve_backend(out: IKOutput, J_rest: Tensor, backend: RefineBackend | None
         return "reference"
     problem = None
     if not numba_available():
-        problem = "numba is not installed (pip install 'smplik[fast]')"
+        problem = "numba is not installed (pip install -e \".[fast]\" in the smplik checkout)"
     elif out.R_local.device.type != "cpu" or J_rest.device.type != "cpu":
         problem = "its inputs are not on the CPU"
     elif torch.is_grad_enabled() and any(t.requires_grad for t in (out.R_local, out.R_world, out.p_world, out.transl,

@@ -178,5 +178,5 @@ def test_without_numba_auto_runs_the_reference(scene, monkeypatch):
     assert refine.resolve_backend(start, J_rest) == "reference"
     torch.testing.assert_close(refine_output(start, J_rest, eff).R_local,
                                refine.refine_output_reference(start, J_rest, eff).R_local, atol=0, rtol=0)
-    with pytest.raises(ValueError, match=r"numba is not installed \(pip install 'smplik\[fast\]'\)"):
+    with pytest.raises(ValueError, match=r'numba is not installed \(pip install -e "\.\[fast\]" in the smplik'):
         refine_output(start, J_rest, eff, backend="fast")

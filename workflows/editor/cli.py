@@ -82,7 +82,8 @@ def edit_cmd(
     except ModuleNotFoundError as exc:
         if exc.name != "viser":
             raise
-        fail("smplik edit needs viser: pip install 'smplik[edit]' (or pip install viser).")
+        fail("smplik edit needs viser: pip install -e '.[edit]' in the smplik checkout "
+             "(or pip install viser websockets).")
     from workflows.editor.state import EditorError, EditorState, fresh_scene
 
     path = scene if scene is not None else Path("scene.json")
