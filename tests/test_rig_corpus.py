@@ -46,6 +46,10 @@ def test_a_real_rig_maps_as_hand_checked_with_no_options(rig_id):
     lo, hi = entry["stature_m"]
     assert lo <= stature <= hi and 0.8 <= stature <= 2.5
     assert char.units_m == pytest.approx(entry["units_m"])
+    names, parents, m = char.skeleton.names, char.skeleton.parents, char.joint_map
+    top = next(m[s] for s in ("spine3", "spine2", "spine1", "pelvis") if s in m)  # the spine's mapped top
+    if names[parents[names.index(m["head"])]] != top:
+        assert "neck" in m  # the rig has a joint between the spine and the head: it is SMPL's neck
     if "rest" in entry:
         assert char.skeleton.rest.split(" ")[0] == entry["rest"]
         assert "SMPL-SI" in char.skeleton.rest or "is a rest pose" in char.skeleton.rest  # one line says why
