@@ -248,8 +248,9 @@ def _spine_to_arms_branch(rig: RigMap, found: dict[str, int], mapped: dict[str, 
     if mine is None or theirs is None or mine == theirs or not is_ancestor(mine, theirs, parents):
         return found, ()
     out = {s: j for s, j in found.items() if s not in _SPINE} | {s: mapped[s] for s in _SPINE if s in mapped}
+    spine = ", ".join(f"{s}={names[out[s]]}" for s in _SPINE if s in out)
     return out, (f"preset {rig.name!r} puts spine3 at {names[mine]!r}, below {names[theirs]!r} where the neck and "
-                 f"arms branch: spine from the skeleton ({', '.join(f'{s}={names[out[s]]}' for s in _SPINE if s in out)})",)
+                 f"arms branch: spine from the skeleton ({spine})",)
 
 
 def _root_of(parents: Sequence[int], j: int) -> int:
