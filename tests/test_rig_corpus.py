@@ -100,6 +100,32 @@ def test_makehuman_spine3_is_where_its_neck_and_clavicles_branch(shared_data, es
     assert max(_posed_error_pct(char, estimator)) <= 3.0
 
 
+def test_the_threejs_soldier_exports_with_its_own_clips_and_joints_in_metres(tmp_path, estimator):
+    """three.js's Soldier: the armature under a 0.01-scaled, z-up ``Character`` node. The posed GLB keeps the
+    source's four clips and adds the pose; its joints, in the scene's world frame, are where the retargeted pose
+    puts them (so a 0.20 m or 170 m figure would show)."""
+    import pygltflib
+
+    from shape_inversion.gltf_io import load_gltf
+    from workflows.character import build_character, smpl_to_custom
+    from workflows.examples_gen import example_poses
+    from workflows.export import posed_character_glb
+
+    char = read_character(RIGS / "threejs_Soldier.glb")
+    cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    pose = dataclasses.replace(example_poses()[1].pose, betas=cc.betas, gender=cc.gender)
+    custom = smpl_to_custom(pose, cc)
+    out = tmp_path / "soldier_posed.glb"
+    out.write_bytes(posed_character_glb(cc, [custom]))
+    assert [a.name for a in pygltflib.GLTF2.load_binary(str(out)).animations] == ["Idle", "Run", "TPose", "Walk",
+                                                                                  "pose"]
+    world = load_gltf(out).world[list(cc.skeleton.gltf.joint_nodes), :3, 3]
+    np.testing.assert_allclose(world, cc.file_to_canon_points(custom.positions(cc)[1]), atol=1e-4)
+    names = cc.skeleton.names
+    hip, knee, ankle = (world[names.index(f"mixamorig:{n}")] for n in ("LeftUpLeg", "LeftLeg", "LeftFoot"))
+    assert 0.7 < float(np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee)) < 1.0  # a leg in metres
+
+
 def test_cmu_cgspeed_lands_near_its_smpl_pose(shared_data, estimator):
     """CMU's cgspeed BVH (01_01): 3.0-3.4 % of the stature off its SMPL pose, 3.0 % already in SMPL's rest pose
     (``benchmarks/rig_corpus.py``: ``rest_pose_error_mean_pct``), i.e. the rig's joint placement against its
