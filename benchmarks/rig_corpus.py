@@ -14,7 +14,9 @@ Per humanoid, exactly as ``smplik invert-shape`` / ``scene from-estimate --chara
 * units, up, rest pose, scale -> stature (the SMPL-SI estimate's scale and the skeleton's stature);
 * fit residual (largest of the six SMPL-SI features, mm) and effective samples;
 * pose error: the example pose retargeted onto the character against its SMPL pose (mapped joints after a
-  rigid alignment, mean and largest distance in % of the stature; a BVH character should be within 3 %);
+  rigid alignment, mean and largest distance in % of the stature; a BVH character should be within 3 %), and
+  the same measure for SMPL's rest pose (what the rig's joint placement against its SMPL body costs before
+  any pose: the part no retarget of rotations can remove, only a map choosing other joints or another body);
 * export round trip: a pose (the example ``reach`` pose) retargeted onto the character, written as BVH
   (re-read with smplik's BVH reader) and, for glTF/VRM characters, as GLB (re-read with pygltflib and
   trimesh; the GLB is in the scene's world frame and keeps the source's animation clips); largest joint
@@ -98,8 +100,10 @@ def pose_error(pose, cc, stature: float) -> dict:
     from workflows.character import retarget_error_m
 
     err = retarget_error_m(pose, cc)
+    rest = dataclasses.replace(pose, global_orient=np.zeros(3), body_pose=np.zeros_like(pose.body_pose))
     return {"pose_error_mean_pct": float(100 * err.mean() / stature),
-            "pose_error_max_pct": float(100 * err.max() / stature)}
+            "pose_error_max_pct": float(100 * err.max() / stature),
+            "rest_pose_error_mean_pct": float(100 * retarget_error_m(rest, cc).mean() / stature)}
 
 
 def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
@@ -216,7 +220,8 @@ def main() -> None:
                   f"{row['fit_residual_mm']:5.1f} mm  n_eff {row['effective_samples']:5.1f}  round trip bvh "
                   f"{row['bvh_max_error_mm']:.2g} mm" + (f", glb {row['glb_max_error_mm']:.2g} mm"
                                                          if "glb_max_error_mm" in row else "")
-                  + f"  pose {row['pose_error_mean_pct']:.2f}% of stature")
+                  + f"  pose {row['pose_error_mean_pct']:.2f}% of stature (at rest "
+                  f"{row['rest_pose_error_mean_pct']:.2f}%)")
         non_human = []
         for entry in manifest.get("non_humanoids", []):  # real non-humanoid rigs: refused in one line
             path = resolve(entry["file"], args.corpus)

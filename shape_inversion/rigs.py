@@ -197,8 +197,9 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
             if complete and set(found) >= set(mapping.joints) and set(found.values()) <= in_tree:
                 from shape_inversion.rig_mapper import map_doubts
 
-                return dataclasses.replace(best, root=root_name,
-                                           warnings=tuple(map_doubts(names, parents, positions, found)))
+                found, notes = _spine_to_arms_branch(best, found, mapping.joints, names, parents)
+                return dataclasses.replace(best, root=root_name, joints=_pairs(names, found) if notes else best.joints,
+                                           warnings=notes + tuple(map_doubts(names, parents, positions, found)))
             pairs = tuple((s, names[j]) for s, j in mapping.joints.items())
             return RigMap("auto", pairs, "matched by topology: " + ", ".join(f"{s}={r}" for s, r in pairs),
                           warnings=mapping.warnings, root=root_name)
@@ -222,6 +223,34 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
     raise RigError(f"Could not detect the rig from the joint names ({sample}); presets: "
                    f"{', '.join(available_presets())}; {why}. Closest preset: "
                    + missing_message(best, found) + " Or choose a preset with --rig.")
+
+
+_SPINE = ("spine1", "spine2", "spine3")
+
+
+def _pairs(names: Sequence[str], found: dict[str, int]) -> tuple[tuple[str, str], ...]:
+    return tuple((s, names[found[s]]) for s in JOINT_NAMES if s in found)
+
+
+def _spine_to_arms_branch(rig: RigMap, found: dict[str, int], mapped: dict[str, int], names: Sequence[str],
+                          parents: Sequence[int]) -> tuple[dict[str, int], tuple[str, ...]]:
+    """A preset's spine moved up to where the skeleton's arms branch, when the preset stops below it.
+
+    SMPL's spine3 is the joint the neck and both collars hang from. A preset naming a lower joint (MakeHuman's
+    ``spine02``, while the default skeleton's clavicles and neck hang from ``spine01``) leaves the upper chest
+    unmapped and puts SMPL's spine a bone low: the chest, neck and arms of a retargeted pose then swing about
+    the wrong joint. Then spine1..3 are taken from the rig mapper (``mapped``: SMPL joint -> index, its
+    spine3 the arms' branch point), with one note naming both joints. Returns ``(found, notes)``.
+    """
+    from smplik.data.rig_names import is_ancestor
+
+    mine, theirs = found.get("spine3"), mapped.get("spine3")
+    if mine is None or theirs is None or mine == theirs or not is_ancestor(mine, theirs, parents):
+        return found, ()
+    out = {s: j for s, j in found.items() if s not in _SPINE} | {s: mapped[s] for s in _SPINE if s in mapped}
+    spine = ", ".join(f"{s}={names[out[s]]}" for s in _SPINE if s in out)
+    return out, (f"preset {rig.name!r} puts spine3 at {names[mine]!r}, below {names[theirs]!r} where the neck and "
+                 f"arms branch: spine from the skeleton ({spine})",)
 
 
 def _root_of(parents: Sequence[int], j: int) -> int:
