@@ -324,7 +324,7 @@ def test_from_estimate_reads_tram_and_smplerx_as_a_new_user_would(tmp_path, monk
     import workflows.cli as cli_module
     from workflows.scene import load_scene
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
 
     def run(*args):
         return CliRunner().invoke(cli_module.scene_app, ["from-estimate", *map(str, args), "--no-previews",

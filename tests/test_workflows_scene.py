@@ -92,11 +92,10 @@ def test_validation_errors_name_the_json_path(scene):
 def test_scene_solve_cli(scene, solver, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli
     from workflows.cli import scene_app
 
     path = save_scene(scene, tmp_path / "scene.json")
-    monkeypatch.setattr(cli, "_solver", lambda checkpoint: solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: solver)
     result = CliRunner().invoke(scene_app, ["solve", str(path), "--out", str(tmp_path / "out.json")])
     assert result.exit_code == 0, result.output
     assert load_scene(tmp_path / "out.json").characters[0].pose is not None

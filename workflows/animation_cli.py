@@ -85,7 +85,7 @@ def animate_cmd(
 
     from smplik.cli.errors import console
     from workflows.animation import AnimateConfig, animate_file
-    from workflows.cli import _solver
+    from workflows.cli_shared import _solver
     from workflows.motion_clean import CleanConfig
     from workflows.recovery import RecoveryConfig
 
@@ -180,7 +180,7 @@ def edit_keyframe_cmd(
     from workflows.animation import AnimationError, export_animation
     from workflows.animation_edit import keyframe_edit
     from workflows.animation_io import load_animation, save_animation
-    from workflows.cli import _solver
+    from workflows.cli_shared import _solver
 
     with user_errors():
         anim = load_animation(animation)

@@ -22,6 +22,7 @@ from shape_inversion.options import (
 from smplik.cli.errors import fail, say, user_errors
 from smplik.cli.options import check_image
 from smplik.limits import DEFAULT_MAX_JOINTS
+from workflows import cli_shared
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)
@@ -31,16 +32,6 @@ Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model fil
 FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist", "amass",
            "sam3d", "easymocap", "tram", "smplerx", "plain", "pose_array")
 """``--format`` choices (spelled out here so that ``--help`` does not import the readers; a test keeps them equal)."""
-
-
-def _solver(checkpoint: Path | None):
-    import torch
-
-    from smplik.solver import IKSolver
-
-    torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
-    with user_errors():
-        return IKSolver.load(checkpoint)
 
 
 @scene_app.command("from-estimate")
@@ -94,7 +85,7 @@ def from_estimate_cmd(
     with user_errors():
         check_image(image)
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
-    solver = _solver(checkpoint)
+    solver = cli_shared._solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("effector recovery", total=None)
 
@@ -138,7 +129,7 @@ def solve_cmd(
 
     with user_errors():
         loaded = load_scene(scene)
-        solver = _solver(checkpoint)
+        solver = cli_shared._solver(checkpoint)
         solved, reports = solve_scene_edits(loaded, solver, exact=exact)
         path = save_scene(solved, out or scene)
         lines = {r.character: r.line() for r in reports}
@@ -218,7 +209,7 @@ def demo_cmd(
     """Whole chain on built-in material: estimator file -> SMPL-SI character -> effector recovery -> scene, BVH."""
     from workflows.demo import run_demo
 
-    solver = _solver(checkpoint)
+    solver = cli_shared._solver(checkpoint)
     with user_errors():
         outputs = run_demo(out, solver)
     for line in demo_report(outputs):

@@ -38,10 +38,9 @@ needs_gl = pytest.mark.skipif(not _can_render(), reason="no OpenGL backend for o
 def animate(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
 
 

@@ -33,10 +33,9 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture()
 def cli(monkeypatch, shipped_solver):
     """``smplik scene ARGS...`` as a user runs it (the shipped model, loaded once for the session)."""
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: shipped_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
 
     def run(*args: str) -> str:
         res = CliRunner().invoke(scene_app, [str(a) for a in args])
@@ -50,14 +49,13 @@ def cli(monkeypatch, shipped_solver):
 def demo_scene(tmp_path_factory, shipped_solver) -> Path:
     """``demo_out/smpl/scene.json`` as ``smplik demo`` writes it: its generated ROMP file through from-estimate
     (the demo's recovery settings: 6 effectors, 2 cm)."""
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
     from workflows.examples_gen import write_romp_example
 
     root = tmp_path_factory.mktemp("journey")
     npz = write_romp_example(root / "demo_out" / "examples" / "romp_two_people.npz")
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(cli_module, "_solver", lambda checkpoint: shipped_solver)
+        mp.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
         res = CliRunner().invoke(scene_app, ["from-estimate", str(npz), "--out", str(root / "demo_out" / "smpl"),
                                              "--format", "romp", "--max-effectors", "6", "--no-previews"])
     assert res.exit_code == 0, res.output
@@ -160,7 +158,6 @@ def _track_joints(animation_path: Path, frame: int) -> np.ndarray:
 def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
     """``smplik scene animate hmr4d_results.pt --fps 30`` (30 frames of GVHMR), on the SMPL body or on the demo's
     Mixamo character (``--character mixamo_character.bvh``)."""
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
     from workflows.examples_gen import write_mixamo_character
 
@@ -171,7 +168,7 @@ def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
     if request.param == "character":
         args += ["--character", str(write_mixamo_character(folder / "mixamo_character.bvh")), "--rig", "mixamo"]
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(cli_module, "_solver", lambda checkpoint: shipped_solver)
+        mp.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
         res = CliRunner().invoke(scene_app, args)
     assert res.exit_code == 0, res.output
     return folder / "anim" / "animation.json"

@@ -74,7 +74,7 @@ def edit_cmd(
 
     import numpy as np
 
-    from workflows.cli import _solver
+    from workflows.cli_shared import _solver
     from workflows.scene import SceneCharacter, SkeletonSource, load_scene
 
     try:
