@@ -305,9 +305,9 @@ def _noted(read: Callable[[], Any], notes: dict[str, None]) -> Any:
 def read_folder_clip(path: Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
                      max_people: int | None = None, max_bytes: int | None = None, solver: Any = None,
                      frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES) -> Clip:
-    """:func:`read_clip` of a folder of per-frame outputs (:mod:`workflows.estimators.folders`): every frame read,
+    """:func:`read_clip` of a folder of per-frame outputs (:mod:`workflows.estimators.reading`): every frame read,
     moved into the first person's camera, people linked into tracks by nearest pelvis."""
-    from workflows.estimators.folders import match_tracks, read_folder_frame, scan_folder, to_camera
+    from workflows.estimators.reading import match_tracks, read_folder_frame, scan_folder, to_camera
 
     notes: dict[str, None] = {}
     folder = scan_folder(path, format=format, trust_pickle=trust_pickle, max_bytes=max_bytes)
