@@ -20,9 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _figures(before, after) -> str:
-    from smplik.benchmark.edits import TORSO_JOINTS
     from smplik.conventions import JOINT_INDEX
     from smplik.rotations import geodesic_distance
+    from workflows.edit_benchmark.pairs import TORSO_JOINTS
     from workflows.recovery import TargetPose
 
     fk0 = TargetPose.from_pose(dataclasses.replace(before.pose, joints=None))

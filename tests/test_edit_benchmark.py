@@ -7,7 +7,11 @@ import math
 import pytest
 import torch
 
-from smplik.benchmark.edits import (
+from smplik.benchmark.two_bone import two_bone_ik
+from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
+from smplik.kinematics import forward_kinematics
+from smplik.rotations import axis_angle_to_matrix
+from workflows.edit_benchmark.pairs import (
     EditPairConfig,
     JointRanges,
     align_to_pelvis,
@@ -15,10 +19,6 @@ from smplik.benchmark.edits import (
     find_edit_pairs,
     pelvis_relative,
 )
-from smplik.benchmark.two_bone import two_bone_ik
-from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
-from smplik.kinematics import forward_kinematics
-from smplik.rotations import axis_angle_to_matrix
 
 FPS = 30.0
 

@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from smplik.benchmark.edits import TORSO_JOINTS
 from smplik.conventions import JOINT_INDEX
 from smplik.effectors import Effector
 from smplik.rotations import geodesic_distance
+from workflows.edit_benchmark.pairs import TORSO_JOINTS
 from workflows.pipeline import EstimateOutputs, from_estimate
 from workflows.recovery import RecoveryConfig
 

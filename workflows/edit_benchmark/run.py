@@ -1,6 +1,6 @@
 """The edit benchmark: single-limb edits from real motion, solved the way a scene edit is solved.
 
-For each edit pair (:mod:`smplik.benchmark.edits`: frames ``t0 -> t1`` in which one wrist or ankle moved at
+For each edit pair (:mod:`workflows.edit_benchmark.pairs`: frames ``t0 -> t1`` in which one wrist or ankle moved at
 least 15 cm relative to the pelvis while the other limb ends and the head stayed within 3 cm):
 
 1. recover frame ``t0``'s effectors with the workflow's recovery at its default settings
@@ -32,7 +32,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smplik.benchmark.edits import (
+from smplik.conventions import JOINT_INDEX, NUM_BETAS, PARENTS, Gender
+from smplik.effectors import Effector, pack_effectors
+from smplik.kinematics import forward_kinematics
+from smplik.pose import Pose
+from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from workflows.edit_benchmark.pairs import (
     LIMB_ENDS,
     LIMB_ROOT,
     EditPair,
@@ -44,11 +49,6 @@ from smplik.benchmark.edits import (
     pelvis_relative,
     summarize,
 )
-from smplik.conventions import JOINT_INDEX, NUM_BETAS, PARENTS, Gender
-from smplik.effectors import Effector, pack_effectors
-from smplik.kinematics import forward_kinematics
-from smplik.pose import Pose
-from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from workflows.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
 from workflows.recovery import RecoveryConfig, TargetPose, recover_many
 
@@ -114,6 +114,7 @@ def clips_from_dataset(dataset: Any, split: str) -> list[EditClip]:
 
 def clips_from_folder(folder: str | Path, *, preset: str = "cmu", fps: float = EDIT_FPS) -> list[EditClip]:
     """Every BVH clip under ``folder`` (held-out motion), retargeted to SMPL and resampled to ``fps``."""
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.data.dataset import find_sources, read_source, subsample_indices
 
     clips = []
@@ -270,7 +271,7 @@ def solve_method(name: str, problems: EditProblems, solver: Any, *, optim: Any =
 
 
 def evaluate_method(aa: Tensor, transl: Tensor, problems: EditProblems, ranges: JointRanges) -> Any:
-    """:func:`smplik.benchmark.edits.edit_metrics` of one method's poses."""
+    """:func:`workflows.edit_benchmark.pairs.edit_metrics` of one method's poses."""
     R_pred, p_pred = forward_kinematics(axis_angle_to_matrix(aa), problems.J_rest, transl)
     R_before, _ = forward_kinematics(axis_angle_to_matrix(problems.scene_aa), problems.J_rest, problems.scene_transl)
     return edit_metrics(p_pred=p_pred, R_world_pred=R_pred, aa_local_pred=aa, p_true=problems.p_true,
@@ -286,7 +287,7 @@ def run_edit_benchmark(clips: Sequence[EditClip], solver: Any, ranges: JointRang
                        progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Select pairs, recover, drag and solve with every method; the results document (JSON-ready).
 
-    Results: ``methods[name]`` pooled figures (:func:`smplik.benchmark.edits.summarize`) plus ``by_limb``
+    Results: ``methods[name]`` pooled figures (:func:`workflows.edit_benchmark.pairs.summarize`) plus ``by_limb``
     (arms / legs); ``pairs``: per pair its clip, frames, end, move and each method's MPJPE, collateral error,
     reach and contortions.
     """
