@@ -77,7 +77,7 @@ from workflows.animation import (  # noqa: E402
     realistic_depth,
 )
 from workflows.motion_clean import CleanConfig, foot_noise, ground_of, motion_metrics  # noqa: E402
-from workflows.pipeline import retarget_to_body  # noqa: E402
+from workflows.scene.pipeline import retarget_to_body  # noqa: E402
 
 ASSUMED_FPS = {"gvhmr": 30.0, "wham": 30.0, "phalp": 30.0}
 VARIANTS = {"adaptive": CleanConfig(), "adaptive_no_lock": CleanConfig(foot_lock=False),
@@ -172,7 +172,7 @@ def bench_cmu(folder: Path, solver, frames: int) -> list[dict]:
     from smplik.effectors import pack_effectors
     from smplik.sequence import solve_sequence
     from workflows.animation import axis_angle_to_local, joints_of, rest_joints
-    from workflows.recovery import RecoveryConfig, TargetPose, recover_many
+    from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many
 
     rows = []
     for name in CMU_CLIPS:

@@ -59,7 +59,7 @@ def round_trip(char, estimate, tmp: Path) -> dict:
     from smplik.data.bvh import read_bvh
     from workflows.character import build_character, custom_bvh_text, smpl_to_custom
     from workflows.examples_gen import example_poses
-    from workflows.export import posed_character_glb
+    from workflows.scene.export import posed_character_glb
 
     cc = build_character(char.skeleton, estimate, rig=char.rig)
     pose = dataclasses.replace(example_poses()[1].pose, betas=cc.betas, gender=cc.gender)

@@ -94,7 +94,7 @@ def _one_error_line(result) -> str:
 
 def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, animate):
     from workflows.estimators import read_estimate
-    from workflows.pipeline import retarget_to_body
+    from workflows.scene.pipeline import retarget_to_body
 
     aa, transl = video_motion(40, seed=1)
     path = write_gvhmr_video(tmp_path, aa, transl)

@@ -54,7 +54,7 @@ def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
     first = lines[-1].removeprefix("open first: ").split(" ")[0]
     assert first in {str(p) for p in out.all_files} and (not previews or first.endswith("scene.png"))
     if previews:
-        from workflows.previews import load_image
+        from workflows.scene.previews import load_image
 
         img = load_image(out.smpl.previews[0])
         assert img.shape[0] == 480 and img.std() > 10

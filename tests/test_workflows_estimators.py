@@ -227,7 +227,7 @@ def test_unknown_format_lists_keys_and_formats(tmp_path):
 
 
 def test_ground_moves_people_and_camera_together(tmp_path):
-    from workflows.pipeline import lowest_point, put_on_ground
+    from workflows.scene.pipeline import lowest_point, put_on_ground
 
     aa, transl, betas = people(seed=12)
     found = read_estimate(CAMERA_WRITERS["romp"](tmp_path, aa, transl, betas).path)

@@ -71,7 +71,7 @@ def test_preview_shows_ghost_labels_and_overlay(tmp_path, cli, fmt):
     if not _can_render():
         pytest.skip("no OpenGL backend for offscreen rendering: install EGL (apt-get install libegl1) or OSMesa")
     from workflows.examples_gen import write_background
-    from workflows.previews import load_image
+    from workflows.scene.previews import load_image
 
     n = 1 if fmt == "gvhmr" else 2
     aa, transl, betas = people(seed=3, n=n, **framing(fmt, 300))

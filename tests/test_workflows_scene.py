@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from workflows.examples_gen import example_poses
-from workflows.pipeline import scene_from_people
-from workflows.recovery import RecoveryConfig
 from workflows.scene import SceneError, load_scene, save_scene, scene_from_dict, solve_scene
+from workflows.scene.pipeline import scene_from_people
+from workflows.scene.recovery import RecoveryConfig
 
 
 @pytest.fixture(scope="module")

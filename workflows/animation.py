@@ -8,7 +8,7 @@ Steps (:func:`animate_file`):
    error naming the missing frames); with ``--frames A:B`` every kept track must cover A..B-1.
 2. **Body per track**: the track's mean betas and first gender at scale 1, or the custom
    character's SMPL-SI body (``betas``, ``gender``, ``scale``); each frame is retargeted onto it as
-   ``from-estimate`` does (:func:`workflows.pipeline.retarget_to_body`: local rotations kept, pelvis
+   ``from-estimate`` does (:func:`workflows.scene.pipeline.retarget_to_body`: local rotations kept, pelvis
    at its world position).
 3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, then (default) a sequence solve over all frames
    with the foot locks (:func:`workflows.motion_clean.sequence_clean`), or a filter and foot locking.
@@ -16,7 +16,7 @@ Steps (:func:`animate_file`):
    where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
    errs most, while that error (mean joint distance, character space) is above a threshold (at least the
    estimate's noise, :func:`keyframe_threshold`) and the keyframes are at most ``max_keyframe_share`` of the frames.
-5. **Effectors on keyframes**: :func:`workflows.recovery.recover_many` on all keyframes of all
+5. **Effectors on keyframes**: :func:`workflows.scene.recovery.recover_many` on all keyframes of all
    tracks in one batch.
 
 Spaces: as in scenes, poses are in SMPL space (character = SMPL body scaled by ``scale``), effectors in
@@ -53,8 +53,8 @@ from workflows.motion_clean import (
     smooth_motion,
     split_on_lift,
 )
-from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
 from workflows.scene import SkeletonSource
+from workflows.scene.recovery import RecoveryConfig, TargetPose, TensorSolver
 
 MAX_FRAMES = 100_000
 """Most frames read from one file by default (55 minutes at 30 frames/s; ``max_frames`` raises it)."""
@@ -674,8 +674,8 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
                         camera: CameraInfo | None = None, progress: Progress | None = None
                         ) -> tuple[Animation, list[TrackMotion]]:
     """Build the :class:`Animation` of a read clip (module docstring, steps 2-5)."""
-    from workflows.pipeline import retarget_to_body
-    from workflows.recovery import recover_many
+    from workflows.scene.pipeline import retarget_to_body
+    from workflows.scene.recovery import recover_many
 
     config = AnimateConfig() if config is None else config
     rate = fps if fps is not None else clip.fps
@@ -761,9 +761,9 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
                  max_people: int | None = None, max_bytes: int | None = None, formats: Sequence[str] = ("bvh",),
                  max_frames: int = MAX_FRAMES, progress: Progress | None = None) -> AnimateOutputs:
     """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
-    ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
+    ``formats`` of :func:`workflows.scene.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
     from workflows.animation_io import save_animation
-    from workflows.export import FORMATS
+    from workflows.scene.export import FORMATS
 
     bad = [f for f in formats if f not in FORMATS]
     if bad:
@@ -794,10 +794,10 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
 
 def export_animation(animation: Animation, out_dir: str | Path, formats: Sequence[str] = ("bvh",),
                      base_dir: str | Path | None = None) -> list[Path]:
-    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.export.export_scene`): the
+    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.scene.export.export_scene`): the
     clip's frames only, in the animation's world frame (metres, y-up), like every scene export."""
     from workflows.animation_io import scene_of
-    from workflows.export import export_scene
+    from workflows.scene.export import export_scene
 
     return export_scene(scene_of(animation), out_dir, formats=formats, frame_time=1.0 / animation.fps,
                         poses={t.name: t.poses() for t in animation.tracks}, base_dir=base_dir,

@@ -87,7 +87,7 @@ def animate_cmd(
     from workflows.animation import AnimateConfig, animate_file
     from workflows.cli_shared import _solver
     from workflows.motion_clean import CleanConfig
-    from workflows.recovery import RecoveryConfig
+    from workflows.scene.recovery import RecoveryConfig
 
     with user_errors():  # one line also when the command runs outside smplik's top level
         check_fps(fps)
@@ -141,7 +141,7 @@ def animate_cmd(
         say(shown.describe())
     if outputs.exported:
         from workflows.animation_io import scene_of
-        from workflows.export import glb_notes
+        from workflows.scene.export import glb_notes
 
         for note in glb_notes(scene_of(anim), formats):
             say(note)

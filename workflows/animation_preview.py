@@ -156,7 +156,7 @@ def floor_height(animation: Animation, joints: list[np.ndarray], candidates: int
     """The clip's lowest mesh vertex (y, character space): the meshes of the ``candidates`` frames of each track
     whose foot joints are lowest (``joints``: per track (T, 24, 3), character space)."""
     from workflows.animation_io import scene_of
-    from workflows.previews import scene_items
+    from workflows.scene.previews import scene_items
 
     feet = [7, 8, 10, 11]  # ankles and feet
     frames: set[int] = set()
@@ -242,7 +242,7 @@ def _video_frames(video: Path) -> Callable[[int], np.ndarray]:
         files = sorted(p for p in video.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
             raise AnimationError(f"{video}: no frame images ({', '.join(IMAGE_SUFFIXES)}) in the folder.")
-        from workflows.previews import load_image
+        from workflows.scene.previews import load_image
 
         def from_folder(i: int) -> np.ndarray:
             if i >= len(files):
@@ -277,7 +277,7 @@ def _resize(img: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def _stamp(img: np.ndarray, frame: int) -> np.ndarray:
-    from workflows.previews import label_image
+    from workflows.scene.previews import label_image
 
     return label_image(img, [f"frame {frame}"])
 
@@ -289,7 +289,7 @@ def iter_preview_frames(animation: Animation, frames: list[int], *, video: str |
     them), drawn with one reused renderer (module docstring)."""
     from smplik.render import ImageCamera, Renderer, render
     from workflows.animation_io import scene_of
-    from workflows.previews import image_camera, scene_items
+    from workflows.scene.previews import image_camera, scene_items
 
     background = None
     world = None

@@ -75,8 +75,8 @@ def from_estimate_cmd(
     from rich.progress import Progress
 
     from smplik.cli.errors import console
-    from workflows.pipeline import from_estimate
-    from workflows.recovery import RecoveryConfig
+    from workflows.scene.pipeline import from_estimate
+    from workflows.scene.recovery import RecoveryConfig
 
     if format not in FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
@@ -124,8 +124,8 @@ def solve_cmd(
     """Re-solve a scene after its effectors were edited: the effectors its stored pose does not meet (the ones
     you changed) are solved as the editor's drags (the stale effectors of their chains relaxed, the rest of the
     body kept); print what moved and what was relaxed, then each effector's residual and conflicts."""
-    from workflows.edits import conflict_report, solve_scene_edits
     from workflows.scene import load_scene, save_scene
+    from workflows.scene.edits import conflict_report, solve_scene_edits
 
     with user_errors():
         loaded = load_scene(scene)
@@ -151,8 +151,8 @@ def render_cmd(
 ) -> None:
     """Render all characters with their effector markers (over the source image when known)."""
     from smplik.render import save_png
-    from workflows.previews import load_image, render_scene
     from workflows.scene import load_scene
+    from workflows.scene.previews import load_image, render_scene
 
     with user_errors():
         loaded = load_scene(scene)
@@ -186,8 +186,8 @@ def export_cmd(
                                            "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
-    from workflows.export import export_scene, glb_notes
     from workflows.scene import load_scene
+    from workflows.scene.export import export_scene, glb_notes
 
     formats = [f for f in format.split(",") if f.strip()]
     with user_errors():

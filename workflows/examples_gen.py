@@ -149,7 +149,7 @@ def write_photo(path: str | Path, people: list[ExamplePerson] | None = None, siz
 
     people = example_poses() if people is None else people
     tmp = write_background(Path(path), size)
-    from workflows.previews import load_image
+    from workflows.scene.previews import load_image
 
     background = load_image(tmp)
     w, h = size

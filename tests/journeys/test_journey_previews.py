@@ -77,7 +77,7 @@ def test_gif_and_mp4_cover_the_clip_face_the_front_show_a_floor_and_the_bvh_read
     from smplik.render import camera_pose
     from workflows.animation_io import load_animation, scene_of
     from workflows.animation_preview import shown_frames, world_view
-    from workflows.previews import scene_items
+    from workflows.scene.previews import scene_items
 
     out = tmp_path / "anim"
     res = animate(turned_clip, "--out", out, "--max-effectors", 2, "--export", "bvh", "--preview", out / "p.gif")

@@ -223,7 +223,7 @@ def test_readme_scripted_drag_runs_as_written(demo_scene, tmp_path, monkeypatch,
     head stays."""
     import shutil
 
-    import workflows.edits as edits
+    import workflows.scene.edits as edits
 
     readme = (REPO / "README.md").read_text()
     block = next(b for b in re.findall(r"```python\n(.*?)```", readme, re.S) if ".drag(" in b)

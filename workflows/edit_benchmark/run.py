@@ -4,14 +4,14 @@ For each edit pair (:mod:`workflows.edit_benchmark.pairs`: frames ``t0 -> t1`` i
 least 15 cm relative to the pelvis while the other limb ends and the head stayed within 3 cm):
 
 1. recover frame ``t0``'s effectors with the workflow's recovery at its default settings
-   (:func:`workflows.recovery.recover_many`, :class:`~workflows.recovery.RecoveryConfig`): the scene a user
+   (:func:`workflows.scene.recovery.recover_many`, :class:`~workflows.scene.recovery.RecoveryConfig`): the scene a user
    would hold, with its solved pose;
 2. drag the limb end: its position effector (added when the recovery chose none) moves to the end's
    position in frame ``t1`` (expressed in frame ``t0``'s pelvis frame);
 3. solve with each method (:data:`METHODS`) and compare with frame ``t1`` (same alignment).
 
-Methods: ``smplik`` (the editor's drag today, :func:`workflows.edits.drag_effector`: the dragged chain's stale
-effectors relaxed to tolerance 1, then :func:`workflows.edits.solve_edit`: the limb's two-bone IK with the
+Methods: ``smplik`` (the editor's drag today, :func:`workflows.scene.edits.drag_effector`: the dragged chain's stale
+effectors relaxed to tolerance 1, then :func:`workflows.scene.edits.solve_edit`: the limb's two-bone IK with the
 prior's elbow/knee swivel), ``smplik_chain`` (``solve_edit(analytic=False)``: the previous release's solve of
 the same drag), ``smplik_drop`` (stale effectors deleted instead),
 ``smplik_before`` (the drag before this mechanism: every recovered effector kept exact), ``smplik_net``
@@ -49,20 +49,20 @@ from workflows.edit_benchmark.pairs import (
     pelvis_relative,
     summarize,
 )
-from workflows.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
-from workflows.recovery import RecoveryConfig, TargetPose, recover_many
+from workflows.scene.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
+from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many
 
 RESULTS_FORMAT = "smplik-edit-benchmark"
 RESULTS_VERSION = 1
 METHOD_DESCRIPTIONS: dict[str, str] = {
-    "smplik": f"smplik's drag (workflows.edits): stale effectors of the dragged chain relaxed to tolerance "
+    "smplik": f"smplik's drag (workflows.scene.edits): stale effectors of the dragged chain relaxed to tolerance "
               f"{RELAXED_TOLERANCE:g}; the limb posed on the scene's pose by two-bone IK with {SWIVEL_SHARE:g} of the "
               "learned prior's elbow/knee swivel; refined only where an exact effector is missed",
     "smplik_chain": "the previous release's drag solve (same relaxed effectors): the network's pose of the dragged "
                     "chain on the scene's pose, refined (the rest held 100x)",
     "smplik_relax": "the relaxed effectors solved afresh (network + refinement; the scene's pose not used)",
     "smplik_drop": "as smplik_relax, the stale effectors deleted instead of relaxed",
-    "smplik_before": "the drag before workflows.edits: every recovered effector kept exact, then the solver",
+    "smplik_before": "the drag before workflows.scene.edits: every recovered effector kept exact, then the solver",
     "smplik_net": "the network alone (no refinement) on smplik_before's effectors",
     "optim": "Adam IK on SMPL + Gaussian pose prior, started from the scene's pose, on smplik's effectors",
     "two_bone": "the scene's pose with the limb's analytic two-bone IK (Unity TwoBoneIK, Blender chain 2)",
@@ -180,7 +180,7 @@ class EditProblems:
         return [p.end for p in self.pairs]
 
     def drag(self, *, tolerance: float | None = RELAXED_TOLERANCE, relax: bool = True) -> list[list[Effector]]:
-        """Each pair's effector list after the drag (:func:`workflows.edits.drag_effector`); ``relax=False``:
+        """Each pair's effector list after the drag (:func:`workflows.scene.edits.drag_effector`); ``relax=False``:
         the stale effectors stay as recovered."""
         out = []
         for effs, pair, target in zip(self.scene_effectors, self.pairs, self.targets, strict=True):
