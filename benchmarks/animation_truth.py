@@ -21,14 +21,14 @@ as ``smplik scene animate`` cleans a track):
 * ``savgol``: Savitzky-Golay (window 9, order 2) on the local rotations' quaternions and the root (no repair,
   no locks: the plain filter);
 * ``one_euro``: zero-phase One-Euro on the same (no repair, no locks);
-* ``default``: smplik's default cleaning (:class:`workflows.motion_clean.CleanConfig` defaults);
+* ``default``: smplik's default cleaning (:class:`workflows.animation.clean.CleanConfig` defaults);
 * ``sequence_budget`` (with ``--previous``): the previous default (a joint-space sequence solve with a 5 mm
   pose budget), for the record.
 
 Metrics against the truth: MPJPE (mm, pelvises at the origin, as HMR papers), PA-MPJPE (mm, per frame
 similarity-aligned, :func:`smplik.metrics.pa_mpjpe`), acceleration error (mm/frame^2, world joints: the mean
 ``|a - a_true|`` of the joints' second differences), root error (mm, pelvis distance), foot skating on the
-*truth's* contacts (mm/frame; :func:`workflows.motion_clean.foot_contacts` on the truth), glitch recall (share of
+*truth's* contacts (mm/frame; :func:`workflows.animation.clean.foot_contacts` on the truth), glitch recall (share of
 injected glitch frames repaired), glitches left and false repairs (share of the other frames the cleaning
 repaired).
 
@@ -59,7 +59,7 @@ from _common import save, shared_dir  # noqa: E402
 
 from smplik.conventions import JOINT_INDEX, Gender  # noqa: E402
 from smplik.pose import Pose  # noqa: E402
-from workflows.motion_clean import CleanConfig, foot_contacts, foot_skating  # noqa: E402
+from workflows.animation.clean import CleanConfig, foot_contacts, foot_skating  # noqa: E402
 
 FPS = 30.0
 ROT_NOISE_DEG = 4.0

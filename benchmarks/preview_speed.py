@@ -100,7 +100,7 @@ def main() -> None:
         gif_frames = len(imageio.mimread(tmp / "p.gif", memtest=False))
         mp4_frames = imageio.get_reader(tmp / "p.mp4").count_frames()
         gif_mb = (tmp / "p.gif").stat().st_size / 2**20
-        from workflows.animation_io import load_animation, scene_of
+        from workflows.animation.files import load_animation, scene_of
         from workflows.scene.previews import render_scene
 
         anim = load_animation(tmp / "a" / "animation.json")

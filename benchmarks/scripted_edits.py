@@ -11,7 +11,7 @@ prints one row per edit.
   wrist's move relative to the pelvis, the pelvis's move (mm).
 * Animations: ``scene animate`` of a 30-frame GVHMR clip in GVHMR's layout (``tests/animation_fixtures.py``),
   on the SMPL body and the Mixamo character; at every keyframe and at one frame between keyframes, an effector
-  file naming only one wrist, raised 25 cm: :func:`workflows.animation_edit.keyframe_edit` (merge + drag) and
+  file naming only one wrist, raised 25 cm: :func:`workflows.animation.keyframe_edit.keyframe_edit` (merge + drag) and
   the previous command (the file's effector alone, solved exactly: the same call on the track without its
   keyframes, ``exact=True``). Figures: the wrist's distance to its target, the pelvis's and the feet's (ankles
   and feet, largest) move at that frame (mm).
@@ -81,8 +81,8 @@ def animations(solver, folder: Path) -> list[dict]:
 
     from shape_inversion.options import CharacterOptions
     from workflows.animation import animate_file
-    from workflows.animation_edit import keyframe_edit
-    from workflows.animation_io import scene_of
+    from workflows.animation.files import scene_of
+    from workflows.animation.keyframe_edit import keyframe_edit
     from workflows.examples_gen import write_mixamo_character
     from workflows.scene import character_joints
 

@@ -1,9 +1,9 @@
 """Foot contacts of a joint-position clip: the floor under the feet, the ground's motion, low and slow feet.
 
-The detector of the animation pipeline (:mod:`workflows.motion_clean` cleans with it) and of the tracker's
+The detector of the animation pipeline (:mod:`workflows.animation.clean` cleans with it) and of the tracker's
 training labels (:func:`smplik.tracking.data.clip_contacts`). Positions are (T, 24, 3) SMPL joints, metres,
 y up. Its settings are the ``contact_*`` fields of :class:`ContactConfig` (also carried by
-:class:`workflows.motion_clean.CleanConfig`, with the same defaults).
+:class:`workflows.animation.clean.CleanConfig`, with the same defaults).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
 
 
 class ContactSettings(Protocol):
-    """What the detector reads from a config (:class:`ContactConfig`, :class:`workflows.motion_clean.CleanConfig`)."""
+    """What the detector reads from a config: :class:`ContactConfig`, :class:`workflows.animation.clean.CleanConfig`."""
 
     contact_height_m: float
     contact_speed_mps: float
@@ -32,7 +32,7 @@ class ContactSettings(Protocol):
 
 @dataclass(frozen=True)
 class ContactConfig:
-    """Settings of :func:`foot_contacts` (the defaults of :class:`workflows.motion_clean.CleanConfig`)."""
+    """Settings of :func:`foot_contacts` (the defaults of :class:`workflows.animation.clean.CleanConfig`)."""
 
     contact_height_m: float = 0.08
     """A foot within this height of the floor may be in contact."""

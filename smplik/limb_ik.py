@@ -1,6 +1,6 @@
 """Analytic two-bone IK on world positions (numpy): hip, knee, ankle or shoulder, elbow, wrist.
 
-Used where joint positions are edited directly: foot locking (:func:`workflows.motion_clean.lock_feet`) and
+Used where joint positions are edited directly: foot locking (:func:`workflows.animation.clean.lock_feet`) and
 the tracker runtime's limb fix-up (:mod:`smplik.tracking.runtime`). The torch version that works on a
 local-rotation pose is :func:`smplik.benchmark.two_bone.two_bone_ik`.
 """

@@ -13,8 +13,7 @@ from scipy.spatial.transform import Rotation
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES
 from smplik.data.bvh import read_bvh
 from workflows.animation import AnimationTrack, joints_of, rest_joints, select_keyframes
-from workflows.animation_io import AnimationFileError, animation_to_dict, load_animation, save_animation
-from workflows.motion_clean import (
+from workflows.animation.clean import (
     CleanConfig,
     foot_contacts,
     foot_skating,
@@ -24,6 +23,7 @@ from workflows.motion_clean import (
     smooth_motion,
     two_bone_ik,
 )
+from workflows.animation.files import AnimationFileError, animation_to_dict, load_animation, save_animation
 
 MM = 1e-3
 
@@ -334,7 +334,7 @@ def test_foot_contacts_are_locked_without_skating_and_only_legs_change():
     others = [j for j in range(24) if j not in legs]
     assert np.array_equal(locked[:, others], R[:, others])
     # the ankles keep their world rotations
-    from workflows.motion_clean import local_to_world
+    from workflows.animation.clean import local_to_world
 
     ankles = [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]]
     assert np.abs(local_to_world(locked)[:, ankles] - local_to_world(R)[:, ankles]).max() < 1e-9
@@ -406,7 +406,7 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
 def test_single_frame_glitches_are_flagged_and_repaired_but_fast_motion_is_not():
     from smplik.pose import Pose
     from workflows.animation import clean_track
-    from workflows.motion_clean import glitch_frames
+    from workflows.animation.clean import glitch_frames
 
     R, transl, J = _standing_sway(T=40, seed=2)
     aa = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(40, 24, 3)

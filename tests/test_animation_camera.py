@@ -13,9 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX
 from workflows.animation import NORMAL_FOV_DEG, camera_fov, clean_track, read_clip, realistic_depth
-from workflows.animation_io import load_animation
-from workflows.estimators.base import rest_pelvis
-from workflows.motion_clean import (
+from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
     floor_plane,
@@ -25,6 +23,8 @@ from workflows.motion_clean import (
     jitter,
     motion_metrics,
 )
+from workflows.animation.files import load_animation
+from workflows.estimators.base import rest_pelvis
 
 
 @pytest.fixture()
@@ -192,7 +192,7 @@ def _camera_run(T: int = 80, fps: float = 30.0, speed_mps: float = 3.0, seed: in
 
 def test_running_stances_are_found_on_a_noisy_panning_estimate_and_flights_stay_free():
     from smplik.sequence import smooth_trajectories
-    from workflows.motion_clean import foot_noise, ground_of
+    from workflows.animation.clean import foot_noise, ground_of
 
     fps = 30.0
     p_raw, truth, height = _camera_run()
@@ -220,7 +220,7 @@ def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def test_contact_hysteresis_and_the_noise_scaled_threshold():
-    from workflows.motion_clean import contact_threshold, foot_noise
+    from workflows.animation.clean import contact_threshold, foot_noise
 
     T, fps = 21, 30.0
     p = np.zeros((T, 24, 3))

@@ -24,7 +24,7 @@ def test_an_error_is_the_first_and_only_line(command, tmp_path):
 
 
 def test_foot_contacts_are_counted_per_foot_not_feet_times_frames():
-    from workflows.animation_cli import contact_summary
+    from workflows.animation.cli import contact_summary
 
     contacts = np.zeros((537, 2), bool)
     contacts[:300, 0] = True

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from animation_fixtures import video_motion, write_gvhmr_video, write_phalp_video
 
-from workflows.animation_io import load_animation
+from workflows.animation.files import load_animation
 
 pytest.importorskip("viser")
 

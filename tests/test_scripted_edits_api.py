@@ -1,5 +1,5 @@
 """Scripted edits from Python (workflows.scene.edits: solve_scripted, solve_scene_edits, drag_scene_effector;
-Scene.drag) and the keyframe merge (workflows.animation_edit.merge_effectors). The journeys through the
+Scene.drag) and the keyframe merge (workflows.animation.keyframe_edit.merge_effectors). The journeys through the
 commands are in tests/journeys/test_scripted_edits.py."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from smplik.conventions import JOINT_INDEX
 from smplik.effectors import Effector, EffectorError
-from workflows.animation_edit import merge_effectors
+from workflows.animation.keyframe_edit import merge_effectors
 from workflows.scene import SceneError, character_joints
 from workflows.scene.edits import RELAXED_TOLERANCE, drag_scene_effector, solve_scene_edits
 

@@ -257,8 +257,8 @@ def demo_report(outputs) -> list[str]:  # noqa: ANN001 - workflows.demo.DemoOutp
     return lines
 
 
-# ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation_cli.py
-from workflows.animation_cli import animate_cmd, edit_keyframe_cmd  # noqa: E402
+# ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation/cli.py
+from workflows.animation.cli import animate_cmd, edit_keyframe_cmd  # noqa: E402
 
 scene_app.command("animate")(animate_cmd)
 scene_app.command("edit-keyframe")(edit_keyframe_cmd)

@@ -47,7 +47,7 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
     from smplik.tracking.config import TrackerRuntimeConfig
     from smplik.tracking.io import read_trackers
     from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, track_sequence
-    from workflows.animation_io import save_animation
+    from workflows.animation.files import save_animation
     from workflows.scene import SkeletonSource
     from workflows.scene.export import FORMATS
 

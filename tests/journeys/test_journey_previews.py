@@ -75,8 +75,8 @@ def test_gif_and_mp4_cover_the_clip_face_the_front_show_a_floor_and_the_bvh_read
 
     from smplik.data.bvh import read_bvh
     from smplik.render import camera_pose
-    from workflows.animation_io import load_animation, scene_of
-    from workflows.animation_preview import shown_frames, world_view
+    from workflows.animation.files import load_animation, scene_of
+    from workflows.animation.preview import shown_frames, world_view
     from workflows.scene.previews import scene_items
 
     out = tmp_path / "anim"
@@ -121,8 +121,8 @@ def test_gif_and_mp4_cover_the_clip_face_the_front_show_a_floor_and_the_bvh_read
 @needs_gl
 def test_one_renderer_draws_every_frame(tmp_path, animate, turned_clip, monkeypatch):
     import smplik.render as render_module
-    from workflows.animation_io import load_animation
-    from workflows.animation_preview import write_preview
+    from workflows.animation.files import load_animation
+    from workflows.animation.preview import write_preview
 
     res = animate(turned_clip, "--out", tmp_path / "a", "--max-effectors", 2, "--export", "")
     assert res.exit_code == 0, res.output
@@ -158,7 +158,7 @@ def test_an_unwritable_mp4_preview_fails_before_the_work(tmp_path, animate, turn
 def test_a_long_clip_is_shown_whole_and_the_frames_are_said():
     from smplik.conventions import Gender
     from workflows.animation import Animation, AnimationTrack
-    from workflows.animation_preview import describe_frames, shown_frames
+    from workflows.animation.preview import describe_frames, shown_frames
 
     n = 537  # issue 32's GVHMR clip, whose GIF stopped at frame 299
     track = AnimationTrack("person_0", "0", Gender.NEUTRAL, np.zeros(10), 1.0, None, 0, np.zeros((n, 3)),

@@ -50,7 +50,7 @@ def write_smpl_sequence(path, aa: np.ndarray, transl: np.ndarray) -> None:
 
 
 def test_a_plain_smpl_sequence_is_one_person_over_its_frames(tmp_path, scene):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
     from workflows.estimators import read_estimate
 
     aa, transl = video_motion(T, seed=31)
@@ -111,7 +111,7 @@ def _smplerx_clip(folder, frames: int = 8) -> None:
 
 
 def test_smplerx_per_frame_files_are_one_clip_with_tracks_across_frames(tmp_path, scene):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     out = tmp_path / "smplerx_out"
     _smplerx_clip(out)
@@ -144,7 +144,7 @@ def test_smplerx_per_frame_files_are_one_clip_with_tracks_across_frames(tmp_path
 
 
 def test_gvhmr_animates_without_fps_at_30_and_says_so(tmp_path, scene):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     aa, transl = video_motion(12, seed=34)
     path = write_gvhmr_video(tmp_path, aa, transl)

@@ -146,7 +146,7 @@ def test_scene_solve_exact_keeps_the_exact_re_solve(demo_scene, cli, tmp_path, s
 def _track_joints(animation_path: Path, frame: int) -> np.ndarray:
     """The only track's joints (24, 3) at source frame ``frame``, character space."""
     from workflows.animation import axis_angle_to_local, joints_of, rest_joints
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     t = load_animation(animation_path).tracks[0]
     row = frame - t.first_frame
@@ -178,7 +178,7 @@ def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
 @pytest.mark.parametrize("wrist", WRISTS)
 @pytest.mark.parametrize("where", ["keyframe", "between keyframes"])
 def test_edit_keyframe_with_a_one_effector_file_moves_only_the_arm(animation_file, cli, tmp_path, wrist, where):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     before_anim = load_animation(animation_file)
     track = before_anim.tracks[0]
@@ -242,8 +242,8 @@ def test_readme_scripted_drag_runs_as_written(demo_scene, tmp_path, monkeypatch,
 def test_editor_apply_takes_the_keyframes_whole_list(animation_file, shipped_solver):
     """The editor's Apply (the timeline) passes the frame's whole list: an effector deleted there stays deleted,
     where the command's file is merged into the keyframe's."""
-    from workflows.animation_edit import keyframe_edit
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
+    from workflows.animation.keyframe_edit import keyframe_edit
     from workflows.editor.timeline import AnimationTimeline
 
     anim = load_animation(animation_file)

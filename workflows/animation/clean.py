@@ -3,7 +3,7 @@
 All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
 
 The default cleaning, ``"adaptive"`` (:func:`denoise_motion`), smooths every channel (each joint's quaternion
-components, the root's axes) as much as its own measured noise asks (:mod:`workflows.denoise`), after repairing
+components, the root's axes) as much as its own measured noise asks (:mod:`.denoise`), after repairing
 single-frame glitches found against the clip's own noise (:func:`glitch_frames`); foot locks then release on a
 lift (:func:`split_on_lift`), blend by offset at most ``blend_max_m`` per frame (:func:`lock_targets`) and move
 the root by the locked feet's offsets first (:func:`root_shift_from_locks`). :func:`sequence_clean` (a sequence
@@ -87,11 +87,11 @@ class CleanConfig:
     :func:`denoise_motion`), ``"sequence"`` (a sequence solve on the estimator's joints, foot locks included:
     :func:`sequence_clean`), ``"one_euro"`` (zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
     noise_gain: float = 1.0
-    """Adaptive: multiplier of each channel's smoothness (chosen by :func:`workflows.denoise.sure_smoothness`);
+    """Adaptive: multiplier of each channel's smoothness (chosen by :func:`.denoise.sure_smoothness`);
     noise correlated over frames raises it further (:func:`correlation_gain`)."""
     motion_trust: float = 1.0
     """Adaptive: how much more the data count where the smoothing would bend fast motion
-    (:func:`workflows.denoise.motion_weights`; 0: not at all)."""
+    (:func:`workflows.animation.denoise.motion_weights`; 0: not at all)."""
     smoothness: float = 2.0
     """Sequence: weight of the joints' squared acceleration (m/frame^2) against their squared offset (m) from
     the estimate (:class:`smplik.sequence.SequenceConfig`); higher smooths more."""
@@ -258,10 +258,10 @@ CORRELATION_GAIN_MAX = 20.0
 
 def correlation_gain(lag1: np.ndarray) -> float:
     """Smoothness multiplier for a group of channels whose fit residuals have lag-1 autocorrelations ``lag1``
-    (C,) (:class:`workflows.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
+    (C,) (:class:`workflows.animation.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
     estimator's slow drift) looks partly like motion to the unbiased risk, which then smooths too little: up to
-    :data:`CORRELATION_GAIN_MAX` times more, from the median excess over :data:`workflows.denoise.WHITE_LAG1`."""
-    from workflows.denoise import WHITE_LAG1
+    :data:`CORRELATION_GAIN_MAX` times more, from the median excess over :data:`.denoise.WHITE_LAG1`."""
+    from workflows.animation.denoise import WHITE_LAG1
 
     excess = float(np.median(lag1)) - WHITE_LAG1 - 0.03
     return float(np.clip(1.0 + CORRELATION_SLOPE * excess, 1.0, CORRELATION_GAIN_MAX))
@@ -271,13 +271,13 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The adaptive smoothing (``smoothing="adaptive"``, the default) of local rotations (T, 24, 3, 3) and the root
     (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
-    own noise level (:func:`workflows.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
-    choice, :func:`workflows.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
+    own noise level (:func:`.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
+    choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
     rotation channels or of the root's), then a Whittaker smoothing; with ``motion_trust``, a second pass weighs
-    the estimate more where the first bent fast motion (:func:`workflows.denoise.motion_weights`).
+    the estimate more where the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
 
     Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
-    from workflows.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
+    from workflows.animation.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
 
     T, J = R_parent_joint.shape[:2]
     if T < 3:
@@ -304,7 +304,7 @@ ROOT_GLITCH_SMOOTHNESS = 10.0
 def _root_outliers(root: np.ndarray) -> np.ndarray:
     """The root's offsets (T, 3) from a robust smoothing of its path (T, 3): Whittaker smoothing, then again with
     the frames beyond 3 robust spreads nearly ignored (a jump does not pull the path towards itself)."""
-    from workflows.denoise import whittaker
+    from workflows.animation.denoise import whittaker
 
     weights = np.ones_like(root)
     for _ in range(2):
@@ -504,7 +504,7 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     :func:`lock_targets`) of the feet in contact, per frame, is smoothed over time (Whittaker, ``smoothness``; data
     weight the summed lock weights, a small pull to zero where no foot is locked): that is the root's noise the
     locks see, and the root takes it. p_world (T, 24, 3), contact (T, 2)."""
-    from workflows.denoise import whittaker
+    from workflows.animation.denoise import whittaker
 
     targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
     offset = targets - p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)

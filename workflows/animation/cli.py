@@ -84,9 +84,10 @@ def animate_cmd(
     from rich.progress import Progress
 
     from smplik.cli.errors import console
-    from workflows.animation import AnimateConfig, animate_file
+    from workflows.animation.clean import CleanConfig
+    from workflows.animation.clips import AnimateConfig
+    from workflows.animation.run import animate_file
     from workflows.cli_shared import _solver
-    from workflows.motion_clean import CleanConfig
     from workflows.scene.recovery import RecoveryConfig
 
     with user_errors():  # one line also when the command runs outside smplik's top level
@@ -94,7 +95,7 @@ def animate_cmd(
     options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
-        from workflows.animation_preview import check_preview_path
+        from workflows.animation.preview import check_preview_path
 
         with user_errors():
             check_preview_path(preview)
@@ -125,7 +126,7 @@ def animate_cmd(
         anim = outputs.animation
         shown = None
         if preview is not None:
-            from workflows.animation_preview import write_preview
+            from workflows.animation.preview import write_preview
 
             bar.update(task, description="preview")
             shown = write_preview(anim, preview, video=video, every=preview_every)
@@ -140,7 +141,7 @@ def animate_cmd(
     if shown is not None:
         say(shown.describe())
     if outputs.exported:
-        from workflows.animation_io import scene_of
+        from workflows.animation.files import scene_of
         from workflows.scene.export import glb_notes
 
         for note in glb_notes(scene_of(anim), formats):
@@ -177,9 +178,10 @@ def edit_keyframe_cmd(
     """Move or add a keyframe's effectors (merged into its recovered ones), re-pose the frame as the editor's drag
     does (the moved limbs only) and blend the change into the neighbouring frames."""
     from smplik.effector_schema import load_effector_file
-    from workflows.animation import AnimationError, export_animation
-    from workflows.animation_edit import keyframe_edit
-    from workflows.animation_io import load_animation, save_animation
+    from workflows.animation.clips import AnimationError
+    from workflows.animation.files import load_animation, save_animation
+    from workflows.animation.keyframe_edit import keyframe_edit
+    from workflows.animation.run import export_animation
     from workflows.cli_shared import _solver
 
     with user_errors():

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from smplik.effectors import Effector
-from workflows.animation import Animation, AnimationError, Keyframe, axis_angle_to_local
+from workflows.animation.clips import Animation, AnimationError, Keyframe, axis_angle_to_local
 from workflows.scene.edits import ScriptedEdit
 
 

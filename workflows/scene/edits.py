@@ -32,7 +32,7 @@ keyframe) gets the same drag. The effectors the stored pose does not meet (beyon
 the moved ones; each relaxes its chain's stale effectors and they are solved one after the other by
 :func:`solve_edit` from the stored pose (``smplik scene solve``: :func:`solve_scene_edits`; Python:
 :func:`drag_scene_effector`, ``Scene.drag``; ``smplik scene edit-keyframe``:
-:func:`workflows.animation_edit.keyframe_edit`).
+:func:`workflows.animation.keyframe_edit.keyframe_edit`).
 
 **Conflict report** (:func:`conflict_report`): per effector, its residual after the solve, what its tolerance
 allows, and the effectors it contradicts: those whose removal (one batched leave-one-out solve) brings its
