@@ -7,21 +7,9 @@ from typing import Annotated
 
 import typer
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.cli.errors import fail, say, user_errors
 from smplik.cli.options import check_image
-from smplik.limits import DEFAULT_MAX_JOINTS
 from workflows import cli_shared
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
@@ -35,21 +23,14 @@ FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "
 
 
 @scene_app.command("from-estimate")
+@with_character_options
 def from_estimate_cmd(
     results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json, .pt), or a folder of "
                                             "per-frame outputs (SMPLer-X; --frame N).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help=f"One of: {', '.join(FORMATS)}.")] = "auto",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per person.")] = 8,
     threshold: Annotated[float, typer.Option("--threshold", min=0.0, help="Stop below this error (m).")] = 0.02,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
@@ -84,7 +65,7 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
     with user_errors():
         check_image(image)
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+    options = character_cli.options()
     solver = cli_shared._solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("effector recovery", total=None)

@@ -7,27 +7,16 @@ from typing import Annotated, Any
 
 import typer
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.cli.errors import say, user_errors
 from smplik.cli.options import check_fps
-from smplik.limits import DEFAULT_MAX_JOINTS
 
 PLAIN_PROGRESS_FROM = 1000
 """Without a terminal (a log, a pipe), steps of at least this many items (frames, keyframes) print a progress line
 every 10 %; shorter ones print nothing but their result."""
 
 
+@with_character_options
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
                                             "AIST++, AMASS, ...), or a folder of per-frame outputs (SMPLer-X).")],
@@ -40,15 +29,7 @@ def animate_cmd(
     space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'world' (their world trajectory, "
                                               "the default when present) or 'camera'.")] = None,
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     smoothing: Annotated[str, typer.Option(
         "--smoothing", help="adaptive (each channel smoothed as its measured noise asks, the default), sequence "
         "(a joint-space sequence solve), one_euro, savgol or none.")] = "adaptive",
@@ -92,7 +73,7 @@ def animate_cmd(
 
     with user_errors():  # one line also when the command runs outside smplik's top level
         check_fps(fps)
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+    options = character_cli.options()
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
         from workflows.animation.preview import check_preview_path
