@@ -32,20 +32,21 @@ class ContactSettings(Protocol):
 
 @dataclass(frozen=True)
 class ContactConfig:
-    """Settings of :func:`foot_contacts` (the defaults of :class:`workflows.animation.clean.CleanConfig`)."""
+    """Settings of :func:`foot_contacts`, with the defaults of :class:`workflows.animation.clean.CleanConfig`.
+
+    A foot within ``contact_height_m`` of the floor and slower than ``contact_speed_mps`` (per axis at least
+    ``contact_noise_ratio`` times the clip's foot noise, :func:`foot_noise`) is in contact; a run extends over
+    neighbouring low frames up to ``contact_release_ratio`` times that threshold, and runs shorter than
+    ``contact_min_frames`` are dropped; ``ground_moves``: the ground may move at a constant velocity
+    (:func:`ground_velocity`).
+    """
 
     contact_height_m: float = 0.08
-    """A foot within this height of the floor may be in contact."""
     contact_speed_mps: float = 0.35
-    """... and slower than this (m/s)."""
     contact_noise_ratio: float = 3.0
-    """Per axis, the speed threshold is at least this many times the clip's foot noise speed (:func:`foot_noise`)."""
     contact_release_ratio: float = 1.5
-    """Hysteresis: a contact run extends over neighbouring low frames up to this many times the speed threshold."""
     contact_min_frames: int = 3
-    """Contact runs shorter than this are dropped."""
     ground_moves: bool = False
-    """The ground may move through the frame at a constant velocity (:func:`ground_velocity`)."""
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

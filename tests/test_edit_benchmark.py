@@ -241,7 +241,7 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
     import numpy as np
 
     from smplik.solver import IKSolver
-    from workflows.edit_benchmark import EditBenchmarkConfig, EditClip, run_edit_benchmark
+    from workflows.edit_benchmark.run import EditBenchmarkConfig, EditClip, run_edit_benchmark
 
     T = 40
     pose = torch.zeros(T, NUM_JOINTS, 3)
@@ -271,7 +271,7 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     import shutil
 
     from smplik.body_model import BodyModelSet
-    from workflows.edit_benchmark import EDIT_FPS, EditBenchmarkConfig, clips_from_folder, select_pairs
+    from workflows.edit_benchmark.run import EDIT_FPS, EditBenchmarkConfig, clips_from_folder, select_pairs
 
     for name in ("02_05.bvh", "02_06.bvh"):
         shutil.copy(shared_data.cmu(name), tmp_path / name)

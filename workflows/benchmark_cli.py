@@ -40,7 +40,7 @@ def edits_command(
     from smplik.cli.errors import say, user_errors
     from smplik.paths import pose_cache
     from smplik.solver import IKSolver
-    from workflows.edit_benchmark import METHODS, EditBenchmarkConfig, edit_benchmark, save_figure
+    from workflows.edit_benchmark.run import METHODS, EditBenchmarkConfig, edit_benchmark, save_figure
 
     torch.set_num_threads(threads)
     chosen = tuple(m.strip() for m in (methods or ",".join(METHODS)).split(",") if m.strip())
