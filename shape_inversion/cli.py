@@ -70,7 +70,7 @@ def invert_shape(
     from smplik.body_model import load_body_model
 
     console = Console(stderr=True, soft_wrap=True)  # a status line is never cut mid-number
-    options = character_cli.options()
+    options = character_cli()
     try:
         char = read_character(character, options)
         model = load_body_model(gender, model_dir)
@@ -84,7 +84,7 @@ def invert_shape(
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
         raise typer.Exit(code=1) from None
-    payload = shape_payload(char, estimate, model, rest=character_cli.rest, elapsed_s=elapsed)
+    payload = shape_payload(char, estimate, model, rest=options.rest, elapsed_s=elapsed)
     payload["character"]["options"] = options.to_dict()
     for line in char.map_report():  # the map chosen, and the mapper's doubts
         console.print(escape(line), soft_wrap=True, highlight=False)

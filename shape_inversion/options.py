@@ -4,12 +4,12 @@
 --character`` (stored in ``scene.json`` so ``scene solve`` / ``scene export`` re-read the
 character identically) and any other command taking a character. Commands declare the options
 once, through :func:`with_character_options`: the command takes one parameter ``character_cli``
-(a :class:`CharacterCLI`, the options' raw values) that becomes the nine options ``--rig`` ... ``--root`` in
-its place, and builds the dataclass where it wants the options checked::
+(a :data:`CharacterCLI`) that becomes the nine options ``--rig`` ... ``--root`` in its place, and builds
+the dataclass where it wants the options checked::
 
     @with_character_options
     def cmd(character: Path, character_cli: CharacterCLI = NO_CHARACTER_CLI, ...):
-        options = character_cli.options()  # typer.BadParameter naming the option when invalid
+        options = character_cli()  # typer.BadParameter naming the option when invalid
 """
 
 from __future__ import annotations
@@ -132,26 +132,10 @@ def character_options_from_cli(rig: str | None = None, map_file: Path | None = N
         raise typer.BadParameter(str(exc)) from None
 
 
-@dataclass(frozen=True)
-class CharacterCLI:
-    """The character options' raw values as given on the command line (see :func:`with_character_options`)."""
-
-    rig: str | None = None
-    map_file: Path | None = None
-    units: str = "auto"
-    up: str = "auto"
-    rest: str = "auto"
-    bind: str = "inverse_bind"
-    positions: str = "auto"
-    max_joints: int = DEFAULT_MAX_JOINTS
-    root: str | None = None
-
-    def options(self) -> CharacterOptions:
-        """:class:`CharacterOptions` of these values; raises :class:`typer.BadParameter` naming the option."""
-        return character_options_from_cli(**dataclasses.asdict(self))
-
-
-NO_CHARACTER_CLI = CharacterCLI()
+CharacterCLI = Callable[[], CharacterOptions]
+"""What a command decorated by :func:`with_character_options` receives: call it for the :class:`CharacterOptions`
+of the options given (raises :class:`typer.BadParameter` naming the option when one is invalid)."""
+NO_CHARACTER_CLI: CharacterCLI = CharacterOptions
 """The placeholder default of a ``character_cli`` parameter (the decorator always passes the given values)."""
 
 _CLI_OPTIONS: tuple[tuple[str, Any], ...] = (
@@ -165,14 +149,14 @@ def with_character_options(command: Callable[..., Any]) -> Callable[..., Any]:
     ``command``'s parameter ``character_cli`` is replaced, at its place in the signature typer reads, by the
     options ``--rig``, ``--map``, ``--units``, ``--up``, ``--rest``, ``--bind``, ``--positions``,
     ``--max-joints`` and ``--root`` (defaults those of :class:`CharacterOptions`); the command receives their
-    values as one :class:`CharacterCLI`.
+    values as one :data:`CharacterCLI`, which builds the options when called.
     """
     signature = inspect.signature(command, eval_str=True)
-    defaults = CharacterCLI()
+    defaults = inspect.signature(character_options_from_cli).parameters
     params: list[inspect.Parameter] = []
     for param in signature.parameters.values():
         if param.name == "character_cli":
-            params += [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=getattr(defaults, name),
+            params += [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=defaults[name].default,
                                          annotation=annotation) for name, annotation in _CLI_OPTIONS]
         else:
             params.append(param.replace(kind=inspect.Parameter.KEYWORD_ONLY))
@@ -182,8 +166,8 @@ def with_character_options(command: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(command)
     def wrapper(**kwargs: Any) -> Any:
-        values = CharacterCLI(**{name: kwargs.pop(name) for name in names})
-        return command(**kwargs, character_cli=values)
+        values = {name: kwargs.pop(name) for name in names}
+        return command(**kwargs, character_cli=functools.partial(character_options_from_cli, **values))
 
     wrapper.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
     wrapper.__annotations__ = {p.name: p.annotation for p in params} | {"return": signature.return_annotation}

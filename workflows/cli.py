@@ -65,7 +65,7 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
     with user_errors():
         check_image(image)
-    options = character_cli.options()
+    options = character_cli()
     solver = cli_shared._solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("effector recovery", total=None)

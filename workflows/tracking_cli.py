@@ -45,7 +45,7 @@ def track_cmd(
                 raise AnimationError(f"--betas must be 10 comma-separated numbers, got {betas!r}.") from None
             if len(values) != 10:
                 raise AnimationError(f"--betas must be 10 comma-separated numbers, got {len(values)}.")
-        options = character_cli.options()
+        options = character_cli()
         outputs = track_file(trackers, out, samples=samples, betas=values, gender=gender, character_path=character,
                              character_options=options, checkpoint=checkpoint, seed=seed,
                              fit_trackers=fit_trackers,

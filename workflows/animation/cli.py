@@ -73,7 +73,7 @@ def animate_cmd(
 
     with user_errors():  # one line also when the command runs outside smplik's top level
         check_fps(fps)
-    options = character_cli.options()
+    options = character_cli()
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
         from workflows.animation.preview import check_preview_path

@@ -90,7 +90,7 @@ def edit_cmd(
     if character is not None:
         from workflows.character import load_character
 
-        options = character_cli.options()
+        options = character_cli()
         try:
             custom = load_character(character, options)
         except (ValueError, OSError) as exc:
