@@ -68,7 +68,8 @@ sys.path.insert(0, str(ROOT))
 from _common import save  # noqa: E402
 
 from smplik.paths import real_estimators_dir  # noqa: E402
-from workflows.animation import (  # noqa: E402
+from workflows.animation.clean import CleanConfig, foot_noise, ground_of, motion_metrics  # noqa: E402
+from workflows.animation.clips import (  # noqa: E402
     AnimateConfig,
     animation_from_clip,
     camera_clean,
@@ -76,7 +77,6 @@ from workflows.animation import (  # noqa: E402
     read_clip,
     realistic_depth,
 )
-from workflows.animation.clean import CleanConfig, foot_noise, ground_of, motion_metrics  # noqa: E402
 from workflows.scene.pipeline import retarget_to_body  # noqa: E402
 
 ASSUMED_FPS = {"gvhmr": 30.0, "wham": 30.0, "phalp": 30.0}
@@ -171,7 +171,7 @@ def bench_cmu(folder: Path, solver, frames: int) -> list[dict]:
     from smplik.data.retarget import retarget_bvh
     from smplik.effectors import pack_effectors
     from smplik.sequence import solve_sequence
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
     from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many
 
     rows = []

@@ -80,9 +80,9 @@ def animations(solver, folder: Path) -> list[dict]:
     from animation_fixtures import video_motion, write_gvhmr_video
 
     from shape_inversion.options import CharacterOptions
-    from workflows.animation import animate_file
     from workflows.animation.files import scene_of
     from workflows.animation.keyframe_edit import keyframe_edit
+    from workflows.animation.run import animate_file
     from workflows.examples_gen import write_mixamo_character
     from workflows.scene import character_joints
 

@@ -12,7 +12,6 @@ from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES
 from smplik.data.bvh import read_bvh
-from workflows.animation import AnimationTrack, joints_of, rest_joints, select_keyframes
 from workflows.animation.clean import (
     CleanConfig,
     foot_contacts,
@@ -23,6 +22,7 @@ from workflows.animation.clean import (
     smooth_motion,
     two_bone_ik,
 )
+from workflows.animation.clips import AnimationTrack, joints_of, rest_joints, select_keyframes
 from workflows.animation.files import AnimationFileError, animation_to_dict, load_animation, save_animation
 
 MM = 1e-3
@@ -169,7 +169,7 @@ def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
     assert "no track '7'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--track", 7))
     far = write_wham_video(tmp_path, {4: (a0[:2], t0[:2], np.array([0, 900_000_000]))})  # sparse ids: no hang
     assert "no pose at frame(s) 1, 2, 3" in _one_error_line(animate(far, "--out", out, "--fps", 30))
-    from workflows.animation import read_clip
+    from workflows.animation.clips import read_clip
 
     with pytest.raises(ValueError, match="refusing more than 1 "):
         read_clip(far, max_frames=1)
@@ -347,7 +347,7 @@ def test_smoothing_methods_and_keyframes():
         R_s, t_s = smooth_motion(R, transl, 30.0, CleanConfig(smoothing=method))
         assert jitter(joints_of(R_s, t_s, J)) < 0.5 * jitter(p)
     # a motion that is an interpolation of its ends needs two keyframes; a sharp middle pose adds one there
-    from workflows.animation import interpolate_poses
+    from workflows.animation.clips import interpolate_poses
 
     w = np.linspace(0, 1, 21)
     R_end = Rotation.from_rotvec(np.tile([0.0, 0.0, 0.8], (24, 1))).as_matrix()
@@ -405,8 +405,8 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
 
 def test_single_frame_glitches_are_flagged_and_repaired_but_fast_motion_is_not():
     from smplik.pose import Pose
-    from workflows.animation import clean_track
     from workflows.animation.clean import glitch_frames
+    from workflows.animation.clips import clean_track
 
     R, transl, J = _standing_sway(T=40, seed=2)
     aa = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(40, 24, 3)
@@ -480,7 +480,7 @@ def test_timeline_scrubs_plays_jumps_keyframes_and_applies_edits_with_undo(tmp_p
     import dataclasses
 
     from smplik.effectors import Effector
-    from workflows.animation import AnimationError
+    from workflows.animation.clips import AnimationError
     from workflows.editor.timeline import AnimationTimeline
 
     aa, transl = video_motion(30, seed=11)

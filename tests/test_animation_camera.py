@@ -12,7 +12,6 @@ from estimator_fixtures import FOCAL, IMAGE_H, IMAGE_W
 from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX
-from workflows.animation import NORMAL_FOV_DEG, camera_fov, clean_track, read_clip, realistic_depth
 from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
@@ -23,6 +22,7 @@ from workflows.animation.clean import (
     jitter,
     motion_metrics,
 )
+from workflows.animation.clips import NORMAL_FOV_DEG, camera_fov, clean_track, read_clip, realistic_depth
 from workflows.animation.files import load_animation
 from workflows.estimators.base import rest_pelvis
 

@@ -12,7 +12,6 @@ from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX, Gender
 from smplik.pose import Pose
-from workflows.animation import clean_track, joints_of, rest_joints, select_keyframes
 from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
@@ -21,6 +20,7 @@ from workflows.animation.clean import (
     root_shift_from_locks,
     split_on_lift,
 )
+from workflows.animation.clips import clean_track, joints_of, rest_joints, select_keyframes
 from workflows.animation.denoise import estimate_noise, sure_smoothness, whittaker
 
 RAW = CleanConfig(smoothing="none", foot_lock=False, repair_glitches=False)

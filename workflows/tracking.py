@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import Gender
-from workflows.animation import Animation, AnimationError, AnimationTrack, export_animation
+from workflows.animation.clips import Animation, AnimationError, AnimationTrack
+from workflows.animation.run import export_animation
 
 
 @dataclass(frozen=True)

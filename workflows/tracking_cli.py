@@ -33,7 +33,7 @@ def track_cmd(
                                                     "shipped).")] = None,
 ) -> None:
     """Tracker recording (head, wrists, pelvis) -> OUT/animation.json (smplik-animation) and BVH/GLB."""
-    from workflows.animation import AnimationError
+    from workflows.animation.clips import AnimationError
     from workflows.tracking import track_file
 
     with user_errors():

@@ -59,7 +59,7 @@ def _lines(result) -> list[str]:
 
 def _forward_of_feet(anim) -> np.ndarray:
     """(3,) unit horizontal direction the body faces, from its feet (ankle -> foot joints), over the clip."""
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
 
     (t,) = anim.tracks
     p = joints_of(axis_angle_to_local(t.global_orient, t.body_pose), t.transl, rest_joints(t.betas, t.gender))
@@ -157,7 +157,7 @@ def test_an_unwritable_mp4_preview_fails_before_the_work(tmp_path, animate, turn
 
 def test_a_long_clip_is_shown_whole_and_the_frames_are_said():
     from smplik.conventions import Gender
-    from workflows.animation import Animation, AnimationTrack
+    from workflows.animation.clips import Animation, AnimationTrack
     from workflows.animation.preview import describe_frames, shown_frames
 
     n = 537  # issue 32's GVHMR clip, whose GIF stopped at frame 299

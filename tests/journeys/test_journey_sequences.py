@@ -122,7 +122,7 @@ def test_smplerx_per_frame_files_are_one_clip_with_tracks_across_frames(tmp_path
     assert [(t.first_frame, t.num_frames) for t in anim.tracks] == [(1, 7), (1, 7)]
     for t in anim.tracks:  # each track follows one person: no jump where the detection order swaps
         assert np.linalg.norm(np.diff(t.transl, axis=0), axis=1).max() < 0.25  # a swap: 1.3 m
-    from workflows.animation import read_clip
+    from workflows.animation.clips import read_clip
 
     for rows in read_clip(out).tracks.values():  # as read, before any cleaning could hide a swap
         pelvis = np.array([p.transl for _, p in rows])

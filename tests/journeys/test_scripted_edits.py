@@ -145,7 +145,7 @@ def test_scene_solve_exact_keeps_the_exact_re_solve(demo_scene, cli, tmp_path, s
 
 def _track_joints(animation_path: Path, frame: int) -> np.ndarray:
     """The only track's joints (24, 3) at source frame ``frame``, character space."""
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
     from workflows.animation.files import load_animation
 
     t = load_animation(animation_path).tracks[0]

@@ -1,7 +1,7 @@
 """The editor's timeline model for animations (plain Python; :mod:`workflows.editor.timeline_app` wires it to
 the browser).
 
-:class:`AnimationTimeline` holds an :class:`~workflows.animation.Animation` and what a timeline shows and
+:class:`AnimationTimeline` holds an :class:`~workflows.animation.clips.Animation` and what a timeline shows and
 does: the current source frame (scrub, step for playback at the source frame rate, jump between
 keyframes), the scene of the current frame (:func:`workflows.animation.files.scene_of`, effectors on
 keyframes: what :class:`~workflows.editor.state.EditorState` edits), the blend window, and applying a
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from smplik.effectors import Effector
-from workflows.animation import Animation, AnimationError
+from workflows.animation.clips import Animation, AnimationError
 from workflows.editor.state import UndoStacks
 from workflows.scene import Scene
 

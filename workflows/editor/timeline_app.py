@@ -13,7 +13,7 @@ until they are applied: *Apply* -- and also *Save*, or moving to another frame, 
 the command) and the change blended over the window; frames outside it keep their values bit for bit.
 *Undo* takes back the frame's unapplied edits first, then applies, one at a time; *Save* writes the
 animation (``smplik-animation``); *Export* writes the animated BVH and GLB of every track
-(:func:`workflows.animation.export_animation`, as ``scene animate --export``).
+(:func:`workflows.animation.run.export_animation`, as ``scene animate --export``).
 
 Playback runs on its own thread (:meth:`play`): each tick advances as many frames as the source frame
 rate says have passed (frames are skipped when drawing is slower) under the editor's lock, so GUI events
@@ -227,7 +227,7 @@ class AnimationEditorApp(EditorApp):
 
     def export(self) -> list[Path]:
         """Apply the frame's edits, then write every track's animated BVH and GLB into the Export folder."""
-        from workflows.animation import export_animation
+        from workflows.animation.run import export_animation
 
         with self._lock:
             self.apply()
