@@ -20,13 +20,19 @@ FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
 
 
 class ContactSettings(Protocol):
-    """What the detector reads from a config: :class:`ContactConfig`, :class:`workflows.animation.clean.CleanConfig`."""
+    """What :func:`foot_contacts` reads from a config: :class:`ContactConfig`, or
+    :class:`workflows.animation.clean.CleanConfig` (which also has :class:`GroundSettings`' field)."""
 
     contact_height_m: float
     contact_speed_mps: float
     contact_noise_ratio: float
     contact_release_ratio: float
     contact_min_frames: int
+
+
+class GroundSettings(ContactSettings, Protocol):
+    """What :func:`ground_of` reads: the contact settings and whether the ground may move."""
+
     ground_moves: bool
 
 
@@ -37,8 +43,7 @@ class ContactConfig:
     A foot within ``contact_height_m`` of the floor and slower than ``contact_speed_mps`` (per axis at least
     ``contact_noise_ratio`` times the clip's foot noise, :func:`foot_noise`) is in contact; a run extends over
     neighbouring low frames up to ``contact_release_ratio`` times that threshold, and runs shorter than
-    ``contact_min_frames`` are dropped; ``ground_moves``: the ground may move at a constant velocity
-    (:func:`ground_velocity`).
+    ``contact_min_frames`` are dropped.
     """
 
     contact_height_m: float = 0.08
@@ -46,7 +51,6 @@ class ContactConfig:
     contact_noise_ratio: float = 3.0
     contact_release_ratio: float = 1.5
     contact_min_frames: int = 3
-    ground_moves: bool = False
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -131,7 +135,7 @@ def contact_threshold(cfg: ContactSettings, noise: np.ndarray | None = None) -> 
     return np.maximum(cfg.contact_speed_mps, cfg.contact_noise_ratio * sigma)
 
 
-def ground_of(p_world: np.ndarray, fps: float, cfg: ContactSettings, scale: float = 1.0,
+def ground_of(p_world: np.ndarray, fps: float, cfg: GroundSettings, scale: float = 1.0,
               noise: np.ndarray | None = None) -> np.ndarray:
     """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
     SMPL space, the contact height, speed and the foot ``noise`` (3,) (:func:`foot_noise`) in character space
