@@ -178,7 +178,7 @@ def test_tram_world_follows_its_slam_trajectory(tmp_path):
 
 
 def test_npy_pickles_still_refuse_code(tmp_path):
-    from workflows.safe_pickle import UnsafePickleError
+    from smplik.safe_pickle import UnsafePickleError
 
     class Evil:
         def __reduce__(self):
@@ -270,8 +270,8 @@ def test_pickled_torch_tensors_are_checked_before_anything_is_allocated(tmp_path
     import collections
     import warnings
 
+    from smplik.safe_pickle import UnsafePickleError
     from workflows.estimators import _load_raw
-    from workflows.safe_pickle import UnsafePickleError
 
     with warnings.catch_warnings():  # TypedStorage's deprecation: the pickle format torch itself writes
         warnings.simplefilter("ignore")

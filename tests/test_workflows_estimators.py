@@ -35,6 +35,7 @@ from estimator_fixtures import (
 )
 
 from smplik.conventions import Gender
+from smplik.safe_pickle import UnsafePickleError, load_pickle
 from workflows.estimators import EstimateFormatError, detect_format, read_estimate
 from workflows.estimators.base import (
     M_WORLD_CAMERA,
@@ -42,7 +43,6 @@ from workflows.estimators.base import (
     SMPLX_NEUTRAL_REST_PELVIS,
     rest_pelvis,
 )
-from workflows.safe_pickle import UnsafePickleError, load_pickle
 from workflows.scene import GroundRecord
 
 

@@ -8,7 +8,7 @@ frame-selection rule of every reader) in smplik's y-up world, placed on our body
 Safety limits: ``.npz`` and ``.pt`` members are checked against ``max_bytes`` (their uncompressed
 sizes, read from the zip directory) before anything is decompressed; other files by their size; at
 most ``max_people`` people per frame. Every problem raises :class:`EstimateFormatError` (one line,
-naming the file and the key) or :class:`workflows.safe_pickle.UnsafePickleError`.
+naming the file and the key) or :class:`smplik.safe_pickle.UnsafePickleError`.
 """
 
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError

@@ -132,7 +132,7 @@ def _load_torch(path: Path) -> Any:
 
 
 def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
-    from workflows.safe_pickle import UnsafePickleError, load_npz, load_pickle, read_npy
+    from smplik.safe_pickle import UnsafePickleError, load_pickle, read_npy, read_npz
 
     suffix = path.suffix.lower()
     if suffix in MESH_SUFFIXES:
@@ -149,7 +149,7 @@ def _load_raw(path: Path, trust_pickle: bool, max_bytes: int) -> Any:
                                   f"{max_bytes / 2**20:.0f} MiB limit (max_bytes / --max-bytes raises it).")
     try:
         if suffix == ".npz":
-            return load_npz(path)
+            return read_npz(path)
         if suffix in (".pt", ".pth"):
             return _load_torch(path)
         if suffix == ".npy":  # an object array (a saved dict, e.g. TRAM's) through the restricted unpickler
@@ -242,7 +242,7 @@ def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle
 
     Raises:
         EstimateFormatError: unknown format, a layout mismatch (naming the key), a limit exceeded.
-        workflows.safe_pickle.UnsafePickleError: a pickle names a refused global.
+        smplik.safe_pickle.UnsafePickleError: a pickle names a refused global.
     """
     path = Path(path)
     if not path.is_file() and not path.is_dir():
