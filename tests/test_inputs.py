@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers import needs_gl
 from typer.testing import CliRunner
 
 from smplik.atomic import remove_stale_temp_files, write_json_atomic, write_npz_deterministic
@@ -435,18 +436,6 @@ def test_solve_prints_each_effectors_residual(tmp_path, solver):
     assert f"{wrist.value:.1f} mm" in line
 
 
-def _can_render() -> bool:
-    from smplik.render import RenderError, Sphere, render
-
-    try:
-        render([], [Sphere((0, 0, 0))], size=(16, 16))
-    except RenderError:
-        return False
-    return True
-
-
-needs_gl = pytest.mark.skipif(not _can_render(), reason="no OpenGL backend for offscreen rendering: install EGL "
-                              "(apt-get install libegl1) or OSMesa")
 
 
 @needs_gl

@@ -8,6 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import demo_scene
 
 from smplik.conventions import JOINT_INDEX
 from smplik.effectors import Effector, EffectorError
@@ -21,15 +22,7 @@ UP = np.array([0.0, 0.25, 0.0])
 @pytest.fixture(scope="module")
 def scene(shipped_solver):
     """The demo's two people, recovered (4 effectors each) as ``scene from-estimate`` does."""
-    from workflows.estimators.base import EstimatedPerson
-    from workflows.examples_gen import example_poses
-    from workflows.scene.pipeline import scene_from_people
-    from workflows.scene.recovery import RecoveryConfig
-
-    people = [EstimatedPerson(p.pose.global_orient, p.pose.body_pose, p.pose.transl, p.pose.betas, p.pose.gender,
-                              person_id=str(i)) for i, p in enumerate(example_poses())]
-    built, _ = scene_from_people(people, shipped_solver, config=RecoveryConfig(max_effectors=4, threshold=0.0))
-    return built
+    return demo_scene(shipped_solver)
 
 
 def _rel(J: np.ndarray, joint: str) -> np.ndarray:

@@ -7,11 +7,9 @@ import json
 
 import numpy as np
 import pytest
+from helpers import demo_scene
 
-from workflows.examples_gen import example_poses
 from workflows.scene import SceneError, load_scene, save_scene, scene_from_dict, solve_scene
-from workflows.scene.pipeline import scene_from_people
-from workflows.scene.recovery import RecoveryConfig
 
 
 @pytest.fixture(scope="module")
@@ -21,12 +19,7 @@ def solver(best_solver):
 
 @pytest.fixture(scope="module")
 def scene(solver):
-    from workflows.estimators.base import EstimatedPerson
-
-    people = [EstimatedPerson(p.pose.global_orient, p.pose.body_pose, p.pose.transl, p.pose.betas, p.pose.gender,
-                              person_id=str(i)) for i, p in enumerate(example_poses())]
-    built, _ = scene_from_people(people, solver, config=RecoveryConfig(max_effectors=4, threshold=0.0))
-    return built
+    return demo_scene(solver)
 
 
 def _assert_same(a, b, where="scene"):

@@ -9,29 +9,15 @@ body is turned 120 degrees about the vertical so that it does not face the camer
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 from animation_fixtures import video_motion, write_gvhmr_video
+from helpers import needs_gl
 from scipy.spatial.transform import Rotation
 
 T = 24
 
 
-def _can_render() -> bool:
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    try:
-        from smplik.render import Sphere, render
-
-        render([], [Sphere((0, 0, 0))], size=(32, 32))
-        return True
-    except Exception:  # noqa: BLE001 - no OpenGL backend on this machine
-        return False
-
-
-needs_gl = pytest.mark.skipif(not _can_render(), reason="no OpenGL backend for offscreen rendering: install EGL "
-                              "(apt-get install libegl1) or OSMesa")
 
 
 @pytest.fixture()
