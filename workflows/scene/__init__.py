@@ -9,6 +9,10 @@
 The scene API users import from here: ``from workflows.scene import load_scene, save_scene``.
 """
 
+__all__ = ["MAX_CHARACTERS", "SCENE_FORMAT", "SCENE_VERSION", "GroundRecord", "Scene", "SceneCharacter", "SceneError",
+           "SkeletonSource", "character_joints", "load_scene", "save_scene", "scale_effector", "scene_from_dict",
+           "solve_character", "solve_scene"]
+
 from workflows.scene.characters import (
     GroundRecord,
     SceneCharacter,
@@ -28,7 +32,3 @@ from workflows.scene.document import (
     scene_from_dict,
     solve_scene,
 )
-
-__all__ = ["MAX_CHARACTERS", "SCENE_FORMAT", "SCENE_VERSION", "GroundRecord", "Scene", "SceneCharacter", "SceneError",
-           "SkeletonSource", "character_joints", "load_scene", "save_scene", "scale_effector", "scene_from_dict",
-           "solve_character", "solve_scene"]
