@@ -37,18 +37,8 @@ from smplik.effectors import Effector, pack_effectors
 from smplik.kinematics import forward_kinematics
 from smplik.pose import Pose
 from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from workflows.edit_benchmark.pairs import (
-    LIMB_ENDS,
-    LIMB_ROOT,
-    EditPair,
-    EditPairConfig,
-    JointRanges,
-    align_to_pelvis,
-    edit_metrics,
-    find_edit_pairs,
-    pelvis_relative,
-    summarize,
-)
+from workflows.edit_benchmark import pairs as pair_defs
+from workflows.edit_benchmark.pairs import EditPair, JointRanges, edit_metrics, summarize
 from workflows.scene.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
 from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many
 
@@ -88,7 +78,7 @@ class EditClip:
 class EditBenchmarkConfig:
     """Settings of :func:`run_edit_benchmark`."""
 
-    pairs: EditPairConfig = EditPairConfig()
+    pairs: pair_defs.EditPairConfig = pair_defs.EditPairConfig()
     """What counts as a single-limb edit."""
     max_pairs: int = 150
     """At most this many pairs (a seeded draw when more are found), so the default run takes minutes."""
@@ -137,7 +127,8 @@ def select_pairs(clips: Sequence[EditClip], J_rest: Tensor, cfg: EditBenchmarkCo
     pairs: list[EditPair] = []
     for c, clip in enumerate(clips):
         R_world, p_world = clip_fk(clip, J_rest)
-        pairs += find_edit_pairs(pelvis_relative(p_world, R_world[:, 0]), clip.fps, cfg.pairs, clip=c)
+        p_pelvis = pair_defs.pelvis_relative(p_world, R_world[:, 0])
+        pairs += pair_defs.find_edit_pairs(p_pelvis, clip.fps, cfg.pairs, clip=c)
     if len(pairs) > cfg.max_pairs:
         rng = np.random.default_rng(cfg.seed)
         keep = np.sort(rng.choice(len(pairs), cfg.max_pairs, replace=False))
@@ -208,7 +199,7 @@ def make_problems(clips: Sequence[EditClip], pairs: Sequence[EditPair], solver: 
     tr1 = torch.stack([clips[p.clip].transl[p.t1] for p in pairs]).double()
     R0, p0 = forward_kinematics(axis_angle_to_matrix(aa0), J_rest, tr0)
     R1, p1 = forward_kinematics(axis_angle_to_matrix(aa1), J_rest, tr1)
-    R_true, p_true = align_to_pelvis(R1, p1, R0[:, 0], p0[:, 0])
+    R_true, p_true = pair_defs.align_to_pelvis(R1, p1, R0[:, 0], p0[:, 0])
     aa_true = aa1.clone()
     aa_true[:, 0] = matrix_to_axis_angle(R_true[:, 0])
     end_idx = torch.tensor([JOINT_INDEX[p.end] for p in pairs])
@@ -220,7 +211,7 @@ def make_problems(clips: Sequence[EditClip], pairs: Sequence[EditPair], solver: 
                             for r in results]).double()
     scene_transl = torch.stack([torch.from_numpy(np.asarray(r.pose.transl)) for r in results]).double()
     _, p_scene = forward_kinematics(axis_angle_to_matrix(scene_aa), J_rest, scene_transl)
-    root = torch.tensor([JOINT_INDEX[LIMB_ROOT[p.end]] for p in pairs])
+    root = torch.tensor([JOINT_INDEX[pair_defs.LIMB_ROOT[p.end]] for p in pairs])
     mid = torch.tensor(PARENTS)[end_idx]
     bones = (J_rest[mid] - J_rest[root]).norm(dim=-1) + (J_rest[end_idx] - J_rest[mid]).norm(dim=-1)
     reachable = (targets - p_scene[rows, root]).norm(dim=-1) <= bones - 1e-3
@@ -322,7 +313,7 @@ def run_edit_benchmark(clips: Sequence[EditClip], solver: Any, ranges: JointRang
         **{name: {"mpjpe_mm": round(float(m.mpjpe_mm[i]), 2), "collateral_mm": round(float(m.collateral_mm[i]), 2),
                   "reach_mm": round(float(m.reach_mm[i]), 2), "contortions": int(m.contortions[i])}
            for name, m in per_pair.items()}} for i, p in enumerate(problems.pairs)]
-    out["counts"] = {end: sum(p.end == end for p in problems.pairs) for end in LIMB_ENDS}
+    out["counts"] = {end: sum(p.end == end for p in problems.pairs) for end in pair_defs.LIMB_ENDS}
     out["recovery_error_mm"] = float(problems.recovery_error_mm.mean())
     return out
 
