@@ -102,7 +102,8 @@ def _rebase(name: str | None, old_dir: Path | None, new_dir: Path) -> str | None
 
 
 class UndoStacks:
-    """``can_undo`` / ``can_redo`` of an editable model keeping past and undone states in ``_undo`` / ``_redo``."""
+    """Undo and redo of an editable model keeping past and undone states in ``_undo`` / ``_redo``; the model
+    says what its state is (:meth:`_history_state`) and how to go back to one (:meth:`_restore`)."""
 
     _undo: list[Any]
     _redo: list[Any]
@@ -114,6 +115,27 @@ class UndoStacks:
     @property
     def can_redo(self) -> bool:
         return bool(self._redo)
+
+    def undo(self) -> bool:
+        """Restore the state before the last edit; False when there is nothing to undo."""
+        return self._step(self._undo, self._redo)
+
+    def redo(self) -> bool:
+        """Re-apply the last undone edit; False when there is nothing to redo."""
+        return self._step(self._redo, self._undo)
+
+    def _step(self, source: list[Any], target: list[Any]) -> bool:
+        if not source:
+            return False
+        target.append(self._history_state())
+        self._restore(source.pop())
+        return True
+
+    def _history_state(self) -> Any:
+        raise NotImplementedError
+
+    def _restore(self, state: Any) -> None:
+        raise NotImplementedError
 
 
 class EditorState(UndoStacks):
@@ -400,25 +422,13 @@ class EditorState(UndoStacks):
         """End the current drag / slider gesture: the next edit starts a new undo step."""
         self._gesture = None
 
-    def undo(self) -> bool:
-        """Restore the state before the last edit; False when there is nothing to undo."""
-        if not self._undo:
-            return False
-        self._redo.append(self._now)
-        self._now = self._undo.pop()
-        self._gesture = None
-        self.version += 1
-        return True
+    def _history_state(self) -> Any:
+        return self._now
 
-    def redo(self) -> bool:
-        """Re-apply the last undone edit; False when there is nothing to redo."""
-        if not self._redo:
-            return False
-        self._undo.append(self._now)
-        self._now = self._redo.pop()
+    def _restore(self, state: Any) -> None:
+        self._now = state
         self._gesture = None
         self.version += 1
-        return True
 
     # ------------------------------------------------------------------------- files
 

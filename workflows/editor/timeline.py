@@ -146,19 +146,11 @@ class AnimationTimeline(UndoStacks):
                 changed.append(c.name)
         return changed
 
-    def undo(self) -> bool:
-        if not self._undo:
-            return False
-        self._redo.append(self._animation)
-        self._animation = self._undo.pop()
-        return True
+    def _history_state(self) -> Animation:
+        return self._animation
 
-    def redo(self) -> bool:
-        if not self._redo:
-            return False
-        self._undo.append(self._animation)
-        self._animation = self._redo.pop()
-        return True
+    def _restore(self, state: Animation) -> None:
+        self._animation = state
 
     def save(self, path: str | Path | None = None) -> Path:
         """Write the animation (atomically) to ``path`` or the file it was opened from."""
