@@ -144,8 +144,8 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
 
 def run_non_humanoid(name: str, base: Path, limbs: dict[str, float], estimator) -> dict:
     """A real rig made non-human (the bones below a limb's first joint scaled) must be refused in one line."""
+    from shape_inversion.rig_names import is_ancestor
     from shape_inversion.skeleton_io import prepare_character, read_character
-    from smplik.data.rig_names import is_ancestor
 
     char = read_character(base)
     sk = char.skeleton
