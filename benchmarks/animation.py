@@ -7,11 +7,11 @@ read frame by frame and retargeted onto its body exactly as ``smplik scene anima
 estimator's world frame when it has one (WHAM, GVHMR ``smpl_params_global``, AIST++). Variants:
 
 * ``raw``: the estimator's per-frame poses (the reference of the fidelity metric);
-* ``adaptive``: smplik's default cleaning (noise measured per channel, :func:`workflows.motion_clean.denoise_motion`,
+* ``adaptive``: smplik's default cleaning (noise measured per channel, :func:`workflows.animation.clean.denoise_motion`,
   glitch repair, foot locks);
 * ``adaptive_no_lock``: the same without foot locking;
 * ``sequence``: the previous default, the sequence solve with foot locks and a 5 mm pose budget
-  (:func:`workflows.motion_clean.sequence_clean`);
+  (:func:`workflows.animation.clean.sequence_clean`);
 * ``savgol``: Savitzky-Golay smoothing (window 9, order 2) + foot locking (a plain baseline);
 * ``one_euro``: zero-phase One-Euro smoothing + foot locking (a plain baseline).
 
@@ -24,7 +24,7 @@ motion exceeds the estimate's by at most that MPJPE; 5 mm is 10 % of 50 mm, belo
 estimator we read on 3DPW (WHAM, GVHMR, 4D-Humans: about 55-80 mm), so within it cleaning cannot raise the
 fidelity error by more than 10 %.
 
-Metrics (:mod:`workflows.motion_clean`): jitter = mean joint acceleration (mm/frame^2), skating = mean
+Metrics (:mod:`workflows.animation.clean`): jitter = mean joint acceleration (mm/frame^2), skating = mean
 speed of the foot joints during contact, relative to the ground (mm/frame; the contacts and, in camera
 frames, the ground velocity found by the default pipeline, the same for every variant), pose fidelity =
 pelvis-aligned MPJPE (mm, 24 joints) to the raw per-frame joints (the MPJPE of HMR papers), and the
@@ -68,7 +68,8 @@ sys.path.insert(0, str(ROOT))
 from _common import save  # noqa: E402
 
 from smplik.paths import real_estimators_dir  # noqa: E402
-from workflows.animation import (  # noqa: E402
+from workflows.animation.clean import CleanConfig, foot_noise, ground_of, motion_metrics  # noqa: E402
+from workflows.animation.clips import (  # noqa: E402
     AnimateConfig,
     animation_from_clip,
     camera_clean,
@@ -76,8 +77,7 @@ from workflows.animation import (  # noqa: E402
     read_clip,
     realistic_depth,
 )
-from workflows.motion_clean import CleanConfig, foot_noise, ground_of, motion_metrics  # noqa: E402
-from workflows.pipeline import retarget_to_body  # noqa: E402
+from workflows.scene.pipeline import retarget_to_body  # noqa: E402
 
 ASSUMED_FPS = {"gvhmr": 30.0, "wham": 30.0, "phalp": 30.0}
 VARIANTS = {"adaptive": CleanConfig(), "adaptive_no_lock": CleanConfig(foot_lock=False),
@@ -171,8 +171,8 @@ def bench_cmu(folder: Path, solver, frames: int) -> list[dict]:
     from smplik.data.retarget import retarget_bvh
     from smplik.effectors import pack_effectors
     from smplik.sequence import solve_sequence
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
-    from workflows.recovery import RecoveryConfig, TargetPose, recover_many
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
+    from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many
 
     rows = []
     for name in CMU_CLIPS:

@@ -21,14 +21,14 @@ as ``smplik scene animate`` cleans a track):
 * ``savgol``: Savitzky-Golay (window 9, order 2) on the local rotations' quaternions and the root (no repair,
   no locks: the plain filter);
 * ``one_euro``: zero-phase One-Euro on the same (no repair, no locks);
-* ``default``: smplik's default cleaning (:class:`workflows.motion_clean.CleanConfig` defaults);
+* ``default``: smplik's default cleaning (:class:`workflows.animation.clean.CleanConfig` defaults);
 * ``sequence_budget`` (with ``--previous``): the previous default (a joint-space sequence solve with a 5 mm
   pose budget), for the record.
 
 Metrics against the truth: MPJPE (mm, pelvises at the origin, as HMR papers), PA-MPJPE (mm, per frame
 similarity-aligned, :func:`smplik.metrics.pa_mpjpe`), acceleration error (mm/frame^2, world joints: the mean
 ``|a - a_true|`` of the joints' second differences), root error (mm, pelvis distance), foot skating on the
-*truth's* contacts (mm/frame; :func:`workflows.motion_clean.foot_contacts` on the truth), glitch recall (share of
+*truth's* contacts (mm/frame; :func:`workflows.animation.clean.foot_contacts` on the truth), glitch recall (share of
 injected glitch frames repaired), glitches left and false repairs (share of the other frames the cleaning
 repaired).
 
@@ -59,7 +59,7 @@ from _common import save, shared_dir  # noqa: E402
 
 from smplik.conventions import JOINT_INDEX, Gender  # noqa: E402
 from smplik.pose import Pose  # noqa: E402
-from workflows.motion_clean import CleanConfig, foot_contacts, foot_skating  # noqa: E402
+from workflows.animation.clean import CleanConfig, foot_contacts, foot_skating  # noqa: E402
 
 FPS = 30.0
 ROT_NOISE_DEG = 4.0
@@ -125,7 +125,7 @@ def _rotvec_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _joints(poses: list[Pose]) -> np.ndarray:
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
 
     R = axis_angle_to_local(np.stack([p.global_orient for p in poses]), np.stack([p.body_pose for p in poses]))
     return joints_of(R, np.stack([p.transl for p in poses]), rest_joints(poses[0].betas, poses[0].gender))
@@ -205,7 +205,7 @@ PREVIOUS = {"sequence_budget": CleanConfig(smoothing="sequence", pose_budget_mm=
 
 
 def bench_clip(name: str, label: str, truth: list[Pose], methods: dict[str, CleanConfig], seed: int) -> list[dict]:
-    from workflows.animation import clean_track
+    from workflows.animation.clips import clean_track
 
     p_true = _joints(truth)
     contacts_true = foot_contacts(p_true, FPS, CleanConfig())
@@ -238,7 +238,7 @@ def write_amass(poses: list[Pose], path: Path) -> None:
     run (:mod:`workflows.estimators.amass_params`; the reader turns it back to y-up)."""
     from scipy.spatial.transform import Rotation
 
-    from workflows.animation import rest_joints
+    from workflows.animation.clips import rest_joints
     from workflows.estimators.base import estimator_rest_pelvis
 
     R_zup_yup = Rotation.from_euler("x", 90, degrees=True)
@@ -252,9 +252,9 @@ def write_amass(poses: list[Pose], path: Path) -> None:
 
 
 def end_to_end(poses: list[Pose], solver, folder: Path) -> dict:
-    """``scene animate``'s pipeline (:func:`workflows.animation.animate_file`: read, clean, keyframes, effector
+    """``scene animate``'s pipeline (:func:`workflows.animation.run.animate_file`: read, clean, keyframes, effector
     recovery on keyframes, no export) on the estimate: keyframes and frames per CPU second of this process."""
-    from workflows.animation import animate_file
+    from workflows.animation.run import animate_file
 
     path = folder / "estimate.npz"
     write_amass(poses, path)

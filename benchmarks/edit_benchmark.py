@@ -17,8 +17,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS  # noqa: E402
 
-from smplik.cli.benchmark import app  # noqa: E402
 from smplik.cli.errors import run_guarded  # noqa: E402
+from workflows.benchmark_cli import app  # noqa: E402
 
 
 def main(argv: list[str]) -> int:

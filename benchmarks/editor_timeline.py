@@ -103,7 +103,7 @@ def main() -> None:
                 print(f"no animation given and no {source} (pass --animation, --data or set "
                       "SMPLIK_REAL_ESTIMATORS); nothing to do")
                 return
-            from workflows.animation import animate_file
+            from workflows.animation.run import animate_file
 
             animation = animate_file(source, Path(tmp), solver, fps=30.0, formats=()).animation_file
         result = measure(animation, solver, args.ticks, args.applies)

@@ -11,14 +11,14 @@ the middle frame of evenly spaced CMU clips); skipped with a message when neithe
 Model: ``--checkpoint`` (default: the shipped model). One CPU thread, as in the
 workflows on a 2-core machine.
 
-It also compares the search criteria (:func:`workflows.recovery.recovery_score`: the mean joint error,
+It also compares the search criteria (:func:`workflows.scene.recovery.recovery_score`: the mean joint error,
 or its mean with the worst limb's error) on the final pose at 6 and 8 effectors: mean joint error,
 worst-limb error and limbs left more than 80 mm off (``--criteria-only`` runs just that).
 
 ``--refine-backend reference`` times the torch refinement instead of the default (``auto``: the numba
 kernels of :mod:`smplik.refine_fast` when numba is installed); the JSON records the one that ran.
 
-A full path above ``polish_above`` (3 cm) is escalated (``workflows/recovery.py``); the timing is reported for
+A full path above ``polish_above`` (3 cm) is escalated (``workflows/scene/recovery.py``); the timing is reported for
 that default and for the plain greedy search (``RecoveryConfig(polish=False)``), the two interleaved pose by
 pose so that the load of a shared machine weighs on both alike (the JSON records the load average).
 
@@ -45,7 +45,7 @@ from smplik.conventions import Gender  # noqa: E402
 from smplik.paths import pose_cache  # noqa: E402
 from smplik.pose import Pose  # noqa: E402
 from smplik.refine import numba_available, refine_backend  # noqa: E402
-from workflows.recovery import (  # noqa: E402
+from workflows.scene.recovery import (  # noqa: E402
     LIMB_ZONES,
     RecoveryConfig,
     TargetPose,

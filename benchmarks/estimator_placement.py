@@ -2,7 +2,7 @@
 
 For every camera-frame format, fixtures are written in the producer's exact layout
 (``tests/estimator_fixtures.py``), read by smplik, and the built-in body's pelvis and head are projected
-through the scene's overlay camera (:func:`workflows.previews.image_camera`). The reference is where
+through the scene's overlay camera (:func:`workflows.scene.previews.image_camera`). The reference is where
 the producer draws them: the published SMPL rest joints posed by FK plus its translation, through its
 camera (for SMPL-X producers only the pelvis is known). Three framings: people 200, 240 and 400 px tall
 in a 640 x 480 image; 10 seeds x 2 people (1 for HybrIK and GVHMR) each. The head error is the
@@ -169,8 +169,8 @@ def producer_render_rows(folder: Path, frames_per_track: int = 10) -> dict:
     from smplik.body_model import load_body_model
     from workflows.estimators import _load_raw as load_estimator_file
     from workflows.estimators import people_from_data
-    from workflows.previews import image_camera
     from workflows.scene import Scene, SceneCharacter
+    from workflows.scene.previews import image_camera
 
     rows = {}
     print(f"{'GVHMR track':36s} {'frames':>6s} {'head % mean':>11s} {'head % max':>10s} {'feet % mean':>11s} "

@@ -9,7 +9,7 @@ it is absent. Tracks found there (any depth):
 * ``*.pkl`` with the AIST++ motion layout (``smpl_poses``, ``smpl_trans``).
 
 Every frame of every track is read with :func:`workflows.estimators.people_from_data`, put on its own
-body exactly as the pipeline does (:func:`workflows.pipeline.retarget_to_body`) and recovered with
+body exactly as the pipeline does (:func:`workflows.scene.pipeline.retarget_to_body`) and recovered with
 ``RecoveryConfig(max_effectors=8, threshold=0)`` (the search runs to 8 effectors on every frame) by
 the shipped model on one CPU thread. The error of a frame is the mean per-joint error (mm) of the
 final pose, the full-refinement solve of the recovered effectors (what the scene re-solves to).
@@ -35,8 +35,8 @@ from _common import save  # noqa: E402
 from smplik.paths import real_estimators_dir  # noqa: E402
 from workflows.estimators import EstimateFormatError, detect_format, people_from_data  # noqa: E402
 from workflows.estimators import _load_raw as load_estimator_file  # noqa: E402
-from workflows.pipeline import retarget_to_body  # noqa: E402
-from workflows.recovery import RecoveryConfig, TargetPose, recover_many  # noqa: E402
+from workflows.scene.pipeline import retarget_to_body  # noqa: E402
+from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many  # noqa: E402
 
 LIMIT_MM = 40.0
 CHUNK = 128

@@ -11,7 +11,7 @@ tensors, ``K_fullimg``; GVHMR ``tools/demo/demo.py``). Three runs of the ``smpli
 
 Wall-clock seconds and CPU seconds of the child process (``*_cpu_s``: user + system, all its threads, among them
 llvmpipe's, less dependent on the other load of a shared machine); ratios ``*_over_animate`` of both. Also the
-previous preview's way (a new renderer per frame, :func:`workflows.previews.render_scene` at 480 x 360, the
+previous preview's way (a new renderer per frame, :func:`workflows.scene.previews.render_scene` at 480 x 360, the
 view refitted per frame), per frame on ``--old-sample`` frames, in this process. Prints a line and writes
 ``benchmarks/results/preview_speed.json``.
 """
@@ -100,8 +100,8 @@ def main() -> None:
         gif_frames = len(imageio.mimread(tmp / "p.gif", memtest=False))
         mp4_frames = imageio.get_reader(tmp / "p.mp4").count_frames()
         gif_mb = (tmp / "p.gif").stat().st_size / 2**20
-        from workflows.animation_io import load_animation, scene_of
-        from workflows.previews import render_scene
+        from workflows.animation.files import load_animation, scene_of
+        from workflows.scene.previews import render_scene
 
         anim = load_animation(tmp / "a" / "animation.json")
         sample = list(range(0, args.frames, max(1, args.frames // args.old_sample)))[:args.old_sample]

@@ -61,7 +61,7 @@ def round_trip(char, estimate, tmp: Path) -> dict:
     from smplik.data.bvh import read_bvh
     from workflows.character import build_character, custom_bvh_text, smpl_to_custom
     from workflows.examples_gen import example_poses
-    from workflows.export import posed_character_glb
+    from workflows.scene.export import posed_character_glb
 
     cc = build_character(char.skeleton, estimate, rig=char.rig)
     pose = dataclasses.replace(example_poses()[1].pose, betas=cc.betas, gender=cc.gender)
@@ -148,8 +148,8 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
 
 def run_non_humanoid(name: str, base: Path, limbs: dict[str, float], estimator) -> dict:
     """A real rig made non-human (the bones below a limb's first joint scaled) must be refused in one line."""
+    from shape_inversion.rig_names import is_ancestor
     from shape_inversion.skeleton_io import prepare_character, read_character
-    from smplik.data.rig_names import is_ancestor
 
     char = read_character(base)
     sk = char.skeleton

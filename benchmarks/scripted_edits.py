@@ -6,12 +6,12 @@ prints one row per edit.
 * Scenes: the demo's two people (``write_romp_example`` through ``from_estimate`` with the demo's recovery
   settings), on the SMPL body and on the demo's Mixamo character. Each wrist of each person is moved (or added)
   25 cm above where the stored pose has it, as a script editing ``scene.json`` does, then solved by
-  ``scene solve`` (:func:`workflows.edits.solve_scene_edits`) and by ``scene solve --exact``
+  ``scene solve`` (:func:`workflows.scene.edits.solve_scene_edits`) and by ``scene solve --exact``
   (:func:`workflows.scene.solve_scene`). Figures: the wrist's distance to its target, the head's and the other
   wrist's move relative to the pelvis, the pelvis's move (mm).
 * Animations: ``scene animate`` of a 30-frame GVHMR clip in GVHMR's layout (``tests/animation_fixtures.py``),
   on the SMPL body and the Mixamo character; at every keyframe and at one frame between keyframes, an effector
-  file naming only one wrist, raised 25 cm: :func:`workflows.animation_edit.keyframe_edit` (merge + drag) and
+  file naming only one wrist, raised 25 cm: :func:`workflows.animation.keyframe_edit.keyframe_edit` (merge + drag) and
   the previous command (the file's effector alone, solved exactly: the same call on the track without its
   keyframes, ``exact=True``). Figures: the wrist's distance to its target, the pelvis's and the feet's (ankles
   and feet, largest) move at that frame (mm).
@@ -43,11 +43,11 @@ FEET = [JOINT_INDEX[n] for n in ("left_ankle", "right_ankle", "left_foot", "righ
 
 
 def scenes(solver, folder: Path) -> list[dict]:
-    from workflows.edits import solve_scene_edits
     from workflows.examples_gen import write_mixamo_character, write_romp_example
-    from workflows.pipeline import from_estimate
-    from workflows.recovery import RecoveryConfig
     from workflows.scene import character_joints, load_scene, solve_scene
+    from workflows.scene.edits import solve_scene_edits
+    from workflows.scene.pipeline import from_estimate
+    from workflows.scene.recovery import RecoveryConfig
 
     npz = write_romp_example(folder / "romp_two_people.npz")
     bvh = write_mixamo_character(folder / "mixamo_character.bvh")
@@ -80,9 +80,9 @@ def animations(solver, folder: Path) -> list[dict]:
     from animation_fixtures import video_motion, write_gvhmr_video
 
     from shape_inversion.options import CharacterOptions
-    from workflows.animation import animate_file
-    from workflows.animation_edit import keyframe_edit
-    from workflows.animation_io import scene_of
+    from workflows.animation.files import scene_of
+    from workflows.animation.keyframe_edit import keyframe_edit
+    from workflows.animation.run import animate_file
     from workflows.examples_gen import write_mixamo_character
     from workflows.scene import character_joints
 

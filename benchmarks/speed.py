@@ -115,6 +115,13 @@ def percentiles(times: list[float]) -> dict[str, float]:
     return {"p50_ms": float(np.percentile(ms, 50)), "p95_ms": float(np.percentile(ms, 95)), "calls": len(ms)}
 
 
+
+def _print_table(title: str, rows: dict, columns: list[tuple[str, str, int, str]], note: str = "") -> None:
+    """One table: ``title`` then the column headers, one row per key of ``rows`` (name, then each column's value)."""
+    print(f"{title:<28}" + "".join(f"{head:>{width}}" for head, _, width, _ in columns) + note)
+    for k, v in rows.items():
+        print(f"{k:<28}" + "".join(f"{v[key]:>{width}{fmt}}" for _, key, width, fmt in columns))
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", default=None, help="Model file (default: the packaged model).")
@@ -288,18 +295,15 @@ def main() -> None:
         measured = {"onnx" if p else "torch": summary[p + key] for p in prefixes}
         met = {rt: v <= target if key.endswith("_ms_1thread") else v >= target for rt, v in measured.items()}
         targets[key] = {"target": target, "measured": measured, "met": met}
-    print(f"{'measurement':<28}{'p50 ms':>10}{'p95 ms':>10}")
-    for k, v in latency.items():
-        print(f"{k:<28}{v['p50_ms']:>10.3f}{v['p95_ms']:>10.3f}")
-    print(f"\n{'throughput':<28}{'median ms':>10}{'poses/s':>12}")
-    for k, v in throughput.items():
-        print(f"{k:<28}{v['median_ms']:>10.2f}{v['poses_per_s']:>12.0f}")
-    print(f"\n{'refinement alone':<28}{'p50 ms':>10}{'poses/s':>12}   (solver rows ran: {refine_backend_used})")
-    for k, v in refinement.items():
-        print(f"{k:<28}{v['p50_ms']:>10.3f}{v['poses_per_s']:>12.0f}")
-    print(f"\n{'optimization baseline':<28}{'ms/pose':>10}")
-    for k, v in optim_rows.items():
-        print(f"{k:<28}{v['ms_per_pose']:>10.2f}")
+    _print_table("measurement", latency, [("p50 ms", "p50_ms", 10, ".3f"), ("p95 ms", "p95_ms", 10, ".3f")])
+    per_s = ("poses/s", "poses_per_s", 12, ".0f")
+    print()
+    _print_table("throughput", throughput, [("median ms", "median_ms", 10, ".2f"), per_s])
+    print()
+    _print_table("refinement alone", refinement, [("p50 ms", "p50_ms", 10, ".3f"), per_s],
+                 note=f"   (solver rows ran: {refine_backend_used})")
+    print()
+    _print_table("optimization baseline", optim_rows, [("ms/pose", "ms_per_pose", 10, ".2f")])
     print("\nsummary:", {k: round(v, 3) for k, v in summary.items()})
     print("targets:", targets)
     path = save(args.name, {"checkpoint": solver.source, "step": solver.meta.get("step"),

@@ -12,13 +12,13 @@ Methods:
 * ``ours_fit``: deterministic with the tracker fit (root, wrists and head set from the trackers; ablation);
 * ``ik``: the shipped per-frame IK solver (``IKSolver.load()``) given the 4 trackers as exact position and
   rotation effectors (8 effectors), frame by frame, and ``ik_clean``: that motion after the animation
-  pipeline's cleaning (:func:`workflows.motion_clean.sequence_clean`, foot locks included);
+  pipeline's cleaning (:func:`workflows.animation.clean.sequence_clean`, foot locks included);
 * ``mlp``: an AvatarPoser-style MLP over the last 20 frames, trained on the same data for the same wall-clock
   budget, concurrently, on one thread (``--mlp``; skipped when the file is absent).
 
 Metrics (world frame, no alignment, 24 joints): MPJPE (mm), MPJVE (mean joint velocity error, cm/s), MPJAE
 (mean joint acceleration error, cm/s^2), MPJAE of the legs (hips, knees, ankles, feet), foot skating (mean foot
-speed on the truth's contact frames, :func:`workflows.motion_clean.foot_contacts` on the truth; mm/frame) and
+speed on the truth's contact frames, :func:`workflows.animation.clean.foot_contacts` on the truth; mm/frame) and
 the anomaly rate (share of frames whose :func:`smplik.tracking.runtime.anomaly_scores` exceeds
 :data:`ANOMALY_THRESHOLD`). Cost: per-frame wall time of ``Tracker.step`` on one thread, p50 and p90.
 
@@ -49,7 +49,7 @@ from smplik.tracking.features import decode_pose, tracker_features  # noqa: E402
 from smplik.tracking.io import signals_from_motion  # noqa: E402
 from smplik.tracking.model_io import load_model  # noqa: E402
 from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, anomaly_scores, track_sequence  # noqa: E402
-from workflows.motion_clean import CleanConfig, foot_contacts, foot_skating, sequence_clean  # noqa: E402
+from workflows.animation.clean import CleanConfig, foot_contacts, foot_skating, sequence_clean  # noqa: E402
 
 LEGS = [JOINT_INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("hip", "knee", "ankle", "foot")]
 NOISES = {"exact": (0.0, 0.0), "noisy": (0.01, 2.0)}

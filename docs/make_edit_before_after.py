@@ -2,8 +2,8 @@
 
 ``PYOPENGL_PLATFORM=egl PYTHONPATH=. python docs/make_edit_before_after.py [--out docs/demo_edit_before_after.png]``
 runs the demo into a temporary folder (``workflows.demo.run_demo``). Top: the same drag with every recovered
-effector kept exact and the whole body solved (the drag before ``workflows.edits``); bottom: the demo's own
-``character/scene_edited.json`` (the drag of ``workflows.edits.solve_drag``). Each title gives the torso's
+effector kept exact and the whole body solved (the drag before ``workflows.scene.edits``); bottom: the demo's own
+``character/scene_edited.json`` (the drag of ``workflows.scene.edits.solve_drag``). Each title gives the torso's
 largest turn and how far the other wrist moved.
 """
 
@@ -20,10 +20,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _figures(before, after) -> str:
-    from smplik.benchmark.edits import TORSO_JOINTS
     from smplik.conventions import JOINT_INDEX
     from smplik.rotations import geodesic_distance
-    from workflows.recovery import TargetPose
+    from workflows.edit_benchmark.pairs import TORSO_JOINTS
+    from workflows.scene.recovery import TargetPose
 
     fk0 = TargetPose.from_pose(dataclasses.replace(before.pose, joints=None))
     fk1 = TargetPose.from_pose(dataclasses.replace(after.pose, joints=None))
@@ -44,8 +44,8 @@ def main() -> None:
     from smplik.render import save_png
     from smplik.solver import IKSolver
     from workflows.demo import EDIT_JOINT, EDIT_RAISE_M, run_demo
-    from workflows.previews import load_image, render_scene
     from workflows.scene import character_joints, load_scene, solve_character
+    from workflows.scene.previews import load_image, render_scene
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "demo_edit_before_after.png")

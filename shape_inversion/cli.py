@@ -12,20 +12,8 @@ from typing import Annotated
 
 import typer
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.conventions import Gender
-from smplik.limits import DEFAULT_MAX_JOINTS
 
 app = typer.Typer(help="SMPL-SI: custom skeleton -> SMPL shape (beta) and scale.", no_args_is_help=True,
                   pretty_exceptions_enable=False)
@@ -54,21 +42,14 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
 
 
 @app.command("invert-shape")
+@with_character_options
 def invert_shape(
     character: Annotated[Path, typer.Argument(help="Skeleton file: .bvh, .glb/.gltf, .vrm or .json of named joints.",
                                               exists=True, dir_okay=False)],
     out: Annotated[Path, typer.Option("--out", help="Output SHAPE.json (betas, scale, gender, diagnostics).")],
     gender: Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model gender.")]
     = Gender.NEUTRAL,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     render_png: Annotated[Path | None, typer.Option("--render", help="Also write a comparison PNG.")] = None,
     model_dir: Annotated[Path | None, typer.Option("--model-dir", help="Folder with real SMPL files "
                                                       "(default: $SMPLIK_MODEL_DIR, else the built-in model).")]
@@ -89,7 +70,7 @@ def invert_shape(
     from smplik.body_model import load_body_model
 
     console = Console(stderr=True, soft_wrap=True)  # a status line is never cut mid-number
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+    options = character_cli()
     try:
         char = read_character(character, options)
         model = load_body_model(gender, model_dir)
@@ -103,7 +84,7 @@ def invert_shape(
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
         raise typer.Exit(code=1) from None
-    payload = shape_payload(char, estimate, model, rest=rest, elapsed_s=elapsed)
+    payload = shape_payload(char, estimate, model, rest=options.rest, elapsed_s=elapsed)
     payload["character"]["options"] = options.to_dict()
     for line in char.map_report():  # the map chosen, and the mapper's doubts
         console.print(escape(line), soft_wrap=True, highlight=False)

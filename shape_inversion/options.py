@@ -3,18 +3,21 @@
 :class:`CharacterOptions` is used by ``smplik invert-shape``, ``smplik scene from-estimate
 --character`` (stored in ``scene.json`` so ``scene solve`` / ``scene export`` re-read the
 character identically) and any other command taking a character. Commands declare the options
-with the ``Annotated`` aliases below (``RigOption``, ``MapOption``, ...) and build the dataclass
-with :func:`character_options_from_cli`::
+once, through :func:`with_character_options`: the command takes one parameter ``character_cli``
+(a :data:`CharacterCLI`) that becomes the nine options ``--rig`` ... ``--root`` in its place, and builds
+the dataclass where it wants the options checked::
 
-    def cmd(character: Path, rig: RigOption = None, map_file: MapOption = None, units: UnitsOption = "auto",
-            up: UpOption = "auto", rest: RestOption = "auto", bind: BindOption = "inverse_bind",
-            positions: PositionsOption = "auto", max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS):
-        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints)
+    @with_character_options
+    def cmd(character: Path, character_cli: CharacterCLI = NO_CHARACTER_CLI, ...):
+        options = character_cli()  # typer.BadParameter naming the option when invalid
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import inspect
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -127,3 +130,45 @@ def character_options_from_cli(rig: str | None = None, map_file: Path | None = N
                                 root=root)
     except CharacterOptionsError as exc:
         raise typer.BadParameter(str(exc)) from None
+
+
+CharacterCLI = Callable[[], CharacterOptions]
+"""What a command decorated by :func:`with_character_options` receives: call it for the :class:`CharacterOptions`
+of the options given (raises :class:`typer.BadParameter` naming the option when one is invalid)."""
+NO_CHARACTER_CLI: CharacterCLI = CharacterOptions
+"""The placeholder default of a ``character_cli`` parameter (the decorator always passes the given values)."""
+
+_CLI_OPTIONS: tuple[tuple[str, Any], ...] = (
+    ("rig", RigOption), ("map_file", MapOption), ("units", UnitsOption), ("up", UpOption), ("rest", RestOption),
+    ("bind", BindOption), ("positions", PositionsOption), ("max_joints", MaxJointsOption), ("root", RootOption))
+
+
+def with_character_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """The character options, declared once for every command that reads a character.
+
+    ``command``'s parameter ``character_cli`` is replaced, at its place in the signature typer reads, by the
+    options ``--rig``, ``--map``, ``--units``, ``--up``, ``--rest``, ``--bind``, ``--positions``,
+    ``--max-joints`` and ``--root`` (defaults those of :class:`CharacterOptions`); the command receives their
+    values as one :data:`CharacterCLI`, which builds the options when called.
+    """
+    signature = inspect.signature(command, eval_str=True)
+    defaults = inspect.signature(character_options_from_cli).parameters
+    params: list[inspect.Parameter] = []
+    for param in signature.parameters.values():
+        if param.name == "character_cli":
+            params += [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=defaults[name].default,
+                                         annotation=annotation) for name, annotation in _CLI_OPTIONS]
+        else:
+            params.append(param.replace(kind=inspect.Parameter.KEYWORD_ONLY))
+    if len(params) == len(signature.parameters):
+        raise TypeError(f"{command.__name__} has no parameter character_cli")
+    names = [name for name, _ in _CLI_OPTIONS]
+
+    @functools.wraps(command)
+    def wrapper(**kwargs: Any) -> Any:
+        values = {name: kwargs.pop(name) for name in names}
+        return command(**kwargs, character_cli=functools.partial(character_options_from_cli, **values))
+
+    wrapper.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params} | {"return": signature.return_annotation}
+    return wrapper

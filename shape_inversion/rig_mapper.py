@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shape_inversion.rig_names import name_words
 from smplik.conventions import JOINT_NAMES
-from smplik.data.rig_names import name_words
 
 
 class RigMappingError(ValueError):

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from shape_inversion.features import REQUIRED_JOINTS
+from shape_inversion.rig_names import NameMatchError, match_humanoid
 from smplik.conventions import JOINT_NAMES
 from smplik.data.retarget import PRESET_DIR, preset_names
-from smplik.data.rig_names import NameMatchError, match_humanoid
 
 
 class RigError(ValueError):
@@ -174,7 +174,7 @@ def detect_rig(names: Iterable[str], parents: Sequence[int] | None = None, posit
     when it finds every required joint and every SMPL joint the mapper maps (and, with several roots,
     only joints of the mapper's hierarchy). The mapper's map is a :class:`RigMap` named
     ``"auto"`` whose ``description`` lists it and whose ``warnings`` hold its doubts. Without positions,
-    the best preset, else :func:`smplik.data.rig_names.match_humanoid` (names checked against the
+    the best preset, else :func:`shape_inversion.rig_names.match_humanoid` (names checked against the
     hierarchy).
 
     Raises:

@@ -40,7 +40,7 @@ The defaults keep any one input under 2 GB, which fits a 24 GB machine with room
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -223,6 +223,22 @@ def read_bounded(path: str | Path, limit: Limit = TEXT_BYTES) -> bytes:
         raise LimitError(f"{path}: more than {cap} {limit.what} (set {limit.env} to raise the limit if the file is "
                          "genuine).")
     return data
+
+
+def open_checked_npz(path: Path, missing: str, unreadable: Callable[[Exception], Exception]) -> Any:
+    """``np.load(path)`` of an ``.npz`` after :func:`check_npz`: FileNotFoundError ``f"{missing}: {path}"`` when
+    there is no such file; ``unreadable(exc)`` raised when numpy cannot read it. Returns the open ``NpzFile``."""
+    import zipfile
+
+    import numpy as np
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{missing}: {path}")
+    check_npz(path)  # declared sizes within the input budget before anything is decompressed
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise unreadable(exc) from None
 
 
 def check_npz(path: str | Path) -> dict[str, tuple[tuple[int, ...], Any]]:

@@ -10,7 +10,7 @@ per-frame poses), in two steps:
 
    ``sum_t w_tj |z_tj - y_tj|^2  +  smoothness * sum_t |z_t+1,j - 2 z_tj + z_t-1,j|^2``
 
-   (a weighted Whittaker-Henderson smoother: one banded linear solve per coordinate over the whole
+   (a weighted Whittaker-Henderson smoother, :mod:`smplik.smoothing`: one banded solve per coordinate over the whole
    sequence). The data ``y`` are the warm start's joints (weight 1, or given targets and weights) and,
    where a frame has a position effector on the joint, its target with weight ``effector_weight``
    (times the effector's tolerance weight): the paths pass through the effectors and are smooth where
@@ -40,6 +40,7 @@ from smplik.effectors import EffectorBatch
 from smplik.kinematics import forward_kinematics
 from smplik.network import IKOutput
 from smplik.refine import RefineConfig, refine_output, tolerance_weight
+from smplik.smoothing import penalty_bands
 
 REFINE_CHUNK = 512
 """Frames refined per call in step 2 (bounds the memory of the torch refinement on long clips)."""
@@ -87,19 +88,13 @@ def smooth_trajectories(y: np.ndarray, weight: np.ndarray, smoothness: float) ->
         raise SequenceError(f"smooth_trajectories: data {y.shape} and weights {weight.shape} do not match.")
     if T < 3 or smoothness == 0:
         return np.array(y, dtype=np.float64)
-    diag = np.zeros(T)  # D2^T D2: the pentadiagonal (1, -4, 6, -4, 1) with its boundary rows
-    diag[:-2] += 1.0
-    diag[1:-1] += 4.0
-    diag[2:] += 1.0
-    off1 = np.zeros(T - 1)
-    off1[:-1] -= 2.0
-    off1[1:] -= 2.0
+    main, off1, off2 = penalty_bands(np.full(T - 2, float(smoothness)))  # smoothness * D2^T D2
     out = np.empty(y.shape, dtype=np.float64)
     banded = np.zeros((3, T))  # upper form for solveh_banded
-    banded[0, 2:] = smoothness
-    banded[1, 1:] = smoothness * off1
+    banded[0, 2:] = off2
+    banded[1, 1:] = off1
     for k in range(K):
-        banded[2] = weight[:, k] + smoothness * diag
+        banded[2] = weight[:, k] + main
         out[:, k] = solveh_banded(banded, weight[:, k, None] * y[:, k], check_finite=False)
     return out
 

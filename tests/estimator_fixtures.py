@@ -388,7 +388,7 @@ def our_joints(person) -> np.ndarray:
 
 def overlay_pixels(people_list, width: int = IMAGE_W, height: int = IMAGE_H, ground=None) -> np.ndarray:
     """(N, 2, 2) pixels of pelvis and head through the scene's overlay camera (OpenGL, as pyrender draws)."""
-    from workflows.previews import image_camera
+    from workflows.scene.previews import image_camera
 
     chars = tuple(SceneCharacter(f"p{i}", p.gender, p.betas, pose=p.to_pose()) for i, p in enumerate(people_list))
     scene = Scene(chars, camera=people_list[0].camera, ground=ground)

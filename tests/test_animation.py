@@ -12,9 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES
 from smplik.data.bvh import read_bvh
-from workflows.animation import AnimationTrack, joints_of, rest_joints, select_keyframes
-from workflows.animation_io import AnimationFileError, animation_to_dict, load_animation, save_animation
-from workflows.motion_clean import (
+from workflows.animation.clean import (
     CleanConfig,
     foot_contacts,
     foot_skating,
@@ -24,6 +22,8 @@ from workflows.motion_clean import (
     smooth_motion,
     two_bone_ik,
 )
+from workflows.animation.clips import AnimationTrack, joints_of, rest_joints, select_keyframes
+from workflows.animation.files import AnimationFileError, animation_to_dict, load_animation, save_animation
 
 MM = 1e-3
 
@@ -32,10 +32,9 @@ MM = 1e-3
 def animate(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
 
 
@@ -95,7 +94,7 @@ def _one_error_line(result) -> str:
 
 def test_gvhmr_video_gives_every_frame_keyframes_and_an_animated_bvh(tmp_path, animate):
     from workflows.estimators import read_estimate
-    from workflows.pipeline import retarget_to_body
+    from workflows.scene.pipeline import retarget_to_body
 
     aa, transl = video_motion(40, seed=1)
     path = write_gvhmr_video(tmp_path, aa, transl)
@@ -170,7 +169,7 @@ def test_wham_tracks_ranges_and_bad_input_get_one_line(tmp_path, animate):
     assert "no track '7'" in _one_error_line(animate(path, "--out", out, "--fps", 30, "--track", 7))
     far = write_wham_video(tmp_path, {4: (a0[:2], t0[:2], np.array([0, 900_000_000]))})  # sparse ids: no hang
     assert "no pose at frame(s) 1, 2, 3" in _one_error_line(animate(far, "--out", out, "--fps", 30))
-    from workflows.animation import read_clip
+    from workflows.animation.clips import read_clip
 
     with pytest.raises(ValueError, match="refusing more than 1 "):
         read_clip(far, max_frames=1)
@@ -335,7 +334,7 @@ def test_foot_contacts_are_locked_without_skating_and_only_legs_change():
     others = [j for j in range(24) if j not in legs]
     assert np.array_equal(locked[:, others], R[:, others])
     # the ankles keep their world rotations
-    from workflows.motion_clean import local_to_world
+    from workflows.animation.clean import local_to_world
 
     ankles = [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]]
     assert np.abs(local_to_world(locked)[:, ankles] - local_to_world(R)[:, ankles]).max() < 1e-9
@@ -348,7 +347,7 @@ def test_smoothing_methods_and_keyframes():
         R_s, t_s = smooth_motion(R, transl, 30.0, CleanConfig(smoothing=method))
         assert jitter(joints_of(R_s, t_s, J)) < 0.5 * jitter(p)
     # a motion that is an interpolation of its ends needs two keyframes; a sharp middle pose adds one there
-    from workflows.animation import interpolate_poses
+    from workflows.animation.clips import interpolate_poses
 
     w = np.linspace(0, 1, 21)
     R_end = Rotation.from_rotvec(np.tile([0.0, 0.0, 0.8], (24, 1))).as_matrix()
@@ -406,8 +405,8 @@ def test_keyframe_edit_moves_only_its_window(tmp_path, animate, best_solver):
 
 def test_single_frame_glitches_are_flagged_and_repaired_but_fast_motion_is_not():
     from smplik.pose import Pose
-    from workflows.animation import clean_track
-    from workflows.motion_clean import glitch_frames
+    from workflows.animation.clean import glitch_frames
+    from workflows.animation.clips import clean_track
 
     R, transl, J = _standing_sway(T=40, seed=2)
     aa = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(40, 24, 3)
@@ -481,7 +480,7 @@ def test_timeline_scrubs_plays_jumps_keyframes_and_applies_edits_with_undo(tmp_p
     import dataclasses
 
     from smplik.effectors import Effector
-    from workflows.animation import AnimationError
+    from workflows.animation.clips import AnimationError
     from workflows.editor.timeline import AnimationTimeline
 
     aa, transl = video_motion(30, seed=11)

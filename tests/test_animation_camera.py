@@ -12,10 +12,7 @@ from estimator_fixtures import FOCAL, IMAGE_H, IMAGE_W
 from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX
-from workflows.animation import NORMAL_FOV_DEG, camera_fov, clean_track, read_clip, realistic_depth
-from workflows.animation_io import load_animation
-from workflows.estimators.base import rest_pelvis
-from workflows.motion_clean import (
+from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
     floor_plane,
@@ -25,16 +22,18 @@ from workflows.motion_clean import (
     jitter,
     motion_metrics,
 )
+from workflows.animation.clips import NORMAL_FOV_DEG, camera_fov, clean_track, read_clip, realistic_depth
+from workflows.animation.files import load_animation
+from workflows.estimators.base import rest_pelvis
 
 
 @pytest.fixture()
 def animate(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
 
 
@@ -193,7 +192,7 @@ def _camera_run(T: int = 80, fps: float = 30.0, speed_mps: float = 3.0, seed: in
 
 def test_running_stances_are_found_on_a_noisy_panning_estimate_and_flights_stay_free():
     from smplik.sequence import smooth_trajectories
-    from workflows.motion_clean import foot_noise, ground_of
+    from workflows.animation.clean import foot_noise, ground_of
 
     fps = 30.0
     p_raw, truth, height = _camera_run()
@@ -221,7 +220,7 @@ def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def test_contact_hysteresis_and_the_noise_scaled_threshold():
-    from workflows.motion_clean import contact_threshold, foot_noise
+    from workflows.animation.clean import contact_threshold, foot_noise
 
     T, fps = 21, 30.0
     p = np.zeros((T, 24, 3))

@@ -12,9 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_INDEX, Gender
 from smplik.pose import Pose
-from workflows.animation import clean_track, joints_of, rest_joints, select_keyframes
-from workflows.denoise import estimate_noise, sure_smoothness, whittaker
-from workflows.motion_clean import (
+from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
     glitch_frames,
@@ -22,6 +20,8 @@ from workflows.motion_clean import (
     root_shift_from_locks,
     split_on_lift,
 )
+from workflows.animation.clips import clean_track, joints_of, rest_joints, select_keyframes
+from workflows.animation.denoise import estimate_noise, sure_smoothness, whittaker
 
 RAW = CleanConfig(smoothing="none", foot_lock=False, repair_glitches=False)
 SAVGOL = CleanConfig(smoothing="savgol", foot_lock=False, repair_glitches=False)
@@ -261,7 +261,7 @@ def test_keyframes_are_capped_worst_interval_first():
 
 
 def test_new_cleaning_settings_are_checked_with_one_line():
-    from workflows.motion_clean import CleanError
+    from workflows.animation.clean import CleanError
 
     for bad in ({"release_m": 0.0}, {"blend_max_m": -0.02}, {"glitch_sigmas": float("nan")}, {"noise_gain": 0.0},
                 {"motion_trust": -1.0}, {"root_lock_smoothness": 0.0}, {"smoothing": "wiener"}):

@@ -24,7 +24,7 @@ def test_an_error_is_the_first_and_only_line(command, tmp_path):
 
 
 def test_foot_contacts_are_counted_per_foot_not_feet_times_frames():
-    from workflows.animation_cli import contact_summary
+    from workflows.animation.cli import contact_summary
 
     contacts = np.zeros((537, 2), bool)
     contacts[:300, 0] = True
@@ -58,10 +58,9 @@ def test_animate_a_bvh_character_to_bvh_and_glb(tmp_path, monkeypatch, best_solv
     from animation_fixtures import video_motion
     from estimator_fixtures import write_aist
 
-    import workflows.cli as cli_module
     from workflows.examples_gen import write_mixamo_character
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     aist = write_aist(tmp_path, *video_motion(16, seed=6, fmt="gvhmr"))
     hero = write_mixamo_character(tmp_path / "hero.bvh")
     res = CliRunner().invoke(app, ["scene", "animate", str(aist), "--out", str(tmp_path / "out"), "--character",

@@ -9,10 +9,11 @@ from typer.testing import CliRunner
 def test_cmu_dance_builds_a_training_cache_with_no_map(shared_data, tmp_path):
     import typer
 
-    from smplik.data.build_cli import build
+    from shape_inversion.auto_preset import auto_preset
+    from shape_inversion.data_build_cli import build
     from smplik.data.bvh import read_bvh
     from smplik.data.dataset import load_cache
-    from smplik.data.retarget import auto_preset, bone_direction_errors, retarget_bvh
+    from smplik.data.retarget import bone_direction_errors, retarget_bvh
 
     src = shared_data.file("data/cmu-dance/indian_04.bvh")
     motion = read_bvh(src)

@@ -11,9 +11,9 @@ import torch
 import typer
 from typer.testing import CliRunner
 
+from shape_inversion.data_build_cli import build
 from smplik.body_model import BodyModelSet
 from smplik.conventions import NUM_BETAS, Gender
-from smplik.data.build_cli import build
 from smplik.data.dataset import (
     CACHE_VERSION,
     ClipSource,

@@ -7,7 +7,11 @@ import math
 import pytest
 import torch
 
-from smplik.benchmark.edits import (
+from smplik.benchmark.two_bone import two_bone_ik
+from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
+from smplik.kinematics import forward_kinematics
+from smplik.rotations import axis_angle_to_matrix
+from workflows.edit_benchmark.pairs import (
     EditPairConfig,
     JointRanges,
     align_to_pelvis,
@@ -15,10 +19,6 @@ from smplik.benchmark.edits import (
     find_edit_pairs,
     pelvis_relative,
 )
-from smplik.benchmark.two_bone import two_bone_ik
-from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
-from smplik.kinematics import forward_kinematics
-from smplik.rotations import axis_angle_to_matrix
 
 FPS = 30.0
 
@@ -241,7 +241,7 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
     import numpy as np
 
     from smplik.solver import IKSolver
-    from workflows.edit_benchmark import EditBenchmarkConfig, EditClip, run_edit_benchmark
+    from workflows.edit_benchmark.run import EditBenchmarkConfig, EditClip, run_edit_benchmark
 
     T = 40
     pose = torch.zeros(T, NUM_JOINTS, 3)
@@ -271,7 +271,7 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     import shutil
 
     from smplik.body_model import BodyModelSet
-    from workflows.edit_benchmark import EDIT_FPS, EditBenchmarkConfig, clips_from_folder, select_pairs
+    from workflows.edit_benchmark.run import EDIT_FPS, EditBenchmarkConfig, clips_from_folder, select_pairs
 
     for name in ("02_05.bvh", "02_06.bvh"):
         shutil.copy(shared_data.cmu(name), tmp_path / name)

@@ -190,7 +190,6 @@ def test_edit_command_serves_the_page_and_prints_the_url(tmp_path):
 def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
-    import workflows.cli as wcli
     import workflows.editor.app as app_mod
     import workflows.editor.cli as cli
 
@@ -207,7 +206,7 @@ def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkey
     monkeypatch.setattr(app_mod, "EditorApp", FakeApp)
     from smplik.solver import IKSolver
 
-    monkeypatch.setattr(wcli, "_solver", lambda checkpoint: IKSolver.load())
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: IKSolver.load())
     monkeypatch.setattr(cli.time, "sleep", interrupt)
     result = CliRunner().invoke(cli.app, [str(tmp_path / "s.json"), "--host", "0.0.0.0", "--port", "8123"])
     assert result.exit_code == 0, result.output

@@ -35,7 +35,7 @@ def _t(x) -> torch.Tensor:
 def test_skinning_matches_smplx(solver):
     """The editor's numpy skinning gives smplx's vertices for a posed, shaped body."""
     from smplik.body_model import load_body_model
-    from workflows.recovery import TargetPose
+    from workflows.scene.recovery import TargetPose
 
     model = load_body_model("female")
     rng = np.random.default_rng(0)
@@ -200,7 +200,7 @@ def test_recovery_replaces_effectors_from_the_estimated_pose(solver, tmp_path):
     errors = state.recover(5)
     effs = state.character().effectors
     assert 1 <= len(effs) <= 5 and len(errors) == len(effs)
-    # the full set is the closest (workflows/recovery.py: after a restart or swaps an intermediate count may
+    # the full set is the closest (workflows/scene/recovery.py: after a restart or swaps an intermediate count may
     # be above the one before it)
     assert errors[-1] <= min(errors) + 1e-9 and len(errors) == 5
     target = estimated.joints * 1.2  # character space

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from animation_fixtures import video_motion, write_gvhmr_video, write_phalp_video
 
-from workflows.animation_io import load_animation
+from workflows.animation.files import load_animation
 
 pytest.importorskip("viser")
 
@@ -32,14 +32,13 @@ def animation_file(tmp_path_factory, best_solver) -> Path:
     """``smplik scene animate hmr4d_results.pt --fps 30`` (GVHMR world trajectory) -> animation.json."""
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
     folder = tmp_path_factory.mktemp("timeline")
     aa, transl = video_motion(FRAMES, seed=11)
     results = write_gvhmr_video(folder, aa, transl)
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+        mp.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
         res = CliRunner().invoke(scene_app, ["animate", str(results), "--out", str(folder), "--fps", "30",
                                              "--max-effectors", "3", "--export", ""])
     assert res.exit_code == 0, res.output
@@ -154,7 +153,6 @@ def test_drag_and_apply_change_only_the_window_and_agree_with_edit_keyframe(app,
                                                                             monkeypatch, tmp_path):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from smplik.effector_schema import save_effector_file
     from workflows.cli import scene_app
 
@@ -182,7 +180,7 @@ def test_drag_and_apply_change_only_the_window_and_agree_with_edit_keyframe(app,
     saved = app.save()
     assert saved == tmp_path / "animation.json"
     effector_file = save_effector_file(tmp_path / "effectors.json", effectors)
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     res = CliRunner().invoke(scene_app, ["edit-keyframe", str(animation_file), "--frame", str(frame), "--effectors",
                                          str(effector_file), "--window", str(WINDOW), "--out",
                                          str(tmp_path / "cli.json")])
@@ -242,7 +240,6 @@ def test_shape_controls_are_fixed_on_an_animation(app):
 def test_smplik_edit_recognises_animation_files(animation_file, best_solver, monkeypatch, tmp_path):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     import workflows.editor.cli as editor_cli
     from smplik.cli.main import app as cli_app
     from workflows.editor.app import EditorApp
@@ -253,7 +250,7 @@ def test_smplik_edit_recognises_animation_files(animation_file, best_solver, mon
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps({"format": "smplik-scene", "version": 1, "characters": []}))
     assert AnimationTimeline.open_if_animation(scene, best_solver) is None
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     served = []
 
     def serve(editor, host):  # instead of serving until Ctrl+C: record the editor and stop it
@@ -282,7 +279,6 @@ def test_two_tracks_one_starting_later(best_solver, tmp_path, monkeypatch):
     track 8 changes only track 8."""
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
     from workflows.editor.timeline import AnimationTimeline
     from workflows.editor.timeline_app import AnimationEditorApp
@@ -290,7 +286,7 @@ def test_two_tracks_one_starting_later(best_solver, tmp_path, monkeypatch):
     a, t = video_motion(12, seed=4, fmt="phalp")
     b, u = video_motion(12, seed=5, fmt="phalp", x=0.8)
     frames = [{3: (a[i], t[i]), **({8: (b[i], u[i])} if i >= 4 else {})} for i in range(12)]
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     res = CliRunner().invoke(scene_app, ["animate", str(write_phalp_video(tmp_path, frames)), "--out", str(tmp_path),
                                          "--fps", "24", "--max-effectors", "2", "--export", ""])
     assert res.exit_code == 0, res.output

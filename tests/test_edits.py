@@ -1,4 +1,4 @@
-"""Drags that do not fight the user (workflows.edits): the stale-effector rule, the conflict report, and a
+"""Drags that do not fight the user (workflows.scene.edits): the stale-effector rule, the conflict report, and a
 drag on a recovered-style scene that must not contort the torso."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from smplik.effectors import Effector
 from smplik.pose import Pose
 from smplik.rotations import geodesic_distance
 from workflows.editor.state import EditorState
-from workflows.edits import RELAXED_TOLERANCE, conflict_report, drag_effector, relax_stale, stale_effectors
-from workflows.recovery import TargetPose
 from workflows.scene import Scene, SceneCharacter, solve_character
+from workflows.scene.edits import RELAXED_TOLERANCE, conflict_report, drag_effector, relax_stale, stale_effectors
+from workflows.scene.recovery import TargetPose
 
 TORSO = [JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3", "neck", "head")]
 
@@ -174,7 +174,7 @@ def test_editor_drag_summary_lists_relaxed_and_conflicts(solver):
 def test_hinge_twist_moves_to_the_parent_and_keeps_the_joints(bodies):
     from smplik.kinematics import forward_kinematics
     from smplik.rotations import axis_angle_to_matrix, matrix_to_quaternion
-    from workflows.edits import hinge_twist_to_parent
+    from workflows.scene.edits import hinge_twist_to_parent
 
     g = torch.Generator().manual_seed(4)
     R = axis_angle_to_matrix(torch.randn(3, 24, 3, generator=g, dtype=torch.float64) * 0.5)
@@ -210,7 +210,7 @@ def test_a_dragged_wrist_moves_only_its_arm_and_takes_the_priors_swivel(solver):
     from smplik.kinematics import forward_kinematics
     from smplik.refine import NO_REFINEMENT
     from smplik.rotations import axis_angle_to_matrix
-    from workflows.edits import SWIVEL_SHARE, solve_edit
+    from workflows.scene.edits import SWIVEL_SHARE, solve_edit
 
     character = _recovered_style_character(solver)
     wrist = JOINT_INDEX["left_wrist"]
@@ -255,7 +255,7 @@ def test_an_out_of_reach_drag_lets_the_body_help_and_a_pinned_hand_keeps_its_tur
     """Beyond the arm's reach the analytic limb cannot meet the exact target: the held refinement starts from
     it and brings the wrist closer than the straight arm reaches (collar/spine take a share). An exact hand
     rotation the user holds (tolerance 0 after the drag) keeps the hand's world orientation."""
-    from workflows.edits import solve_edit
+    from workflows.scene.edits import solve_edit
 
     character = _recovered_style_character(solver)
     wrist, hand = JOINT_INDEX["left_wrist"], JOINT_INDEX["left_hand"]

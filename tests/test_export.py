@@ -14,9 +14,9 @@ from shape_inversion.gltf_io import load_gltf
 from smplik.data.bvh import read_bvh
 from workflows.character import CharacterOptions, character_from_estimate, smpl_to_custom
 from workflows.examples_gen import example_poses
-from workflows.export import export_scene
 from workflows.layout_examples import smpl_rest, write_mixamo_gltf
 from workflows.scene import Scene, SceneCharacter, SkeletonSource, character_joints, load_scene
+from workflows.scene.export import export_scene
 
 MM = 1e-3
 
@@ -122,7 +122,7 @@ def test_glb_character_exports_its_own_posed_mesh(glb_scene, tmp_path):
 
 
 def test_export_refuses_unknown_formats_and_missing_files(glb_scene, tmp_path):
-    from workflows.export import ExportError
+    from workflows.scene.export import ExportError
 
     scene, _ = glb_scene
     with pytest.raises(ExportError, match="Unknown export format"):
@@ -136,7 +136,7 @@ def test_export_refuses_unknown_formats_and_missing_files(glb_scene, tmp_path):
 def test_glb_character_is_drawn_with_its_own_posed_mesh(glb_scene):
     """The fixture's mesh is SMPL's rest mesh: posed by its skin weights it lies on the posed SMPL body."""
     from workflows.character_mesh import scene_character_own_mesh
-    from workflows.previews import character_mesh, scene_items
+    from workflows.scene.previews import character_mesh, scene_items
 
     scene, _ = glb_scene
     c = scene.characters[0]

@@ -95,10 +95,9 @@ def solver():
 
 @pytest.fixture
 def cached_solver(monkeypatch, solver):
-    import workflows.cli as wcli
 
     monkeypatch.setattr(IKSolver, "load", classmethod(lambda cls, *a, **k: solver))
-    monkeypatch.setattr(wcli, "_solver", lambda checkpoint: solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: solver)
     return solver
 
 

@@ -163,7 +163,7 @@ def test_bvh_frame_counts_are_bounded_before_parsing(tmp_path, monkeypatch):
 def test_image_pixels_are_checked_from_the_header(tmp_path, monkeypatch):
     from PIL import Image
 
-    from workflows.previews import load_image
+    from workflows.scene.previews import load_image
 
     Image.new("RGB", (400, 300)).save(tmp_path / "a.png")
     assert load_image(tmp_path / "a.png").shape == (300, 400, 3)

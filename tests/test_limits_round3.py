@@ -277,7 +277,7 @@ def test_render_sizes_are_bounded_by_memory(tmp_path, monkeypatch):
 def test_images_decode_to_uint8_and_their_render_is_bounded(tmp_path, monkeypatch):
     from PIL import Image
 
-    from workflows.previews import load_image
+    from workflows.scene.previews import load_image
 
     small = tmp_path / "a.png"
     Image.fromarray(np.arange(24, dtype=np.uint8).reshape(2, 4, 3)).save(small)

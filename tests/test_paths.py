@@ -75,7 +75,7 @@ def test_no_default_path_is_an_absolute_path_of_one_machine():
 def test_data_commands_find_clips_through_the_cmu_dir(clean_env, tmp_path):
     import typer
 
-    from smplik.data.cli import resolve_clip
+    from shape_inversion.data_cli import resolve_clip
 
     (tmp_path / "mocap").mkdir()
     (tmp_path / "mocap" / "07_01.bvh").write_text("HIERARCHY\n")

@@ -392,7 +392,7 @@ def test_a_root_joint_left_on_the_floor_draws_no_stray_bone(tmp_path, estimator)
     channels, the hips a joint below it, moved by their own position channels: no bone drawn to the root."""
     from workflows.character import build_character, smpl_to_custom
     from workflows.examples_gen import example_poses, write_mixamo_character
-    from workflows.previews import custom_skeleton_segments
+    from workflows.scene.previews import custom_skeleton_segments
 
     text = write_mixamo_character(tmp_path / "m.bvh").read_text()
     head, _, motion = text.partition("MOTION")

@@ -412,7 +412,7 @@ def _exported_joint_world(path: Path, estimator, out: Path) -> dict[str, np.ndar
     from shape_inversion.gltf_io import load_gltf
     from workflows.character import build_character, smpl_to_custom
     from workflows.examples_gen import example_poses
-    from workflows.export import posed_character_glb
+    from workflows.scene.export import posed_character_glb
 
     char = read_character(path)
     with warnings.catch_warnings():

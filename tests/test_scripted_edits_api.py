@@ -1,5 +1,5 @@
-"""Scripted edits from Python (workflows.edits: solve_scripted, solve_scene_edits, drag_scene_effector;
-Scene.drag) and the keyframe merge (workflows.animation_edit.merge_effectors). The journeys through the
+"""Scripted edits from Python (workflows.scene.edits: solve_scripted, solve_scene_edits, drag_scene_effector;
+Scene.drag) and the keyframe merge (workflows.animation.keyframe_edit.merge_effectors). The journeys through the
 commands are in tests/journeys/test_scripted_edits.py."""
 
 from __future__ import annotations
@@ -8,12 +8,13 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import demo_scene
 
 from smplik.conventions import JOINT_INDEX
 from smplik.effectors import Effector, EffectorError
-from workflows.animation_edit import merge_effectors
-from workflows.edits import RELAXED_TOLERANCE, drag_scene_effector, solve_scene_edits
+from workflows.animation.keyframe_edit import merge_effectors
 from workflows.scene import SceneError, character_joints
+from workflows.scene.edits import RELAXED_TOLERANCE, drag_scene_effector, solve_scene_edits
 
 UP = np.array([0.0, 0.25, 0.0])
 
@@ -21,15 +22,7 @@ UP = np.array([0.0, 0.25, 0.0])
 @pytest.fixture(scope="module")
 def scene(shipped_solver):
     """The demo's two people, recovered (4 effectors each) as ``scene from-estimate`` does."""
-    from workflows.estimators.base import EstimatedPerson
-    from workflows.examples_gen import example_poses
-    from workflows.pipeline import scene_from_people
-    from workflows.recovery import RecoveryConfig
-
-    people = [EstimatedPerson(p.pose.global_orient, p.pose.body_pose, p.pose.transl, p.pose.betas, p.pose.gender,
-                              person_id=str(i)) for i, p in enumerate(example_poses())]
-    built, _ = scene_from_people(people, shipped_solver, config=RecoveryConfig(max_effectors=4, threshold=0.0))
-    return built
+    return demo_scene(shipped_solver)
 
 
 def _rel(J: np.ndarray, joint: str) -> np.ndarray:
@@ -98,7 +91,7 @@ def test_scene_drag_of_a_rotation(scene, shipped_solver):
     import torch
 
     from smplik.rotations import axis_angle_to_matrix
-    from workflows.recovery import TargetPose
+    from workflows.scene.recovery import TargetPose
 
     c = scene.characters[0]
     before = TargetPose.from_pose(dataclasses.replace(c.pose, joints=None))

@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 from smplik.conventions import JOINT_INDEX, EffectorType, Gender
 from smplik.effectors import EffectorBatch
 from smplik.sequence import SequenceConfig, SequenceError, smooth_trajectories, solve_sequence
-from workflows.animation import joints_of, rest_joints
-from workflows.motion_clean import CleanConfig, foot_skating, jitter, sequence_clean
+from workflows.animation.clean import CleanConfig, foot_skating, jitter, sequence_clean
+from workflows.animation.clips import joints_of, rest_joints
 
 
 def _accel(p: np.ndarray) -> np.ndarray:
@@ -144,7 +144,7 @@ def test_foot_locks_and_smoothing_fit_the_pose_budget_together():
     import dataclasses
 
     from smplik.conventions import Gender
-    from workflows.motion_clean import budgeted_smoothness
+    from workflows.animation.clean import budgeted_smoothness
 
     rng = np.random.default_rng(4)
     T = 60

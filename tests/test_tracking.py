@@ -336,7 +336,7 @@ def test_track_command_writes_an_animation(tmp_path):
     from typer.testing import CliRunner
 
     from smplik.cli.main import app
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     sig, *_ = synthetic_signals(30)
     src = tmp_path / "trackers.json"

@@ -38,7 +38,7 @@ def test_smpl_to_custom_to_smpl_returns_the_local_rotations(character, seed, syn
 
 def test_retargeted_skeleton_follows_the_smpl_joints(character):
     """The posed custom joints stay near the scaled SMPL approximation's joints (proportions differ a little)."""
-    from workflows.recovery import TargetPose
+    from workflows.scene.recovery import TargetPose
 
     pose = dataclasses.replace(example_poses()[1].pose, betas=character.betas, gender=character.gender)
     smpl_joints = TargetPose.from_pose(pose).p_world.double().numpy() * character.scale

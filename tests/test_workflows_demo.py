@@ -6,25 +6,16 @@ import os
 
 import numpy as np
 import pytest
+from helpers import can_render
 
 from smplik.data.bvh import read_bvh
 from workflows.demo import run_demo
 from workflows.scene import load_scene
 
 
-def _can_render() -> bool:
-    try:
-        from smplik.render import Sphere, render
-
-        render([], [Sphere((0, 0, 0))], size=(32, 32))
-        return True
-    except Exception:  # noqa: BLE001 - no OpenGL backend on this machine
-        return False
-
-
 def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
     monkeypatch.setenv("PYOPENGL_PLATFORM", os.environ.get("PYOPENGL_PLATFORM") or "egl")
-    previews = _can_render()
+    previews = can_render()
     out = run_demo(tmp_path, best_solver, previews=previews)
     for path in out.all_files:
         assert path.is_file() and path.stat().st_size > 0, path
@@ -54,7 +45,7 @@ def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
     first = lines[-1].removeprefix("open first: ").split(" ")[0]
     assert first in {str(p) for p in out.all_files} and (not previews or first.endswith("scene.png"))
     if previews:
-        from workflows.previews import load_image
+        from workflows.scene.previews import load_image
 
         img = load_image(out.smpl.previews[0])
         assert img.shape[0] == 480 and img.std() > 10

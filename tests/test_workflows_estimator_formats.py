@@ -178,7 +178,7 @@ def test_tram_world_follows_its_slam_trajectory(tmp_path):
 
 
 def test_npy_pickles_still_refuse_code(tmp_path):
-    from workflows.safe_pickle import UnsafePickleError
+    from smplik.safe_pickle import UnsafePickleError
 
     class Evil:
         def __reduce__(self):
@@ -270,8 +270,8 @@ def test_pickled_torch_tensors_are_checked_before_anything_is_allocated(tmp_path
     import collections
     import warnings
 
+    from smplik.safe_pickle import UnsafePickleError
     from workflows.estimators import _load_raw
-    from workflows.safe_pickle import UnsafePickleError
 
     with warnings.catch_warnings():  # TypedStorage's deprecation: the pickle format torch itself writes
         warnings.simplefilter("ignore")
@@ -324,7 +324,7 @@ def test_from_estimate_reads_tram_and_smplerx_as_a_new_user_would(tmp_path, monk
     import workflows.cli as cli_module
     from workflows.scene import load_scene
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
 
     def run(*args):
         return CliRunner().invoke(cli_module.scene_app, ["from-estimate", *map(str, args), "--no-previews",

@@ -34,8 +34,8 @@ from estimator_fixtures import (
     write_tram,
 )
 
+from smplik.safe_pickle import UnsafePickleError
 from workflows.estimators import EstimatedPerson, EstimateFormatError, _load_raw, people_from_data, read_estimate
-from workflows.safe_pickle import UnsafePickleError
 
 ALLOWED = (EstimateFormatError, UnsafePickleError)
 DATA_MUTATIONS = 60

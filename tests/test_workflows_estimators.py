@@ -35,6 +35,7 @@ from estimator_fixtures import (
 )
 
 from smplik.conventions import Gender
+from smplik.safe_pickle import UnsafePickleError, load_pickle
 from workflows.estimators import EstimateFormatError, detect_format, read_estimate
 from workflows.estimators.base import (
     M_WORLD_CAMERA,
@@ -42,7 +43,6 @@ from workflows.estimators.base import (
     SMPLX_NEUTRAL_REST_PELVIS,
     rest_pelvis,
 )
-from workflows.safe_pickle import UnsafePickleError, load_pickle
 from workflows.scene import GroundRecord
 
 
@@ -227,7 +227,7 @@ def test_unknown_format_lists_keys_and_formats(tmp_path):
 
 
 def test_ground_moves_people_and_camera_together(tmp_path):
-    from workflows.pipeline import lowest_point, put_on_ground
+    from workflows.scene.pipeline import lowest_point, put_on_ground
 
     aa, transl, betas = people(seed=12)
     found = read_estimate(CAMERA_WRITERS["romp"](tmp_path, aa, transl, betas).path)

@@ -3,34 +3,22 @@
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
 from estimator_fixtures import CAMERA_WRITERS, framing, people, write_romp
+from helpers import can_render
 
 from workflows.scene import load_scene
-
-
-def _can_render() -> bool:
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    try:
-        from smplik.render import Sphere, render
-
-        render([], [Sphere((0, 0, 0))], size=(32, 32))
-        return True
-    except Exception:  # noqa: BLE001 - no OpenGL backend on this machine
-        return False
 
 
 @pytest.fixture()
 def cli(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, ["from-estimate", *map(str, args)])
 
 
@@ -69,10 +57,10 @@ def test_errors_are_one_line_with_a_non_zero_exit(tmp_path, cli):
 
 @pytest.mark.parametrize("fmt", ["phalp", "gvhmr"])
 def test_preview_shows_ghost_labels_and_overlay(tmp_path, cli, fmt):
-    if not _can_render():
+    if not can_render():
         pytest.skip("no OpenGL backend for offscreen rendering: install EGL (apt-get install libegl1) or OSMesa")
     from workflows.examples_gen import write_background
-    from workflows.previews import load_image
+    from workflows.scene.previews import load_image
 
     n = 1 if fmt == "gvhmr" else 2
     aa, transl, betas = people(seed=3, n=n, **framing(fmt, 300))

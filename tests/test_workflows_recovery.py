@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from smplik.conventions import EffectorType
-from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors
+from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_effectors
 
 
 def test_greedy_lowers_the_error_with_each_effector_and_stops_at_the_threshold(synthetic_pose, oracle_solver):
@@ -110,7 +110,7 @@ def test_final_pose_is_what_the_effectors_re_solve_to(synthetic_pose, oracle_sol
 
 
 def test_worst_limb_criterion_weighs_a_limb_far_off():
-    from workflows.recovery import JOINT_INDEX, LIMB_ZONES, limb_errors, recovery_score
+    from workflows.scene.recovery import JOINT_INDEX, LIMB_ZONES, limb_errors, recovery_score
 
     spread = torch.full((24,), 0.03)  # 3 cm everywhere
     one_arm = torch.zeros(24)
@@ -122,7 +122,7 @@ def test_worst_limb_criterion_weighs_a_limb_far_off():
 
 
 def test_recover_many_equals_one_by_one(synthetic_pose, stand_in_solver):
-    from workflows.recovery import recover_many
+    from workflows.scene.recovery import recover_many
 
     targets = [TargetPose.from_pose(synthetic_pose(s)) for s in (5, 6, 7)]
     cfg = RecoveryConfig(max_effectors=4, threshold=0.0)
@@ -167,7 +167,7 @@ def test_pairs_are_tried_when_no_single_candidate_helps(synthetic_pose, oracle_s
 def test_a_stuck_search_restarts_from_the_dense_set(synthetic_pose, oracle_solver):
     """The greedy's first choice (spine3's rotation) poisons every larger set: singles and pairs fail,
     so the search restarts from the 6-point set of positions and fills up to the maximum from there."""
-    from workflows.recovery import RESTART_SET
+    from workflows.scene.recovery import RESTART_SET
 
     target = TargetPose.from_pose(synthetic_pose(0))
     spine3_rot = (9, int(EffectorType.ROTATION))

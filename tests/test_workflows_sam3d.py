@@ -140,11 +140,10 @@ def test_the_given_solver_fits(tmp_path, shipped_solver):
 def test_scene_from_estimate_fits_with_the_commands_solver(tmp_path, monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
     from workflows.scene import load_scene
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     aa, transl = _people(2)
     written, _ = write_sam3d(tmp_path, aa, transl)
     result = CliRunner().invoke(scene_app, ["from-estimate", str(written.path), "--out", str(tmp_path / "out"),

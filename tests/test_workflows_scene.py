@@ -7,10 +7,8 @@ import json
 
 import numpy as np
 import pytest
+from helpers import demo_scene
 
-from workflows.examples_gen import example_poses
-from workflows.pipeline import scene_from_people
-from workflows.recovery import RecoveryConfig
 from workflows.scene import SceneError, load_scene, save_scene, scene_from_dict, solve_scene
 
 
@@ -21,12 +19,7 @@ def solver(best_solver):
 
 @pytest.fixture(scope="module")
 def scene(solver):
-    from workflows.estimators.base import EstimatedPerson
-
-    people = [EstimatedPerson(p.pose.global_orient, p.pose.body_pose, p.pose.transl, p.pose.betas, p.pose.gender,
-                              person_id=str(i)) for i, p in enumerate(example_poses())]
-    built, _ = scene_from_people(people, solver, config=RecoveryConfig(max_effectors=4, threshold=0.0))
-    return built
+    return demo_scene(solver)
 
 
 def _assert_same(a, b, where="scene"):
@@ -92,11 +85,10 @@ def test_validation_errors_name_the_json_path(scene):
 def test_scene_solve_cli(scene, solver, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli
     from workflows.cli import scene_app
 
     path = save_scene(scene, tmp_path / "scene.json")
-    monkeypatch.setattr(cli, "_solver", lambda checkpoint: solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: solver)
     result = CliRunner().invoke(scene_app, ["solve", str(path), "--out", str(tmp_path / "out.json")])
     assert result.exit_code == 0, result.output
     assert load_scene(tmp_path / "out.json").characters[0].pose is not None

@@ -7,21 +7,10 @@ from typing import Annotated
 
 import typer
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.cli.errors import fail, say, user_errors
 from smplik.cli.options import check_image
-from smplik.limits import DEFAULT_MAX_JOINTS
+from workflows import cli_shared
 
 scene_app = typer.Typer(help="Editable scenes: from estimator outputs, re-solve after edits, render.",
                         no_args_is_help=True)
@@ -33,32 +22,15 @@ FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "
 """``--format`` choices (spelled out here so that ``--help`` does not import the readers; a test keeps them equal)."""
 
 
-def _solver(checkpoint: Path | None):
-    import torch
-
-    from smplik.solver import IKSolver
-
-    torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
-    with user_errors():
-        return IKSolver.load(checkpoint)
-
-
 @scene_app.command("from-estimate")
+@with_character_options
 def from_estimate_cmd(
     results: Annotated[Path, typer.Argument(help="Estimator output (.npz, .pk, .pkl, .json, .pt), or a folder of "
                                             "per-frame outputs (SMPLer-X; --frame N).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     format: Annotated[str, typer.Option("--format", help=f"One of: {', '.join(FORMATS)}.")] = "auto",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     max_effectors: Annotated[int, typer.Option("--max-effectors", min=1, help="Most effectors per person.")] = 8,
     threshold: Annotated[float, typer.Option("--threshold", min=0.0, help="Stop below this error (m).")] = 0.02,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
@@ -84,8 +56,8 @@ def from_estimate_cmd(
     from rich.progress import Progress
 
     from smplik.cli.errors import console
-    from workflows.pipeline import from_estimate
-    from workflows.recovery import RecoveryConfig
+    from workflows.scene.pipeline import from_estimate
+    from workflows.scene.recovery import RecoveryConfig
 
     if format not in FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(FORMATS)}, got {format!r}.")
@@ -93,8 +65,8 @@ def from_estimate_cmd(
         raise typer.BadParameter(f"--space must be 'camera' or 'world', got {space!r}.")
     with user_errors():
         check_image(image)
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
-    solver = _solver(checkpoint)
+    options = character_cli()
+    solver = cli_shared._solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("effector recovery", total=None)
 
@@ -133,12 +105,12 @@ def solve_cmd(
     """Re-solve a scene after its effectors were edited: the effectors its stored pose does not meet (the ones
     you changed) are solved as the editor's drags (the stale effectors of their chains relaxed, the rest of the
     body kept); print what moved and what was relaxed, then each effector's residual and conflicts."""
-    from workflows.edits import conflict_report, solve_scene_edits
     from workflows.scene import load_scene, save_scene
+    from workflows.scene.edits import conflict_report, solve_scene_edits
 
     with user_errors():
         loaded = load_scene(scene)
-        solver = _solver(checkpoint)
+        solver = cli_shared._solver(checkpoint)
         solved, reports = solve_scene_edits(loaded, solver, exact=exact)
         path = save_scene(solved, out or scene)
         lines = {r.character: r.line() for r in reports}
@@ -160,8 +132,8 @@ def render_cmd(
 ) -> None:
     """Render all characters with their effector markers (over the source image when known)."""
     from smplik.render import save_png
-    from workflows.previews import load_image, render_scene
     from workflows.scene import load_scene
+    from workflows.scene.previews import load_image, render_scene
 
     with user_errors():
         loaded = load_scene(scene)
@@ -195,8 +167,8 @@ def export_cmd(
                                            "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
-    from workflows.export import export_scene, glb_notes
     from workflows.scene import load_scene
+    from workflows.scene.export import export_scene, glb_notes
 
     formats = [f for f in format.split(",") if f.strip()]
     with user_errors():
@@ -218,7 +190,7 @@ def demo_cmd(
     """Whole chain on built-in material: estimator file -> SMPL-SI character -> effector recovery -> scene, BVH."""
     from workflows.demo import run_demo
 
-    solver = _solver(checkpoint)
+    solver = cli_shared._solver(checkpoint)
     with user_errors():
         outputs = run_demo(out, solver)
     for line in demo_report(outputs):
@@ -266,8 +238,8 @@ def demo_report(outputs) -> list[str]:  # noqa: ANN001 - workflows.demo.DemoOutp
     return lines
 
 
-# ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation_cli.py
-from workflows.animation_cli import animate_cmd, edit_keyframe_cmd  # noqa: E402
+# ``smplik scene animate`` (video estimates -> animations): the command lives in workflows/animation/cli.py
+from workflows.animation.cli import animate_cmd, edit_keyframe_cmd  # noqa: E402
 
 scene_app.command("animate")(animate_cmd)
 scene_app.command("edit-keyframe")(edit_keyframe_cmd)

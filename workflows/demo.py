@@ -8,7 +8,7 @@
 3. ``character/``: the same people retargeted onto the custom character through SMPL-SI: scene,
    previews (custom skeleton beside its SMPL approximation), recovery plots, one BVH per person.
 4. ``character/scene_edited.json``: a user edit (the first person's right wrist raised by 25 cm
-   as a position effector), solved as the editor solves a drag (:mod:`workflows.edits`), and its preview;
+   as a position effector), solved as the editor solves a drag (:mod:`workflows.scene.edits`), and its preview;
    :attr:`DemoOutputs.edit_lines` give its figures.
 """
 
@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from smplik.benchmark.edits import TORSO_JOINTS
 from smplik.conventions import JOINT_INDEX
 from smplik.effectors import Effector
 from smplik.rotations import geodesic_distance
-from workflows.pipeline import EstimateOutputs, from_estimate
-from workflows.recovery import RecoveryConfig
+from workflows.edit_benchmark.pairs import TORSO_JOINTS
+from workflows.scene.pipeline import EstimateOutputs, from_estimate
+from workflows.scene.recovery import RecoveryConfig
 
 EDIT_JOINT = "right_wrist"
 EDIT_RAISE_M = 0.25
@@ -66,15 +66,15 @@ def write_examples(folder: str | Path, *, people_in_photo: bool = True) -> tuple
 
 def edit_scene(scene_path: Path, out_path: Path, solver: Any) -> Path:
     """Raise the first character's right wrist by :data:`EDIT_RAISE_M` as the editor's drag does
-    (:mod:`workflows.edits`: the stale effectors of the arm relaxed, only the arm re-posed) and save the scene."""
+    (:mod:`workflows.scene.edits`: the stale effectors of the arm relaxed, only the arm re-posed) and save the scene."""
     return _edit(scene_path, out_path, solver)[0]
 
 
 def _edit(scene_path: Path, out_path: Path, solver: Any) -> tuple[Path, list[str]]:
     """:func:`edit_scene` plus the edit's figures (lines for the demo's printout)."""
-    from workflows.edits import conflict_report, relax_stale, solve_drag
-    from workflows.recovery import TargetPose
     from workflows.scene import character_joints, load_scene, save_scene
+    from workflows.scene.edits import conflict_report, relax_stale, solve_drag
+    from workflows.scene.recovery import TargetPose
 
     scene = load_scene(scene_path)
     first = scene.characters[0]
@@ -117,8 +117,8 @@ def run_demo(out_dir: str | Path, solver: Any = None, *, config: RecoveryConfig 
     edited_png = None
     if previews:
         from smplik.render import save_png
-        from workflows.previews import load_image, render_scene
         from workflows.scene import load_scene
+        from workflows.scene.previews import load_image, render_scene
 
         edited_png = save_png(render_scene(load_scene(edited), image=load_image(photo)),
                               out_dir / "character" / "scene_edited.png")

@@ -20,21 +20,15 @@ import torch
 
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, PARENTS, Gender
 from smplik.data.bvh import format_bvh
+from smplik.data.retarget import load_preset
 from smplik.pose import Pose
 
 CAMERA_HEIGHT_M = 1.4
 IMAGE_SIZE = (640, 480)
 ROMP_FOV_DEG = 60.0
 
-MIXAMO_NAMES: dict[str, str] = {
-    "pelvis": "Hips", "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg", "spine1": "Spine",
-    "left_knee": "LeftLeg", "right_knee": "RightLeg", "spine2": "Spine1", "left_ankle": "LeftFoot",
-    "right_ankle": "RightFoot", "spine3": "Spine2", "left_foot": "LeftToeBase", "right_foot": "RightToeBase",
-    "neck": "Neck", "left_collar": "LeftShoulder", "right_collar": "RightShoulder", "head": "Head",
-    "left_shoulder": "LeftArm", "right_shoulder": "RightArm", "left_elbow": "LeftForeArm",
-    "right_elbow": "RightForeArm", "left_wrist": "LeftHand", "right_wrist": "RightHand",
-    "left_hand": "LeftHandMiddle1", "right_hand": "RightHandMiddle1",
-}
+MIXAMO_NAMES: dict[str, str] = {smpl: rig.removeprefix("mixamorig:")
+                                 for smpl, rig in load_preset("mixamo").joints.items()}
 """SMPL joint -> Mixamo joint name (without the ``mixamorig:`` prefix)."""
 
 BONE_SCALE = {"leg": 1.08, "arm": 0.93, "spine": 1.06}
@@ -149,7 +143,7 @@ def write_photo(path: str | Path, people: list[ExamplePerson] | None = None, siz
 
     people = example_poses() if people is None else people
     tmp = write_background(Path(path), size)
-    from workflows.previews import load_image
+    from workflows.scene.previews import load_image
 
     background = load_image(tmp)
     w, h = size

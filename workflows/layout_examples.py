@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_NAMES, PARENTS
 from smplik.data.bvh import format_bvh
+from smplik.data.retarget import load_preset
 from workflows.examples_gen import MIXAMO_NAMES
 
 ROKOKO_NAMES = {
@@ -39,15 +40,7 @@ ROKOKO_NAMES = {
     "left_hand": "LeftFinger3Metacarpal", "right_hand": "RightFinger3Metacarpal",
 }
 
-CMU_NAMES = {
-    "pelvis": "Hips", "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg", "spine1": "LowerBack",
-    "left_knee": "LeftLeg", "right_knee": "RightLeg", "spine2": "Spine", "left_ankle": "LeftFoot",
-    "right_ankle": "RightFoot", "spine3": "Spine1", "left_foot": "LeftToeBase", "right_foot": "RightToeBase",
-    "neck": "Neck1", "left_collar": "LeftShoulder", "right_collar": "RightShoulder", "head": "Head",
-    "left_shoulder": "LeftArm", "right_shoulder": "RightArm", "left_elbow": "LeftForeArm",
-    "right_elbow": "RightForeArm", "left_wrist": "LeftHand", "right_wrist": "RightHand",
-    "left_hand": "LeftHandIndex1", "right_hand": "RightHandIndex1",
-}
+CMU_NAMES = load_preset("cmu").joints
 
 CMU_UNIT_M = 0.0254 / 0.45
 

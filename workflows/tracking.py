@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import Gender
-from workflows.animation import Animation, AnimationError, AnimationTrack, export_animation
+from workflows.animation.clips import Animation, AnimationError, AnimationTrack
+from workflows.animation.run import export_animation
 
 
 @dataclass(frozen=True)
@@ -47,9 +48,9 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
     from smplik.tracking.config import TrackerRuntimeConfig
     from smplik.tracking.io import read_trackers
     from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, track_sequence
-    from workflows.animation_io import save_animation
-    from workflows.export import FORMATS
+    from workflows.animation.files import save_animation
     from workflows.scene import SkeletonSource
+    from workflows.scene.export import FORMATS
 
     bad = [f for f in formats if f not in FORMATS]
     if bad:

@@ -7,22 +7,11 @@ from typing import Annotated
 
 import typer
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.cli.errors import say, user_errors
-from smplik.limits import DEFAULT_MAX_JOINTS
 
 
+@with_character_options
 def track_cmd(
     trackers: Annotated[Path, typer.Argument(help="Tracker recording: smplik-trackers JSON (docs/formats.md) or a "
                                              "SteamVR JSON-lines log (.jsonl).")],
@@ -34,15 +23,7 @@ def track_cmd(
     gender: Annotated[str, typer.Option("--gender", help="neutral, male or female.")] = "neutral",
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON): animate "
                                                    "its SMPL-SI body; trackers in its units.")] = None,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     export: Annotated[str, typer.Option("--export", help="Animated files, comma-separated: bvh, glb; '' for "
                                         "none.")] = "bvh",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the latent samples.")] = 0,
@@ -52,7 +33,7 @@ def track_cmd(
                                                     "shipped).")] = None,
 ) -> None:
     """Tracker recording (head, wrists, pelvis) -> OUT/animation.json (smplik-animation) and BVH/GLB."""
-    from workflows.animation import AnimationError
+    from workflows.animation.clips import AnimationError
     from workflows.tracking import track_file
 
     with user_errors():
@@ -64,7 +45,7 @@ def track_cmd(
                 raise AnimationError(f"--betas must be 10 comma-separated numbers, got {betas!r}.") from None
             if len(values) != 10:
                 raise AnimationError(f"--betas must be 10 comma-separated numbers, got {len(values)}.")
-        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+        options = character_cli()
         outputs = track_file(trackers, out, samples=samples, betas=values, gender=gender, character_path=character,
                              character_options=options, checkpoint=checkpoint, seed=seed,
                              fit_trackers=fit_trackers,

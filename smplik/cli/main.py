@@ -35,11 +35,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "edit": ("workflows.editor.cli:edit_cmd", "Edit a scene in the browser (needs the edit extra: viser)."),
     "invert-shape": ("shape_inversion.cli:invert_shape", "SMPL-SI: custom skeleton -> SMPL shape (beta) and scale."),
     "body": ("smplik.cli.body:body_app", "Body models: export, inspect and render."),
-    "data": ("smplik.data.cli:app", "Motion data: build pose caches from BVH/AMASS, preview retargeting."),
+    "data": ("shape_inversion.data_cli:app", "Motion data: build pose caches from BVH/AMASS, preview retargeting."),
     "train": ("smplik.cli.train:train_command", "Train SMPL-IK on a pose cache (resumable; torchrun for DDP)."),
     "export-model": ("smplik.cli.models:export_command", "Compact inference model and/or ONNX graph of a checkpoint."),
     "average-models": ("smplik.cli.models:average_command", "Average models fine-tuned from one start (model soup)."),
-    "benchmark": ("smplik.cli.benchmark:app", "Randomized-effector IK benchmark: make files, run methods, calibrate."),
+    "benchmark": ("workflows.benchmark_cli:app",
+                  "Randomized-effector IK benchmark: make files, run methods, calibrate."),
     "track": ("workflows.tracking_cli:track_cmd", "Full body from VR trackers (head, wrists, pelvis) -> animation."),
 }
 """Every top-level command, in the order ``smplik --help`` lists them."""

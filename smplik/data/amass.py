@@ -33,7 +33,6 @@ absolute placement).
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -185,16 +184,11 @@ def read_amass(path: str | Path, *, rest_pelvis: RestPelvis = None, fps: float |
         ValueError: unreadable file, unknown layout, missing/misshaped key, NaN values (the
             message names the file and the key). FileNotFoundError: no such file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"AMASS file not found: {path}")
-    from smplik.limits import check_npz
+    from smplik.limits import open_checked_npz
 
-    check_npz(path)  # declared sizes within the input budget before anything is decompressed
-    try:
-        npz_file = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise _fail(path, f"not a readable .npz file ({exc}).") from None
+    path = Path(path)
+    npz_file = open_checked_npz(path, "AMASS file not found",
+                                lambda exc: _fail(path, f"not a readable .npz file ({exc})."))
     if not isinstance(npz_file, np.lib.npyio.NpzFile):
         raise _fail(path, "not an .npz archive (a single .npy array).")
     with npz_file as npz:

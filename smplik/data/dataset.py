@@ -593,16 +593,11 @@ def load_cache(path: str | Path) -> PoseDataset:
         FileNotFoundError: no such file. CacheError (a ValueError): not a cache, another format version, a
             missing, misshaped or out-of-range key (named).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"Pose cache not found: {path}")
-    from smplik.limits import check_npz
+    from smplik.limits import open_checked_npz
 
-    check_npz(path)  # declared sizes within the input budget before anything is decompressed
-    try:
-        npz = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise CacheError(f"{path}: not a readable .npz pose cache ({exc}).") from None
+    path = Path(path)
+    npz = open_checked_npz(path, "Pose cache not found",
+                           lambda exc: CacheError(f"{path}: not a readable .npz pose cache ({exc})."))
     with npz:
         missing = [k for k in _CACHE_KEYS if k not in npz.files]
         if "version" in missing:

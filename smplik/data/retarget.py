@@ -44,6 +44,7 @@ reached through unmapped joints), both mapped.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -159,30 +160,32 @@ def resolve_joint_names(wanted: dict[str, str], names: tuple[str, ...]) -> dict[
     return out
 
 
-def auto_preset(motion: BVHMotion) -> RetargetPreset:
-    """The preset of a BVH clip found by the rig mapper (``preset="auto"``; no hand-written map).
+RigMapper = Callable[[BVHMotion], "RetargetPreset"]
+"""A rig mapper: a parsed BVH clip -> the preset that retargets it (``preset="auto"``)."""
+_rig_mapper: RigMapper | None = None
 
-    The skeleton is mapped by :func:`shape_inversion.rigs.detect_rig` (topology, geometry and names;
-    a built-in preset when it is as complete) on the zero-rotation OFFSET pose; a built-in preset is
-    used as is; otherwise units and up come from :func:`shape_inversion.skeleton_io.prepare_character`
-    (stature-based detection), the rest pose is chosen per clip (``rest="auto"``) and no frame is
-    dropped (``motion_start`` 0). Raises :class:`RetargetError` naming the clip when it is not a humanoid.
+
+def register_rig_mapper(mapper: RigMapper) -> None:
+    """Install the rig mapper behind ``preset="auto"``.
+
+    The mapper (topology, geometry and names) is shape_inversion's, above this package:
+    :mod:`shape_inversion.auto_preset` installs :func:`shape_inversion.auto_preset.auto_preset` when it is
+    imported (the ``smplik data`` commands and the edit benchmark import it), so smplik imports nothing above it.
     """
-    from shape_inversion.rigs import RigError, detect_rig
-    from shape_inversion.skeleton_io import Skeleton, SkeletonError, prepare_character
+    global _rig_mapper
+    _rig_mapper = mapper
 
-    _, positions = motion.rest_pose()
-    try:
-        rig = detect_rig(motion.joint_names, motion.parents, positions)
-        if rig.name in preset_names():
-            return load_preset(rig.name)
-        char = prepare_character(Skeleton(motion.joint_names, motion.parents, positions, motion.name, "bvh"), rig=rig)
-    except (RigError, SkeletonError) as exc:
-        raise RetargetError(f"{motion.name}: no rig map found ({exc})") from None
-    if char.up not in ("y", "z"):
-        raise RetargetError(f"{motion.name}: up axis {char.up} is not supported for training data (y or z)")
-    return RetargetPreset(name=f"auto ({motion.name})", joints=char.joint_map, units=char.units_m,
-                          up=char.up, rest="auto")  # type: ignore[arg-type]
+
+def auto_preset(motion: BVHMotion) -> RetargetPreset:
+    """The preset of a BVH clip found by the installed rig mapper (``preset="auto"``; no hand-written map).
+
+    Raises :class:`RetargetError` naming the clip when it is not a humanoid, or when no mapper is installed
+    (:func:`register_rig_mapper`).
+    """
+    if _rig_mapper is None:
+        raise RetargetError(f"{motion.name}: preset 'auto' needs the rig mapper (import shape_inversion.auto_preset, "
+                            "as the smplik data commands do), or give a preset name or JSON file.")
+    return _rig_mapper(motion)
 
 
 def load_preset(preset: str | Path | dict[str, Any] | RetargetPreset) -> RetargetPreset:

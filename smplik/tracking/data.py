@@ -7,7 +7,7 @@ mean difference of the lowest foot between the recorded and the new skeleton); l
 probability 0.5; FK; trackers = the tracked joints' world positions and rotations, with Gaussian position
 noise of a per-window sigma in [0, ``noise_m``]; non-reference trackers lose their rotation with probability
 ``rotation_dropout``. Truth foot contacts come from the animation pipeline's detector
-(:func:`workflows.motion_clean.foot_contacts`) on the recorded skeleton, once per clip.
+(:func:`smplik.contacts.foot_contacts`) on the recorded skeleton, once per clip.
 """
 
 from __future__ import annotations
@@ -59,9 +59,9 @@ def body_vector(betas: Tensor, gender: Tensor) -> Tensor:
 
 def clip_contacts(p_world: np.ndarray, fps: float) -> np.ndarray:
     """Truth foot contacts (T, 2) bool of joints (T, 24, 3) by the animation pipeline's detector."""
-    from workflows.motion_clean import CleanConfig, foot_contacts
+    from smplik.contacts import ContactConfig, foot_contacts
 
-    return foot_contacts(p_world, fps, CleanConfig())
+    return foot_contacts(p_world, fps, ContactConfig())
 
 
 class WindowSampler:

@@ -15,7 +15,7 @@ Per input frame (constant cost: the GRU carries the history):
    frame is shown;
 4. foot locking on the output frame: a foot whose predicted contact probability is above the threshold is
    pinned where the contact began by the animation pipeline's two-bone leg IK
-   (:func:`workflows.motion_clean.two_bone_ik`, the ankle keeping its world rotation) and blended back to the
+   (:func:`smplik.limb_ik.two_bone_ik`, the ankle keeping its world rotation) and blended back to the
    network's foot over ``release_frames`` after the contact ends.
 
 Outputs are :class:`TrackedPose` (numpy). :func:`track_sequence` runs a whole recording through the same
@@ -127,7 +127,7 @@ class _FootLock:
 
     def apply(self, R_local: np.ndarray, R_world: np.ndarray, p: np.ndarray, prob: np.ndarray) -> np.ndarray:
         """Locked local rotations (24, 3, 3) of one pose (world rotations R_world, joints p)."""
-        from workflows.motion_clean import two_bone_ik
+        from smplik.limb_ik import two_bone_ik
 
         rows, targets = [], []
         feet = p[[leg[3] for leg in _LEGS]]
@@ -267,7 +267,7 @@ class Tracker:
     def _fit_trackers(self, R: np.ndarray, transl: np.ndarray, p_trk: np.ndarray, R_trk: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
         """Meet the trackers (:attr:`TrackerRuntimeConfig.tracker_fit`). R (1, 24, 3, 3), transl (1, 3)."""
-        from workflows.motion_clean import two_bone_ik
+        from smplik.limb_ik import two_bone_ik
 
         R, transl = R.copy(), transl.copy()
         idx = {name: k for k, name in enumerate(self.trackers)}

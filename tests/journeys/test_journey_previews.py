@@ -9,39 +9,24 @@ body is turned 120 degrees about the vertical so that it does not face the camer
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 from animation_fixtures import video_motion, write_gvhmr_video
+from helpers import needs_gl
 from scipy.spatial.transform import Rotation
 
 T = 24
 
 
-def _can_render() -> bool:
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    try:
-        from smplik.render import Sphere, render
-
-        render([], [Sphere((0, 0, 0))], size=(32, 32))
-        return True
-    except Exception:  # noqa: BLE001 - no OpenGL backend on this machine
-        return False
-
-
-needs_gl = pytest.mark.skipif(not _can_render(), reason="no OpenGL backend for offscreen rendering: install EGL "
-                              "(apt-get install libegl1) or OSMesa")
 
 
 @pytest.fixture()
 def animate(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
 
 
@@ -60,7 +45,7 @@ def _lines(result) -> list[str]:
 
 def _forward_of_feet(anim) -> np.ndarray:
     """(3,) unit horizontal direction the body faces, from its feet (ankle -> foot joints), over the clip."""
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
 
     (t,) = anim.tracks
     p = joints_of(axis_angle_to_local(t.global_orient, t.body_pose), t.transl, rest_joints(t.betas, t.gender))
@@ -76,9 +61,9 @@ def test_gif_and_mp4_cover_the_clip_face_the_front_show_a_floor_and_the_bvh_read
 
     from smplik.data.bvh import read_bvh
     from smplik.render import camera_pose
-    from workflows.animation_io import load_animation, scene_of
-    from workflows.animation_preview import shown_frames, world_view
-    from workflows.previews import scene_items
+    from workflows.animation.files import load_animation, scene_of
+    from workflows.animation.preview import shown_frames, world_view
+    from workflows.scene.previews import scene_items
 
     out = tmp_path / "anim"
     res = animate(turned_clip, "--out", out, "--max-effectors", 2, "--export", "bvh", "--preview", out / "p.gif")
@@ -122,8 +107,8 @@ def test_gif_and_mp4_cover_the_clip_face_the_front_show_a_floor_and_the_bvh_read
 @needs_gl
 def test_one_renderer_draws_every_frame(tmp_path, animate, turned_clip, monkeypatch):
     import smplik.render as render_module
-    from workflows.animation_io import load_animation
-    from workflows.animation_preview import write_preview
+    from workflows.animation.files import load_animation
+    from workflows.animation.preview import write_preview
 
     res = animate(turned_clip, "--out", tmp_path / "a", "--max-effectors", 2, "--export", "")
     assert res.exit_code == 0, res.output
@@ -158,8 +143,8 @@ def test_an_unwritable_mp4_preview_fails_before_the_work(tmp_path, animate, turn
 
 def test_a_long_clip_is_shown_whole_and_the_frames_are_said():
     from smplik.conventions import Gender
-    from workflows.animation import Animation, AnimationTrack
-    from workflows.animation_preview import describe_frames, shown_frames
+    from workflows.animation.clips import Animation, AnimationTrack
+    from workflows.animation.preview import describe_frames, shown_frames
 
     n = 537  # issue 32's GVHMR clip, whose GIF stopped at frame 299
     track = AnimationTrack("person_0", "0", Gender.NEUTRAL, np.zeros(10), 1.0, None, 0, np.zeros((n, 3)),

@@ -25,10 +25,9 @@ T = 41
 def scene(monkeypatch, best_solver):
     from typer.testing import CliRunner
 
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: best_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
     return lambda *args: CliRunner().invoke(scene_app, list(map(str, args)))
 
 
@@ -51,7 +50,7 @@ def write_smpl_sequence(path, aa: np.ndarray, transl: np.ndarray) -> None:
 
 
 def test_a_plain_smpl_sequence_is_one_person_over_its_frames(tmp_path, scene):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
     from workflows.estimators import read_estimate
 
     aa, transl = video_motion(T, seed=31)
@@ -112,7 +111,7 @@ def _smplerx_clip(folder, frames: int = 8) -> None:
 
 
 def test_smplerx_per_frame_files_are_one_clip_with_tracks_across_frames(tmp_path, scene):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     out = tmp_path / "smplerx_out"
     _smplerx_clip(out)
@@ -123,7 +122,7 @@ def test_smplerx_per_frame_files_are_one_clip_with_tracks_across_frames(tmp_path
     assert [(t.first_frame, t.num_frames) for t in anim.tracks] == [(1, 7), (1, 7)]
     for t in anim.tracks:  # each track follows one person: no jump where the detection order swaps
         assert np.linalg.norm(np.diff(t.transl, axis=0), axis=1).max() < 0.25  # a swap: 1.3 m
-    from workflows.animation import read_clip
+    from workflows.animation.clips import read_clip
 
     for rows in read_clip(out).tracks.values():  # as read, before any cleaning could hide a swap
         pelvis = np.array([p.transl for _, p in rows])
@@ -145,7 +144,7 @@ def test_smplerx_per_frame_files_are_one_clip_with_tracks_across_frames(tmp_path
 
 
 def test_gvhmr_animates_without_fps_at_30_and_says_so(tmp_path, scene):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     aa, transl = video_motion(12, seed=34)
     path = write_gvhmr_video(tmp_path, aa, transl)

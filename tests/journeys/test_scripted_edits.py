@@ -33,10 +33,9 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture()
 def cli(monkeypatch, shipped_solver):
     """``smplik scene ARGS...`` as a user runs it (the shipped model, loaded once for the session)."""
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
 
-    monkeypatch.setattr(cli_module, "_solver", lambda checkpoint: shipped_solver)
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
 
     def run(*args: str) -> str:
         res = CliRunner().invoke(scene_app, [str(a) for a in args])
@@ -50,14 +49,13 @@ def cli(monkeypatch, shipped_solver):
 def demo_scene(tmp_path_factory, shipped_solver) -> Path:
     """``demo_out/smpl/scene.json`` as ``smplik demo`` writes it: its generated ROMP file through from-estimate
     (the demo's recovery settings: 6 effectors, 2 cm)."""
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
     from workflows.examples_gen import write_romp_example
 
     root = tmp_path_factory.mktemp("journey")
     npz = write_romp_example(root / "demo_out" / "examples" / "romp_two_people.npz")
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(cli_module, "_solver", lambda checkpoint: shipped_solver)
+        mp.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
         res = CliRunner().invoke(scene_app, ["from-estimate", str(npz), "--out", str(root / "demo_out" / "smpl"),
                                              "--format", "romp", "--max-effectors", "6", "--no-previews"])
     assert res.exit_code == 0, res.output
@@ -147,8 +145,8 @@ def test_scene_solve_exact_keeps_the_exact_re_solve(demo_scene, cli, tmp_path, s
 
 def _track_joints(animation_path: Path, frame: int) -> np.ndarray:
     """The only track's joints (24, 3) at source frame ``frame``, character space."""
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
-    from workflows.animation_io import load_animation
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.files import load_animation
 
     t = load_animation(animation_path).tracks[0]
     row = frame - t.first_frame
@@ -160,7 +158,6 @@ def _track_joints(animation_path: Path, frame: int) -> np.ndarray:
 def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
     """``smplik scene animate hmr4d_results.pt --fps 30`` (30 frames of GVHMR), on the SMPL body or on the demo's
     Mixamo character (``--character mixamo_character.bvh``)."""
-    import workflows.cli as cli_module
     from workflows.cli import scene_app
     from workflows.examples_gen import write_mixamo_character
 
@@ -171,7 +168,7 @@ def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
     if request.param == "character":
         args += ["--character", str(write_mixamo_character(folder / "mixamo_character.bvh")), "--rig", "mixamo"]
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(cli_module, "_solver", lambda checkpoint: shipped_solver)
+        mp.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
         res = CliRunner().invoke(scene_app, args)
     assert res.exit_code == 0, res.output
     return folder / "anim" / "animation.json"
@@ -181,7 +178,7 @@ def animation_file(request, tmp_path_factory, shipped_solver) -> Path:
 @pytest.mark.parametrize("wrist", WRISTS)
 @pytest.mark.parametrize("where", ["keyframe", "between keyframes"])
 def test_edit_keyframe_with_a_one_effector_file_moves_only_the_arm(animation_file, cli, tmp_path, wrist, where):
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
 
     before_anim = load_animation(animation_file)
     track = before_anim.tracks[0]
@@ -226,7 +223,7 @@ def test_readme_scripted_drag_runs_as_written(demo_scene, tmp_path, monkeypatch,
     head stays."""
     import shutil
 
-    import workflows.edits as edits
+    import workflows.scene.edits as edits
 
     readme = (REPO / "README.md").read_text()
     block = next(b for b in re.findall(r"```python\n(.*?)```", readme, re.S) if ".drag(" in b)
@@ -245,8 +242,8 @@ def test_readme_scripted_drag_runs_as_written(demo_scene, tmp_path, monkeypatch,
 def test_editor_apply_takes_the_keyframes_whole_list(animation_file, shipped_solver):
     """The editor's Apply (the timeline) passes the frame's whole list: an effector deleted there stays deleted,
     where the command's file is merged into the keyframe's."""
-    from workflows.animation_edit import keyframe_edit
-    from workflows.animation_io import load_animation
+    from workflows.animation.files import load_animation
+    from workflows.animation.keyframe_edit import keyframe_edit
     from workflows.editor.timeline import AnimationTimeline
 
     anim = load_animation(animation_file)

@@ -160,7 +160,7 @@ class EditorApp:
             src = self.state.path.parent / src
         if not src.is_file():
             return False
-        from workflows.previews import load_image
+        from workflows.scene.previews import load_image
 
         try:
             image = load_image(src)[..., :3]

@@ -10,20 +10,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.console import Console
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.cli.errors import fail
-from smplik.limits import DEFAULT_MAX_JOINTS
 
 if TYPE_CHECKING:
     from workflows.editor.app import EditorApp
@@ -44,6 +32,7 @@ def is_loopback(host: str) -> bool:
 
 
 @app.command("edit")
+@with_character_options
 def edit_cmd(
     scene: Annotated[Path | None, typer.Argument(help="Scene JSON to edit (a new file: start from a T-pose body "
                                                       "and create it on Save; none: ./scene.json), or an "
@@ -55,15 +44,7 @@ def edit_cmd(
     = None,
     character: Annotated[Path | None, typer.Option("--character", help="Add a custom character (BVH, glTF, JSON "
                                                                        "skeleton) fitted by SMPL-SI.")] = None,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     output_dir: Annotated[list[Path] | None, typer.Option(
         "--output-dir", help="A folder Save and Export may also write in (repeatable; default: only the scene's "
                              "folder).")] = None,
@@ -74,7 +55,7 @@ def edit_cmd(
 
     import numpy as np
 
-    from workflows.cli import _solver
+    from workflows.cli_shared import _solver
     from workflows.scene import SceneCharacter, SkeletonSource, load_scene
 
     try:
@@ -110,7 +91,7 @@ def edit_cmd(
     if character is not None:
         from workflows.character import load_character
 
-        options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+        options = character_cli()
         try:
             custom = load_character(character, options)
         except (ValueError, OSError) as exc:

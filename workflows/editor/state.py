@@ -8,7 +8,7 @@ and pushes the previous :class:`Snapshot` on the undo stack. Consecutive edits w
 :meth:`EditorState.end_gesture`.
 
 A drag of an effector relaxes the effectors on its chain that it makes stale and re-poses only that chain
-(:mod:`workflows.edits`); :meth:`EditorState.conflicts` reports which effectors are not met and which
+(:mod:`workflows.scene.edits`); :meth:`EditorState.conflicts` reports which effectors are not met and which
 others they contradict.
 
 Spaces are those of :mod:`workflows.scene`: effectors and everything drawn are in character space
@@ -30,8 +30,8 @@ from smplik.effectors import Effector
 from smplik.pose import Pose
 from smplik.refine import RefineConfig
 from workflows.editor.skinning import ShapedBody, Skinner
-from workflows.edits import ConflictReport, conflict_report, relax_stale, solve_drag
 from workflows.scene import Scene, SceneCharacter, load_scene, save_scene, solve_character
+from workflows.scene.edits import ConflictReport, conflict_report, relax_stale, solve_drag
 
 EFFECTOR_TYPES: tuple[str, ...] = tuple(t.name.lower() for t in EffectorType)
 """Effector type names, in :class:`~smplik.conventions.EffectorType` order."""
@@ -102,7 +102,8 @@ def _rebase(name: str | None, old_dir: Path | None, new_dir: Path) -> str | None
 
 
 class UndoStacks:
-    """``can_undo`` / ``can_redo`` of an editable model keeping past and undone states in ``_undo`` / ``_redo``."""
+    """Undo and redo of an editable model keeping past and undone states in ``_undo`` / ``_redo``; the model
+    says what its state is (:meth:`_history_state`) and how to go back to one (:meth:`_restore`)."""
 
     _undo: list[Any]
     _redo: list[Any]
@@ -114,6 +115,27 @@ class UndoStacks:
     @property
     def can_redo(self) -> bool:
         return bool(self._redo)
+
+    def undo(self) -> bool:
+        """Restore the state before the last edit; False when there is nothing to undo."""
+        return self._step(self._undo, self._redo)
+
+    def redo(self) -> bool:
+        """Re-apply the last undone edit; False when there is nothing to redo."""
+        return self._step(self._redo, self._undo)
+
+    def _step(self, source: list[Any], target: list[Any]) -> bool:
+        if not source:
+            return False
+        target.append(self._history_state())
+        self._restore(source.pop())
+        return True
+
+    def _history_state(self) -> Any:
+        raise NotImplementedError
+
+    def _restore(self, state: Any) -> None:
+        raise NotImplementedError
 
 
 class EditorState(UndoStacks):
@@ -151,10 +173,10 @@ class EditorState(UndoStacks):
         self._customs: dict[tuple[Any, ...], Any] = {}
         self.relax_on_drag = relax_on_drag
         """A drag relaxes the effectors it makes stale and moves only the dragged chain
-        (:mod:`workflows.edits`); False: every effector kept as it is and the whole body re-solved."""
+        (:mod:`workflows.scene.edits`); False: every effector kept as it is and the whole body re-solved."""
         self.relaxed: tuple[str, ...] = ()
         """Labels of the effectors the last drag relaxed (tolerance raised to
-        :data:`workflows.edits.RELAXED_TOLERANCE`); shown by the editor."""
+        :data:`workflows.scene.edits.RELAXED_TOLERANCE`); shown by the editor."""
         self._drag_base: Pose | None = None
         self._reports: dict[int, tuple[SceneCharacter, ConflictReport]] = {}
 
@@ -222,7 +244,7 @@ class EditorState(UndoStacks):
         return view
 
     def conflicts(self, index: int | None = None) -> ConflictReport:
-        """The conflict report of a character (:func:`workflows.edits.conflict_report`: per effector its
+        """The conflict report of a character (:func:`workflows.scene.edits.conflict_report`: per effector its
         residual and the effectors it contradicts); cached until that character changes."""
         i = self.active if index is None else self._check_character(index)
         c = self.scene.characters[i]
@@ -308,8 +330,8 @@ class EditorState(UndoStacks):
 
         Consecutive moves of the same effector are one undo step until :meth:`end_gesture`. With
         :attr:`relax_on_drag` (the default) the first move of a drag raises the tolerance of the effectors it
-        makes stale (:func:`workflows.edits.relax_stale`, listed in :attr:`relaxed`) and every move re-solves
-        the dragged chain on the pose the drag started from (:func:`workflows.edits.solve_drag`).
+        makes stale (:func:`workflows.scene.edits.relax_stale`, listed in :attr:`relaxed`) and every move re-solves
+        the dragged chain on the pose the drag started from (:func:`workflows.scene.edits.solve_drag`).
         """
         k = self._check_effector(index)
         c = self.character()
@@ -381,10 +403,10 @@ class EditorState(UndoStacks):
         self.version += 1
 
     def recover(self, max_effectors: int = 8, *, threshold: float = 0.0) -> tuple[float, ...]:
-        """Greedy effector recovery (:func:`workflows.recovery.recover_effectors`) of the active character's
+        """Greedy effector recovery (:func:`workflows.scene.recovery.recover_effectors`) of the active character's
         estimated pose (the pose it had when the scene was opened; the current pose without one).
         Replaces its effectors; returns the error (metres) after each recovered effector."""
-        from workflows.recovery import RecoveryConfig, TargetPose, recover_effectors
+        from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_effectors
 
         if int(max_effectors) < 1:
             raise EditorError(f"max effectors must be >= 1, got {max_effectors}.")
@@ -400,25 +422,13 @@ class EditorState(UndoStacks):
         """End the current drag / slider gesture: the next edit starts a new undo step."""
         self._gesture = None
 
-    def undo(self) -> bool:
-        """Restore the state before the last edit; False when there is nothing to undo."""
-        if not self._undo:
-            return False
-        self._redo.append(self._now)
-        self._now = self._undo.pop()
-        self._gesture = None
-        self.version += 1
-        return True
+    def _history_state(self) -> Any:
+        return self._now
 
-    def redo(self) -> bool:
-        """Re-apply the last undone edit; False when there is nothing to redo."""
-        if not self._redo:
-            return False
-        self._undo.append(self._now)
-        self._now = self._redo.pop()
+    def _restore(self, state: Any) -> None:
+        self._now = state
         self._gesture = None
         self.version += 1
-        return True
 
     # ------------------------------------------------------------------------- files
 
@@ -443,9 +453,9 @@ class EditorState(UndoStacks):
         return written
 
     def export(self, out_dir: str | Path) -> list[Path]:
-        """Write the posed characters with the scene exporter (:func:`workflows.export.export_scene`, as
+        """Write the posed characters with the scene exporter (:func:`workflows.scene.export.export_scene`, as
         ``smplik scene export``): a BVH of each character's own skeleton and a posed GLB."""
-        from workflows.export import export_scene
+        from workflows.scene.export import export_scene
 
         return list(export_scene(self._posed_scene(), Path(out_dir), formats=("bvh", "glb"),
                                  base_dir=self._loaded_from))
@@ -475,7 +485,7 @@ class EditorState(UndoStacks):
 
     def skeleton_bones(self, index: int | None = None) -> np.ndarray | None:
         """Bones (B, 2, 3) of a character's posed custom skeleton (character space), or None without one."""
-        from workflows.previews import custom_skeleton_segments
+        from workflows.scene.previews import custom_skeleton_segments
 
         custom = self._custom(index)
         if custom is None:
@@ -527,7 +537,7 @@ class EditorState(UndoStacks):
 
     def _solve(self, c: SceneCharacter, moved: int | None = None) -> SceneCharacter:
         """Re-solve from the effectors; without effectors keep the pose's rotations on the new body. ``moved``:
-        the effector being dragged (:func:`workflows.edits.solve_drag` from the pose at the drag's start)."""
+        the effector being dragged (:func:`workflows.scene.edits.solve_drag` from the pose at the drag's start)."""
         if c.effectors:
             try:
                 if moved is not None and self.relax_on_drag:
@@ -568,7 +578,7 @@ class EditorState(UndoStacks):
         return self._skinners[gender]
 
     def _compute_view(self, i: int, c: SceneCharacter) -> CharacterView:
-        from workflows.recovery import TargetPose
+        from workflows.scene.recovery import TargetPose
 
         skinner = self._skinner(c.gender)
         gender, body = self._shaped.get(i, (None, None))

@@ -1,11 +1,11 @@
 """The editor's timeline model for animations (plain Python; :mod:`workflows.editor.timeline_app` wires it to
 the browser).
 
-:class:`AnimationTimeline` holds an :class:`~workflows.animation.Animation` and what a timeline shows and
+:class:`AnimationTimeline` holds an :class:`~workflows.animation.clips.Animation` and what a timeline shows and
 does: the current source frame (scrub, step for playback at the source frame rate, jump between
-keyframes), the scene of the current frame (:func:`workflows.animation_io.scene_of`, effectors on
+keyframes), the scene of the current frame (:func:`workflows.animation.files.scene_of`, effectors on
 keyframes: what :class:`~workflows.editor.state.EditorState` edits), the blend window, and applying a
-frame's edited effectors to the motion (:func:`workflows.animation_edit.edit_keyframe`: only the
+frame's edited effectors to the motion (:func:`workflows.animation.keyframe_edit.edit_keyframe`: only the
 window changes), with undo and redo, and saving through the animation writer.
 """
 
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from smplik.effectors import Effector
-from workflows.animation import Animation, AnimationError
+from workflows.animation.clips import Animation, AnimationError
 from workflows.editor.state import UndoStacks
 from workflows.scene import Scene
 
@@ -38,7 +38,7 @@ class AnimationTimeline(UndoStacks):
 
     @classmethod
     def open(cls, path: str | Path, solver: Any, **kwargs: Any) -> AnimationTimeline:
-        from workflows.animation_io import load_animation
+        from workflows.animation.files import load_animation
 
         return cls(load_animation(path), solver, path=path, **kwargs)
 
@@ -46,9 +46,9 @@ class AnimationTimeline(UndoStacks):
     def open_if_animation(cls, path: str | Path, solver: Any, **kwargs: Any) -> AnimationTimeline | None:
         """The timeline of ``path`` when it is a ``smplik-animation`` file; None for anything else (a scene,
         or a file the scene reader should report on). An invalid animation file: one-line
-        :class:`~workflows.animation_io.AnimationFileError` naming the file and JSON path."""
+        :class:`~workflows.animation.files.AnimationFileError` naming the file and JSON path."""
         from smplik.validation import read_json
-        from workflows.animation_io import ANIMATION_FORMAT, AnimationFileError, animation_from_dict
+        from workflows.animation.files import ANIMATION_FORMAT, AnimationFileError, animation_from_dict
 
         try:
             data = read_json(path, AnimationFileError, what="animation file")
@@ -121,13 +121,13 @@ class AnimationTimeline(UndoStacks):
 
     def scene(self) -> Scene:
         """The current frame as a scene (each track present, its effectors when the frame is a keyframe)."""
-        from workflows.animation_io import scene_of
+        from workflows.animation.files import scene_of
 
         return scene_of(self._animation, self._frame)
 
     def apply(self, track: str, effectors: Sequence[Effector]) -> None:
         """Set the current frame's effectors of ``track`` and blend the re-solved pose over the window."""
-        from workflows.animation_edit import edit_keyframe
+        from workflows.animation.keyframe_edit import edit_keyframe
 
         edited = edit_keyframe(self._animation, track, self._frame, effectors, self._solver, window=self._window,
                                merge=False)  # the frame shows the keyframe's whole list
@@ -146,23 +146,15 @@ class AnimationTimeline(UndoStacks):
                 changed.append(c.name)
         return changed
 
-    def undo(self) -> bool:
-        if not self._undo:
-            return False
-        self._redo.append(self._animation)
-        self._animation = self._undo.pop()
-        return True
+    def _history_state(self) -> Animation:
+        return self._animation
 
-    def redo(self) -> bool:
-        if not self._redo:
-            return False
-        self._undo.append(self._animation)
-        self._animation = self._redo.pop()
-        return True
+    def _restore(self, state: Animation) -> None:
+        self._animation = state
 
     def save(self, path: str | Path | None = None) -> Path:
         """Write the animation (atomically) to ``path`` or the file it was opened from."""
-        from workflows.animation_io import save_animation
+        from workflows.animation.files import save_animation
 
         target = Path(path) if path is not None else self._path
         if target is None:

@@ -2,18 +2,18 @@
 
 :class:`AnimationEditorApp` is the pose editor (:class:`~workflows.editor.app.EditorApp`, same token and
 Origin checks, same gizmos and panels) whose scene is the animation's current frame
-(:func:`workflows.animation_io.scene_of`: every track posed at that frame, its effectors when the frame is
+(:func:`workflows.animation.files.scene_of`: every track posed at that frame, its effectors when the frame is
 a keyframe), plus a *Timeline* panel: play/pause at the source frame rate, a frame slider, previous/next
 keyframe and a keyframe list, the blend window and *Apply*.
 
 Edits on a frame (dragging its effectors, adding or deleting some, recovery) change only the shown pose
 until they are applied: *Apply* -- and also *Save*, or moving to another frame, so no edit is lost -- runs
-:meth:`AnimationTimeline.apply_scene`, i.e. :func:`workflows.animation_edit.edit_keyframe`, the code of
+:meth:`AnimationTimeline.apply_scene`, i.e. :func:`workflows.animation.keyframe_edit.edit_keyframe`, the code of
 ``smplik scene edit-keyframe``: the frame is re-solved from its effectors (the solver with refinement, as
 the command) and the change blended over the window; frames outside it keep their values bit for bit.
 *Undo* takes back the frame's unapplied edits first, then applies, one at a time; *Save* writes the
 animation (``smplik-animation``); *Export* writes the animated BVH and GLB of every track
-(:func:`workflows.animation.export_animation`, as ``scene animate --export``).
+(:func:`workflows.animation.run.export_animation`, as ``scene animate --export``).
 
 Playback runs on its own thread (:meth:`play`): each tick advances as many frames as the source frame
 rate says have passed (frames are skipped when drawing is slower) under the editor's lock, so GUI events
@@ -227,7 +227,7 @@ class AnimationEditorApp(EditorApp):
 
     def export(self) -> list[Path]:
         """Apply the frame's edits, then write every track's animated BVH and GLB into the Export folder."""
-        from workflows.animation import export_animation
+        from workflows.animation.run import export_animation
 
         with self._lock:
             self.apply()

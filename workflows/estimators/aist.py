@@ -18,15 +18,7 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import Gender
-from workflows.estimators.base import (
-    MAX_PEOPLE,
-    EstimatedPerson,
-    EstimateFormatError,
-    make_people,
-    require,
-    rows,
-    scalar,
-)
+from workflows.estimators import base
 
 FORMAT = "aist"
 
@@ -35,16 +27,16 @@ def matches(data: Any) -> bool:
     return isinstance(data, dict) and "smpl_poses" in data and "smpl_trans" in data
 
 
-def from_data(data: Any, *, source: str = "<aist>", frame: int = 0, max_people: int = MAX_PEOPLE
-              ) -> list[EstimatedPerson]:
-    poses = rows(require(data, "smpl_poses", source), "smpl_poses", 72, source)
+def from_data(data: Any, *, source: str = "<aist>", frame: int = 0, max_people: int = base.MAX_PEOPLE
+              ) -> list[base.EstimatedPerson]:
+    poses = base.rows(base.require(data, "smpl_poses", source), "smpl_poses", 72, source)
     T = poses.shape[0]
-    trans = rows(require(data, "smpl_trans", source), "smpl_trans", 3, source, T)
-    scaling = scalar(data.get("smpl_scaling", 1.0), "smpl_scaling", source)
+    trans = base.rows(base.require(data, "smpl_trans", source), "smpl_trans", 3, source, T)
+    scaling = base.scalar(data.get("smpl_scaling", 1.0), "smpl_scaling", source)
     if not scaling > 0:
-        raise EstimateFormatError(f"{source}: 'smpl_scaling' must be positive, got {scaling}.")
+        raise base.EstimateFormatError(f"{source}: 'smpl_scaling' must be positive, got {scaling}.")
     if not 0 <= frame < T:
-        raise EstimateFormatError(f"{source}: frame {frame} out of range (0..{T - 1}).")
-    return make_people(poses[frame:frame + 1], trans[frame:frame + 1] / scaling, np.zeros((1, 10)),
-                       frame_of_reference="world", translation_kind="transl", genders=[Gender.MALE],
-                       person_ids=["0"], frames=[str(frame)], source=f"{source} (aist)", max_people=max_people)
+        raise base.EstimateFormatError(f"{source}: frame {frame} out of range (0..{T - 1}).")
+    return base.make_people(poses[frame:frame + 1], trans[frame:frame + 1] / scaling, np.zeros((1, 10)),
+                            frame_of_reference="world", translation_kind="transl", genders=[Gender.MALE],
+                            person_ids=["0"], frames=[str(frame)], source=f"{source} (aist)", max_people=max_people)

@@ -50,6 +50,7 @@ import torch
 
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, PARENTS, Gender
 from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from workflows.estimators.errors import EstimateFormatError
 
 M_WORLD_CAMERA = np.diag([1.0, -1.0, -1.0])
 """Rotation taking OpenCV camera axes (x right, y down, z forward) to smplik's y-up world."""
@@ -96,10 +97,6 @@ reproduced in public code (e.g. a ``rest_pelvis`` constant of an SMPL-X IMU data
 
 J0_BETA_EFFECT_M = 0.03
 """Order of magnitude (metres) of the rest pelvis' beta dependence neglected without real SMPL files."""
-
-
-class EstimateFormatError(ValueError):
-    """An estimator output file does not have the layout its reader expects (the message names the key)."""
 
 
 @dataclass(frozen=True)

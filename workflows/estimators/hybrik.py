@@ -26,19 +26,8 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import NUM_JOINTS
-from workflows.estimators.base import (
-    MAX_PEOPLE,
-    CameraInfo,
-    EstimatedPerson,
-    EstimateFormatError,
-    finite,
-    image_size_from,
-    make_people,
-    require,
-    rotations_to_axis_angle,
-    rows,
-)
-from workflows.safe_pickle import load_pickle
+from smplik.safe_pickle import load_pickle
+from workflows.estimators import base
 
 FORMAT = "hybrik"
 
@@ -51,28 +40,29 @@ def _stack(value: Any, name: str, source: str) -> np.ndarray:
     """An array, or a list of per-frame arrays, as (T, -1) finite rows."""
     if isinstance(value, (list, tuple)):
         if not value:
-            raise EstimateFormatError(f"{source}: '{name}' is empty.")
-        parts = [finite(v, name, source).reshape(1, -1) for v in value]
+            raise base.EstimateFormatError(f"{source}: '{name}' is empty.")
+        parts = [base.finite(v, name, source).reshape(1, -1) for v in value]
         if len({p.shape[1] for p in parts}) != 1:
-            raise EstimateFormatError(f"{source}: '{name}' entries have different sizes.")
+            raise base.EstimateFormatError(f"{source}: '{name}' entries have different sizes.")
         return np.concatenate(parts)
-    arr = finite(value, name, source)
+    arr = base.finite(value, name, source)
     return arr.reshape(arr.shape[0], -1) if arr.ndim >= 2 else arr.reshape(1, -1)
 
 
 def from_data(data: dict[str, Any], *, source: str = "<hybrik>", frame: int = 0,
-              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
-    thetas = rows(_stack(require(data, "pred_thetas", source), "pred_thetas", source), "pred_thetas",
-                  (NUM_JOINTS * 9, NUM_JOINTS * 4), source)
+              max_people: int = base.MAX_PEOPLE) -> list[base.EstimatedPerson]:
+    thetas = base.rows(_stack(base.require(data, "pred_thetas", source), "pred_thetas", source), "pred_thetas",
+                       (NUM_JOINTS * 9, NUM_JOINTS * 4), source)
     T = thetas.shape[0]
-    betas = rows(_stack(require(data, "pred_betas", source), "pred_betas", source), "pred_betas", (10, 11), source, T)
-    transl = rows(_stack(require(data, "transl", source), "transl", source), "transl", 3, source, T)
+    betas = base.rows(_stack(base.require(data, "pred_betas", source), "pred_betas", source), "pred_betas", (10, 11),
+                      source, T)
+    transl = base.rows(_stack(base.require(data, "transl", source), "transl", source), "transl", 3, source, T)
     if not 0 <= frame < T:
-        raise EstimateFormatError(f"{source}: frame {frame} out of range (0..{T - 1}).")
+        raise base.EstimateFormatError(f"{source}: frame {frame} out of range (0..{T - 1}).")
     size = None
     if "width" in data and "height" in data:
         w, h = (_stack(data[k], k, source).reshape(-1) for k in ("width", "height"))
-        size = image_size_from(w[min(frame, w.size - 1)], h[min(frame, h.size - 1)], source)
+        size = base.image_size_from(w[min(frame, w.size - 1)], h[min(frame, h.size - 1)], source)
     focal = None
     for key in ("focal", "f"):
         if key in data:
@@ -80,10 +70,10 @@ def from_data(data: dict[str, Any], *, source: str = "<hybrik>", frame: int = 0,
             focal = float(values[min(frame, values.size - 1)])
             break
     if focal is None and "bbox" in data:
-        bbox = rows(_stack(data["bbox"], "bbox", source), "bbox", 4, source)
+        bbox = base.rows(_stack(data["bbox"], "bbox", source), "bbox", 4, source)
         focal = 1000.0 / 256.0 * float(bbox[min(frame, bbox.shape[0] - 1), 2] - bbox[min(frame, bbox.shape[0] - 1), 0])
     if focal is not None and not focal > 0:
-        raise EstimateFormatError(f"{source}: HybrIK focal length {focal} must be positive.")
+        raise base.EstimateFormatError(f"{source}: HybrIK focal length {focal} must be positive.")
     row = thetas[frame]
     if row.shape[0] == NUM_JOINTS * 4:
         import torch
@@ -93,11 +83,11 @@ def from_data(data: dict[str, Any], *, source: str = "<hybrik>", frame: int = 0,
         R = quaternion_to_matrix(torch.as_tensor(row.reshape(NUM_JOINTS, 4))).numpy()
     else:
         R = row.reshape(NUM_JOINTS, 3, 3)
-    aa = rotations_to_axis_angle(R[None])
-    return make_people(aa, transl[frame:frame + 1], betas[frame:frame + 1], frame_of_reference="camera",
-                       translation_kind="pelvis", camera=CameraInfo(focal, size), person_ids=["0"],
-                       frames=[str(frame)], source=f"{source} (hybrik)", max_people=max_people)
+    aa = base.rotations_to_axis_angle(R[None])
+    return base.make_people(aa, transl[frame:frame + 1], betas[frame:frame + 1], frame_of_reference="camera",
+                            translation_kind="pelvis", camera=base.CameraInfo(focal, size), person_ids=["0"],
+                            frames=[str(frame)], source=f"{source} (hybrik)", max_people=max_people)
 
 
-def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False) -> list[EstimatedPerson]:
+def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False) -> list[base.EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame)

@@ -24,20 +24,8 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import NUM_JOINTS
-from workflows.estimators.base import (
-    MAX_PEOPLE,
-    CameraInfo,
-    EstimatedPerson,
-    EstimateFormatError,
-    check_people_count,
-    finite,
-    image_size_from,
-    make_people,
-    require,
-    rotations_to_axis_angle,
-    rows,
-)
-from workflows.safe_pickle import load_pickle
+from smplik.safe_pickle import load_pickle
+from workflows.estimators import base
 
 FORMAT = "phalp"
 FOCAL_PER_PIXEL = 5000.0 / 256.0
@@ -51,62 +39,63 @@ def matches(data: Any) -> bool:
 
 
 def from_data(data: dict[str, Any], *, source: str = "<phalp>", frame: int | str = 0,
-              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
+              max_people: int = base.MAX_PEOPLE) -> list[base.EstimatedPerson]:
     if not isinstance(data, dict) or not data:
-        raise EstimateFormatError(f"{source}: expected a dict of frames.")
+        raise base.EstimateFormatError(f"{source}: expected a dict of frames.")
     names = sorted(data, key=str)
     if isinstance(frame, str):
         if frame not in data:
-            raise EstimateFormatError(f"{source}: no frame {frame!r} (first frames: {', '.join(map(str, names[:5]))}).")
+            raise base.EstimateFormatError(
+                f"{source}: no frame {frame!r} (first frames: {', '.join(map(str, names[:5]))}).")
         key = frame
     else:
         if not 0 <= frame < len(names):
-            raise EstimateFormatError(f"{source}: frame {frame} out of range (0..{len(names) - 1}).")
+            raise base.EstimateFormatError(f"{source}: frame {frame} out of range (0..{len(names) - 1}).")
         key = names[frame]
     entry = data[key]
     where = f"{source}[{key!r}]"
-    smpl, cams = require(entry, "smpl", where), require(entry, "camera", where)
+    smpl, cams = base.require(entry, "smpl", where), base.require(entry, "camera", where)
     if not isinstance(smpl, (list, tuple)) or not isinstance(cams, (list, tuple, np.ndarray)):
-        raise EstimateFormatError(f"{where}: 'smpl' and 'camera' must be lists (one entry per person).")
+        raise base.EstimateFormatError(f"{where}: 'smpl' and 'camera' must be lists (one entry per person).")
     if len(smpl) != len(cams):
-        raise EstimateFormatError(f"{where}: {len(smpl)} 'smpl' entries but {len(cams)} 'camera' entries.")
+        raise base.EstimateFormatError(f"{where}: {len(smpl)} 'smpl' entries but {len(cams)} 'camera' entries.")
     if not smpl:
-        raise EstimateFormatError(f"{where}: no people in this frame (choose another --frame).")
-    check_people_count(len(smpl), max_people, where)
+        raise base.EstimateFormatError(f"{where}: no people in this frame (choose another --frame).")
+    base.check_people_count(len(smpl), max_people, where)
     R = np.zeros((len(smpl), NUM_JOINTS, 3, 3))
     betas = np.zeros((len(smpl), 10))
     for i, s in enumerate(smpl):
         at = f"{where}.smpl[{i}]"
-        R[i, 0] = _matrices(require(s, "global_orient", at), 1, "global_orient", at)[0]
-        R[i, 1:] = _matrices(require(s, "body_pose", at), 23, "body_pose", at)
-        b = finite(require(s, "betas", at), "betas", at).reshape(-1)
+        R[i, 0] = _matrices(base.require(s, "global_orient", at), 1, "global_orient", at)[0]
+        R[i, 1:] = _matrices(base.require(s, "body_pose", at), 23, "body_pose", at)
+        b = base.finite(base.require(s, "betas", at), "betas", at).reshape(-1)
         if b.size < 10:
-            raise EstimateFormatError(f"{at}: 'betas' has {b.size} values; expected 10.")
+            raise base.EstimateFormatError(f"{at}: 'betas' has {b.size} values; expected 10.")
         betas[i] = b[:10]
-    camera = rows(cams, "camera", 3, where, len(smpl))
+    camera = base.rows(cams, "camera", 3, where, len(smpl))
     sizes = entry.get("size")
     size = None
     if sizes is not None and len(sizes):
-        first = finite(sizes[0], "size", where).reshape(-1)
+        first = base.finite(sizes[0], "size", where).reshape(-1)
         if first.size != 2:
-            raise EstimateFormatError(f"{where}: 'size' entries must be two numbers.")
-        size = image_size_from(first[0], first[1], where)
+            raise base.EstimateFormatError(f"{where}: 'size' entries must be two numbers.")
+        size = base.image_size_from(first[0], first[1], where)
     focal = FOCAL_PER_PIXEL * max(size) if size else None
     tid = entry.get("tid", list(range(len(smpl))))
     tids = [str(t) for t in (tid.tolist() if isinstance(tid, np.ndarray) else list(tid))]
     if len(tids) != len(smpl):
-        raise EstimateFormatError(f"{where}: {len(tids)} 'tid' entries for {len(smpl)} people.")
-    return make_people(rotations_to_axis_angle(R), camera, betas, frame_of_reference="camera",
-                       translation_kind="transl", camera=CameraInfo(focal, size), person_ids=tids,
-                       frames=[str(key)] * len(smpl), source=f"{source} (phalp)", max_people=max_people)
+        raise base.EstimateFormatError(f"{where}: {len(tids)} 'tid' entries for {len(smpl)} people.")
+    return base.make_people(base.rotations_to_axis_angle(R), camera, betas, frame_of_reference="camera",
+                            translation_kind="transl", camera=base.CameraInfo(focal, size), person_ids=tids,
+                            frames=[str(key)] * len(smpl), source=f"{source} (phalp)", max_people=max_people)
 
 
 def _matrices(value: Any, count: int, name: str, source: str) -> np.ndarray:
-    arr = finite(value, name, source)
+    arr = base.finite(value, name, source)
     if arr.size != count * 9:
-        raise EstimateFormatError(f"{source}: '{name}' has shape {arr.shape}; expected ({count}, 3, 3).")
+        raise base.EstimateFormatError(f"{source}: '{name}' has shape {arr.shape}; expected ({count}, 3, 3).")
     return arr.reshape(count, 3, 3)
 
 
-def read(path: str | Path, *, frame: int | str = 0, trust_pickle: bool = False) -> list[EstimatedPerson]:
+def read(path: str | Path, *, frame: int | str = 0, trust_pickle: bool = False) -> list[base.EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame)

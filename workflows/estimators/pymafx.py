@@ -18,19 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from workflows.estimators.base import (
-    MAX_PEOPLE,
-    CameraInfo,
-    EstimatedPerson,
-    EstimateFormatError,
-    check_people_count,
-    finite,
-    frame_numbers,
-    make_people,
-    require,
-    rows,
-)
-from workflows.safe_pickle import load_pickle
+from smplik.safe_pickle import load_pickle
+from workflows.estimators import base
 
 FORMAT = "pymafx"
 
@@ -46,26 +35,27 @@ def matches(data: Any) -> bool:
 
 
 def from_data(data: dict[Any, Any], *, source: str = "<pymafx>", frame: int = 0,
-              max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
+              max_people: int = base.MAX_PEOPLE) -> list[base.EstimatedPerson]:
     parts = [(None, data)] if _is_flat(data) else list(data.items()) if matches(data) else None
     if parts is None:
-        raise EstimateFormatError(f"{source}: expected keys 'pose', 'betas', 'orig_cam_t' (flat or per person).")
-    check_people_count(len(parts), max_people, source)
+        raise base.EstimateFormatError(f"{source}: expected keys 'pose', 'betas', 'orig_cam_t' (flat or per person).")
+    base.check_people_count(len(parts), max_people, source)
     pose_rows, t_rows, b_rows, ids = [], [], [], []
     for pid, d in parts:
         where = source if pid is None else f"{source}[{pid!r}]"
-        pose = rows(require(d, "pose", where), "pose", 72, where)
+        pose = base.rows(base.require(d, "pose", where), "pose", 72, where)
         N = pose.shape[0]
-        t = rows(require(d, "orig_cam_t", where), "orig_cam_t", 3, where, N)
-        b = finite(require(d, "betas", where), "betas", where)
-        b = np.broadcast_to(b.reshape(1, -1), (N, b.size)) if b.ndim == 1 else rows(b, "betas", b.shape[-1], where, N)
-        f = frame_numbers(d.get("frame_ids", np.zeros(N)), "frame_ids", where)
+        t = base.rows(base.require(d, "orig_cam_t", where), "orig_cam_t", 3, where, N)
+        b = base.finite(base.require(d, "betas", where), "betas", where)
+        b = (np.broadcast_to(b.reshape(1, -1), (N, b.size)) if b.ndim == 1
+             else base.rows(b, "betas", b.shape[-1], where, N))
+        f = base.frame_numbers(d.get("frame_ids", np.zeros(N)), "frame_ids", where)
         if f.shape[0] != N:
-            raise EstimateFormatError(f"{where}: 'frame_ids' has {f.shape[0]} entries for {N} poses.")
+            raise base.EstimateFormatError(f"{where}: 'frame_ids' has {f.shape[0]} entries for {N} poses.")
         if "person_ids" in d:
             p = np.asarray(d["person_ids"]).reshape(-1)
             if p.shape[0] != N:
-                raise EstimateFormatError(f"{where}: 'person_ids' has {p.shape[0]} entries for {N} poses.")
+                raise base.EstimateFormatError(f"{where}: 'person_ids' has {p.shape[0]} entries for {N} poses.")
             pid_of = [str(x) for x in p.tolist()]
         else:
             pid_of = [str(pid) if pid is not None else str(i) for i in range(N)]
@@ -75,15 +65,16 @@ def from_data(data: dict[Any, Any], *, source: str = "<pymafx>", frame: int = 0,
         b_rows += [np.asarray(b)[keep]]
         ids += [pid_of[i] for i in keep]
     if not ids:
-        raise EstimateFormatError(f"{source}: no person in frame {frame}.")
+        raise base.EstimateFormatError(f"{source}: no person in frame {frame}.")
     widths = {b.shape[1] for b in b_rows if b.size}
     if len(widths) > 1:
-        raise EstimateFormatError(f"{source}: 'betas' widths differ between people ({sorted(widths)}).")
-    return make_people(np.concatenate(pose_rows), np.concatenate(t_rows), np.concatenate([b for b in b_rows if b.size]),
-                       frame_of_reference="camera", translation_kind="transl", camera=CameraInfo(),
-                       person_ids=ids, frames=[str(frame)] * len(ids), source=f"{source} (pymafx)",
-                       max_people=max_people)
+        raise base.EstimateFormatError(f"{source}: 'betas' widths differ between people ({sorted(widths)}).")
+    betas = np.concatenate([b for b in b_rows if b.size])
+    return base.make_people(np.concatenate(pose_rows), np.concatenate(t_rows), betas,
+                            frame_of_reference="camera", translation_kind="transl", camera=base.CameraInfo(),
+                            person_ids=ids, frames=[str(frame)] * len(ids), source=f"{source} (pymafx)",
+                            max_people=max_people)
 
 
-def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False) -> list[EstimatedPerson]:
+def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False) -> list[base.EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame)

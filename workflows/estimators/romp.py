@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from smplik.safe_pickle import read_npz
 from workflows.estimators.base import (
     MAX_PEOPLE,
     CameraInfo,
@@ -33,7 +34,6 @@ from workflows.estimators.base import (
     require,
     rows,
 )
-from workflows.safe_pickle import load_npz
 
 FORMAT = "romp"
 
@@ -81,4 +81,4 @@ def from_data(data: dict[str, Any], *, source: str = "<romp>", frame: int = 0,
 
 
 def read(path: str | Path, *, frame: int = 0, translation_kind: TranslationKind = "transl") -> list[EstimatedPerson]:
-    return from_data(load_npz(path), source=str(path), frame=frame, translation_kind=translation_kind)
+    return from_data(read_npz(path), source=str(path), frame=frame, translation_kind=translation_kind)

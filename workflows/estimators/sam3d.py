@@ -69,17 +69,7 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import JOINT_NAMES, NUM_BETAS, Gender
-from workflows.estimators.base import (
-    M_WORLD_CAMERA,
-    MAX_PEOPLE,
-    CameraInfo,
-    EstimatedPerson,
-    EstimateFormatError,
-    check_people_count,
-    finite,
-    require,
-    scalar,
-)
+from workflows.estimators import base
 
 FORMAT = "sam3d"
 NUM_MHR_JOINTS = 127
@@ -138,7 +128,7 @@ def matches(data: Any) -> bool:
 def smpl_targets_world(joint_coords: np.ndarray, cam_t: np.ndarray) -> np.ndarray:
     """MHR joints (N, 127, 3) relative to ``cam_t`` (N, 3), camera frame -> (N, 23, 3) targets of
     :data:`SMPL_TARGETS` in our y-up world (``M @ (coords + cam_t)``)."""
-    return (joint_coords[:, _MHR_INDEX] + cam_t[:, None]) @ M_WORLD_CAMERA.T
+    return (joint_coords[:, _MHR_INDEX] + cam_t[:, None]) @ base.M_WORLD_CAMERA.T
 
 
 def intrinsics_from_keypoints(kp3d_cam: np.ndarray, kp2d: np.ndarray) -> tuple[float, float, float, float]:
@@ -158,25 +148,25 @@ def intrinsics_from_keypoints(kp3d_cam: np.ndarray, kp2d: np.ndarray) -> tuple[f
     return float(sol[0]), float(sol[1]), float(sol[2]), float(np.abs(A @ sol - b).max())
 
 
-def _camera(person: dict, cam_t: np.ndarray, where: str) -> CameraInfo:
+def _camera(person: dict, cam_t: np.ndarray, where: str) -> base.CameraInfo:
     """The producer's camera: ``focal_length``; f, cx, cy from the keypoints; else its default (diagonal)."""
     focal = None
     if person.get("focal_length") is not None:
-        focal = scalar(person["focal_length"], "focal_length", where)
+        focal = base.scalar(person["focal_length"], "focal_length", where)
         if not 0 < focal < 1e7:
-            raise EstimateFormatError(f"{where}: 'focal_length' {focal} must be positive.")
+            raise base.EstimateFormatError(f"{where}: 'focal_length' {focal} must be positive.")
     kp3d, kp2d = person.get("pred_keypoints_3d"), person.get("pred_keypoints_2d")
     if kp3d is not None and kp2d is not None:
-        kp3d = finite(kp3d, "pred_keypoints_3d", where)
-        kp2d = finite(kp2d, "pred_keypoints_2d", where)
+        kp3d = base.finite(kp3d, "pred_keypoints_3d", where)
+        kp2d = base.finite(kp2d, "pred_keypoints_2d", where)
         if kp3d.ndim == 2 and kp3d.shape[1] == 3 and kp2d.shape == kp3d.shape[:1] + (2,):
             f, cx, cy, residual = intrinsics_from_keypoints(kp3d + cam_t, kp2d)
             if residual < 1.0 and f > 0 and cx > 0 and cy > 0 and np.isfinite([f, cx, cy]).all():
                 size = (int(round(2 * cx)), int(round(2 * cy)))
-                return CameraInfo(f if focal is None else focal, size, principal_px=(cx, cy))
+                return base.CameraInfo(f if focal is None else focal, size, principal_px=(cx, cy))
     if focal is not None:
-        return CameraInfo(focal)
-    return CameraInfo(focal_rule="diagonal")
+        return base.CameraInfo(focal)
+    return base.CameraInfo(focal_rule="diagonal")
 
 
 @functools.lru_cache(maxsize=1)
@@ -198,8 +188,8 @@ def fit_smpl(targets_world: np.ndarray, source: str = "<sam3d>", solver: Any = N
         try:
             solver = _solver()
         except (FileNotFoundError, ValueError) as exc:
-            raise EstimateFormatError(f"{source}: fitting SMPL to MHR joints needs the SMPL-IK model "
-                                      f"({' '.join(str(exc).split())[:200]}).") from None
+            raise base.EstimateFormatError(f"{source}: fitting SMPL to MHR joints needs the SMPL-IK model "
+                                           f"({' '.join(str(exc).split())[:200]}).") from None
     rows = [[Effector.position(j, t[k]) for k, j in enumerate(SMPL_TARGETS)] for t in targets_world]
     return solver.solve_batch(rows, betas=np.zeros((len(rows), NUM_BETAS)), gender=Gender.NEUTRAL)
 
@@ -208,38 +198,38 @@ def _people_list(data: Any, source: str) -> list[dict]:
     people = list(data) if isinstance(data, (list, tuple)) else [data]
     for i, p in enumerate(people):
         if not isinstance(p, dict):
-            raise EstimateFormatError(f"{source}: person {i} is a {type(p).__name__}; expected a dict of arrays.")
+            raise base.EstimateFormatError(f"{source}: person {i} is a {type(p).__name__}; expected a dict of arrays.")
     return people
 
 
-def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0, max_people: int = MAX_PEOPLE,
-              solver: Any = None) -> list[EstimatedPerson]:
+def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0, max_people: int = base.MAX_PEOPLE,
+              solver: Any = None) -> list[base.EstimatedPerson]:
     """The people of a SAM-3D-Body result, their SMPL poses fitted by ``solver`` (an
     :class:`smplik.solver.IKSolver`; default the shipped model); see the module docstring."""
     if frame != 0:
-        raise EstimateFormatError(f"{source}: a SAM-3D-Body result is one image and has only frame 0, "
-                                  f"got --frame {frame}.")
+        raise base.EstimateFormatError(f"{source}: a SAM-3D-Body result is one image and has only frame 0, "
+                                       f"got --frame {frame}.")
     data = _unwrap(data)
     people = _people_list(data, source)
     if not people:
-        raise EstimateFormatError(f"{source}: no people found.")
-    check_people_count(len(people), max_people, source)
+        raise base.EstimateFormatError(f"{source}: no people found.")
+    base.check_people_count(len(people), max_people, source)
     coords, cam_ts, cameras = [], [], []
     for i, p in enumerate(people):
         where = source if len(people) == 1 and not isinstance(data, (list, tuple)) else f"{source}[{i}]"
-        c = finite(require(p, "pred_joint_coords", where), "pred_joint_coords", where)
+        c = base.finite(base.require(p, "pred_joint_coords", where), "pred_joint_coords", where)
         if c.shape != (NUM_MHR_JOINTS, 3):
-            raise EstimateFormatError(f"{where}: 'pred_joint_coords' has shape {c.shape}; expected "
-                                      f"({NUM_MHR_JOINTS}, 3) (the MHR rig's joints).")
+            raise base.EstimateFormatError(f"{where}: 'pred_joint_coords' has shape {c.shape}; expected "
+                                           f"({NUM_MHR_JOINTS}, 3) (the MHR rig's joints).")
         if np.abs(c).max() > _MAX_COORD_M:
-            raise EstimateFormatError(f"{where}: 'pred_joint_coords' reach {np.abs(c).max():.3g} m from "
-                                      f"pred_cam_t; a body is about 2 m across (expected metres).")
-        t = finite(require(p, "pred_cam_t", where), "pred_cam_t", where).reshape(-1)
+            raise base.EstimateFormatError(f"{where}: 'pred_joint_coords' reach {np.abs(c).max():.3g} m from "
+                                           f"pred_cam_t; a body is about 2 m across (expected metres).")
+        t = base.finite(base.require(p, "pred_cam_t", where), "pred_cam_t", where).reshape(-1)
         if t.shape != (3,):
-            raise EstimateFormatError(f"{where}: 'pred_cam_t' has {t.shape[0]} numbers; expected 3.")
+            raise base.EstimateFormatError(f"{where}: 'pred_cam_t' has {t.shape[0]} numbers; expected 3.")
         if np.abs(t).max() > _MAX_CAM_T_M:
-            raise EstimateFormatError(f"{where}: 'pred_cam_t' of {np.abs(t).max():.3g} m is outside the physical "
-                                      f"range (|t| <= {_MAX_CAM_T_M:g} m).")
+            raise base.EstimateFormatError(f"{where}: 'pred_cam_t' of {np.abs(t).max():.3g} m is outside the physical "
+                                           f"range (|t| <= {_MAX_CAM_T_M:g} m).")
         coords.append(c)
         cam_ts.append(t)
         cameras.append(_camera(p, t, where))
@@ -250,7 +240,7 @@ def from_data(data: Any, *, source: str = "<sam3d>", frame: int = 0, max_people:
     for i, pose in enumerate(poses):
         if not (np.isfinite(pose.global_orient).all() and np.isfinite(pose.body_pose).all()
                 and np.isfinite(pose.transl).all()):
-            raise EstimateFormatError(f"{source}: the SMPL fit of person {i} is not finite.")
-        out.append(EstimatedPerson(pose.global_orient, pose.body_pose, pose.transl, pose.betas, Gender.NEUTRAL,
-                                   cameras[i], str(i), "0", label))
+            raise base.EstimateFormatError(f"{source}: the SMPL fit of person {i} is not finite.")
+        out.append(base.EstimatedPerson(pose.global_orient, pose.body_pose, pose.transl, pose.betas, Gender.NEUTRAL,
+                                        cameras[i], str(i), "0", label))
     return out

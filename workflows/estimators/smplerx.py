@@ -78,8 +78,8 @@ def _person(data: Any, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.MAX_PEOPLE
          ) -> list[EstimatedPerson]:
     """The people of one frame (see the module docstring)."""
+    from smplik.safe_pickle import read_npz
     from workflows.estimators.pose_array import EstimateNote
-    from workflows.safe_pickle import load_npz
 
     path = Path(path)
     source = str(path)
@@ -96,7 +96,7 @@ def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.
     if not files:
         raise EstimateFormatError(f"{source}: no SMPLer-X file {frame:05d}_*.npz in {path.parent}.")
     base.check_people_count(len(files), max_people, source)
-    people = [_person(data if f == path else load_npz(f), str(f)) for f in files]
+    people = [_person(data if f == path else read_npz(f), str(f)) for f in files]
     pose = np.stack([p[0] for p in people])
     transl = np.stack([p[1] for p in people])
     betas = np.zeros((len(people), 10))

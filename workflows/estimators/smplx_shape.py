@@ -47,7 +47,7 @@ SMPLX_ENV = "SMPLIK_SMPLX_MODEL"
 def smplx_model_path() -> Path | None:
     """The user's SMPL-X neutral model file (``$SMPLIK_SMPLX_MODEL``, else the model folder), or None."""
     from smplik.body_model import resolve_model_dir
-    from workflows.estimators.base import EstimateFormatError
+    from workflows.estimators.errors import EstimateFormatError
 
     given = os.environ.get(SMPLX_ENV, "")
     if given:
@@ -68,7 +68,7 @@ def smplx_model_path() -> Path | None:
 @functools.lru_cache(maxsize=4)
 def smplx_skeleton(path: str) -> tuple[np.ndarray, np.ndarray]:
     """SMPL-X's rest landmarks (:func:`_landmarks`), linear in beta: ``(24, 3)``, ``(24, 3, 10)`` (float64)."""
-    from workflows.estimators.base import EstimateFormatError
+    from workflows.estimators.errors import EstimateFormatError
 
     try:
         with np.load(path, allow_pickle=False) as npz:

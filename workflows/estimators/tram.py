@@ -52,8 +52,8 @@ def matches(data: Any) -> bool:
 def _camera(track_folder: Path, source: str) -> tuple[base.CameraInfo, dict | None, Path]:
     """The camera of ``<seq>/camera.npy`` (TRAM's layout: the track files sit in ``<seq>/hps/``), else of a
     ``camera.npy`` beside the track files."""
+    from smplik.safe_pickle import read_npy
     from workflows.estimators.pose_array import EstimateNote
-    from workflows.safe_pickle import read_npy
 
     path = next((p for p in (track_folder.parent / "camera.npy", track_folder / "camera.npy") if p.is_file()),
                 track_folder.parent / "camera.npy")
@@ -114,7 +114,7 @@ def _row(data: Any, frame: int, where: str) -> tuple[np.ndarray, np.ndarray, np.
 def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.MAX_PEOPLE,
          space: Literal["camera", "world"] = "camera") -> list[EstimatedPerson]:
     """Every track of ``path``'s folder that covers video ``frame`` (see the module docstring)."""
-    from workflows.safe_pickle import read_npy
+    from smplik.safe_pickle import read_npy
 
     path = Path(path)
     source = str(path)

@@ -23,19 +23,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from workflows.estimators.base import (
-    MAX_PEOPLE,
-    CameraInfo,
-    EstimatedPerson,
-    EstimateFormatError,
-    check_people_count,
-    finite,
-    frame_numbers,
-    make_people,
-    require,
-    rows,
-)
-from workflows.safe_pickle import load_pickle
+from smplik.safe_pickle import load_pickle
+from workflows.estimators import base
 
 FORMAT = "wham"
 
@@ -48,40 +37,41 @@ def matches(data: Any) -> bool:
 
 
 def from_data(data: dict[Any, Any], *, source: str = "<wham>", frame: int = 0,
-              space: Literal["world", "camera"] = "world", max_people: int = MAX_PEOPLE) -> list[EstimatedPerson]:
+              space: Literal["world", "camera"] = "world", max_people: int = base.MAX_PEOPLE
+              ) -> list[base.EstimatedPerson]:
     if not matches(data):
-        raise EstimateFormatError(f"{source}: expected {{track_id: {{'pose', 'trans', 'betas', ...}}}}.")
-    check_people_count(len(data), max_people, source)
-    people: list[EstimatedPerson] = []
+        raise base.EstimateFormatError(f"{source}: expected {{track_id: {{'pose', 'trans', 'betas', ...}}}}.")
+    base.check_people_count(len(data), max_people, source)
+    people: list[base.EstimatedPerson] = []
     covered: list[int] = []
     for tid, t in data.items():
         where = f"{source}[{tid!r}]"
         if not isinstance(t, dict):
-            raise EstimateFormatError(f"{where}: expected a dict of arrays.")
+            raise base.EstimateFormatError(f"{where}: expected a dict of arrays.")
         world = space == "world" and "pose_world" in t and "trans_world" in t
-        pose = rows(require(t, "pose_world" if world else "pose", where), "pose", 72, where)
+        pose = base.rows(base.require(t, "pose_world" if world else "pose", where), "pose", 72, where)
         T = pose.shape[0]
-        trans = rows(require(t, "trans_world" if world else "trans", where), "trans", 3, where, T)
-        betas = finite(require(t, "betas", where), "betas", where)
+        trans = base.rows(base.require(t, "trans_world" if world else "trans", where), "trans", 3, where, T)
+        betas = base.finite(base.require(t, "betas", where), "betas", where)
         betas = betas.reshape(1, -1) if betas.ndim == 1 else betas.reshape(betas.shape[0], -1)
-        ids = frame_numbers(t.get("frame_ids", np.arange(T)), "frame_ids", where)
+        ids = base.frame_numbers(t.get("frame_ids", np.arange(T)), "frame_ids", where)
         if ids.shape[0] != T:
-            raise EstimateFormatError(f"{where}: 'frame_ids' has {ids.shape[0]} entries for {T} poses.")
+            raise base.EstimateFormatError(f"{where}: 'frame_ids' has {ids.shape[0]} entries for {T} poses.")
         covered += [int(ids.min()), int(ids.max())] if T else []
         hit = np.nonzero(ids == frame)[0]
         if hit.size == 0:
             continue
         r = int(hit[0])
-        people += make_people(pose[r:r + 1], trans[r:r + 1], betas[min(r, betas.shape[0] - 1)][None],
-                              frame_of_reference="world" if world else "camera", translation_kind="transl",
-                              camera=CameraInfo(focal_rule="diagonal"), person_ids=[str(tid)],
-                              frames=[str(frame)], source=f"{source} (wham)")
+        people += base.make_people(pose[r:r + 1], trans[r:r + 1], betas[min(r, betas.shape[0] - 1)][None],
+                                   frame_of_reference="world" if world else "camera", translation_kind="transl",
+                                   camera=base.CameraInfo(focal_rule="diagonal"), person_ids=[str(tid)],
+                                   frames=[str(frame)], source=f"{source} (wham)")
     if not people:
         span = f" (tracks cover frames {min(covered)}..{max(covered)})" if covered else ""
-        raise EstimateFormatError(f"{source}: no track covers frame {frame}{span}.")
+        raise base.EstimateFormatError(f"{source}: no track covers frame {frame}{span}.")
     return people
 
 
 def read(path: str | Path, *, frame: int = 0, trust_pickle: bool = False,
-         space: Literal["world", "camera"] = "world") -> list[EstimatedPerson]:
+         space: Literal["world", "camera"] = "world") -> list[base.EstimatedPerson]:
     return from_data(load_pickle(path, trust_pickle=trust_pickle), source=str(path), frame=frame, space=space)

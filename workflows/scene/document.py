@@ -55,9 +55,8 @@ import numpy as np
 from shape_inversion.options import CharacterOptions
 from smplik.atomic import write_json_atomic
 from smplik.conventions import NUM_BETAS, EffectorType, Gender
-from smplik.data.bvh import DEFAULT_MAX_JOINTS
 from smplik.effector_schema import MAX_EFFECTORS
-from smplik.effectors import Effector, parse_effector_dict
+from smplik.effectors import parse_effector_dict
 from smplik.pose import Pose
 from smplik.validation import (
     MAX_ABS_POSITION_M,
@@ -70,100 +69,18 @@ from smplik.validation import (
     short_repr,
 )
 from workflows.estimators.base import CameraInfo
+from workflows.scene.characters import (
+    GroundRecord,
+    SceneCharacter,
+    SceneError,
+    SkeletonSource,
+    solve_character,
+)
 
 SCENE_FORMAT = "smplik-scene"
 SCENE_VERSION = 1
 MAX_CHARACTERS = 100
 """Most characters a scene file may hold (``load_scene(..., max_characters=)`` raises it)."""
-
-
-class SceneError(ValueError):
-    """A scene file is invalid; the message names the JSON path."""
-
-
-@dataclass(frozen=True)
-class SkeletonSource:
-    """Where a custom character's skeleton comes from: a file and how to read it.
-
-    The fields after ``path`` are those of :class:`shape_inversion.options.CharacterOptions` (same
-    names, defaults and meaning), so ``scene solve`` / ``scene export`` re-read the character exactly
-    as ``scene from-estimate --character`` did.
-    """
-
-    path: str
-    rig: str | None = None
-    map: str | None = None
-    units: str = "auto"
-    up: str = "auto"
-    rest: str = "auto"
-    bind: str = "inverse_bind"
-    positions: str = "auto"
-    max_joints: int = DEFAULT_MAX_JOINTS
-    root: str | None = None
-    joint_map: dict[str, str] | None = None
-    """The SMPL joint -> rig joint map the character was read with (a record; re-reading maps it again)."""
-
-    def __hash__(self) -> int:
-        # The dataclass hash would hash the joint_map dict (unhashable); hash its items instead, so a
-        # skeleton record can key caches (the editor's per-character cache) like every other field.
-        fields = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "joint_map")
-        items = None if self.joint_map is None else tuple(sorted(self.joint_map.items()))
-        return hash((fields, items))
-
-    @classmethod
-    def from_options(cls, path: str, options: CharacterOptions,
-                     joint_map: Mapping[str, str] | None = None) -> SkeletonSource:
-        return cls(path, **options.to_dict(), joint_map=None if joint_map is None else dict(joint_map))
-
-    @property
-    def options(self) -> CharacterOptions:
-        """The character options (validated)."""
-        data = dataclasses.asdict(self)
-        data.pop("path")
-        data.pop("joint_map")
-        return CharacterOptions.from_dict(data)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-
-@dataclass(frozen=True)
-class SceneCharacter:
-    """One character: its SMPL body, scale, optional custom skeleton, effectors and solved pose."""
-
-    name: str
-    gender: Gender
-    betas: np.ndarray
-    scale: float = 1.0
-    skeleton: SkeletonSource | None = None
-    effectors: tuple[Effector, ...] = ()
-    pose: Pose | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "gender": self.gender.value,
-            "betas": [float(b) for b in self.betas],
-            "scale": float(self.scale),
-            "skeleton": None if self.skeleton is None else self.skeleton.to_dict(),
-            "effectors": [e.to_dict() for e in self.effectors],
-            "pose": None if self.pose is None else self.pose.to_dict(),
-        }
-
-
-@dataclass(frozen=True)
-class GroundRecord:
-    """``--ground``: the people were moved up onto a floor (their lowest point at y = 0).
-
-    Attributes:
-        camera_height_m: the shift; the world is the camera frame moved up by it, so the estimator's
-            camera centre sits at ``(0, camera_height_m, 0)`` (same orientation) and overlays still fit.
-    """
-
-    camera_height_m: float = 0.0
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"camera_height_m": float(self.camera_height_m)}
 
 
 @dataclass(frozen=True)
@@ -180,11 +97,11 @@ class Scene:
              rotation: Any = None, tolerance: float = 0.0, solver: Any = None) -> Scene:
         """A scripted drag, as in the editor: this scene with ``character``'s effector on ``joint`` moved (or
         added) and the character re-solved so that only the dragged limb moves
-        (:func:`workflows.edits.drag_scene_effector`, which also returns what was relaxed).
+        (:func:`workflows.scene.edits.drag_scene_effector`, which also returns what was relaxed).
 
         Exactly one of ``position`` (3,) (character space, metres), ``offset`` (3,) (from where the stored pose
         has the joint) or ``rotation`` (3, 3) (world); ``solver``: default the shipped model."""
-        from workflows.edits import drag_scene_effector
+        from workflows.scene.edits import drag_scene_effector
 
         return drag_scene_effector(self, character, joint, position=position, offset=offset, rotation=rotation,
                                    tolerance=tolerance, solver=solver)[0]
@@ -358,40 +275,9 @@ def save_scene(scene: Scene, path: str | Path) -> Path:
     return write_json_atomic(path, data)
 
 
-# ----------------------------------------------------------------------------- solving
-
-
-def scale_effector(effector: Effector, factor: float) -> Effector:
-    """The effector with its position / look-at target multiplied by ``factor`` (rotations unchanged)."""
-    if effector.type == EffectorType.ROTATION:
-        return effector
-    return dataclasses.replace(effector, value=np.asarray(effector.value) * factor)
-
-
-def solve_character(character: SceneCharacter, solver: Any) -> SceneCharacter:
-    """Re-solve one character from its effectors (character space) and shape; no effectors: unchanged."""
-    if not character.effectors:
-        return character
-    effectors = [scale_effector(e, 1.0 / character.scale) for e in character.effectors]
-    pose = solver.solve(effectors, betas=character.betas, gender=character.gender)
-    return dataclasses.replace(character, pose=pose)
-
-
 def solve_scene(scene: Scene, solver: Any, *, only: Sequence[str] | None = None) -> Scene:
     """Re-solve every character (or those named in ``only``) exactly from all its effectors with ``solver.solve``
     (an IKSolver): ``smplik scene solve --exact``. Plain ``scene solve`` solves only the effectors the stored pose
-    does not meet, as drags (:func:`workflows.edits.solve_scene_edits`)."""
+    does not meet, as drags (:func:`workflows.scene.edits.solve_scene_edits`)."""
     chars = tuple(solve_character(c, solver) if only is None or c.name in only else c for c in scene.characters)
     return dataclasses.replace(scene, characters=chars)
-
-
-def character_joints(character: SceneCharacter) -> np.ndarray | None:
-    """The character's posed joints in character space (24, 3), or None without a pose."""
-    if character.pose is None:
-        return None
-    joints = character.pose.joints
-    if joints is None:
-        from workflows.recovery import TargetPose
-
-        joints = TargetPose.from_pose(character.pose).p_world.double().numpy()
-    return np.asarray(joints) * character.scale

@@ -8,15 +8,15 @@ Steps (:func:`animate_file`):
    error naming the missing frames); with ``--frames A:B`` every kept track must cover A..B-1.
 2. **Body per track**: the track's mean betas and first gender at scale 1, or the custom
    character's SMPL-SI body (``betas``, ``gender``, ``scale``); each frame is retargeted onto it as
-   ``from-estimate`` does (:func:`workflows.pipeline.retarget_to_body`: local rotations kept, pelvis
+   ``from-estimate`` does (:func:`workflows.scene.pipeline.retarget_to_body`: local rotations kept, pelvis
    at its world position).
-3. **Cleaning** (:mod:`workflows.motion_clean`): glitch repair, then (default) a sequence solve over all frames
-   with the foot locks (:func:`workflows.motion_clean.sequence_clean`), or a filter and foot locking.
+3. **Cleaning** (:mod:`workflows.animation.clean`): glitch repair, then (default) a sequence solve over all frames
+   with the foot locks (:func:`workflows.animation.clean.sequence_clean`), or a filter and foot locking.
 4. **Keyframes** (:func:`select_keyframes`): the first and last frame, then, worst interval first, the frame
    where interpolating the neighbouring keyframes' poses (slerp of local rotations, linear root)
    errs most, while that error (mean joint distance, character space) is above a threshold (at least the
    estimate's noise, :func:`keyframe_threshold`) and the keyframes are at most ``max_keyframe_share`` of the frames.
-5. **Effectors on keyframes**: :func:`workflows.recovery.recover_many` on all keyframes of all
+5. **Effectors on keyframes**: :func:`workflows.scene.recovery.recover_many` on all keyframes of all
    tracks in one batch.
 
 Spaces: as in scenes, poses are in SMPL space (character = SMPL body scaled by ``scale``), effectors in
@@ -39,8 +39,7 @@ from scipy.spatial.transform import Rotation
 from smplik.conventions import Gender
 from smplik.effectors import Effector
 from smplik.pose import Pose
-from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
-from workflows.motion_clean import (
+from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
     foot_contacts,
@@ -53,8 +52,9 @@ from workflows.motion_clean import (
     smooth_motion,
     split_on_lift,
 )
-from workflows.recovery import RecoveryConfig, TargetPose, TensorSolver
+from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
 from workflows.scene import SkeletonSource
+from workflows.scene.recovery import RecoveryConfig, TargetPose, TensorSolver
 
 MAX_FRAMES = 100_000
 """Most frames read from one file by default (55 minutes at 30 frames/s; ``max_frames`` raises it)."""
@@ -305,9 +305,9 @@ def _noted(read: Callable[[], Any], notes: dict[str, None]) -> Any:
 def read_folder_clip(path: Path, *, format: str = "auto", trust_pickle: bool = False, space: str | None = None,
                      max_people: int | None = None, max_bytes: int | None = None, solver: Any = None,
                      frames: tuple[int, int] | None = None, max_frames: int = MAX_FRAMES) -> Clip:
-    """:func:`read_clip` of a folder of per-frame outputs (:mod:`workflows.estimators.folders`): every frame read,
+    """:func:`read_clip` of a folder of per-frame outputs (:mod:`workflows.estimators.reading`): every frame read,
     moved into the first person's camera, people linked into tracks by nearest pelvis."""
-    from workflows.estimators.folders import match_tracks, read_folder_frame, scan_folder, to_camera
+    from workflows.estimators.reading import match_tracks, read_folder_frame, scan_folder, to_camera
 
     notes: dict[str, None] = {}
     folder = scan_folder(path, format=format, trust_pickle=trust_pickle, max_bytes=max_bytes)
@@ -674,8 +674,8 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
                         camera: CameraInfo | None = None, progress: Progress | None = None
                         ) -> tuple[Animation, list[TrackMotion]]:
     """Build the :class:`Animation` of a read clip (module docstring, steps 2-5)."""
-    from workflows.pipeline import retarget_to_body
-    from workflows.recovery import recover_many
+    from workflows.scene.pipeline import retarget_to_body
+    from workflows.scene.recovery import recover_many
 
     config = AnimateConfig() if config is None else config
     rate = fps if fps is not None else clip.fps
@@ -738,67 +738,3 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
     tracks = [dataclasses.replace(t, keyframes=tuple(keyframes.get(n, ()))) for n, t in enumerate(tracks)]
     return Animation(tuple(tracks), float(rate), clip.source, clip.format, clip.space,
                      camera if clip.space == "camera" else None, clean_cfg, depth_change, tuple(notes)), motions
-
-
-@dataclass(frozen=True)
-class AnimateOutputs:
-    """Files written by :func:`animate_file`, and the animation with its before/after motions."""
-
-    animation_file: Path
-    exported: tuple[Path, ...]
-    animation: Animation
-    motions: tuple[TrackMotion, ...]
-
-    @property
-    def all_files(self) -> tuple[Path, ...]:
-        return (self.animation_file, *self.exported)
-
-
-def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSolver, *, format: str = "auto",
-                 frames: str = "all", fps: float | None = None, track: str | None = None,
-                 character_path: str | Path | None = None, character_options: Any = None,
-                 config: AnimateConfig | None = None, trust_pickle: bool = False, space: str | None = None,
-                 max_people: int | None = None, max_bytes: int | None = None, formats: Sequence[str] = ("bvh",),
-                 max_frames: int = MAX_FRAMES, progress: Progress | None = None) -> AnimateOutputs:
-    """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
-    ``formats`` of :func:`workflows.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF characters))."""
-    from workflows.animation_io import save_animation
-    from workflows.export import FORMATS
-
-    bad = [f for f in formats if f not in FORMATS]
-    if bad:
-        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
-    span = parse_frames(frames)
-    character = skeleton = None
-    if character_path is not None:
-        from shape_inversion.options import CharacterOptions
-        from workflows.character import load_character
-
-        options = CharacterOptions() if character_options is None else character_options
-        character = load_character(character_path, options)
-        skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
-    clip = read_clip(results_path, format=format, trust_pickle=trust_pickle, space=space, max_people=max_people,
-                     max_bytes=max_bytes, solver=solver, frames=span, max_frames=max_frames, progress=progress)
-    first = next(iter(clip.tracks.values()))[0][1]
-    animation, motions = animation_from_clip(clip, solver, fps=fps, track=track, frames=span, character=character,
-                                             skeleton=skeleton, config=config, camera=first.camera,
-                                             progress=progress)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = save_animation(animation, out / "animation.json")
-    written = export_animation(animation, out, formats) if formats else []
-    return AnimateOutputs(path, tuple(written), animation, tuple(motions))
-
-
-def export_animation(animation: Animation, out_dir: str | Path, formats: Sequence[str] = ("bvh",),
-                     base_dir: str | Path | None = None) -> list[Path]:
-    """Per track, the animation at its frame rate as ``formats`` (:func:`workflows.export.export_scene`): the
-    clip's frames only, in the animation's world frame (metres, y-up), like every scene export."""
-    from workflows.animation_io import scene_of
-    from workflows.export import export_scene
-
-    return export_scene(scene_of(animation), out_dir, formats=formats, frame_time=1.0 / animation.fps,
-                        poses={t.name: t.poses() for t in animation.tracks}, base_dir=base_dir,
-                        keep_source_frames=False)

@@ -3,7 +3,7 @@
 :func:`keyframe_edit` merges the given effectors (character space) into the keyframe's recovered effectors
 (:func:`merge_effectors`: an effector of the same joint and type is replaced, the others are kept; at a frame
 that is no keyframe there are none to keep) and solves the frame as the editor solves drags
-(:func:`workflows.edits.solve_scripted`): the given effectors the frame's pose does not meet are the moved
+(:func:`workflows.scene.edits.solve_scripted`): the given effectors the frame's pose does not meet are the moved
 ones; each relaxes the stale effectors of its chain (tolerance raised to 1) and is solved from the frame's
 pose, its limb re-posed and the rest of the body kept. That gives the change ``D_j = R_old_j^T R_new_j`` of
 every local rotation and ``dt`` of the root translation at that frame. Frames within ``window`` of it receive
@@ -29,8 +29,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from smplik.effectors import Effector
-from workflows.animation import Animation, AnimationError, Keyframe, axis_angle_to_local
-from workflows.edits import ScriptedEdit
+from workflows.animation.clips import Animation, AnimationError, Keyframe, axis_angle_to_local
+from workflows.scene.edits import ScriptedEdit
 
 
 def blend_weights(num_rows: int, center: int, window: int) -> np.ndarray:
@@ -59,7 +59,7 @@ class KeyframeEdit:
         track: the track's name; frame: the source frame.
         given: how many effectors were given; kept: how many of the keyframe's were kept as they were;
         replaced: how many of the keyframe's the given ones replaced.
-        solve: what the frame's solve did (:class:`workflows.edits.ScriptedEdit`: moved, relaxed).
+        solve: what the frame's solve did (:class:`workflows.scene.edits.ScriptedEdit`: moved, relaxed).
         window: the blend window (frames on each side).
     """
 
@@ -100,7 +100,7 @@ def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Seque
     ``merge=False``: ``effectors`` are the keyframe's whole new list (the editor's *Apply*, whose frame shows
     every effector of the keyframe: one deleted there stays deleted); the moved ones are still solved as drags.
     """
-    from workflows.edits import solve_scripted
+    from workflows.scene.edits import solve_scripted
 
     matches = [i for i, t in enumerate(animation.tracks) if track in (t.name, t.track_id)]
     if not matches:

@@ -1,5 +1,7 @@
 """``smplik data build``: BVH or AMASS folder -> pose cache ``.npz`` (see :mod:`smplik.data.dataset`).
 
+It lives above smplik: ``--preset auto`` is the rig mapper of shape_inversion.
+
 :func:`build` is a typer command function; mount it with ``app.command("build")(build)``.
 """
 
@@ -59,6 +61,7 @@ def build(
     model_dir: ModelDirOpt = None,
 ) -> None:
     """Build a training cache from a BVH folder (--bvh) or an AMASS folder (--amass)."""
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.data import dataset
 
     if (bvh is None) == (amass is None):

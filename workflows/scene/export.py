@@ -47,7 +47,8 @@ from workflows.character import (
     custom_bvh_text,
     smpl_to_custom,
 )
-from workflows.scene import Scene, SceneCharacter
+from workflows.scene.characters import SceneCharacter
+from workflows.scene.document import Scene
 
 FORMATS = ("bvh", "glb")
 

@@ -7,7 +7,7 @@ optionally put on a floor (``ground``), then per estimated person:
    body SMPL-SI fitted to it (``character.betas``, ``scale``, ``gender``).
 2. Retargeting onto that body: the estimated local rotations are kept; the pelvis stays where the
    estimator put it in the world (character space), so in SMPL space it is divided by ``scale``.
-3. Effector recovery (:mod:`workflows.recovery`, all people batched together) on that target gives
+3. Effector recovery (:mod:`workflows.scene.recovery`, all people batched together) on that target gives
    a few effectors and the pose they solve to; both go into the scene.
 4. With a custom character, the solved pose is retargeted onto the custom skeleton
    (:func:`workflows.character.smpl_to_custom`) for BVH export.
@@ -28,8 +28,9 @@ from smplik.pose import Pose
 from smplik.solver import IKSolver
 from workflows.character import CharacterOptions, CustomCharacter, CustomPose, smpl_to_custom
 from workflows.estimators.base import EstimatedPerson
-from workflows.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_many
-from workflows.scene import GroundRecord, Scene, SceneCharacter, SkeletonSource
+from workflows.scene.characters import GroundRecord, SceneCharacter, SkeletonSource
+from workflows.scene.document import Scene
+from workflows.scene.recovery import RecoveryConfig, RecoveryResult, TargetPose, TensorSolver, recover_many
 
 Progress = Callable[[int, int, str], None]
 """``progress(done, total, what)``: called after each greedy recovery step (e.g. to drive a progress bar)."""
@@ -101,7 +102,7 @@ def scene_from_people(
     """Build an editable scene from estimated people (see the module docstring).
 
     ``ground``: first move the people onto a floor (:func:`put_on_ground`). Recovery runs for all
-    people at once (:func:`workflows.recovery.recover_many`); ``progress`` is called after each step.
+    people at once (:func:`workflows.scene.recovery.recover_many`); ``progress`` is called after each step.
     """
     config = RecoveryConfig() if config is None else config
     ground_record = None
@@ -116,7 +117,7 @@ def scene_from_people(
         else:
             bodies.append((character.betas, character.gender, character.scale))
         targets.append(retarget_to_body(person, *bodies[-1]))
-    # all people at once: one batched solve per greedy step (workflows.recovery.recover_many)
+    # all people at once: one batched solve per greedy step (workflows.scene.recovery.recover_many)
     recs = recover_many(solver, [TargetPose.from_pose(t) for t in targets], config,
                         scales=[b[2] for b in bodies],
                         progress=None if progress is None else lambda k, n: progress(k, n, f"{len(people)} people"))
@@ -185,7 +186,7 @@ def from_estimate(
     """
     from workflows.character import export_bvh, load_character
     from workflows.estimators import read_estimate
-    from workflows.scene import save_scene
+    from workflows.scene.document import save_scene
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -232,7 +233,7 @@ def from_estimate(
             bvh_paths.append(export_bvh(out_dir / f"{r.name}.bvh", character, [r.custom_pose]))
     if previews:
         from smplik.render import save_png
-        from workflows.previews import load_image, plot_recovery_errors, render_custom_character, render_scene
+        from workflows.scene.previews import load_image, plot_recovery_errors, render_custom_character, render_scene
 
         image = load_image(image_path) if image_path is not None and scene.camera is not None else None
         ghosts = [r.target for r in person_results]

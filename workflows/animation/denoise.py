@@ -23,8 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solveh_banded
 from scipy.signal import savgol_coeffs, savgol_filter
+
+from smplik.smoothing import whittaker
 
 NOISE_WINDOW = 7
 """Frames of the local cubic fit whose residual measures the noise."""
@@ -73,45 +74,6 @@ def estimate_noise(y: np.ndarray) -> ChannelNoise:
     num = (clip[1:] * clip[:-1]).sum(0)
     den = np.maximum((clip * clip).sum(0), 1e-30)
     return ChannelNoise(sigma, num / den)
-
-
-def _penalty_bands(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bands of D2^T diag(lam) D2 for lam (T-2,): main (T,), first (T-1,), second (T-2,) diagonals."""
-    T = lam.shape[0] + 2
-    main, off1, off2 = np.zeros(T), np.zeros(T - 1), np.zeros(T - 2)
-    coef = (1.0, -2.0, 1.0)
-    for a in range(3):
-        main[a:T - 2 + a] += lam * coef[a] ** 2
-    for a in range(2):
-        off1[a:T - 2 + a] += lam * coef[a] * coef[a + 1]
-    off2 += lam * coef[0] * coef[2]
-    return main, off1, off2
-
-
-def whittaker(y: np.ndarray, weight: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Weighted Whittaker-Henderson smoothing along time (module docstring).
-
-    Args:
-        y: (T, C) data; weight: (T, C) > 0 data weights; lam: (C,) or (T-2, C) >= 0 smoothness.
-
-    Returns:
-        (T, C) the smoothed channels (``y`` itself when T < 3).
-    """
-    y = np.asarray(y, dtype=np.float64)
-    T, C = y.shape
-    if T < 3:
-        return y.copy()
-    lam = np.broadcast_to(np.asarray(lam, dtype=np.float64), (T - 2, C))
-    weight = np.broadcast_to(np.asarray(weight, dtype=np.float64), (T, C))
-    out = np.empty_like(y)
-    banded = np.zeros((3, T))
-    for c in range(C):
-        main, off1, off2 = _penalty_bands(lam[:, c])
-        banded[0, 2:] = off2
-        banded[1, 1:] = off1
-        banded[2] = main + weight[:, c]
-        out[:, c] = solveh_banded(banded, weight[:, c] * y[:, c], check_finite=False)
-    return out
 
 
 def _trace(T: int, lam: float) -> float:

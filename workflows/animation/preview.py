@@ -1,6 +1,6 @@
 """Animated previews of an animation: a GIF or MP4, over the source video's frames or in a 3D view.
 
-Each shown frame is the animation's scene at that source frame (:func:`workflows.animation_io.scene_of`:
+Each shown frame is the animation's scene at that source frame (:func:`workflows.animation.files.scene_of`:
 every track present at the frame, with its effector markers on keyframes), its source frame number in the
 top-left corner. With ``video`` (a video file imageio-ffmpeg reads, or a folder of frame images in name order)
 and a camera-frame animation, each frame is drawn over the matching video frame through the estimator's camera
@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from smplik.atomic import atomic_path
-from workflows.animation import Animation, AnimationError
+from workflows.animation.clips import Animation, AnimationError
 
 if TYPE_CHECKING:
     from smplik.render import MeshItem, View
@@ -131,7 +131,7 @@ def describe_frames(frames: tuple[int, ...] | list[int], every: int) -> str:
 
 def _track_joints(track) -> np.ndarray:
     """(T, 24, 3) joints of a track in character space (SMPL space times its scale)."""
-    from workflows.animation import axis_angle_to_local, joints_of, rest_joints
+    from workflows.animation.clips import axis_angle_to_local, joints_of, rest_joints
 
     R = axis_angle_to_local(track.global_orient, track.body_pose)
     return joints_of(R, track.transl, rest_joints(track.betas, track.gender)) * track.scale
@@ -155,8 +155,8 @@ def facing_direction(animation: Animation) -> np.ndarray:
 def floor_height(animation: Animation, joints: list[np.ndarray], candidates: int = 4) -> float:
     """The clip's lowest mesh vertex (y, character space): the meshes of the ``candidates`` frames of each track
     whose foot joints are lowest (``joints``: per track (T, 24, 3), character space)."""
-    from workflows.animation_io import scene_of
-    from workflows.previews import scene_items
+    from workflows.animation.files import scene_of
+    from workflows.scene.previews import scene_items
 
     feet = [7, 8, 10, 11]  # ankles and feet
     frames: set[int] = set()
@@ -242,7 +242,7 @@ def _video_frames(video: Path) -> Callable[[int], np.ndarray]:
         files = sorted(p for p in video.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
             raise AnimationError(f"{video}: no frame images ({', '.join(IMAGE_SUFFIXES)}) in the folder.")
-        from workflows.previews import load_image
+        from workflows.scene.previews import load_image
 
         def from_folder(i: int) -> np.ndarray:
             if i >= len(files):
@@ -277,7 +277,7 @@ def _resize(img: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def _stamp(img: np.ndarray, frame: int) -> np.ndarray:
-    from workflows.previews import label_image
+    from workflows.scene.previews import label_image
 
     return label_image(img, [f"frame {frame}"])
 
@@ -288,8 +288,8 @@ def iter_preview_frames(animation: Animation, frames: list[int], *, video: str |
     """``(source frame, RGB uint8 image)`` for each of ``frames`` (in ``order`` when given, a permutation of
     them), drawn with one reused renderer (module docstring)."""
     from smplik.render import ImageCamera, Renderer, render
-    from workflows.animation_io import scene_of
-    from workflows.previews import image_camera, scene_items
+    from workflows.animation.files import scene_of
+    from workflows.scene.previews import image_camera, scene_items
 
     background = None
     world = None

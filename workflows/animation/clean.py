@@ -3,7 +3,7 @@
 All functions are pure and batched over frames (axis 0 is time, ``T`` frames at ``fps``).
 
 The default cleaning, ``"adaptive"`` (:func:`denoise_motion`), smooths every channel (each joint's quaternion
-components, the root's axes) as much as its own measured noise asks (:mod:`workflows.denoise`), after repairing
+components, the root's axes) as much as its own measured noise asks (:mod:`.denoise`), after repairing
 single-frame glitches found against the clip's own noise (:func:`glitch_frames`); foot locks then release on a
 lift (:func:`split_on_lift`), blend by offset at most ``blend_max_m`` per frame (:func:`lock_targets`) and move
 the root by the locked feet's offsets first (:func:`root_shift_from_locks`). :func:`sequence_clean` (a sequence
@@ -49,10 +49,24 @@ import numpy as np
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
+from smplik.contacts import (  # the detector moved to smplik (the tracker's labels use it); its names stay here
+    FLOOR_TILT_PRIOR as FLOOR_TILT_PRIOR,
+)
+from smplik.contacts import (
+    FOOT_JOINTS,
+    _runs,
+    foot_contacts,
+    foot_noise,
+    ground_of,
+    joint_speed,
+)
+from smplik.contacts import contact_threshold as contact_threshold
+from smplik.contacts import floor_plane as floor_plane
+from smplik.contacts import ground_velocity as ground_velocity
+from smplik.contacts import height_above_floor as height_above_floor
 from smplik.conventions import JOINT_INDEX, PARENTS
+from smplik.limb_ik import two_bone_ik
 
-FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
-"""The joints that touch the floor, per side (left, right)."""
 LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"]),
               (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"]))
 """(hip, knee, ankle) per side (left, right)."""
@@ -73,11 +87,11 @@ class CleanConfig:
     :func:`denoise_motion`), ``"sequence"`` (a sequence solve on the estimator's joints, foot locks included:
     :func:`sequence_clean`), ``"one_euro"`` (zero-phase), ``"savgol"`` (plain Savitzky-Golay) or ``"none"``."""
     noise_gain: float = 1.0
-    """Adaptive: multiplier of each channel's smoothness (chosen by :func:`workflows.denoise.sure_smoothness`);
+    """Adaptive: multiplier of each channel's smoothness (chosen by :func:`.denoise.sure_smoothness`);
     noise correlated over frames raises it further (:func:`correlation_gain`)."""
     motion_trust: float = 1.0
     """Adaptive: how much more the data count where the smoothing would bend fast motion
-    (:func:`workflows.denoise.motion_weights`; 0: not at all)."""
+    (:func:`workflows.animation.denoise.motion_weights`; 0: not at all)."""
     smoothness: float = 2.0
     """Sequence: weight of the joints' squared acceleration (m/frame^2) against their squared offset (m) from
     the estimate (:class:`smplik.sequence.SequenceConfig`); higher smooths more."""
@@ -244,10 +258,10 @@ CORRELATION_GAIN_MAX = 20.0
 
 def correlation_gain(lag1: np.ndarray) -> float:
     """Smoothness multiplier for a group of channels whose fit residuals have lag-1 autocorrelations ``lag1``
-    (C,) (:class:`workflows.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
+    (C,) (:class:`workflows.animation.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
     estimator's slow drift) looks partly like motion to the unbiased risk, which then smooths too little: up to
-    :data:`CORRELATION_GAIN_MAX` times more, from the median excess over :data:`workflows.denoise.WHITE_LAG1`."""
-    from workflows.denoise import WHITE_LAG1
+    :data:`CORRELATION_GAIN_MAX` times more, from the median excess over :data:`.denoise.WHITE_LAG1`."""
+    from workflows.animation.denoise import WHITE_LAG1
 
     excess = float(np.median(lag1)) - WHITE_LAG1 - 0.03
     return float(np.clip(1.0 + CORRELATION_SLOPE * excess, 1.0, CORRELATION_GAIN_MAX))
@@ -257,13 +271,13 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The adaptive smoothing (``smoothing="adaptive"``, the default) of local rotations (T, 24, 3, 3) and the root
     (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
-    own noise level (:func:`workflows.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
-    choice, :func:`workflows.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
+    own noise level (:func:`.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
+    choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
     rotation channels or of the root's), then a Whittaker smoothing; with ``motion_trust``, a second pass weighs
-    the estimate more where the first bent fast motion (:func:`workflows.denoise.motion_weights`).
+    the estimate more where the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
 
     Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
-    from workflows.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
+    from workflows.animation.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
 
     T, J = R_parent_joint.shape[:2]
     if T < 3:
@@ -290,7 +304,7 @@ ROOT_GLITCH_SMOOTHNESS = 10.0
 def _root_outliers(root: np.ndarray) -> np.ndarray:
     """The root's offsets (T, 3) from a robust smoothing of its path (T, 3): Whittaker smoothing, then again with
     the frames beyond 3 robust spreads nearly ignored (a jump does not pull the path towards itself)."""
-    from workflows.denoise import whittaker
+    from workflows.animation.denoise import whittaker
 
     weights = np.ones_like(root)
     for _ in range(2):
@@ -346,197 +360,6 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
 
 
 # ----------------------------------------------------------------------------- contacts
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, end_exclusive) of the True runs of a (T,) bool array."""
-    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
-    edges = np.diff(padded)
-    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
-
-
-FLOOR_TILT_PRIOR = 0.005
-"""Ridge weight (m^2 per foot sample) pulling the floor's slope towards level (y up: the world's or the camera's
-up): the fitted slope shrinks by s^2 / (s^2 + prior), s the standing feet's horizontal spread (std, m), so a
-clip whose standing feet stay within a few centimetres keeps a level floor."""
-
-
-def floor_plane(p_world: np.ndarray, prior: float = FLOOR_TILT_PRIOR) -> np.ndarray:
-    """The floor under a clip's feet: ``(a, b, c)`` of ``y = a x + b z + c`` (metres, y up). p_world (T, 24, 3).
-
-    The lower foot of every frame stands on the floor (walking, running; in camera space too, where the floor
-    is tilted by the camera's pitch and roll): a plane is fitted to those points by least squares, its slope
-    pulled towards level (``prior``, the world's or camera's up as the prior), to the points less than 5 cm
-    above their median (airborne frames dropped), four times, "lower" measured from the previous fit. ``c``
-    is the 5th percentile of the foot joints' heights above the sloped plane, as the level floor's height is.
-    """
-    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
-    slope = np.zeros(2)
-    for _ in range(4):  # the lower foot above the current plane (a tilted floor changes which foot is lower)
-        heights = feet[..., 1] - feet[..., [0, 2]] @ slope
-        low = feet[np.arange(feet.shape[0]), np.argmin(heights, axis=1)]  # (T, 3)
-        resid = low[:, 1] - low[:, [0, 2]] @ slope
-        keep = resid < np.median(resid) + 0.05  # the lower foot stands in most frames: drop airborne ones
-        xz = low[keep][:, [0, 2]]
-        centred = xz - xz.mean(0)
-        y = low[keep, 1] - low[keep, 1].mean()
-        n = max(int(keep.sum()), 1)
-        slope = np.linalg.solve(centred.T @ centred + prior * n * np.eye(2), centred.T @ y)
-    heights = feet[..., 1] - feet[..., [0, 2]] @ slope
-    return np.array([slope[0], slope[1], float(np.percentile(heights, 5.0))])
-
-
-def height_above_floor(p: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """Vertical height (m) above ``plane`` = (a, b, c) of ``y = a x + b z + c`` of points p (..., 3) -> (...)."""
-    return p[..., 1] - plane[0] * p[..., 0] - plane[1] * p[..., 2] - plane[2]
-
-
-def joint_speed(p: np.ndarray) -> np.ndarray:
-    """Per-frame speed (units per frame) by central differences (one-sided at the ends). p (T, ..., 3) -> (T, ...)."""
-    if p.shape[0] < 2:
-        return np.zeros(p.shape[:-1])
-    return np.linalg.norm(np.gradient(p, axis=0), axis=-1)
-
-
-def ground_velocity(p_world: np.ndarray, tolerance: float | np.ndarray, height: float | None = None) -> np.ndarray:
-    """The ground's velocity (3,) (units per frame) in the frame of joints p_world (T, 24, 3), y up.
-
-    The lower foot stands on the ground in most frames of walking, so the median over the clip of its velocity
-    is the ground's: the belt's or the pan's velocity for a treadmill or a camera following the person. With
-    ``height``, only frames whose lower foot is within it of the floor (:func:`floor_plane`) count: a runner's
-    or jumper's lower foot is in the air in the others. It is kept only when more of those frames' lower foot
-    moves within ``tolerance`` (units per frame; (3,) per axis: the scaled speed below 1) of it than of a
-    still ground (a person moving through a still camera's view biases the median); else zero."""
-    feet = p_world[:, list(FOOT_JOINTS)]
-    if feet.shape[0] < 3:
-        return np.zeros(3)
-    heights = feet[..., 1] if height is None else height_above_floor(feet, floor_plane(p_world))
-    lower = np.argmin(heights, axis=1)
-    v = np.gradient(feet, axis=0)[np.arange(feet.shape[0]), lower]
-    if height is not None:
-        v = v[heights[np.arange(feet.shape[0]), lower] < height]
-        if v.shape[0] == 0:
-            return np.zeros(3)
-    median = np.median(v, axis=0)
-    moving = (np.linalg.norm((v - median) / tolerance, axis=-1) < 1).sum()
-    still = (np.linalg.norm(v / tolerance, axis=-1) < 1).sum()
-    return median if moving > still else np.zeros(3)
-
-
-def contact_threshold(cfg: CleanConfig, noise: np.ndarray | None = None) -> np.ndarray:
-    """The per-axis contact speed threshold (3,) (m/s): ``contact_speed_mps``, raised to ``contact_noise_ratio``
-    times the clip's foot noise ``noise`` (3,) m/s (:func:`foot_noise`) on noisy axes."""
-    sigma = np.zeros(3) if noise is None else np.asarray(noise)
-    return np.maximum(cfg.contact_speed_mps, cfg.contact_noise_ratio * sigma)
-
-
-def ground_of(p_world: np.ndarray, fps: float, cfg: CleanConfig, scale: float = 1.0,
-              noise: np.ndarray | None = None) -> np.ndarray:
-    """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
-    SMPL space, the contact height, speed and the foot ``noise`` (3,) (:func:`foot_noise`) in character space
-    (``scale`` times SMPL space)."""
-    if not cfg.ground_moves:
-        return np.zeros(3)
-    return ground_velocity(p_world, contact_threshold(cfg, noise) / fps / scale, cfg.contact_height_m / scale)
-
-
-def foot_noise(p_raw: np.ndarray, p_smooth: np.ndarray, fps: float) -> np.ndarray:
-    """The clip's foot noise speed per axis (3,) (units/s): the median over frames and both feet of the squared
-    velocity of the raw feet's deviation from their smoothed paths, square-rooted (robust to glitches; 0.674
-    times the standard deviation of Gaussian noise). p_raw, p_smooth (T, 24, 3).
-
-    A still foot of the smoothed path keeps low-frequency estimator error of about this speed (a monocular
-    estimator's depth, from the person's image scale, jitters several times more than the image axes)."""
-    idx = list(FOOT_JOINTS)
-    if p_raw.shape[0] < 3:
-        return np.zeros(3)
-    v = np.gradient(p_raw[:, idx] - p_smooth[:, idx], axis=0) * fps  # (T, 2, 3)
-    return np.sqrt(np.median(v ** 2, axis=(0, 1)))
-
-
-def foot_contacts(p_world: np.ndarray, fps: float, cfg: CleanConfig, ground: np.ndarray | None = None,
-                  noise: np.ndarray | None = None) -> np.ndarray:
-    """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up: feet low
-    above the floor and slow relative to the ground moving at ``ground`` (3,) m/frame (default: still).
-
-    Slow: per axis, the velocity relative to the ground is scaled by that axis's threshold, the larger of
-    ``contact_speed_mps`` and ``contact_noise_ratio`` times ``noise`` (3,) m/s (:func:`foot_noise`; default
-    none), and the scaled speed is below 1. Hysteresis: each run extends over neighbouring low frames whose
-    scaled speed is below ``contact_release_ratio``; runs shorter than ``contact_min_frames`` are dropped."""
-    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
-    g = np.zeros(3) if ground is None else np.asarray(ground)
-    threshold = contact_threshold(cfg, noise)  # (3,) m/s per axis
-    low = height_above_floor(feet, floor_plane(p_world)) < cfg.contact_height_m
-    relative = feet - g * np.arange(feet.shape[0])[:, None, None]
-    v = (np.gradient(relative, axis=0) if feet.shape[0] >= 2 else np.zeros_like(relative)) * fps
-    scaled = np.linalg.norm(v / threshold, axis=-1)  # (T, 2)
-    contact = low & (scaled < 1.0)
-    loose = low & (scaled < cfg.contact_release_ratio)
-    for side in range(2):
-        for s, e in _runs(loose[:, side]):  # hysteresis: a loose run holding a strict frame is one contact
-            contact[s:e, side] = contact[s:e, side].any()
-        for s, e in _runs(contact[:, side]):
-            if e - s < cfg.contact_min_frames:
-                contact[s:e, side] = False
-    return contact
-
-
-# ----------------------------------------------------------------------------- IK
-
-
-def _axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rodrigues: unit axes (..., 3), angles (...) -> (..., 3, 3)."""
-    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
-    zero = np.zeros_like(x)
-    K = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
-
-
-def _unit(v: np.ndarray, eps: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.maximum(n, eps), n[..., 0]
-
-
-def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), (u * v).sum(-1))
-
-
-def two_bone_ik(p_a: np.ndarray, p_b: np.ndarray, p_c: np.ndarray, target: np.ndarray, bend_axis: np.ndarray,
-                eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    """Analytic two-bone IK (root a, middle b, end c), batched.
-
-    Args:
-        p_a, p_b, p_c, target: (..., 3) world positions.
-        bend_axis: (..., 3) world axis about which a *negative* rotation at b bends the chain (for
-            SMPL's knee: minus its x axis); used only when the chain is straight.
-
-    Returns:
-        ``(R_a, R_b)`` (..., 3, 3) world-frame rotations: R_b about b (applied to the lower bone first),
-        then R_a about a (applied to both bones). New positions ``b' = a + R_a (b - a)``,
-        ``c' = a + R_a (b - a + R_b (c - b))``; new world rotations ``R_a G_a`` and ``R_a R_b G_b``.
-        ``c'`` equals the target when it is within reach, else it points at it from ``a``.
-    """
-    l_ab = np.linalg.norm(p_b - p_a, axis=-1)
-    l_bc = np.linalg.norm(p_c - p_b, axis=-1)
-    l_at = np.clip(np.linalg.norm(target - p_a, axis=-1), np.abs(l_ab - l_bc) + eps, l_ab + l_bc - eps)
-    u, v = p_a - p_b, p_c - p_b
-    normal, n_len = _unit(np.cross(u, v))
-    fallback, _ = _unit(bend_axis)
-    normal = np.where((n_len > 1e-9 * np.maximum(l_ab * l_bc, 1e-12))[..., None], normal, fallback)
-    theta0 = _angle(u, v)
-    cos1 = np.clip((l_ab ** 2 + l_bc ** 2 - l_at ** 2) / (2.0 * l_ab * l_bc), -1.0, 1.0)
-    R_b = _axis_angle_matrix(normal, np.arccos(cos1) - theta0)
-    c1 = p_b + (R_b @ v[..., None])[..., 0]
-    from_dir, _ = _unit(c1 - p_a)
-    to_dir, _ = _unit(target - p_a)
-    swing_axis, s_len = _unit(np.cross(from_dir, to_dir))
-    swing = _angle(from_dir, to_dir)
-    # antiparallel: any axis perpendicular to from_dir
-    perp, _ = _unit(np.cross(from_dir, np.where(np.abs(from_dir[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0])))
-    swing_axis = np.where((s_len > 1e-12)[..., None], swing_axis, perp)
-    R_a = _axis_angle_matrix(swing_axis, np.where(s_len > 1e-12, swing, np.where(swing > 1.0, swing, 0.0)))
-    return R_a, R_b
 
 
 def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
@@ -681,7 +504,7 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     :func:`lock_targets`) of the feet in contact, per frame, is smoothed over time (Whittaker, ``smoothness``; data
     weight the summed lock weights, a small pull to zero where no foot is locked): that is the root's noise the
     locks see, and the root takes it. p_world (T, 24, 3), contact (T, 2)."""
-    from workflows.denoise import whittaker
+    from workflows.animation.denoise import whittaker
 
     targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
     offset = targets - p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)

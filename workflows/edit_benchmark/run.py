@@ -1,17 +1,17 @@
 """The edit benchmark: single-limb edits from real motion, solved the way a scene edit is solved.
 
-For each edit pair (:mod:`smplik.benchmark.edits`: frames ``t0 -> t1`` in which one wrist or ankle moved at
+For each edit pair (:mod:`workflows.edit_benchmark.pairs`: frames ``t0 -> t1`` in which one wrist or ankle moved at
 least 15 cm relative to the pelvis while the other limb ends and the head stayed within 3 cm):
 
 1. recover frame ``t0``'s effectors with the workflow's recovery at its default settings
-   (:func:`workflows.recovery.recover_many`, :class:`~workflows.recovery.RecoveryConfig`): the scene a user
+   (:func:`workflows.scene.recovery.recover_many`, :class:`~workflows.scene.recovery.RecoveryConfig`): the scene a user
    would hold, with its solved pose;
 2. drag the limb end: its position effector (added when the recovery chose none) moves to the end's
    position in frame ``t1`` (expressed in frame ``t0``'s pelvis frame);
 3. solve with each method (:data:`METHODS`) and compare with frame ``t1`` (same alignment).
 
-Methods: ``smplik`` (the editor's drag today, :func:`workflows.edits.drag_effector`: the dragged chain's stale
-effectors relaxed to tolerance 1, then :func:`workflows.edits.solve_edit`: the limb's two-bone IK with the
+Methods: ``smplik`` (the editor's drag today, :func:`workflows.scene.edits.drag_effector`: the dragged chain's stale
+effectors relaxed to tolerance 1, then :func:`workflows.scene.edits.solve_edit`: the limb's two-bone IK with the
 prior's elbow/knee swivel), ``smplik_chain`` (``solve_edit(analytic=False)``: the previous release's solve of
 the same drag), ``smplik_drop`` (stale effectors deleted instead),
 ``smplik_before`` (the drag before this mechanism: every recovered effector kept exact), ``smplik_net``
@@ -32,37 +32,27 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smplik.benchmark.edits import (
-    LIMB_ENDS,
-    LIMB_ROOT,
-    EditPair,
-    EditPairConfig,
-    JointRanges,
-    align_to_pelvis,
-    edit_metrics,
-    find_edit_pairs,
-    pelvis_relative,
-    summarize,
-)
 from smplik.conventions import JOINT_INDEX, NUM_BETAS, PARENTS, Gender
 from smplik.effectors import Effector, pack_effectors
 from smplik.kinematics import forward_kinematics
 from smplik.pose import Pose
 from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from workflows.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
-from workflows.recovery import RecoveryConfig, TargetPose, recover_many
+from workflows.edit_benchmark import pairs as pair_defs
+from workflows.edit_benchmark.pairs import EditPair, JointRanges, edit_metrics, summarize
+from workflows.scene.edits import RELAXED_TOLERANCE, SWIVEL_SHARE, drag_effector, solve_edit
+from workflows.scene.recovery import RecoveryConfig, TargetPose, recover_many
 
 RESULTS_FORMAT = "smplik-edit-benchmark"
 RESULTS_VERSION = 1
 METHOD_DESCRIPTIONS: dict[str, str] = {
-    "smplik": f"smplik's drag (workflows.edits): stale effectors of the dragged chain relaxed to tolerance "
+    "smplik": f"smplik's drag (workflows.scene.edits): stale effectors of the dragged chain relaxed to tolerance "
               f"{RELAXED_TOLERANCE:g}; the limb posed on the scene's pose by two-bone IK with {SWIVEL_SHARE:g} of the "
               "learned prior's elbow/knee swivel; refined only where an exact effector is missed",
     "smplik_chain": "the previous release's drag solve (same relaxed effectors): the network's pose of the dragged "
                     "chain on the scene's pose, refined (the rest held 100x)",
     "smplik_relax": "the relaxed effectors solved afresh (network + refinement; the scene's pose not used)",
     "smplik_drop": "as smplik_relax, the stale effectors deleted instead of relaxed",
-    "smplik_before": "the drag before workflows.edits: every recovered effector kept exact, then the solver",
+    "smplik_before": "the drag before workflows.scene.edits: every recovered effector kept exact, then the solver",
     "smplik_net": "the network alone (no refinement) on smplik_before's effectors",
     "optim": "Adam IK on SMPL + Gaussian pose prior, started from the scene's pose, on smplik's effectors",
     "two_bone": "the scene's pose with the limb's analytic two-bone IK (Unity TwoBoneIK, Blender chain 2)",
@@ -88,7 +78,7 @@ class EditClip:
 class EditBenchmarkConfig:
     """Settings of :func:`run_edit_benchmark`."""
 
-    pairs: EditPairConfig = EditPairConfig()
+    pairs: pair_defs.EditPairConfig = pair_defs.EditPairConfig()
     """What counts as a single-limb edit."""
     max_pairs: int = 150
     """At most this many pairs (a seeded draw when more are found), so the default run takes minutes."""
@@ -114,6 +104,7 @@ def clips_from_dataset(dataset: Any, split: str) -> list[EditClip]:
 
 def clips_from_folder(folder: str | Path, *, preset: str = "cmu", fps: float = EDIT_FPS) -> list[EditClip]:
     """Every BVH clip under ``folder`` (held-out motion), retargeted to SMPL and resampled to ``fps``."""
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.data.dataset import find_sources, read_source, subsample_indices
 
     clips = []
@@ -136,7 +127,8 @@ def select_pairs(clips: Sequence[EditClip], J_rest: Tensor, cfg: EditBenchmarkCo
     pairs: list[EditPair] = []
     for c, clip in enumerate(clips):
         R_world, p_world = clip_fk(clip, J_rest)
-        pairs += find_edit_pairs(pelvis_relative(p_world, R_world[:, 0]), clip.fps, cfg.pairs, clip=c)
+        p_pelvis = pair_defs.pelvis_relative(p_world, R_world[:, 0])
+        pairs += pair_defs.find_edit_pairs(p_pelvis, clip.fps, cfg.pairs, clip=c)
     if len(pairs) > cfg.max_pairs:
         rng = np.random.default_rng(cfg.seed)
         keep = np.sort(rng.choice(len(pairs), cfg.max_pairs, replace=False))
@@ -179,7 +171,7 @@ class EditProblems:
         return [p.end for p in self.pairs]
 
     def drag(self, *, tolerance: float | None = RELAXED_TOLERANCE, relax: bool = True) -> list[list[Effector]]:
-        """Each pair's effector list after the drag (:func:`workflows.edits.drag_effector`); ``relax=False``:
+        """Each pair's effector list after the drag (:func:`workflows.scene.edits.drag_effector`); ``relax=False``:
         the stale effectors stay as recovered."""
         out = []
         for effs, pair, target in zip(self.scene_effectors, self.pairs, self.targets, strict=True):
@@ -207,7 +199,7 @@ def make_problems(clips: Sequence[EditClip], pairs: Sequence[EditPair], solver: 
     tr1 = torch.stack([clips[p.clip].transl[p.t1] for p in pairs]).double()
     R0, p0 = forward_kinematics(axis_angle_to_matrix(aa0), J_rest, tr0)
     R1, p1 = forward_kinematics(axis_angle_to_matrix(aa1), J_rest, tr1)
-    R_true, p_true = align_to_pelvis(R1, p1, R0[:, 0], p0[:, 0])
+    R_true, p_true = pair_defs.align_to_pelvis(R1, p1, R0[:, 0], p0[:, 0])
     aa_true = aa1.clone()
     aa_true[:, 0] = matrix_to_axis_angle(R_true[:, 0])
     end_idx = torch.tensor([JOINT_INDEX[p.end] for p in pairs])
@@ -219,7 +211,7 @@ def make_problems(clips: Sequence[EditClip], pairs: Sequence[EditPair], solver: 
                             for r in results]).double()
     scene_transl = torch.stack([torch.from_numpy(np.asarray(r.pose.transl)) for r in results]).double()
     _, p_scene = forward_kinematics(axis_angle_to_matrix(scene_aa), J_rest, scene_transl)
-    root = torch.tensor([JOINT_INDEX[LIMB_ROOT[p.end]] for p in pairs])
+    root = torch.tensor([JOINT_INDEX[pair_defs.LIMB_ROOT[p.end]] for p in pairs])
     mid = torch.tensor(PARENTS)[end_idx]
     bones = (J_rest[mid] - J_rest[root]).norm(dim=-1) + (J_rest[end_idx] - J_rest[mid]).norm(dim=-1)
     reachable = (targets - p_scene[rows, root]).norm(dim=-1) <= bones - 1e-3
@@ -270,7 +262,7 @@ def solve_method(name: str, problems: EditProblems, solver: Any, *, optim: Any =
 
 
 def evaluate_method(aa: Tensor, transl: Tensor, problems: EditProblems, ranges: JointRanges) -> Any:
-    """:func:`smplik.benchmark.edits.edit_metrics` of one method's poses."""
+    """:func:`workflows.edit_benchmark.pairs.edit_metrics` of one method's poses."""
     R_pred, p_pred = forward_kinematics(axis_angle_to_matrix(aa), problems.J_rest, transl)
     R_before, _ = forward_kinematics(axis_angle_to_matrix(problems.scene_aa), problems.J_rest, problems.scene_transl)
     return edit_metrics(p_pred=p_pred, R_world_pred=R_pred, aa_local_pred=aa, p_true=problems.p_true,
@@ -286,7 +278,7 @@ def run_edit_benchmark(clips: Sequence[EditClip], solver: Any, ranges: JointRang
                        progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Select pairs, recover, drag and solve with every method; the results document (JSON-ready).
 
-    Results: ``methods[name]`` pooled figures (:func:`smplik.benchmark.edits.summarize`) plus ``by_limb``
+    Results: ``methods[name]`` pooled figures (:func:`workflows.edit_benchmark.pairs.summarize`) plus ``by_limb``
     (arms / legs); ``pairs``: per pair its clip, frames, end, move and each method's MPJPE, collateral error,
     reach and contortions.
     """
@@ -321,7 +313,7 @@ def run_edit_benchmark(clips: Sequence[EditClip], solver: Any, ranges: JointRang
         **{name: {"mpjpe_mm": round(float(m.mpjpe_mm[i]), 2), "collateral_mm": round(float(m.collateral_mm[i]), 2),
                   "reach_mm": round(float(m.reach_mm[i]), 2), "contortions": int(m.contortions[i])}
            for name, m in per_pair.items()}} for i, p in enumerate(problems.pairs)]
-    out["counts"] = {end: sum(p.end == end for p in problems.pairs) for end in LIMB_ENDS}
+    out["counts"] = {end: sum(p.end == end for p in problems.pairs) for end in pair_defs.LIMB_ENDS}
     out["recovery_error_mm"] = float(problems.recovery_error_mm.mean())
     return out
 

@@ -22,7 +22,8 @@ from smplik.conventions import PARENTS, EffectorType
 from smplik.pose import Pose
 from smplik.render import ImageCamera, MeshItem, Segment, Sphere, View, hstack_images, label_image, render
 from workflows.character import CustomCharacter, CustomPose
-from workflows.scene import Scene, SceneCharacter, character_joints
+from workflows.scene.characters import SceneCharacter, character_joints
+from workflows.scene.document import Scene
 
 PALETTE: tuple[tuple[float, float, float, float], ...] = (
     (0.62, 0.70, 0.86, 1.0), (0.86, 0.70, 0.55, 1.0), (0.62, 0.84, 0.64, 1.0), (0.86, 0.62, 0.74, 1.0),
@@ -125,7 +126,7 @@ def image_camera(scene: Scene, width: int, height: int) -> ImageCamera:
 
 def ghost_segments(pose: Pose, scale: float = 1.0, color=GHOST_COLOR, radius: float = 0.012) -> list[Segment]:
     """A pose's skeleton (SMPL space, drawn in character space ``x scale``) as wireframe bones."""
-    from workflows.recovery import TargetPose
+    from workflows.scene.recovery import TargetPose
 
     joints = (pose.joints if pose.joints is not None else TargetPose.from_pose(pose).p_world.double().numpy())
     p = np.asarray(joints, dtype=np.float64) * scale

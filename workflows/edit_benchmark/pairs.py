@@ -5,7 +5,7 @@ An *edit pair* is two frames ``(t0, t1)`` of a clip, ``t1 - t0`` between :attr:`
 :data:`LIMB_ENDS`) moves at least :attr:`~EditPairConfig.min_move` metres while every other limb end and the
 head move less than :attr:`~EditPairConfig.max_still` metres, all **relative to the pelvis** (positions in
 the pelvis's own frame, so walking or turning does not count as a move): an edit a real person made with one
-limb. The benchmark (``benchmarks/edit_benchmark.py``, :mod:`workflows.edit_benchmark`) moves that limb end's
+limb. The benchmark (``benchmarks/edit_benchmark.py``, :mod:`workflows.edit_benchmark.run`) moves that limb end's
 effector of frame ``t0`` to its position at ``t1`` and compares the solved pose with frame ``t1``.
 
 Frame ``t1`` is first expressed in frame ``t0``'s pelvis frame (:func:`align_to_pelvis`): the target and

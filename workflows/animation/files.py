@@ -10,7 +10,7 @@ track's body fields are a scene character's, read by the scene reader's rules)::
       "fps": 30.0,                                                 # the source frame rate
       "space": "camera" | "world",                                 # estimator camera frame or world trajectory
       "camera": null | {...scene camera...},
-      "clean": null | {"smoothing": "adaptive", "smoothness": 2.0, ...},   # workflows.motion_clean.CleanConfig
+      "clean": null | {"smoothing": "adaptive", "smoothness": 2.0, ...},   # workflows.animation.clean.CleanConfig
       "tracks": [
         {
           "name": "person_0", "track_id": "0", "gender": "neutral", "betas": [10 numbers], "scale": 1.0,
@@ -43,9 +43,9 @@ import numpy as np
 from smplik.atomic import write_json_atomic
 from smplik.effectors import parse_effector_dict
 from smplik.validation import JSONPathError, read_json, short_repr
-from workflows.animation import Animation, AnimationTrack, Keyframe
-from workflows.motion_clean import CleanConfig
-from workflows.scene import (
+from workflows.animation.clean import CleanConfig
+from workflows.animation.clips import Animation, AnimationTrack, Keyframe
+from workflows.scene.document import (
     Scene,
     SceneCharacter,
     SceneError,

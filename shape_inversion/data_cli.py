@@ -51,6 +51,7 @@ def preview(
     import numpy as np
     import torch
 
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.body_model import load_body_model
     from smplik.data.bvh import BVHError, read_bvh
     from smplik.data.retarget import RetargetError, retarget_bvh
@@ -93,6 +94,6 @@ def preview(
 
 
 
-from smplik.data.build_cli import build  # noqa: E402
+from shape_inversion.data_build_cli import build  # noqa: E402
 
 app.command("build")(build)

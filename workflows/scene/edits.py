@@ -1,6 +1,6 @@
 """Edits that do not fight the user: stale effectors on a dragged chain, and the conflict report.
 
-Effectors recovered from an estimate (:mod:`workflows.recovery`) are exact and several may sit on one limb
+Effectors recovered from an estimate (:mod:`workflows.scene.recovery`) are exact and several may sit on one limb
 (a wrist position plus the elbow's and shoulder's rotations). Once the user drags one of them, the others
 contradict it: the elbow rotation still asks for the old forearm direction, so the solver meets all of
 them as well as it can by bending everything else (the torso tips, the head drops).
@@ -32,7 +32,7 @@ keyframe) gets the same drag. The effectors the stored pose does not meet (beyon
 the moved ones; each relaxes its chain's stale effectors and they are solved one after the other by
 :func:`solve_edit` from the stored pose (``smplik scene solve``: :func:`solve_scene_edits`; Python:
 :func:`drag_scene_effector`, ``Scene.drag``; ``smplik scene edit-keyframe``:
-:func:`workflows.animation_edit.keyframe_edit`).
+:func:`workflows.animation.keyframe_edit.keyframe_edit`).
 
 **Conflict report** (:func:`conflict_report`): per effector, its residual after the solve, what its tolerance
 allows, and the effectors it contradicts: those whose removal (one batched leave-one-out solve) brings its
@@ -356,7 +356,7 @@ def solve_drag(character: Any, solver: Any, moved: int, previous: Pose | None = 
     """Re-solve a scene character after a drag of its effector ``moved`` (:func:`solve_edit`, character
     space handled as :func:`workflows.scene.solve_character` does); ``previous``: the pose before the drag
     (default: the character's stored pose; without one, a plain :func:`~workflows.scene.solve_character`)."""
-    from workflows.scene import scale_effector, solve_character
+    from workflows.scene.characters import scale_effector, solve_character
 
     previous = character.pose if previous is None else previous
     if previous is None or not character.effectors:
@@ -416,7 +416,7 @@ def character_residuals(effectors: Sequence[Effector], pose: Pose, scale: float,
     """Each effector's residual (character space: mm or degrees) on ``pose`` (SMPL space) of a character
     scaled by ``scale``."""
     from smplik.solver import effector_residuals
-    from workflows.scene import scale_effector
+    from workflows.scene.characters import scale_effector
 
     smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
     return [r.value * (scale if r.effector.type == EffectorType.POSITION else 1.0)
@@ -464,7 +464,7 @@ def solve_scripted(solver: Any, name: str, effectors: Sequence[Effector], previo
 
     Returns: (the solved pose, SMPL space; what was done, :class:`ScriptedEdit`).
     """
-    from workflows.scene import scale_effector
+    from workflows.scene.characters import scale_effector
 
     effectors = tuple(effectors)
     if not effectors:
@@ -546,7 +546,7 @@ def drag_scene_effector(scene: Any, character: str, joint: str | int, *, positio
     Raises: :class:`~workflows.scene.SceneError` for an unknown character, a missing pose (``offset``) or not
     exactly one of position/offset/rotation; :class:`~smplik.effectors.EffectorError` for a bad joint or value.
     """
-    from workflows.scene import SceneError, character_joints
+    from workflows.scene.characters import SceneError, character_joints
 
     names = [c.name for c in scene.characters]
     if character not in names:
@@ -687,7 +687,7 @@ def conflict_report(character: Any, solver: Any) -> ConflictReport:
     """
     from smplik.refine import NO_REFINEMENT
     from smplik.solver import effector_residuals
-    from workflows.scene import scale_effector
+    from workflows.scene.characters import scale_effector
 
     effectors = list(character.effectors)
     if not effectors or character.pose is None:

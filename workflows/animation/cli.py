@@ -7,27 +7,16 @@ from typing import Annotated, Any
 
 import typer
 
-from shape_inversion.options import (
-    BindOption,
-    MapOption,
-    MaxJointsOption,
-    PositionsOption,
-    RestOption,
-    RigOption,
-    RootOption,
-    UnitsOption,
-    UpOption,
-    character_options_from_cli,
-)
+from shape_inversion.options import NO_CHARACTER_CLI, CharacterCLI, with_character_options
 from smplik.cli.errors import say, user_errors
 from smplik.cli.options import check_fps
-from smplik.limits import DEFAULT_MAX_JOINTS
 
 PLAIN_PROGRESS_FROM = 1000
 """Without a terminal (a log, a pipe), steps of at least this many items (frames, keyframes) print a progress line
 every 10 %; shorter ones print nothing but their result."""
 
 
+@with_character_options
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
                                             "AIST++, AMASS, ...), or a folder of per-frame outputs (SMPLer-X).")],
@@ -40,15 +29,7 @@ def animate_cmd(
     space: Annotated[str | None, typer.Option("--space", help="WHAM / GVHMR: 'world' (their world trajectory, "
                                               "the default when present) or 'camera'.")] = None,
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
-    rig: RigOption = None,
-    map_file: MapOption = None,
-    units: UnitsOption = "auto",
-    up: UpOption = "auto",
-    rest: RestOption = "auto",
-    bind: BindOption = "inverse_bind",
-    positions: PositionsOption = "auto",
-    max_joints: MaxJointsOption = DEFAULT_MAX_JOINTS,
-    root: RootOption = None,
+    character_cli: CharacterCLI = NO_CHARACTER_CLI,
     smoothing: Annotated[str, typer.Option(
         "--smoothing", help="adaptive (each channel smoothed as its measured noise asks, the default), sequence "
         "(a joint-space sequence solve), one_euro, savgol or none.")] = "adaptive",
@@ -84,17 +65,18 @@ def animate_cmd(
     from rich.progress import Progress
 
     from smplik.cli.errors import console
-    from workflows.animation import AnimateConfig, animate_file
-    from workflows.cli import _solver
-    from workflows.motion_clean import CleanConfig
-    from workflows.recovery import RecoveryConfig
+    from workflows.animation.clean import CleanConfig
+    from workflows.animation.clips import AnimateConfig
+    from workflows.animation.run import animate_file
+    from workflows.cli_shared import _solver
+    from workflows.scene.recovery import RecoveryConfig
 
     with user_errors():  # one line also when the command runs outside smplik's top level
         check_fps(fps)
-    options = character_options_from_cli(rig, map_file, units, up, rest, bind, positions, max_joints, root)
+    options = character_cli()
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
-        from workflows.animation_preview import check_preview_path
+        from workflows.animation.preview import check_preview_path
 
         with user_errors():
             check_preview_path(preview)
@@ -125,7 +107,7 @@ def animate_cmd(
         anim = outputs.animation
         shown = None
         if preview is not None:
-            from workflows.animation_preview import write_preview
+            from workflows.animation.preview import write_preview
 
             bar.update(task, description="preview")
             shown = write_preview(anim, preview, video=video, every=preview_every)
@@ -140,8 +122,8 @@ def animate_cmd(
     if shown is not None:
         say(shown.describe())
     if outputs.exported:
-        from workflows.animation_io import scene_of
-        from workflows.export import glb_notes
+        from workflows.animation.files import scene_of
+        from workflows.scene.export import glb_notes
 
         for note in glb_notes(scene_of(anim), formats):
             say(note)
@@ -177,10 +159,11 @@ def edit_keyframe_cmd(
     """Move or add a keyframe's effectors (merged into its recovered ones), re-pose the frame as the editor's drag
     does (the moved limbs only) and blend the change into the neighbouring frames."""
     from smplik.effector_schema import load_effector_file
-    from workflows.animation import AnimationError, export_animation
-    from workflows.animation_edit import keyframe_edit
-    from workflows.animation_io import load_animation, save_animation
-    from workflows.cli import _solver
+    from workflows.animation.clips import AnimationError
+    from workflows.animation.files import load_animation, save_animation
+    from workflows.animation.keyframe_edit import keyframe_edit
+    from workflows.animation.run import export_animation
+    from workflows.cli_shared import _solver
 
     with user_errors():
         anim = load_animation(animation)

@@ -1,0 +1,189 @@
+"""Foot contacts of a joint-position clip: the floor under the feet, the ground's motion, low and slow feet.
+
+The detector of the animation pipeline (:mod:`workflows.animation.clean` cleans with it) and of the tracker's
+training labels (:func:`smplik.tracking.data.clip_contacts`). Positions are (T, 24, 3) SMPL joints, metres,
+y up. Its settings are the ``contact_*`` fields of :class:`ContactConfig` (also carried by
+:class:`workflows.animation.clean.CleanConfig`, with the same defaults).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from smplik.conventions import JOINT_INDEX
+
+FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
+"""The joints that touch the floor, per side (left, right)."""
+
+
+class ContactSettings(Protocol):
+    """What :func:`foot_contacts` reads from a config: :class:`ContactConfig`, or
+    :class:`workflows.animation.clean.CleanConfig` (which also has :class:`GroundSettings`' field)."""
+
+    contact_height_m: float
+    contact_speed_mps: float
+    contact_noise_ratio: float
+    contact_release_ratio: float
+    contact_min_frames: int
+
+
+class GroundSettings(ContactSettings, Protocol):
+    """What :func:`ground_of` reads: the contact settings and whether the ground may move."""
+
+    ground_moves: bool
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """Settings of :func:`foot_contacts`, with the defaults of :class:`workflows.animation.clean.CleanConfig`.
+
+    A foot within ``contact_height_m`` of the floor and slower than ``contact_speed_mps`` (per axis at least
+    ``contact_noise_ratio`` times the clip's foot noise, :func:`foot_noise`) is in contact; a run extends over
+    neighbouring low frames up to ``contact_release_ratio`` times that threshold, and runs shorter than
+    ``contact_min_frames`` are dropped.
+    """
+
+    contact_height_m: float = 0.08
+    contact_speed_mps: float = 0.35
+    contact_noise_ratio: float = 3.0
+    contact_release_ratio: float = 1.5
+    contact_min_frames: int = 3
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end_exclusive) of the True runs of a (T,) bool array."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
+
+
+FLOOR_TILT_PRIOR = 0.005
+"""Ridge weight (m^2 per foot sample) pulling the floor's slope towards level (y up: the world's or the camera's
+up): the fitted slope shrinks by s^2 / (s^2 + prior), s the standing feet's horizontal spread (std, m), so a
+clip whose standing feet stay within a few centimetres keeps a level floor."""
+
+
+def floor_plane(p_world: np.ndarray, prior: float = FLOOR_TILT_PRIOR) -> np.ndarray:
+    """The floor under a clip's feet: ``(a, b, c)`` of ``y = a x + b z + c`` (metres, y up). p_world (T, 24, 3).
+
+    The lower foot of every frame stands on the floor (walking, running; in camera space too, where the floor
+    is tilted by the camera's pitch and roll): a plane is fitted to those points by least squares, its slope
+    pulled towards level (``prior``, the world's or camera's up as the prior), to the points less than 5 cm
+    above their median (airborne frames dropped), four times, "lower" measured from the previous fit. ``c``
+    is the 5th percentile of the foot joints' heights above the sloped plane, as the level floor's height is.
+    """
+    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    slope = np.zeros(2)
+    for _ in range(4):  # the lower foot above the current plane (a tilted floor changes which foot is lower)
+        heights = feet[..., 1] - feet[..., [0, 2]] @ slope
+        low = feet[np.arange(feet.shape[0]), np.argmin(heights, axis=1)]  # (T, 3)
+        resid = low[:, 1] - low[:, [0, 2]] @ slope
+        keep = resid < np.median(resid) + 0.05  # the lower foot stands in most frames: drop airborne ones
+        xz = low[keep][:, [0, 2]]
+        centred = xz - xz.mean(0)
+        y = low[keep, 1] - low[keep, 1].mean()
+        n = max(int(keep.sum()), 1)
+        slope = np.linalg.solve(centred.T @ centred + prior * n * np.eye(2), centred.T @ y)
+    heights = feet[..., 1] - feet[..., [0, 2]] @ slope
+    return np.array([slope[0], slope[1], float(np.percentile(heights, 5.0))])
+
+
+def height_above_floor(p: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Vertical height (m) above ``plane`` = (a, b, c) of ``y = a x + b z + c`` of points p (..., 3) -> (...)."""
+    return p[..., 1] - plane[0] * p[..., 0] - plane[1] * p[..., 2] - plane[2]
+
+
+def joint_speed(p: np.ndarray) -> np.ndarray:
+    """Per-frame speed (units per frame) by central differences (one-sided at the ends). p (T, ..., 3) -> (T, ...)."""
+    if p.shape[0] < 2:
+        return np.zeros(p.shape[:-1])
+    return np.linalg.norm(np.gradient(p, axis=0), axis=-1)
+
+
+def ground_velocity(p_world: np.ndarray, tolerance: float | np.ndarray, height: float | None = None) -> np.ndarray:
+    """The ground's velocity (3,) (units per frame) in the frame of joints p_world (T, 24, 3), y up.
+
+    The lower foot stands on the ground in most frames of walking, so the median over the clip of its velocity
+    is the ground's: the belt's or the pan's velocity for a treadmill or a camera following the person. With
+    ``height``, only frames whose lower foot is within it of the floor (:func:`floor_plane`) count: a runner's
+    or jumper's lower foot is in the air in the others. It is kept only when more of those frames' lower foot
+    moves within ``tolerance`` (units per frame; (3,) per axis: the scaled speed below 1) of it than of a
+    still ground (a person moving through a still camera's view biases the median); else zero."""
+    feet = p_world[:, list(FOOT_JOINTS)]
+    if feet.shape[0] < 3:
+        return np.zeros(3)
+    heights = feet[..., 1] if height is None else height_above_floor(feet, floor_plane(p_world))
+    lower = np.argmin(heights, axis=1)
+    v = np.gradient(feet, axis=0)[np.arange(feet.shape[0]), lower]
+    if height is not None:
+        v = v[heights[np.arange(feet.shape[0]), lower] < height]
+        if v.shape[0] == 0:
+            return np.zeros(3)
+    median = np.median(v, axis=0)
+    moving = (np.linalg.norm((v - median) / tolerance, axis=-1) < 1).sum()
+    still = (np.linalg.norm(v / tolerance, axis=-1) < 1).sum()
+    return median if moving > still else np.zeros(3)
+
+
+def contact_threshold(cfg: ContactSettings, noise: np.ndarray | None = None) -> np.ndarray:
+    """The per-axis contact speed threshold (3,) (m/s): ``contact_speed_mps``, raised to ``contact_noise_ratio``
+    times the clip's foot noise ``noise`` (3,) m/s (:func:`foot_noise`) on noisy axes."""
+    sigma = np.zeros(3) if noise is None else np.asarray(noise)
+    return np.maximum(cfg.contact_speed_mps, cfg.contact_noise_ratio * sigma)
+
+
+def ground_of(p_world: np.ndarray, fps: float, cfg: GroundSettings, scale: float = 1.0,
+              noise: np.ndarray | None = None) -> np.ndarray:
+    """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
+    SMPL space, the contact height, speed and the foot ``noise`` (3,) (:func:`foot_noise`) in character space
+    (``scale`` times SMPL space)."""
+    if not cfg.ground_moves:
+        return np.zeros(3)
+    return ground_velocity(p_world, contact_threshold(cfg, noise) / fps / scale, cfg.contact_height_m / scale)
+
+
+def foot_noise(p_raw: np.ndarray, p_smooth: np.ndarray, fps: float) -> np.ndarray:
+    """The clip's foot noise speed per axis (3,) (units/s): the median over frames and both feet of the squared
+    velocity of the raw feet's deviation from their smoothed paths, square-rooted (robust to glitches; 0.674
+    times the standard deviation of Gaussian noise). p_raw, p_smooth (T, 24, 3).
+
+    A still foot of the smoothed path keeps low-frequency estimator error of about this speed (a monocular
+    estimator's depth, from the person's image scale, jitters several times more than the image axes)."""
+    idx = list(FOOT_JOINTS)
+    if p_raw.shape[0] < 3:
+        return np.zeros(3)
+    v = np.gradient(p_raw[:, idx] - p_smooth[:, idx], axis=0) * fps  # (T, 2, 3)
+    return np.sqrt(np.median(v ** 2, axis=(0, 1)))
+
+
+def foot_contacts(p_world: np.ndarray, fps: float, cfg: ContactSettings, ground: np.ndarray | None = None,
+                  noise: np.ndarray | None = None) -> np.ndarray:
+    """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up: feet low
+    above the floor and slow relative to the ground moving at ``ground`` (3,) m/frame (default: still).
+
+    Slow: per axis, the velocity relative to the ground is scaled by that axis's threshold, the larger of
+    ``contact_speed_mps`` and ``contact_noise_ratio`` times ``noise`` (3,) m/s (:func:`foot_noise`; default
+    none), and the scaled speed is below 1. Hysteresis: each run extends over neighbouring low frames whose
+    scaled speed is below ``contact_release_ratio``; runs shorter than ``contact_min_frames`` are dropped."""
+    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    g = np.zeros(3) if ground is None else np.asarray(ground)
+    threshold = contact_threshold(cfg, noise)  # (3,) m/s per axis
+    low = height_above_floor(feet, floor_plane(p_world)) < cfg.contact_height_m
+    relative = feet - g * np.arange(feet.shape[0])[:, None, None]
+    v = (np.gradient(relative, axis=0) if feet.shape[0] >= 2 else np.zeros_like(relative)) * fps
+    scaled = np.linalg.norm(v / threshold, axis=-1)  # (T, 2)
+    contact = low & (scaled < 1.0)
+    loose = low & (scaled < cfg.contact_release_ratio)
+    for side in range(2):
+        for s, e in _runs(loose[:, side]):  # hysteresis: a loose run holding a strict frame is one contact
+            contact[s:e, side] = contact[s:e, side].any()
+        for s, e in _runs(contact[:, side]):
+            if e - s < cfg.contact_min_frames:
+                contact[s:e, side] = False
+    return contact
+
+
+# ----------------------------------------------------------------------------- IK
