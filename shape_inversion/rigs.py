@@ -242,7 +242,7 @@ def _spine_to_arms_branch(rig: RigMap, found: dict[str, int], mapped: dict[str, 
     the wrong joint. Then spine1..3 are taken from the rig mapper (``mapped``: SMPL joint -> index, its
     spine3 the arms' branch point), with one note naming both joints. Returns ``(found, notes)``.
     """
-    from smplik.data.rig_names import is_ancestor
+    from shape_inversion.rig_names import is_ancestor
 
     mine, theirs = found.get("spine3"), mapped.get("spine3")
     if mine is None or theirs is None or mine == theirs or not is_ancestor(mine, theirs, parents):

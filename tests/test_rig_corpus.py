@@ -109,7 +109,7 @@ def test_the_threejs_soldier_exports_with_its_own_clips_and_joints_in_metres(tmp
     from shape_inversion.gltf_io import load_gltf
     from workflows.character import build_character, smpl_to_custom
     from workflows.examples_gen import example_poses
-    from workflows.export import posed_character_glb
+    from workflows.scene.export import posed_character_glb
 
     char = read_character(RIGS / "threejs_Soldier.glb")
     cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
