@@ -650,8 +650,8 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     p_s = joints_of(R_s, t_s, J_rest)
     noise = foot_noise(raw, p_s * scale, fps)
     ground = ground_of(p_s, fps, cfg, scale, noise)
-    if cfg.smoothing == "adaptive":  # its paths keep little of the raw noise: contacts on their own speed
-        noise = None
+    if cfg.smoothing == "adaptive" and not cfg.ground_moves:  # its paths keep little of the raw noise: contacts
+        noise = None  # on their own speed (in a camera frame the depth's slow wobble stays: the noise still counts)
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))

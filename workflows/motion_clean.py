@@ -669,6 +669,23 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
                     if w > weights[t, side]:
                         targets[t, side] = p_world[t, foot] + w * (offset + drift[t] - drift[edge])
                         weights[t, side] = w
+        runs = _runs(contact[:, side])
+        for (s0, e0), (s1, e1) in zip(runs[:-1], runs[1:], strict=True):
+            if s1 - e0 > 2 * blend_frames:
+                continue  # the blends out of one run and into the next do not meet
+            # two locks close in time (a run cut by a lift or a slide, split_on_lift): move the offset from the
+            # first lock's to the second's in equal steps, over the gap and as many frames at the runs' ends as keep
+            # each step within blend_max (otherwise the foot jumps from one lock to the next: a snap)
+            a, b = e0 - 1, s1
+            held = targets[:, side] - p_world[:, foot] - drift  # (T, 3) the offsets, relative to the ground
+            while True:
+                change = held[b] - held[a]
+                if blend_max is None or np.linalg.norm(change) <= blend_max * (b - a) or (a == s0 and b == e1 - 1):
+                    break
+                a, b = max(s0, a - 1), min(e1 - 1, b + 1)
+            for t in range(a + 1, b):
+                targets[t, side] = p_world[t, foot] + held[a] + change * (t - a) / (b - a) + drift[t]
+                weights[t, side] = 1.0
     return targets, weights
 
 
