@@ -660,8 +660,9 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames)
         if cfg.root_from_locks and cfg.smoothing == "adaptive":
+            # the smoothness weighs squared second differences per frame: (fps / 30)^4 keeps its span in seconds
             t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,
-                                              cfg.root_lock_smoothness)
+                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4)
             p_s = joints_of(R_s, t_s, J_rest)
         R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         p_s = joints_of(R_s, t_s, J_rest)

@@ -121,7 +121,8 @@ class CleanConfig:
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
     root_lock_smoothness: float = 10.0
-    """Smoothness (frames^2 weight of the squared acceleration) of that root shift."""
+    """Smoothness (frames^2 weight of the squared acceleration) of that root shift, at 30 frames/s (scaled by
+    ``(fps / 30) ** 4`` at other rates, so it spans the same time)."""
     release_m: float = 0.03
     """A lock releases when the (smoothed) foot leaves its locked point by this much (m): a lift or a step."""
     ground_moves: bool = False
