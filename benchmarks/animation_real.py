@@ -29,6 +29,9 @@ same contact run of the default, the estimate's foot (raw per-frame joints, rela
 * ``release_step_cm``: the largest change from one frame to the next of what the locks add to the foot (the
   output's foot minus the cleaned foot without locks), blends in and out included (at most 2 cm: no snap).
 
+Known truth at the clean files' noise level (:func:`low_noise_truth`, when ``../shared/data/cmu`` is there): the
+default and the previous default on synthetic estimates of CMU test clips with that little noise.
+
 Prints a table and writes ``benchmarks/results/animation_real.json``. Without data it says so and exits 0.
 """
 
@@ -135,11 +138,45 @@ def bench_file(path: Path, folder: Path, solver, max_frames: int, with_sequence:
     return rows
 
 
+LOW_NOISE_DEG, LOW_NOISE_M = 0.5, (0.002, 0.002, 0.005)
+"""Noise of the known-truth check at the clean world-frame files' level: rotations (deg rms), root (m, x/y/depth)."""
+LOW_NOISE_CLIPS = ("02_01", "02_05")
+"""CMU test clips (``benchmarks/animation_truth.py``'s test split: a walk, punches) of that check."""
+
+
+def low_noise_truth(frames: int = 150) -> list[dict]:
+    """The default and the previous default against a known truth at the noise level of the clean estimates
+    (``benchmarks/animation_truth.py``'s synthetic estimates, independent and AR(1) noise, at
+    :data:`LOW_NOISE_DEG` / :data:`LOW_NOISE_M`): does the previous default's lower jitter on them come closer to
+    the true motion? Empty without ``../shared/data/cmu``."""
+    import animation_truth as truth
+
+    from workflows.motion_clean import CleanConfig
+
+    methods = {"raw": truth.METHODS["raw"], "default": CleanConfig(),
+               "sequence": CleanConfig(smoothing="sequence", pose_budget_mm=5.0)}
+    saved = truth.ROT_NOISE_DEG, truth.ROOT_NOISE_M, truth.NOISE_MODELS
+    truth.ROT_NOISE_DEG, truth.ROOT_NOISE_M, truth.NOISE_MODELS = LOW_NOISE_DEG, LOW_NOISE_M, ("independent", "ar1")
+    try:
+        rows = []
+        for name in LOW_NOISE_CLIPS:
+            poses = truth.load_truth(name, frames)
+            if poses is None:
+                continue
+            for r in truth.bench_clip(name, name, poses, methods, 0):
+                rows.append({"clip": name, "noise": r["noise"], **{m: {k: r[m][k] for k in (
+                    "pa_mpjpe_mm", "accel_error_mm", "skating_mm_per_frame")} for m in methods}})
+        return rows
+    finally:
+        truth.ROT_NOISE_DEG, truth.ROOT_NOISE_M, truth.NOISE_MODELS = saved
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("folder", type=Path, nargs="?", default=real_estimators_dir())
     parser.add_argument("--max-frames", type=int, default=800, help="Frames per track at most.")
     parser.add_argument("--only", default="", help="Only files whose path contains this.")
+    parser.add_argument("--no-truth", action="store_true", help="Skip the known-truth check at low noise.")
     parser.add_argument("--no-sequence", action="store_true", help="Skip the previous default (slow on long clips).")
     args = parser.parse_args()
     if not args.folder.is_dir():
@@ -192,8 +229,17 @@ def main() -> None:
     }
     for name, ok in checks.items():
         print(f"{name}: {ok}")
+    low = [] if args.no_truth else low_noise_truth()
+    if low:
+        print(f"known truth at {LOW_NOISE_DEG} deg / {'/'.join(f'{1000 * m:g}' for m in LOW_NOISE_M)} mm noise "
+              "(PA-MPJPE mm, acceleration error mm/frame^2; raw / default / previous default):")
+    for r in low:
+        print(f"  {r['clip']} {r['noise']:12s} PA " + " / ".join(f"{r[m]['pa_mpjpe_mm']:.2f}" for m in
+                                                                ("raw", "default", "sequence"))
+              + "   accel " + " / ".join(f"{r[m]['accel_error_mm']:.2f}" for m in ("raw", "default", "sequence")))
     path = save("animation_real", {"folder": str(args.folder), "step_m": STEP_M, "tracks": rows, "refused": errors,
-                                   "checks": checks})
+                                   "checks": checks, "low_noise_truth": low,
+                                   "low_noise": {"rotation_deg": LOW_NOISE_DEG, "root_m": LOW_NOISE_M}})
     print(f"wrote {path}")
 
 
