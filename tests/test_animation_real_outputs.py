@@ -73,3 +73,16 @@ def test_camera_frame_stance_is_found_despite_the_depth_wobble():
     R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
     p = joints_of(R, transl, rest_joints(np.zeros(10), poses[0].gender))
     assert np.abs(np.diff(p[:, FOOT_JOINTS[0], 2])).max() * 30.0 > 0.35  # the wobble is faster than 0.35 m/s
+
+
+def test_a_lock_does_not_start_while_the_foot_still_settles():
+    """4D-Humans walk 2, frames 16-19: the cleaned foot arrives 4.4 cm (mostly in depth) over a contact's first
+    frames, never 3 cm from the run's mean so far; cut backwards too, those frames are left free."""
+    T = 20
+    feet = np.zeros((T, 2, 3))
+    feet[:4, 0, 2] = [0.044, 0.022, 0.008, 0.002]  # settling into the stance, then still
+    contact = np.ones((T, 2), dtype=bool)
+    forward = split_on_lift(feet, contact, 0.03, 3)
+    assert forward[:, 0].all()  # one run: the lock holds the settling frames at the stance's mean
+    both = split_on_lift(feet, contact, 0.03, 3, both_ways=True)
+    assert not both[0, 0] and both[1:, 0].all() and both[:, 1].all()  # the frame 3 cm out is free

@@ -658,7 +658,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     if cfg.foot_lock and contacts.any():
         drift = ground * np.arange(len(poses))[:, None, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
-                                 cfg.contact_min_frames)
+                                 cfg.contact_min_frames, both_ways=True)
         if cfg.root_from_locks and cfg.smoothing == "adaptive":
             # the smoothness weighs squared second differences per frame: (fps / 30)^4 keeps its span in seconds
             t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,

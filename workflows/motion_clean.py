@@ -709,12 +709,17 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     return whittaker(mean, w, np.full(3, smoothness))
 
 
-def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1) -> np.ndarray:
+def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1,
+                  both_ways: bool = False) -> np.ndarray:
     """Contacts (T, 2) with every run cut where its foot leaves its lock: a foot (T, 2, 3) positions (ground frame,
     smoothed) more than ``release`` from the mean of its run so far (a lift or a step of that size) ends the run
     there (that frame is left free), and a new run starts at the next frame; runs shorter than ``min_frames`` are
-    dropped.
+    dropped. ``both_ways``: also cut backwards in time (a foot that still settles into its stance, the last
+    ``release`` of a landing, is not locked either; found on 4D-Humans walks).
     """
+    if both_ways:
+        forward = split_on_lift(feet, contact, release, min_frames)
+        return forward & split_on_lift(feet[::-1], forward[::-1], release, min_frames)[::-1]
     out = np.zeros_like(contact)
     for side in range(contact.shape[1]):
         for s, e in _runs(contact[:, side]):
