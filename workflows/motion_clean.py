@@ -645,7 +645,10 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
     the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the run's first frame (k = 1..n, n frames);
     after it, the foot plus the shrinking offset of its last frame, so the foot follows its own motion and the
     offset changes by the same step each frame: ``n`` is ``blend_frames``, or more where the offset divided by
-    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way.
+    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way. Between two runs
+    of one foot at most ``2 * blend_frames`` frames apart, the offset moves from the first lock's to the second's
+    in equal steps (weight 1), over the gap and as many frames at the runs' ends as keep a step within
+    ``blend_max``.
     """
     T = p_world.shape[0]
     targets = p_world[:, list(FOOT_JOINTS)].copy()
