@@ -242,6 +242,9 @@ def _first_frame(data, fmt: str) -> int:
         return int(np.asarray(data["frame"]).reshape(-1)[0])
     if fmt == "vibe":
         return int(np.asarray(next(iter(data.values()))["frame_ids"]).reshape(-1)[0])
+    if fmt == "phalp":  # frames in name order; a real run may start on frames with nobody in them
+        names = sorted(data, key=str)
+        return next((i for i, n in enumerate(names) if len(data[n].get("smpl") or ()) > 0), 0)
     return 0
 
 

@@ -135,7 +135,8 @@ class CleanConfig:
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
     root_lock_smoothness: float = 10.0
-    """Smoothness (frames^2 weight of the squared acceleration) of that root shift."""
+    """Smoothness (frames^2 weight of the squared acceleration) of that root shift, at 30 frames/s (scaled by
+    ``(fps / 30) ** 4`` at other rates, so it spans the same time)."""
     release_m: float = 0.03
     """A lock releases when the (smoothed) foot leaves its locked point by this much (m): a lift or a step."""
     ground_moves: bool = False
@@ -467,7 +468,10 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
     the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the run's first frame (k = 1..n, n frames);
     after it, the foot plus the shrinking offset of its last frame, so the foot follows its own motion and the
     offset changes by the same step each frame: ``n`` is ``blend_frames``, or more where the offset divided by
-    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way.
+    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way. Between two runs
+    of one foot at most ``2 * blend_frames`` frames apart, the offset moves from the first lock's to the second's
+    in equal steps (weight 1), over the gap and as many frames at the runs' ends as keep a step within
+    ``blend_max``.
     """
     T = p_world.shape[0]
     targets = p_world[:, list(FOOT_JOINTS)].copy()
@@ -492,6 +496,23 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
                     if w > weights[t, side]:
                         targets[t, side] = p_world[t, foot] + w * (offset + drift[t] - drift[edge])
                         weights[t, side] = w
+        runs = _runs(contact[:, side])
+        for (s0, e0), (s1, e1) in zip(runs[:-1], runs[1:], strict=True):
+            if s1 - e0 > 2 * blend_frames:
+                continue  # the blends out of one run and into the next do not meet
+            # two locks close in time (a run cut by a lift or a slide, split_on_lift): move the offset from the
+            # first lock's to the second's in equal steps, over the gap and as many frames at the runs' ends as keep
+            # each step within blend_max (otherwise the foot jumps from one lock to the next: a snap)
+            a, b = e0 - 1, s1
+            held = targets[:, side] - p_world[:, foot] - drift  # (T, 3) the offsets, relative to the ground
+            while True:
+                change = held[b] - held[a]
+                if blend_max is None or np.linalg.norm(change) <= blend_max * (b - a) or (a == s0 and b == e1 - 1):
+                    break
+                a, b = max(s0, a - 1), min(e1 - 1, b + 1)
+            for t in range(a + 1, b):
+                targets[t, side] = p_world[t, foot] + held[a] + change * (t - a) / (b - a) + drift[t]
+                weights[t, side] = 1.0
     return targets, weights
 
 
@@ -514,12 +535,17 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     return whittaker(mean, w, np.full(3, smoothness))
 
 
-def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1) -> np.ndarray:
+def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1,
+                  both_ways: bool = False) -> np.ndarray:
     """Contacts (T, 2) with every run cut where its foot leaves its lock: a foot (T, 2, 3) positions (ground frame,
     smoothed) more than ``release`` from the mean of its run so far (a lift or a step of that size) ends the run
     there (that frame is left free), and a new run starts at the next frame; runs shorter than ``min_frames`` are
-    dropped.
+    dropped. ``both_ways``: also cut backwards in time (a foot that still settles into its stance, the last
+    ``release`` of a landing, is not locked either; found on 4D-Humans walks).
     """
+    if both_ways:
+        forward = split_on_lift(feet, contact, release, min_frames)
+        return forward & split_on_lift(feet[::-1], forward[::-1], release, min_frames)[::-1]
     out = np.zeros_like(contact)
     for side in range(contact.shape[1]):
         for s, e in _runs(contact[:, side]):

@@ -650,18 +650,19 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     p_s = joints_of(R_s, t_s, J_rest)
     noise = foot_noise(raw, p_s * scale, fps)
     ground = ground_of(p_s, fps, cfg, scale, noise)
-    if cfg.smoothing == "adaptive":  # its paths keep little of the raw noise: contacts on their own speed
-        noise = None
+    if cfg.smoothing == "adaptive" and not cfg.ground_moves:  # its paths keep little of the raw noise: contacts
+        noise = None  # on their own speed (in a camera frame the depth's slow wobble stays: the noise still counts)
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
         drift = ground * np.arange(len(poses))[:, None, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
-                                 cfg.contact_min_frames)
+                                 cfg.contact_min_frames, both_ways=True)
         if cfg.root_from_locks and cfg.smoothing == "adaptive":
+            # the smoothness weighs squared second differences per frame: (fps / 30)^4 keeps its span in seconds
             t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,
-                                              cfg.root_lock_smoothness)
+                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4)
             p_s = joints_of(R_s, t_s, J_rest)
         R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
         p_s = joints_of(R_s, t_s, J_rest)
