@@ -7,7 +7,7 @@ cleans every gap-free track of at least 10 frames as ``smplik scene animate`` do
 (:func:`workflows.animation.read_clip`, :func:`~workflows.animation.realistic_depth` for near-orthographic
 cameras, :func:`~workflows.animation.clean_track` with :func:`~workflows.animation.camera_clean`). Metrics, as in
 the real-file table of ``docs/animation.md`` (``benchmarks/animation.py``;
-:func:`workflows.motion_clean.motion_metrics`):
+:func:`workflows.animation.clean.motion_metrics`):
 
 * jitter: mean joint acceleration (mm/frame^2);
 * skating: mean foot speed over the default's contact frames, relative to the ground (mm/frame; in camera frames
@@ -68,7 +68,7 @@ def lock_check(raw: np.ndarray, free: np.ndarray, out: np.ndarray, contacts: np.
                step_m: float = STEP_M) -> dict:
     """Steps hidden by locks (module docstring). raw, free, out (T, 24, 3) joints in metres: the estimate, the
     default cleaning without locks, the default; contacts (T, 2) the default's locks; ground (3,) m/frame."""
-    from workflows.motion_clean import FOOT_JOINTS, _runs
+    from smplik.contacts import FOOT_JOINTS, _runs
 
     T = raw.shape[0]
     drift = ground[None] * np.arange(T)[:, None]
@@ -99,9 +99,10 @@ def lock_check(raw: np.ndarray, free: np.ndarray, out: np.ndarray, contacts: np.
 
 def bench_file(path: Path, folder: Path, solver, max_frames: int, with_sequence: bool) -> list[dict]:
     """Every gap-free track of ``path``: raw / default / sequence metrics and the lock check."""
-    from workflows.animation import AnimateConfig, camera_clean, clean_track, read_clip, realistic_depth
-    from workflows.motion_clean import CleanConfig, foot_noise, ground_of, motion_metrics
-    from workflows.pipeline import retarget_to_body
+    from smplik.contacts import foot_noise, ground_of
+    from workflows.animation.clean import CleanConfig, motion_metrics
+    from workflows.animation.clips import AnimateConfig, camera_clean, clean_track, read_clip, realistic_depth
+    from workflows.scene.pipeline import retarget_to_body
 
     clip = read_clip(path, solver=solver)
     camera = next(iter(clip.tracks.values()))[0][1].camera if clip.space == "camera" else None
@@ -152,7 +153,7 @@ def low_noise_truth(frames: int = 150) -> list[dict]:
     the true motion? Empty without ``../shared/data/cmu``."""
     import animation_truth as truth
 
-    from workflows.motion_clean import CleanConfig
+    from workflows.animation.clean import CleanConfig
 
     methods = {"raw": truth.METHODS["raw"], "default": CleanConfig(),
                "sequence": CleanConfig(smoothing="sequence", pose_budget_mm=5.0)}
@@ -184,7 +185,7 @@ def main() -> None:
         print(f"no estimator data at {args.folder} (pass a folder or set SMPLIK_REAL_ESTIMATORS); nothing to do")
         return
     from smplik.solver import IKSolver
-    from workflows.estimators.base import EstimateFormatError
+    from workflows.estimators.errors import EstimateFormatError
 
     torch.set_num_threads(1)
     solver = IKSolver.load(None)

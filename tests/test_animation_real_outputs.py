@@ -1,7 +1,7 @@
 """Animation cleaning regressions found on real estimator outputs (issue 33; ``benchmarks/animation_real.py``).
 
 * AIST++ ``gWA_sFM_cAll_d27_mWA5_ch20`` (60 frames/s): a sliding foot's contact is cut into consecutive runs by
-  :func:`workflows.motion_clean.split_on_lift`; the foot jumped from one run's lock to the next by up to 4 cm in a
+  :func:`workflows.animation.clean.split_on_lift`; the foot jumped from one run's lock to the next by up to 4 cm in a
   frame (the blends out of one run and into the next met at a single free frame).
 * 4D-Humans/PHALP ``track.py`` runs (jumping jacks, a run) in the camera frame: the adaptive cleaning found no
   contact at all, as the cleaned feet still wobble in depth (PHALP's depth follows the box scale) faster than the
@@ -13,9 +13,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from smplik.contacts import FOOT_JOINTS
 from smplik.pose import Pose
-from workflows.animation import clean_track, joints_of, rest_joints
-from workflows.motion_clean import FOOT_JOINTS, CleanConfig, lock_targets, split_on_lift
+from workflows.animation.clean import CleanConfig, lock_targets, split_on_lift
+from workflows.animation.clips import clean_track, joints_of, rest_joints
 
 
 def test_consecutive_locks_of_a_sliding_foot_hand_over_without_a_snap():
