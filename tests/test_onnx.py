@@ -260,7 +260,7 @@ def test_onnx_without_file_exports_in_memory_and_threads_are_configurable(bodies
 @needs_shipped
 def test_missing_onnxruntime_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "onnxruntime", None)  # import fails as if it were not installed
-    with pytest.raises(OnnxUnavailableError, match=r"pip install 'smplik\[fast\]'"):
+    with pytest.raises(OnnxUnavailableError, match=r'pip install -e "\.\[fast\]"'):
         IKSolver.load(runtime="onnx")
     assert IKSolver.load(runtime="auto").network is None  # auto falls back to torch
 
