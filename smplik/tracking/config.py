@@ -73,6 +73,14 @@ class TrackingTrainConfig:
     """Weight of the foot-contact binary cross-entropy (the paper's gamma)."""
     rotation_weight: float = 0.1
     """Weight of the local 6D rotation L1 term."""
+    matrix_weight: float = 1.0
+    """Weight of the L1 of the normalised local rotation matrices (what the pose shows: penalises a joint twisted
+    by pi and undone by its child, which the 6D L1 of small raw columns barely sees)."""
+    foot_weight: float = 1.0
+    """Weight of the contact-aware foot loss: predicted ankle and foot speed (m/s / 10) on the truth's contact
+    frames (feet that should stand still)."""
+    leg_weight: float = 1.0
+    """Extra weight of the leg joints' (hips to feet) position error (the trackers say least about them)."""
     velocity_weight: float = 1.0
     """Weight of the joint-velocity term (positions in the heading frame, frame to frame)."""
     noise_m: float = 0.01
@@ -110,6 +118,9 @@ class TrackerRuntimeConfig:
     """Floor height (y up, metres) for the anomaly score's below-floor term and the foot locks' height."""
     seed: int = 0
     """Seed of the latent noise vectors (sample 0 is always the zero vector: the prior's mean)."""
+    fast: bool = True
+    """Run the per-frame geometry (features, 6D -> FK, anomaly score, leg IK) as numba kernels
+    (:mod:`smplik.tracking.kernels`) when numba is installed; False (or no numba): the numpy reference."""
     foot_lock: bool = True
     """Lock feet on predicted contacts (two-bone leg IK)."""
     tracker_fit: bool = False
