@@ -114,6 +114,13 @@ class TrackerRuntimeConfig:
     """Predicted contact probability above which a foot is locked."""
     release_frames: int = 5
     """Frames over which a released foot blends back from its lock to the network's foot."""
+    lock_height_m: float = 0.12
+    """A contact locks a foot only while the network's foot is at most this far above the floor."""
+    lock_speed_mps: float = 0.35
+    """... and slower than this (the animation pipeline's contact speed); a lock holds below 1.5 times it."""
+    lock_drift_m: float = 0.08
+    """A lock is released when the network's foot moves farther than this from it (a contact the pose disagrees
+    with is dropped rather than stretching the leg)."""
     floor_y: float = 0.0
     """Floor height (y up, metres) for the anomaly score's below-floor term and the foot locks' height."""
     seed: int = 0

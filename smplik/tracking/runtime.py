@@ -243,7 +243,9 @@ class Tracker:
         self.buffer: deque[tuple[np.ndarray, float, np.ndarray, tuple[np.ndarray, np.ndarray]]] = deque()
         self.current = 0
         self.transition: tuple[int, int, int] | None = None  # (from, to, first output frame)
-        self.lock = _FootLock(self.cfg.contact_threshold, self.cfg.release_frames, self.cfg.floor_y, self.fps,
+        c = self.cfg
+        self.lock = _FootLock(c.contact_threshold, c.release_frames, c.floor_y, self.fps, max_height_m=c.lock_height_m,
+                              max_speed_mps=c.lock_speed_mps, max_drift_m=c.lock_drift_m,
                               fast=self.kernels is not None)
 
     @property
