@@ -133,5 +133,6 @@ class TrackerRuntimeConfig:
     tracker_fit: bool = False
     """Meet the trackers exactly where the skeleton allows: the root from the pelvis tracker (position, and
     rotation when given), the wrists by two-bone arm IK to their positions and their rotations (when given), the
-    head's rotation (the paper's suggested extra IK pass on the arms). Off by default: with the shipped model it
-    raises the error (benchmarks/results/tracking.json, ``ours_fit``) and passes tracker noise straight through."""
+    head's rotation (the paper's suggested extra IK pass on the arms). Off by default: it lowers the error on exact
+    trackers but passes tracker noise straight through and unlocks feet (benchmarks/results/tracking.json,
+    ``ours_fit``)."""
