@@ -73,6 +73,14 @@ class TrackingTrainConfig:
     """Weight of the foot-contact binary cross-entropy (the paper's gamma)."""
     rotation_weight: float = 0.1
     """Weight of the local 6D rotation L1 term."""
+    matrix_weight: float = 1.0
+    """Weight of the L1 of the normalised local rotation matrices (what the pose shows: penalises a joint twisted
+    by pi and undone by its child, which the 6D L1 of small raw columns barely sees)."""
+    foot_weight: float = 1.0
+    """Weight of the contact-aware foot loss: predicted ankle and foot speed (m/s / 10) on the truth's contact
+    frames (feet that should stand still)."""
+    leg_weight: float = 1.0
+    """Extra weight of the leg joints' (hips to feet) position error (the trackers say least about them)."""
     velocity_weight: float = 1.0
     """Weight of the joint-velocity term (positions in the heading frame, frame to frame)."""
     noise_m: float = 0.01
@@ -106,14 +114,25 @@ class TrackerRuntimeConfig:
     """Predicted contact probability above which a foot is locked."""
     release_frames: int = 5
     """Frames over which a released foot blends back from its lock to the network's foot."""
+    lock_height_m: float = 0.12
+    """A contact locks a foot only while the network's foot is at most this far above the floor."""
+    lock_speed_mps: float = 0.35
+    """... and slower than this (the animation pipeline's contact speed); a lock holds below 1.5 times it."""
+    lock_drift_m: float = 0.08
+    """A lock is released when the network's foot moves farther than this from it (a contact the pose disagrees
+    with is dropped rather than stretching the leg)."""
     floor_y: float = 0.0
     """Floor height (y up, metres) for the anomaly score's below-floor term and the foot locks' height."""
     seed: int = 0
     """Seed of the latent noise vectors (sample 0 is always the zero vector: the prior's mean)."""
+    fast: bool = True
+    """Run the per-frame geometry (features, 6D -> FK, anomaly score, leg IK) as numba kernels
+    (:mod:`smplik.tracking.kernels`) when numba is installed; False (or no numba): the numpy reference."""
     foot_lock: bool = True
     """Lock feet on predicted contacts (two-bone leg IK)."""
     tracker_fit: bool = False
     """Meet the trackers exactly where the skeleton allows: the root from the pelvis tracker (position, and
     rotation when given), the wrists by two-bone arm IK to their positions and their rotations (when given), the
-    head's rotation (the paper's suggested extra IK pass on the arms). Off by default: with the shipped model it
-    raises the error (benchmarks/results/tracking.json, ``ours_fit``) and passes tracker noise straight through."""
+    head's rotation (the paper's suggested extra IK pass on the arms). Off by default: it lowers the error on exact
+    trackers but passes tracker noise straight through and unlocks feet (benchmarks/results/tracking.json,
+    ``ours_fit``)."""

@@ -36,6 +36,15 @@ def _mlp(d_in: int, d: int, d_out: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(d_in, d), nn.SiLU(), nn.Linear(d, d), nn.SiLU(), nn.Linear(d, d_out))
 
 
+def init_identity_rotations(head: nn.Linear) -> None:
+    """Start an output layer's 24 6D rotations at the identity: the bias of those columns is the identity's 6D
+    (1, 0, 0, 0, 1, 0), so a small output is the rest pose. Without it a column near zero is normalised into an
+    arbitrary direction (a spine joint twisted by pi, undone by the next one, costs almost no position error and
+    the network settled there: the spine-twist anomaly of the first model)."""
+    with torch.no_grad():
+        head.bias[:NUM_OUT_ROT] += torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0]).repeat(24)
+
+
 class TrackingNet(nn.Module):
     """GRU conditional VAE (see the module docstring). Buffers ``x_mean``/``x_std`` standardise the inputs."""
 
@@ -50,6 +59,7 @@ class TrackingNet(nn.Module):
         self.prior = nn.Linear(H, 2 * Z)
         self.posterior = _mlp(H + TARGET_DIM, H, 2 * Z)
         self.decoder = _mlp(H + Z + 13, cfg.decoder, OUT_DIM)
+        init_identity_rotations(self.decoder[-1])
 
     def condition(self, x: Tensor, body: Tensor, h0: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Condition states. x (B, T, d_x) raw features, body (B, 13) [beta, gender one-hot], h0 (1, B, H) or None
@@ -106,6 +116,7 @@ class WindowMLP(nn.Module):
         self.register_buffer("x_std", torch.ones(d_x))
         self.net = nn.Sequential(nn.Linear(d_x * cfg.window + 13, 512), nn.SiLU(), nn.Linear(512, 512), nn.SiLU(),
                                  nn.Linear(512, 512), nn.SiLU(), nn.Linear(512, OUT_DIM))
+        init_identity_rotations(self.net[-1])
 
     def forward(self, x: Tensor, body: Tensor, eps: Tensor | None = None) -> Tensor:
         """x (B, T, d_x), body (B, 13) -> outputs (B, T, OUT_DIM); frame t sees frames t - window + 1 .. t."""

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smplik.conventions import JOINT_INDEX, Gender
+from smplik.conventions import JOINT_INDEX, PARENTS, Gender
 from smplik.tracking.config import TrackerRuntimeConfig
 from smplik.tracking.data import body_vector
 from smplik.tracking.fast import (
@@ -47,6 +47,7 @@ from smplik.tracking.io import TrackerSignals
 from smplik.tracking.model_io import TrackingModel, load_model
 from smplik.tracking.network import TrackingNet
 
+_IDENTITY_Q = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (8, 1))
 ANOMALY_THRESHOLD = 0.02
 """A pose whose :func:`anomaly_scores` exceeds this is implausible (counted in the benchmark's anomaly rate)."""
 CROSS_PAIRS = tuple((JOINT_INDEX[f"left_{j}"], JOINT_INDEX[f"right_{j}"]) for j in ("knee", "ankle", "foot"))
@@ -59,6 +60,19 @@ RANGE_MARGIN_RAD = 0.2
 zero rotation: a few hundredths of a radian there are no anomaly)."""
 _COLLARS = {JOINT_INDEX[f"{s}_shoulder"]: JOINT_INDEX[f"{s}_collar"] for s in ("left", "right")}
 _COLLARS = np.array([_COLLARS.get(j, 0) for j in range(24)])
+_PARENTS = np.array(PARENTS, dtype=np.int64)
+_CROSS_PAIRS = np.array(CROSS_PAIRS, dtype=np.int64)
+
+
+def _kernels():  # noqa: ANN202 (the module, or None without numba)
+    """:mod:`smplik.tracking.kernels` when numba is installed, else None (the numpy path)."""
+    try:
+        from smplik.tracking import kernels
+    except ImportError:
+        return None
+    return kernels
+
+
 _LEGS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"], JOINT_INDEX["left_foot"]),
          (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"], JOINT_INDEX["right_foot"]))
 
@@ -116,7 +130,14 @@ class _FootLock:
     the pose disagrees with is dropped rather than stretching the leg)."""
 
     def __init__(self, threshold: float, release_frames: int, floor_y: float = 0.0, fps: float = 60.0,
-                 max_height_m: float = 0.12, max_speed_mps: float = 0.35, max_drift_m: float = 0.08) -> None:
+                 max_height_m: float = 0.12, max_speed_mps: float = 0.35, max_drift_m: float = 0.08,
+                 fast: bool = True) -> None:
+        kernels = _kernels() if fast else None
+        if kernels is None:
+            from smplik.limb_ik import two_bone_ik
+        else:
+            two_bone_ik = kernels.two_bone_ik
+        self.two_bone_ik = two_bone_ik
         self.threshold, self.release_frames, self.fps = threshold, release_frames, fps
         self.floor_y, self.max_height_m, self.max_drift_m = floor_y, max_height_m, max_drift_m
         self.max_speed_mps = max_speed_mps
@@ -126,9 +147,7 @@ class _FootLock:
         self.release_from = [np.zeros(3), np.zeros(3)]
 
     def apply(self, R_local: np.ndarray, R_world: np.ndarray, p: np.ndarray, prob: np.ndarray) -> np.ndarray:
-        """Locked local rotations (24, 3, 3) of one pose (world rotations R_world, joints p)."""
-        from smplik.limb_ik import two_bone_ik
-
+        """Locked local rotations (24, 3, 3) of one pose (world rotations R_world, joints p), float64."""
         rows, targets = [], []
         feet = p[[leg[3] for leg in _LEGS]]
         speed = (np.zeros(2) if self.prev_feet is None
@@ -158,7 +177,7 @@ class _FootLock:
         legs = np.array([_LEGS[s] for s in rows])  # (n, 4)
         hip, knee, ankle, foot = legs.T
         target = np.stack(targets) - (p[foot] - p[ankle])
-        R_a, R_b = two_bone_ik(p[hip], p[knee], p[ankle], target, -R_world[knee, :, 0])
+        R_a, R_b = self.two_bone_ik(p[hip], p[knee], p[ankle], target, -R_world[knee, :, 0])
         out = R_local.copy()
         G_hip = R_a @ R_world[hip]
         G_knee = R_a @ R_b @ R_world[knee]
@@ -185,6 +204,9 @@ class Tracker:
         self.body = body.numpy().astype(np.float32)  # (13,)
         self.fast = NumpyTrackingNet(model.net)
         self.pose_lo, self.pose_hi = model.pose_lo.numpy(), model.pose_hi.numpy()
+        self.kernels = _kernels() if config.fast else None
+        self.J_rest64 = self.J_rest.astype(np.float64)
+        self.x = np.zeros(self.fast.x_mean.shape[0], dtype=np.float32)  # the frame's features (kernel path)
         rng = np.random.default_rng(config.seed)
         self.eps = rng.standard_normal((config.samples, model.cfg.latent)).astype(np.float32)
         self.eps[0] = 0.0
@@ -221,7 +243,10 @@ class Tracker:
         self.buffer: deque[tuple[np.ndarray, float, np.ndarray, tuple[np.ndarray, np.ndarray]]] = deque()
         self.current = 0
         self.transition: tuple[int, int, int] | None = None  # (from, to, first output frame)
-        self.lock = _FootLock(self.cfg.contact_threshold, self.cfg.release_frames, self.cfg.floor_y, self.fps)
+        c = self.cfg
+        self.lock = _FootLock(c.contact_threshold, c.release_frames, c.floor_y, self.fps, max_height_m=c.lock_height_m,
+                              max_speed_mps=c.lock_speed_mps, max_drift_m=c.lock_drift_m,
+                              fast=self.kernels is not None)
 
     @property
     def latency(self) -> int:
@@ -233,16 +258,25 @@ class Tracker:
         without rotation are ignored), in the model's tracker order (:attr:`trackers`). Returns the output pose of
         frame ``frame_in - latency``, or None while the look-ahead buffer fills."""
         K = len(self.trackers)
-        p = np.asarray(positions, dtype=np.float32).reshape(K, 3)
-        if rotations is None:
-            R = np.broadcast_to(np.eye(3, dtype=np.float32), (K, 3, 3))
+        if self.kernels is not None:
+            p = np.asarray(positions, dtype=np.float64).reshape(K, 3)
+            q = _IDENTITY_Q[:K] if rotations is None else np.asarray(rotations, dtype=np.float64).reshape(K, 4)
+            R = np.empty((K, 3, 3))
+            p_prev, yaw_prev = self.prev if self.prev is not None else (p, 0.0)
+            yaw, ox, oz = self.kernels.frame_features(p, q, p_prev, yaw_prev, self.has_rot, self.fps,
+                                                      self.prev is None, self.x, R)
+            x, origin = self.x, np.array([ox, 0.0, oz])
         else:
-            R = quaternion_to_matrix_np(np.asarray(rotations, dtype=np.float32).reshape(K, 4))
-        p_prev, yaw_prev = self.prev if self.prev is not None else (p, None)
-        x, yaw, origin = frame_features(p, R, p_prev, yaw_prev if yaw_prev is not None else 0.0, self.has_rot,
-                                        self.fps)
-        if yaw_prev is None:  # the first frame: no heading change (as the batch features)
-            x[-2:] = (0.0, 1.0)
+            p = np.asarray(positions, dtype=np.float32).reshape(K, 3)
+            if rotations is None:
+                R = np.broadcast_to(np.eye(3, dtype=np.float32), (K, 3, 3))
+            else:
+                R = quaternion_to_matrix_np(np.asarray(rotations, dtype=np.float32).reshape(K, 4))
+            p_prev, yaw_prev = self.prev if self.prev is not None else (p, None)
+            x, yaw, origin = frame_features(p, R, p_prev, yaw_prev if yaw_prev is not None else 0.0, self.has_rot,
+                                            self.fps)
+            if yaw_prev is None:  # the first frame: no heading change (as the batch features)
+                x[-2:] = (0.0, 1.0)
         self.prev = (p, yaw)
         self.h = self.fast.condition_step(x, self.body, self.h)
         self.frame_in += 1
@@ -262,7 +296,24 @@ class Tracker:
         return out
 
     def _score(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        if self.kernels is not None:
+            return self.kernels.anomaly_scores(R, p, self.pose_lo, self.pose_hi, self.cfg.floor_y, BELOW_FLOOR_M,
+                                               CROSS_MIN_M, _CROSS_PAIRS, RANGE_MARGIN_RAD)
         return anomaly_scores(R, p, self.pose_lo, self.pose_hi, self.cfg.floor_y)
+
+    def _decode(self, out: np.ndarray, yaw: float, origin: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Network outputs (N, OUT_DIM) -> ``(R_local (N, 24, 3, 3), transl (N, 3), contact_prob (N, 2),
+        R_world (N, 24, 3, 3), p_world (N, 24, 3))``."""
+        if self.kernels is None:
+            R, transl, prob = decode_np(out, yaw, origin, self.J_rest)
+            G, p = fk_np(R, self.J_rest, transl)
+            return R, transl, prob, G, p
+        N = out.shape[0]
+        R, G = np.empty((N, 24, 3, 3)), np.empty((N, 24, 3, 3))
+        transl, prob, p = np.empty((N, 3)), np.empty((N, 2)), np.empty((N, 24, 3))
+        self.kernels.decode_fk(out, yaw, origin, self.J_rest64, _PARENTS, R, transl, prob, G, p)
+        return R, transl, prob, G, p
 
     def _fit_trackers(self, R: np.ndarray, transl: np.ndarray, p_trk: np.ndarray, R_trk: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
@@ -300,9 +351,7 @@ class Tracker:
 
     def _select(self, h: np.ndarray, yaw: float, origin: np.ndarray) -> None:
         """Score the N samples at the newest frame; start a transition when the current one is an outlier."""
-        out = self.fast.sample(h, self.eps, self.body)
-        R, transl, _ = decode_np(out, yaw, origin, self.J_rest)
-        _, p = fk_np(R, self.J_rest, transl)
+        R, _, _, _, p = self._decode(self.fast.sample(h, self.eps, self.body), yaw, origin)
         s = self._score(R, p)
         if self.transition is not None:
             return
@@ -326,11 +375,10 @@ class Tracker:
 
     def _emit(self, h: np.ndarray, yaw: float, origin: np.ndarray, eps: np.ndarray,
               signals: tuple[np.ndarray, np.ndarray]) -> TrackedPose:
-        out = self.fast.sample(h, eps[None], self.body)
-        R, transl, prob = decode_np(out, yaw, origin, self.J_rest)
+        R, transl, prob, R_w, p = self._decode(self.fast.sample(h, eps[None], self.body), yaw, origin)
         if self.cfg.tracker_fit:
-            R, transl = self._fit_trackers(R, transl, *signals)
-        R_w, p = fk_np(R, self.J_rest, transl)
+            R, transl = self._fit_trackers(R.astype(np.float32), transl.astype(np.float32), *signals)
+            R_w, p = fk_np(R, self.J_rest, transl)
         score = float(self._score(R, p)[0])
         R_np, prob_np = R[0].astype(np.float64), prob[0]
         if self.cfg.foot_lock:

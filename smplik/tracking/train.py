@@ -1,8 +1,10 @@
 """Training loop of the tracking model, top to bottom (nanoGPT style): batch, loss, step, validate, keep best.
 
 Loss per frame (Milef et al. eq. 1, with our terms): mean joint position error of the FK of the predicted pose
-(metres, world frame) + ``velocity_weight`` times the frame-to-frame joint velocity error (m/s / 10) +
-``rotation_weight`` times the L1 of the local 6D rotations + ``contact_weight`` times the contact BCE +
+(metres, world frame) + ``leg_weight`` times that of the leg joints + ``velocity_weight`` times the
+frame-to-frame joint velocity error (m/s / 10) + ``rotation_weight`` times the L1 of the local 6D rotations +
+``matrix_weight`` times the L1 of the normalised local rotation matrices (root excluded) + ``foot_weight`` times
+the predicted ankle/foot speed on the truth's contact frames (m/s / 10) + ``contact_weight`` times the contact BCE +
 ``kl_weight`` times KL(q || p) (with ``free_bits`` nats per latent dimension, against posterior collapse).
 Validation: deterministic (eps = 0) MPJPE on fixed windows of the validation
 split; the best state is the one saved.
@@ -26,6 +28,7 @@ from torch import Tensor
 
 from smplik.atomic import write_json_atomic
 from smplik.body_model import BodyModelSet
+from smplik.conventions import JOINT_INDEX
 from smplik.data.dataset import load_cache
 from smplik.kinematics import forward_kinematics
 from smplik.tracking.config import TrackingNetConfig, TrackingTrainConfig
@@ -33,6 +36,11 @@ from smplik.tracking.data import WindowBatch, WindowSampler
 from smplik.tracking.features import NUM_OUT_ROT, decode_pose
 from smplik.tracking.model_io import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, save_checkpoint
 from smplik.tracking.network import TrackingNet, WindowMLP, build_network
+
+LEG_JOINTS = [JOINT_INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("hip", "knee", "ankle", "foot")]
+FOOT_JOINTS = [JOINT_INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("ankle", "foot")]
+FOOT_SIDES = [0, 0, 1, 1]
+"""The contact column (left, right) of each of :data:`FOOT_JOINTS`."""
 
 
 def batch_loss(net: TrackingNet | WindowMLP, b: WindowBatch, cfg: TrackingTrainConfig, fps: float,
@@ -45,13 +53,18 @@ def batch_loss(net: TrackingNet | WindowMLP, b: WindowBatch, cfg: TrackingTrainC
     dv = ((p[:, 1:] - p[:, :-1]) - (b.p_world[:, 1:] - b.p_world[:, :-1])) * (fps * 0.1)
     vel = dv.norm(dim=-1).mean()
     rot = (out[..., :NUM_OUT_ROT] - b.target[..., :NUM_OUT_ROT]).abs().mean()
+    mat = (R[..., 1:, :, :] - b.R_local[..., 1:, :, :]).abs().mean()
+    legs = (p[..., LEG_JOINTS, :] - b.p_world[..., LEG_JOINTS, :]).norm(dim=-1).mean()
+    on = (b.contact[:, 1:] * b.contact[:, :-1])[..., FOOT_SIDES]  # (B, T - 1, 4) both frames in contact
+    foot_v = (p[:, 1:, FOOT_JOINTS] - p[:, :-1, FOOT_JOINTS]).norm(dim=-1) * (fps * 0.1)
+    foot = (foot_v * on).sum() / on.sum().clamp_min(1.0)
     bce = torch.nn.functional.binary_cross_entropy_with_logits(out[..., NUM_OUT_ROT + 3:], b.contact)
     kl_m = kl.sum(-1).mean()
     kl_free = torch.clamp(kl.mean((0, 1)), min=cfg.free_bits).sum()  # free bits per latent dimension
-    loss = (pos + cfg.velocity_weight * vel + cfg.rotation_weight * rot + cfg.contact_weight * bce
-            + cfg.kl_weight * kl_free)
-    return loss, {"pos_mm": 1000 * pos.item(), "vel": vel.item(), "rot": rot.item(), "bce": bce.item(),
-                  "kl": kl_m.item()}
+    loss = (pos + cfg.velocity_weight * vel + cfg.rotation_weight * rot + cfg.matrix_weight * mat
+            + cfg.leg_weight * legs + cfg.foot_weight * foot + cfg.contact_weight * bce + cfg.kl_weight * kl_free)
+    return loss, {"pos_mm": 1000 * pos.item(), "vel": vel.item(), "rot": rot.item(), "mat": mat.item(),
+                  "legs_mm": 1000 * legs.item(), "foot": foot.item(), "bce": bce.item(), "kl": kl_m.item()}
 
 
 @torch.no_grad()
