@@ -74,6 +74,7 @@ def cmu_middle_frames(cmu: Path, count: int) -> list[Pose]:
 
 
 def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.data.dataset import build_cache, find_sources, load_cache, load_split
 
     if not cache.is_file():

@@ -126,6 +126,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     threadpool_limits(1)  # numpy's BLAS on one thread too (the per-frame path is numpy)
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.data.dataset import build_cache, find_sources, load_cache
 
     cache = Path(args.cache)

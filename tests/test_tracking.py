@@ -435,6 +435,7 @@ def test_track_command_writes_an_animation(tmp_path):
 def test_shipped_model_beats_a_trivial_baseline_on_held_out_cmu(shared_data, model):
     """CMU 02_01 (subject 02: test split): trackers from the motion; the model's MPJPE is far below the rest pose
     placed at the pelvis tracker, turned to the head's heading."""
+    import shape_inversion.auto_preset  # noqa: F401 - preset "auto", as the data commands install it
     from smplik.data.dataset import find_sources, read_source, subsample_indices
     from smplik.kinematics import forward_kinematics
     from smplik.rotations import axis_angle_to_matrix
