@@ -28,7 +28,7 @@ def test_every_character_command_has_the_same_character_options():
     from workflows.animation.cli import animate_cmd
     from workflows.cli import from_estimate_cmd
     from workflows.editor.cli import edit_cmd
-    from workflows.tracking_cli import track_cmd
+    from workflows.tracking.cli import track_cmd
 
     names = ["rig", "map_file", "units", "up", "rest", "bind", "positions", "max_joints", "root"]
     for command in (invert_shape, animate_cmd, from_estimate_cmd, edit_cmd, track_cmd):

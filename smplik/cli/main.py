@@ -41,7 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "average-models": ("smplik.cli.models:average_command", "Average models fine-tuned from one start (model soup)."),
     "benchmark": ("workflows.benchmark_cli:app",
                   "Randomized-effector IK benchmark: make files, run methods, calibrate."),
-    "track": ("workflows.tracking_cli:track_cmd", "Full body from VR trackers (head, wrists, pelvis) -> animation."),
+    "track": ("workflows.tracking.cli:track_cmd", "Full body from VR trackers (head, wrists, pelvis) -> animation."),
 }
 """Every top-level command, in the order ``smplik --help`` lists them."""
 

@@ -1,4 +1,4 @@
-"""``smplik track``: full body from a few VR trackers (logic in :mod:`workflows.tracking`)."""
+"""``smplik track``: full body from a few VR trackers (logic in :mod:`workflows.tracking.run`)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def track_cmd(
 ) -> None:
     """Tracker recording (head, wrists, pelvis) -> OUT/animation.json (smplik-animation) and BVH/GLB."""
     from workflows.animation.clips import AnimationError
-    from workflows.tracking import track_file
+    from workflows.tracking.run import track_file
 
     with user_errors():
         values = None
