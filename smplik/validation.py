@@ -106,17 +106,17 @@ class JSONPathError:
         return self.error_class(f"{self.source}: {text}" if self.source else text)
 
 
-def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: str = "JSON file",
-              loads: Callable[[str], Any] = json.loads) -> Any:
-    """Read a JSON file with one-line errors (``error``) naming the file: missing, unreadable, too big,
-    not UTF-8, invalid JSON or nested too deeply."""
-    from smplik.limits import JSON_BYTES, LimitError, read_bounded
+def read_text(path: str | Path, error: type[Exception] = ValueError, *, what: str = "text file",
+              limit: Any = None) -> str:
+    """Read a UTF-8 text file under ``limit`` (default :data:`smplik.limits.TEXT_BYTES`) with one-line errors
+    (``error``) naming the file: missing, a folder, unreadable, too big or not UTF-8."""
+    from smplik.limits import TEXT_BYTES, LimitError, read_bounded
 
     path = Path(path)
     try:
         if path.is_dir():
             raise IsADirectoryError(path)
-        text = read_bounded(path, JSON_BYTES).decode("utf-8")
+        return read_bounded(path, TEXT_BYTES if limit is None else limit).decode("utf-8")
     except LimitError as exc:
         raise error(f"{what[0].upper()}{what[1:]} {exc}") from None
     except FileNotFoundError:
@@ -127,6 +127,15 @@ def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: st
         raise error(f"{path}: {what} is not UTF-8 text.") from None
     except OSError as exc:
         raise error(f"{path}: cannot read {what} ({exc.strerror or exc}).") from None
+
+
+def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: str = "JSON file",
+              loads: Callable[[str], Any] = json.loads) -> Any:
+    """Read a JSON file with one-line errors (``error``) naming the file: missing, unreadable, too big,
+    not UTF-8, invalid JSON or nested too deeply."""
+    from smplik.limits import JSON_BYTES
+
+    text = read_text(path, error, what=what, limit=JSON_BYTES)
     try:
         return loads(text)
     except json.JSONDecodeError as exc:

@@ -142,6 +142,13 @@ def test_steamvr_log_reader(tmp_path):
     bad.write_text(lines[0] + "\n{not json\n")
     with pytest.raises(TrackerFileError, match="bad.jsonl: line 2: not a SteamVR log record"):
         read_steamvr_jsonl(bad)
+    with pytest.raises(TrackerFileError, match="is a folder, not a tracker file"):
+        read_steamvr_jsonl(tmp_path)
+    with pytest.raises(TrackerFileError, match="Tracker file not found: .*missing.jsonl"):
+        read_steamvr_jsonl(tmp_path / "missing.jsonl")
+    (tmp_path / "latin1.jsonl").write_bytes(b"\xff\xfe{}")
+    with pytest.raises(TrackerFileError, match="latin1.jsonl: tracker file is not UTF-8 text"):
+        read_steamvr_jsonl(tmp_path / "latin1.jsonl")
 
 
 # ----------------------------------------------------------------------------- network and features

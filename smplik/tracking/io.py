@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import JOINT_NAMES
-from smplik.validation import JSONPathError, finite_array, read_json, short_repr
+from smplik.validation import JSONPathError, finite_array, read_json, read_text, short_repr
 
 TRACKERS_FORMAT = "smplik-trackers"
 TRACKERS_VERSION = 1
@@ -209,18 +209,9 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     one on the headset's left at the first frame where both are valid; a single generic tracker gives the
     pelvis by position. Frames where a device's pose is invalid are interpolated from its valid neighbours.
     """
-    from smplik.limits import TEXT_BYTES, LimitError, read_bounded
-
     path = Path(path)
     err = JSONPathError(str(path), TrackerFileError)
-    try:
-        text = read_bounded(path, TEXT_BYTES).decode("utf-8")
-    except LimitError as exc:
-        raise TrackerFileError(f"Tracker file {exc}") from None
-    except FileNotFoundError:
-        raise TrackerFileError(f"Tracker file not found: {path}") from None
-    except UnicodeDecodeError:
-        raise TrackerFileError(f"{path}: not UTF-8 text.") from None
+    text = read_text(path, TrackerFileError, what="tracker file")
     times: list[float] = []
     tracks: dict[tuple[str, int], dict[int, tuple[np.ndarray, np.ndarray]]] = {}
     for n, line in enumerate(text.splitlines()):
