@@ -7,7 +7,9 @@ left_wrist, right_wrist, pelvis world positions and rotations of the truth (:fun
 exact or with noise (position sigma 1 cm, rotation 2 degrees, per frame).
 
 Methods:
-* ``ours``: the shipped tracking model, deterministic (``samples=1``), with foot locks (default runtime);
+* ``ours``: the shipped tracking model, deterministic (``samples=1``), with foot locks (default runtime: the
+  offline locks of :func:`smplik.tracking.runtime.track_sequence`);
+* ``ours_causal``: the same with the streaming (causal) foot locks of :meth:`Tracker.step` (``offline_lock=False``);
 * ``ours_16``: 16 samples with sample selection (look-ahead 10 frames);
 * ``ours_fit``: deterministic with the tracker fit (root, wrists and head set from the trackers; ablation);
 * ``ik``: the shipped per-frame IK solver (``IKSolver.load()``) given the 4 trackers as exact position and
@@ -22,7 +24,9 @@ speed on the truth's contact frames, :func:`workflows.animation.clean.foot_conta
 the anomaly rate (share of frames whose :func:`smplik.tracking.runtime.anomaly_scores` exceeds
 :data:`ANOMALY_THRESHOLD`). Cost: per-frame wall time of ``Tracker.step`` on one thread, p50 and p90.
 
-Usage: ``python benchmarks/tracking.py [--frames 600] [--mlp PATH]`` -> ``benchmarks/results/tracking.json``.
+Usage: ``python benchmarks/tracking.py [--frames 600] [--mlp PATH] [--split test]`` ->
+``benchmarks/results/tracking.json`` (``tracking_validation.json`` for ``--split validation``, the split on which
+the runtime's parameters are chosen).
 """
 
 from __future__ import annotations
@@ -120,6 +124,8 @@ def main() -> None:
     ap.add_argument("--cache", default="/tmp/smplik_tracking_cmu60.npz", help="60 Hz pose cache (built if missing).")
     ap.add_argument("--frames", type=int, default=600, help="Most frames per test clip.")
     ap.add_argument("--mlp", default=None, help="The AvatarPoser-style baseline's model file.")
+    ap.add_argument("--split", default="test", choices=("train", "validation", "test"),
+                    help="Clips of configs/split_cmu_dance.json to run (choose parameters on validation).")
     ap.add_argument("--no-clean", action="store_true", help="Skip the IK + cleaning baseline.")
     ap.add_argument("--reuse", default=None, help="A previous results file: its ik, ik_clean, mlp and truth rows are "
                     "kept and those methods not rerun (same --frames and cache).")
@@ -135,7 +141,7 @@ def main() -> None:
         sources = find_sources(root / "cmu", "bvh") + find_sources(root / "cmu-dance", "bvh")
         build_cache(sources, fps=60, split=Path(__file__).resolve().parents[1] / "configs" / "split_cmu_dance.json",
                     out=cache, skip_unassigned=True)
-    data = load_cache(cache).subset("test")
+    data = load_cache(cache).subset(args.split)
     fps = data.fps
     model = load_model()
     lo, hi = model.pose_lo.numpy(), model.pose_hi.numpy()
@@ -154,6 +160,8 @@ def main() -> None:
         old = json.loads(Path(args.reuse).read_text())
         if old.get("frames_per_clip") != args.frames:
             raise SystemExit(f"{args.reuse} was run with --frames {old.get('frames_per_clip')}, not {args.frames}.")
+        if old.get("split", "test") != args.split:
+            raise SystemExit(f"{args.reuse} was run on the {old.get('split', 'test')} split, not {args.split}.")
         for noise in NOISES:
             rows[noise].update({k: v for k, v in old["per_clip"][noise].items() if k in reused})
         seconds.update({k: v for k, v in old["seconds"].items() if k in reused})
@@ -173,10 +181,11 @@ def main() -> None:
             sig = signals_from_motion(R_true, transl_true, J, model.cfg.trackers, fps, noise_m=sigma_m,
                                       noise_deg=sigma_deg, rng=np.random.default_rng(int(c)))
             methods = {}
-            for label, samples, fit in (("ours", 1, False), ("ours_16", 16, False), ("ours_fit", 1, True)):
+            for label, samples, fit, offline in (("ours", 1, False, True), ("ours_causal", 1, False, False),
+                                                 ("ours_16", 16, False, True), ("ours_fit", 1, True, True)):
                 t0 = time.perf_counter()
                 tr = Tracker.load(betas=betas, gender=gender,
-                                  config=TrackerRuntimeConfig(samples=samples, tracker_fit=fit))
+                                  config=TrackerRuntimeConfig(samples=samples, tracker_fit=fit, offline_lock=offline))
                 res = track_sequence(tr, sig)
                 seconds[label] = seconds.get(label, 0.0) + time.perf_counter() - t0
                 methods[label] = (res.R_local, res.transl)
@@ -220,7 +229,8 @@ def main() -> None:
     if not args.reuse:
         mlp_info = None if mlp is None else {k: mlp.info.get(k) for k in ("net", "val_mpjpe_mm", "steps", "seconds",
                                                                           "continued_from")}
-    path = save("tracking", {"summary": summary, "per_clip": rows, "per_frame_cost_ms": cost,
+    path = save("tracking" if args.split == "test" else f"tracking_{args.split}", {"summary": summary,
+                             "split": args.split, "per_clip": rows, "per_frame_cost_ms": cost,
                              "seconds": {k: round(v, 1) for k, v in seconds.items()}, "frames_per_clip": args.frames,
                              "model": {k: model.info.get(k) for k in ("net", "val_mpjpe_mm", "steps", "seconds")},
                              "mlp": mlp_info})

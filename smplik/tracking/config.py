@@ -130,6 +130,19 @@ class TrackerRuntimeConfig:
     (:mod:`smplik.tracking.kernels`) when numba is installed; False (or no numba): the numpy reference."""
     foot_lock: bool = True
     """Lock feet on predicted contacts (two-bone leg IK)."""
+    offline_lock: bool = True
+    """When the whole recording is known (:func:`smplik.tracking.runtime.track_sequence`, ``smplik track``), lock
+    the feet offline (:func:`smplik.tracking.runtime.offline_foot_lock`) instead of causally; :meth:`Tracker.step`
+    stays causal either way."""
+    contact_off: float = 0.3
+    """Offline locks: a contact segment starts above ``contact_threshold`` and ends below this (hysteresis)."""
+    min_contact_frames: int = 4
+    """Offline locks: contact segments shorter than this are dropped."""
+    lock_blend_frames: int = 6
+    """Offline locks: frames before and after a segment over which the lock is blended in and out (smoothstep)."""
+    lock_centre: str = "median"
+    """Offline locks: the lock's height, ``"median"`` (the median of the network's foot over the segment, like the
+    horizontal position) or ``"min"`` (the segment's low point)."""
     tracker_fit: bool = False
     """Meet the trackers exactly where the skeleton allows: the root from the pelvis tracker (position, and
     rotation when given), the wrists by two-bone arm IK to their positions and their rotations (when given), the

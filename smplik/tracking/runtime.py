@@ -19,7 +19,10 @@ Per input frame (constant cost: the GRU carries the history):
    network's foot over ``release_frames`` after the contact ends.
 
 Outputs are :class:`TrackedPose` (numpy). :func:`track_sequence` runs a whole recording through the same
-streaming path and returns one pose per input frame.
+streaming path and returns one pose per input frame; knowing the whole recording, it replaces the causal locks of
+step 4 by an offline pass (:func:`offline_foot_lock`, :attr:`TrackerRuntimeConfig.offline_lock`): contact segments
+from the predicted probabilities (hysteresis, minimum length), each foot pinned at the median of the network's foot
+over its segment, blended in and out by smoothstep.
 """
 
 from __future__ import annotations
@@ -112,7 +115,8 @@ def frame_features(p: np.ndarray, R: np.ndarray, p_prev: np.ndarray, yaw_prev: f
 @dataclass(frozen=True)
 class TrackedPose:
     """One output frame: R_local (24, 3, 3) local rotations (root in world), transl (3,) smplx translation,
-    contacts (2,) bool (left, right), the sample shown, and its anomaly score."""
+    contacts (2,) bool (left, right), the sample shown, its anomaly score, and the predicted contact
+    probabilities (2,) (left, right)."""
 
     frame: int
     R_local: np.ndarray
@@ -120,6 +124,7 @@ class TrackedPose:
     contacts: np.ndarray
     sample: int
     anomaly: float
+    contact_prob: np.ndarray | None = None
 
 
 class _FootLock:
@@ -197,6 +202,9 @@ class Tracker:
             raise ValueError("Tracker needs a cvae tracking model.")
         if config.samples < 1:
             raise ValueError(f"samples must be at least 1, got {config.samples}.")
+        if config.lock_centre not in ("median", "min"):
+            raise ValueError(f"lock_centre must be 'median' or 'min', got {config.lock_centre!r}.")
+        self.stream_lock = True  # the causal locks of step 4 (track_sequence turns them off for its offline pass)
         self.model, self.net, self.cfg = model, model.net, config
         self.trackers = model.cfg.trackers
         self.fps = model.cfg.fps
@@ -381,12 +389,14 @@ class Tracker:
             R_w, p = fk_np(R, self.J_rest, transl)
         score = float(self._score(R, p)[0])
         R_np, prob_np = R[0].astype(np.float64), prob[0]
-        if self.cfg.foot_lock:
+        locking = self.cfg.foot_lock and self.stream_lock
+        if locking:
             R_np = self.lock.apply(R_np, R_w[0].astype(np.float64), p[0].astype(np.float64), prob_np)
-        contacts = (np.array([lk is not None for lk in self.lock.lock]) if self.cfg.foot_lock
+        contacts = (np.array([lk is not None for lk in self.lock.lock]) if locking
                     else prob_np > self.cfg.contact_threshold)
         pose = TrackedPose(self.frame_out, R_np, transl[0].astype(np.float64), contacts,
-                           self.current if self.transition is None else self.transition[1], score)
+                           self.current if self.transition is None else self.transition[1], score,
+                           np.asarray(prob_np, dtype=np.float64))
         self.frame_out += 1
         return pose
 
@@ -423,20 +433,120 @@ def resample_signals(signals: TrackerSignals, fps: float) -> tuple[np.ndarray, n
     return P, Q, nearest
 
 
+def contact_segments(prob: np.ndarray, on: float, off: float, min_frames: int) -> list[tuple[int, int]]:
+    """Contact segments ``[start, end)`` of one foot's contact probabilities prob (T,): a segment starts where the
+    probability exceeds ``on`` and ends at the first frame below ``off`` (hysteresis); segments shorter than
+    ``min_frames`` are dropped."""
+    segments, start = [], None
+    for t, q in enumerate(np.asarray(prob, dtype=np.float64)):
+        if start is None and q > on:
+            start = t
+        elif start is not None and q < off:
+            segments.append((start, t))
+            start = None
+    if start is not None:
+        segments.append((start, len(prob)))
+    return [(a, b) for a, b in segments if b - a >= min_frames]
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def lock_weights(segments: list[tuple[int, int]], T: int, blend: int) -> np.ndarray:
+    """Weights (S, T) of S segments ``[start, end)``: 1 inside, smoothstep ramps over ``blend`` frames before
+    and after (0 at the frame ``blend + 1`` away), 0 elsewhere."""
+    W = np.zeros((len(segments), T))
+    ramp = _smoothstep(1.0 - np.arange(1, blend + 1) / (blend + 1))  # (blend,) from near 1 down to near 0
+    for k, (a, b) in enumerate(segments):
+        W[k, a:b] = 1.0
+        before = np.arange(a - 1, a - blend - 1, -1)
+        after = np.arange(b, b + blend)
+        W[k, before[before >= 0]] = ramp[before >= 0]
+        W[k, after[after < T]] = ramp[after < T]
+    return W
+
+
+def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray, J_rest: np.ndarray,
+                      cfg: TrackerRuntimeConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Foot locks over a whole recording. R_local (T, 24, 3, 3), transl (T, 3), contact probabilities prob (T, 2)
+    (left, right), rest joints J_rest (24, 3) -> ``(R_local (T, 24, 3, 3), locked (T, 2) bool)``.
+
+    Per foot: contact segments (:func:`contact_segments`: above ``cfg.contact_threshold`` to below
+    ``cfg.contact_off``, at least ``cfg.min_contact_frames`` long); each segment's lock is the median of the
+    network's foot joint over the segment (its height the median or, ``cfg.lock_centre == "min"``, the low
+    point); the foot's target is the lock inside the segment, blended from and back to the network's foot by
+    smoothstep over ``cfg.lock_blend_frames`` frames on each side (:func:`lock_weights`; overlapping ramps of two
+    segments share the weight). The legs reach the targets by two-bone IK (:func:`smplik.limb_ik.two_bone_ik`,
+    hip and knee; the ankle keeps its world rotation); the rest of the body is untouched."""
+    from smplik.limb_ik import two_bone_ik
+    from smplik.tracking.fast import fk_np
+
+    R_local = np.asarray(R_local, dtype=np.float64)
+    T = R_local.shape[0]
+    R_world, p = fk_np(R_local, np.asarray(J_rest, dtype=np.float64), np.asarray(transl, dtype=np.float64))
+    locked = np.zeros((T, 2), dtype=bool)
+    frames, sides, targets = [], [], []
+    for side, leg in enumerate(_LEGS):
+        segments = contact_segments(prob[:, side], cfg.contact_threshold, cfg.contact_off, cfg.min_contact_frames)
+        if not segments:
+            continue
+        foot = p[:, leg[3]]
+        locks = np.empty((len(segments), 3))
+        for k, (a, b) in enumerate(segments):
+            locks[k] = np.median(foot[a:b], axis=0)
+            if cfg.lock_centre == "min":
+                locks[k, 1] = foot[a:b, 1].min()
+            locked[a:b, side] = True
+        W = lock_weights(segments, T, cfg.lock_blend_frames)
+        total = W.sum(0)
+        active = np.flatnonzero(total > 0)
+        mix = (W[:, active].T @ locks) / total[active, None]
+        w = np.minimum(total[active], 1.0)[:, None]
+        frames.append(active)
+        sides.append(np.full(active.size, side))
+        targets.append(foot[active] + w * (mix - foot[active]))
+    out = R_local.copy()
+    if not frames:
+        return out, locked
+    t = np.concatenate(frames)
+    legs = np.array(_LEGS)[np.concatenate(sides)]  # (n, 4)
+    hip, knee, ankle, foot = legs.T
+    target = np.concatenate(targets) - (p[t, foot] - p[t, ankle])
+    R_a, R_b = two_bone_ik(p[t, hip], p[t, knee], p[t, ankle], target, -R_world[t, knee, :, 0])
+    G_hip = R_a @ R_world[t, hip]
+    G_knee = R_a @ R_b @ R_world[t, knee]
+    out[t, hip] = np.swapaxes(R_world[t, 0], -1, -2) @ G_hip  # both hips hang from the pelvis
+    out[t, knee] = np.swapaxes(G_hip, -1, -2) @ G_knee
+    out[t, ankle] = np.swapaxes(G_knee, -1, -2) @ R_world[t, ankle]
+    return out, locked
+
+
 def track_sequence(tracker: Tracker, signals: TrackerSignals) -> TrackResult:
     """Run a recording through :meth:`Tracker.step` (after :meth:`Tracker.reset`); one pose per input frame
-    (recordings at another rate are resampled to the model's and mapped back to the nearest frame)."""
+    (recordings at another rate are resampled to the model's and mapped back to the nearest frame). With
+    ``foot_lock`` and ``offline_lock`` (the default) the feet are locked by :func:`offline_foot_lock` over the
+    whole recording instead of causally; ``contacts`` are then the locked frames."""
     sig = signals.select(tracker.trackers)
     tracker.reset(sig.has_rotation)
+    offline = tracker.cfg.foot_lock and tracker.cfg.offline_lock
     P, Q, nearest = resample_signals(sig, tracker.fps)
     poses: list[TrackedPose] = []
-    for t in range(P.shape[0]):
-        pose = tracker.step(P[t], Q[t])
-        if pose is not None:
-            poses.append(pose)
-    poses.extend(tracker.flush())
+    tracker.stream_lock = not offline
+    try:
+        for t in range(P.shape[0]):
+            pose = tracker.step(P[t], Q[t])
+            if pose is not None:
+                poses.append(pose)
+        poses.extend(tracker.flush())
+    finally:
+        tracker.stream_lock = True
     assert len(poses) == P.shape[0]
-    poses = [poses[i] for i in nearest]
-    return TrackResult(np.stack([p.R_local for p in poses]), np.stack([p.transl for p in poses]),
-                       np.stack([p.contacts for p in poses]), np.array([p.sample for p in poses]),
-                       np.array([p.anomaly for p in poses]))
+    R, transl = np.stack([p.R_local for p in poses]), np.stack([p.transl for p in poses])
+    contacts = np.stack([p.contacts for p in poses])
+    if offline:
+        R, contacts = offline_foot_lock(R, transl, np.stack([p.contact_prob for p in poses]), tracker.J_rest64,
+                                        tracker.cfg)
+    return TrackResult(R[nearest], transl[nearest], contacts[nearest], np.array([p.sample for p in poses])[nearest],
+                       np.array([p.anomaly for p in poses])[nearest])
