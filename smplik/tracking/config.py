@@ -140,6 +140,14 @@ class TrackerRuntimeConfig:
     """Offline locks: contact segments shorter than this are dropped."""
     lock_blend_frames: int = 6
     """Offline locks: frames before and after a segment over which the lock is blended in and out (smoothstep)."""
+    lock_reach: float = 1.0
+    """Offline locks: the farthest the ankle may be from the hip, as a share of the leg's length; beyond it the foot
+    pivots about its foot joint (heel rise) instead of straightening the knee. 1 (or more): no heel rise."""
+    lock_smooth_frames: float = 0.0
+    """Offline locks: Gaussian sigma (frames) over which the legs' lock corrections are smoothed in time (0: off)."""
+    lock_repin: bool = True
+    """Offline locks: after smoothing (``lock_smooth_frames`` > 0), pin the feet again on the contact segments'
+    frames (the blends keep the smoothed legs)."""
     lock_centre: str = "median"
     """Offline locks: the lock's height, ``"median"`` (the median of the network's foot over the segment, like the
     horizontal position) or ``"min"`` (the segment's low point)."""

@@ -468,6 +468,32 @@ def lock_weights(segments: list[tuple[int, int]], T: int, blend: int) -> np.ndar
     return W
 
 
+def _axis_rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) about unit axes (..., 3) by angles (...) (Rodrigues)."""
+    K = np.zeros((*axis.shape[:-1], 3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
+    K = K - np.swapaxes(K, -1, -2)
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * K + (1.0 - c) * K @ K
+
+
+def heel_rise(foot: np.ndarray, ankle_offset: np.ndarray, hip: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """The least rotation (n, 3, 3) of the foot about its foot joint (toe pivot) that brings the ankle within
+    ``reach`` (n,) of the hip: foot targets (n, 3), ankle offsets ankle - foot (n, 3), hips (n, 3). Identity where
+    the ankle is already within reach; the ankle turns as far toward the hip as it can where it cannot reach."""
+    d = hip - foot
+    D = np.linalg.norm(d, axis=-1)
+    r = np.linalg.norm(ankle_offset, axis=-1)
+    u, a = d / np.maximum(D, 1e-9)[:, None], ankle_offset / np.maximum(r, 1e-9)[:, None]
+    # |foot + v' - hip| = reach  <=>  angle(v', u) = psi;  v rotates toward u only when it is farther than psi
+    psi = np.arccos(np.clip((D ** 2 + r ** 2 - reach ** 2) / np.maximum(2.0 * D * r, 1e-9), -1.0, 1.0))
+    phi_u = np.arccos(np.clip((a * u).sum(-1), -1.0, 1.0))
+    axis = np.cross(a, u)
+    n = np.linalg.norm(axis, axis=-1)
+    angle = np.where(n > 1e-9, np.maximum(phi_u - psi, 0.0), 0.0)
+    return _axis_rotation(axis / np.maximum(n, 1e-9)[:, None], angle)
+
+
 def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray, J_rest: np.ndarray,
                       cfg: TrackerRuntimeConfig) -> tuple[np.ndarray, np.ndarray]:
     """Foot locks over a whole recording. R_local (T, 24, 3, 3), transl (T, 3), contact probabilities prob (T, 2)
@@ -479,15 +505,17 @@ def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray,
     point); the foot's target is the lock inside the segment, blended from and back to the network's foot by
     smoothstep over ``cfg.lock_blend_frames`` frames on each side (:func:`lock_weights`; overlapping ramps of two
     segments share the weight). The legs reach the targets by two-bone IK (:func:`smplik.limb_ik.two_bone_ik`,
-    hip and knee; the ankle keeps its world rotation); the rest of the body is untouched."""
-    from smplik.limb_ik import two_bone_ik
+    hip and knee; the ankle keeps its world rotation); where the ankle would then be farther from the hip than
+    ``cfg.lock_reach`` of the leg's length, the foot first pivots about its foot joint (:func:`heel_rise`, the
+    heel lifting as at toe-off) so the knee stays off full extension. The rest of the body is untouched."""
     from smplik.tracking.fast import fk_np
 
     R_local = np.asarray(R_local, dtype=np.float64)
+    J_rest, transl = np.asarray(J_rest, dtype=np.float64), np.asarray(transl, dtype=np.float64)
     T = R_local.shape[0]
-    R_world, p = fk_np(R_local, np.asarray(J_rest, dtype=np.float64), np.asarray(transl, dtype=np.float64))
+    _, p = fk_np(R_local, J_rest, transl)
     locked = np.zeros((T, 2), dtype=bool)
-    frames, sides, targets = [], [], []
+    frames, sides, targets, inside = [], [], [], []
     for side, leg in enumerate(_LEGS):
         segments = contact_segments(prob[:, side], cfg.contact_threshold, cfg.contact_off, cfg.min_contact_frames)
         if not segments:
@@ -507,20 +535,50 @@ def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray,
         frames.append(active)
         sides.append(np.full(active.size, side))
         targets.append(foot[active] + w * (mix - foot[active]))
-    out = R_local.copy()
+        inside.append(locked[active, side])
     if not frames:
-        return out, locked
-    t = np.concatenate(frames)
-    legs = np.array(_LEGS)[np.concatenate(sides)]  # (n, 4)
-    hip, knee, ankle, foot = legs.T
-    target = np.concatenate(targets) - (p[t, foot] - p[t, ankle])
-    R_a, R_b = two_bone_ik(p[t, hip], p[t, knee], p[t, ankle], target, -R_world[t, knee, :, 0])
+        return R_local.copy(), locked
+    t, side, target = np.concatenate(frames), np.concatenate(sides), np.concatenate(targets)
+    out = _pin_feet(R_local, J_rest, transl, t, side, target, cfg.lock_reach)
+    if cfg.lock_smooth_frames > 0:  # low-pass the legs' corrections (rotation vectors) over time
+        from scipy.ndimage import gaussian_filter1d
+        from scipy.spatial.transform import Rotation
+
+        js = np.unique(np.array(_LEGS)[side][:, :3])
+        delta = out[:, js] @ np.swapaxes(R_local[:, js], -1, -2)  # (T, J, 3, 3)
+        rv = Rotation.from_matrix(delta.reshape(-1, 3, 3)).as_rotvec().reshape(T, js.size, 3)
+        rv = gaussian_filter1d(rv, cfg.lock_smooth_frames, axis=0, mode="nearest")
+        out[:, js] = Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(T, js.size, 3, 3) @ R_local[:, js]
+        if cfg.lock_repin:  # the smoothed legs pinned again on the contact frames themselves
+            keep = np.concatenate(inside)
+            out = _pin_feet(out, J_rest, transl, t[keep], side[keep], target[keep], cfg.lock_reach)
+    return out, locked
+
+
+def _pin_feet(R_local: np.ndarray, J_rest: np.ndarray, transl: np.ndarray, t: np.ndarray, side: np.ndarray,
+              foot_target: np.ndarray, reach: float) -> np.ndarray:
+    """R_local (T, 24, 3, 3) with the legs of rows (frame t (n,), side (n,)) turned by two-bone IK so that their
+    foot joints reach foot_target (n, 3) (the ankle keeps its world rotation, after a :func:`heel_rise` where the
+    ankle would be farther than ``reach`` x the leg's length from the hip)."""
+    from smplik.limb_ik import two_bone_ik
+    from smplik.tracking.fast import fk_np
+
+    R_world, p = fk_np(R_local, J_rest, transl)
+    out = R_local.copy()
+    hip, knee, ankle, foot = np.array(_LEGS)[side].T
+    offset = p[t, ankle] - p[t, foot]
+    G_ankle = R_world[t, ankle]
+    if reach < 1.0:
+        length = (np.linalg.norm(p[t, knee] - p[t, hip], axis=-1) + np.linalg.norm(p[t, ankle] - p[t, knee], axis=-1))
+        R_heel = heel_rise(foot_target, offset, p[t, hip], reach * length)
+        offset, G_ankle = (R_heel @ offset[..., None])[..., 0], R_heel @ G_ankle
+    R_a, R_b = two_bone_ik(p[t, hip], p[t, knee], p[t, ankle], foot_target + offset, -R_world[t, knee, :, 0])
     G_hip = R_a @ R_world[t, hip]
     G_knee = R_a @ R_b @ R_world[t, knee]
     out[t, hip] = np.swapaxes(R_world[t, 0], -1, -2) @ G_hip  # both hips hang from the pelvis
     out[t, knee] = np.swapaxes(G_hip, -1, -2) @ G_knee
-    out[t, ankle] = np.swapaxes(G_knee, -1, -2) @ R_world[t, ankle]
-    return out, locked
+    out[t, ankle] = np.swapaxes(G_knee, -1, -2) @ G_ankle
+    return out
 
 
 def track_sequence(tracker: Tracker, signals: TrackerSignals) -> TrackResult:
