@@ -32,8 +32,8 @@ from smplik.tracking.model_io import load_model  # noqa: E402
 from smplik.tracking.runtime import Tracker, offline_foot_lock, track_sequence  # noqa: E402
 from workflows.animation.clean import CleanConfig, foot_contacts  # noqa: E402
 
-GRID = {"contact_threshold": (0.5, 0.4), "contact_off": (0.3, 0.2), "min_contact_frames": (4, 8),
-        "lock_blend_frames": (6, 10, 15), "lock_centre": ("median", "min")}
+GRID = {"contact_on": (0.5, 0.4, 0.35), "lock_blend_frames": (10, 15, 20), "lock_reach": (1.0, 0.98),
+        "lock_smooth_frames": (0.0, 1.0, 1.5, 2.0)}
 
 
 def load_clips(cache: Path, split: str, frames: int) -> list[tuple]:

@@ -111,7 +111,8 @@ class TrackerRuntimeConfig:
     blend: int = 10
     """Frames over which the latent noise is interpolated when switching samples."""
     contact_threshold: float = 0.5
-    """Predicted contact probability above which a foot is locked."""
+    """Predicted contact probability above which a foot is locked (streaming locks; the offline locks use
+    ``contact_on`` / ``contact_off``)."""
     release_frames: int = 5
     """Frames over which a released foot blends back from its lock to the network's foot."""
     lock_height_m: float = 0.12
@@ -134,16 +135,18 @@ class TrackerRuntimeConfig:
     """When the whole recording is known (:func:`smplik.tracking.runtime.track_sequence`, ``smplik track``), lock
     the feet offline (:func:`smplik.tracking.runtime.offline_foot_lock`) instead of causally; :meth:`Tracker.step`
     stays causal either way."""
+    contact_on: float = 0.35
+    """Offline locks: a contact segment starts where the predicted probability exceeds this ..."""
     contact_off: float = 0.3
-    """Offline locks: a contact segment starts above ``contact_threshold`` and ends below this (hysteresis)."""
+    """... and ends where it falls below this (hysteresis)."""
     min_contact_frames: int = 4
     """Offline locks: contact segments shorter than this are dropped."""
-    lock_blend_frames: int = 6
+    lock_blend_frames: int = 15
     """Offline locks: frames before and after a segment over which the lock is blended in and out (smoothstep)."""
-    lock_reach: float = 1.0
+    lock_reach: float = 0.98
     """Offline locks: the farthest the ankle may be from the hip, as a share of the leg's length; beyond it the foot
     pivots about its foot joint (heel rise) instead of straightening the knee. 1 (or more): no heel rise."""
-    lock_smooth_frames: float = 0.0
+    lock_smooth_frames: float = 1.5
     """Offline locks: Gaussian sigma (frames) over which the legs' lock corrections are smoothed in time (0: off)."""
     lock_repin: bool = True
     """Offline locks: after smoothing (``lock_smooth_frames`` > 0), pin the feet again on the contact segments'

@@ -499,7 +499,7 @@ def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray,
     """Foot locks over a whole recording. R_local (T, 24, 3, 3), transl (T, 3), contact probabilities prob (T, 2)
     (left, right), rest joints J_rest (24, 3) -> ``(R_local (T, 24, 3, 3), locked (T, 2) bool)``.
 
-    Per foot: contact segments (:func:`contact_segments`: above ``cfg.contact_threshold`` to below
+    Per foot: contact segments (:func:`contact_segments`: above ``cfg.contact_on`` to below
     ``cfg.contact_off``, at least ``cfg.min_contact_frames`` long); each segment's lock is the median of the
     network's foot joint over the segment (its height the median or, ``cfg.lock_centre == "min"``, the low
     point); the foot's target is the lock inside the segment, blended from and back to the network's foot by
@@ -517,7 +517,7 @@ def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray,
     locked = np.zeros((T, 2), dtype=bool)
     frames, sides, targets, inside = [], [], [], []
     for side, leg in enumerate(_LEGS):
-        segments = contact_segments(prob[:, side], cfg.contact_threshold, cfg.contact_off, cfg.min_contact_frames)
+        segments = contact_segments(prob[:, side], cfg.contact_on, cfg.contact_off, cfg.min_contact_frames)
         if not segments:
             continue
         foot = p[:, leg[3]]
