@@ -22,7 +22,7 @@ from smplik.tracking.io import (
 )
 from smplik.tracking.model_io import TrackingModelError, load_model
 from smplik.tracking.network import TrackingNet, WindowMLP, input_dim
-from smplik.tracking.runtime import Tracker, _FootLock, track_sequence
+from smplik.tracking.runtime import Tracker, _FootLock, contact_segments, offline_foot_lock, track_sequence
 
 TRACKERS = TRACKER_SETS["4"]
 
@@ -477,3 +477,123 @@ def test_shipped_model_beats_a_trivial_baseline_on_held_out_cmu(shared_data, mod
     from smplik.tracking.runtime import ANOMALY_THRESHOLD
 
     assert (res.anomaly > ANOMALY_THRESHOLD).mean() < 0.2
+
+
+# ----------------------------------------------------------------------------- offline foot locks
+
+
+def test_contact_segments_hysteresis_and_minimum_length():
+    prob = np.array([0.1, 0.6, 0.45, 0.45, 0.2, 0.6, 0.1, 0.4, 0.55, 0.55, 0.55, 0.55])
+    # starts above 0.5, ends at the first frame below 0.3; the 1-frame segment at 5 is too short
+    assert contact_segments(prob, 0.5, 0.3, 2) == [(1, 4), (8, 12)]
+    assert contact_segments(prob, 0.5, 0.3, 1) == [(1, 4), (5, 6), (8, 12)]
+    assert contact_segments(prob, 0.35, 0.3, 2) == [(1, 4), (7, 12)]
+
+
+def _gliding_legs(T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bent legs on a body gliding forward 3 mm per frame: R_local (T, 24, 3, 3), transl (T, 3), J (24, 3)."""
+    J = rest_joints()
+    R = np.tile(np.eye(3), (T, 24, 1, 1))
+    bend = lambda a: np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])  # noqa: E731
+    R[:, [1, 2]] = bend(0.2)
+    R[:, [4, 5]] = bend(-0.4)
+    transl = np.stack([np.zeros(T), np.zeros(T), 0.003 * np.arange(T)], -1)
+    return R, transl, J
+
+
+def test_offline_lock_holds_the_foot_over_a_predicted_contact_and_blends_smoothly():
+    from smplik.tracking.fast import fk_np
+
+    T = 110
+    R, transl, J = _gliding_legs(T)
+    prob = np.full((T, 2), 0.05)
+    prob[40:70, 0] = 0.9  # the left foot in contact for 30 frames
+    cfg = TrackerRuntimeConfig()
+    R_out, locked = offline_foot_lock(R, transl, prob, J, cfg)
+    assert locked[:, 0].tolist() == [40 <= t < 70 for t in range(T)] and not locked[:, 1].any()
+    _, p_raw = fk_np(R, J, transl)
+    _, p = fk_np(R_out, J, transl)
+    foot = p[:, 10]
+    step = np.linalg.norm(np.diff(foot, axis=0), axis=-1)
+    assert np.linalg.norm(np.diff(p_raw[:, 10], axis=0), axis=-1).min() > 2.9e-3  # the network's foot skates
+    assert step[40:69].max() < 1e-4  # still inside the segment
+    # blended in and out: no jump, bounded acceleration (a hard release would jump by the ~4.5 cm drift)
+    assert step.max() < 1e-2
+    assert np.linalg.norm(np.diff(foot, 2, axis=0), axis=-1).max() < 2e-3
+    far = 40 - cfg.lock_blend_frames - 6
+    assert far > 10
+    np.testing.assert_allclose(foot[:far], p_raw[:far, 10], atol=1e-6)  # far from the segment: the network's foot
+    np.testing.assert_allclose(p[:, [2, 5, 8, 11]], p_raw[:, [2, 5, 8, 11]], atol=1e-9)  # the free leg untouched
+    np.testing.assert_allclose(p[:, :1], p_raw[:, :1], atol=1e-9)
+
+
+def test_offline_lock_lifts_the_heel_instead_of_overstretching():
+    """A lock beyond the straight leg's reach: with ``lock_reach`` < 1 the foot pivots about its foot joint so the
+    ankle stays within reach and the foot joint still meets the lock."""
+    from dataclasses import replace
+
+    from smplik.tracking.fast import fk_np
+
+    T = 40
+    R, transl, J = _gliding_legs(T)
+    R[:, [1, 2, 4, 5]] = np.eye(3)  # straight legs: any drift from the lock is out of reach
+    transl[:, 2] = 0.01 * np.arange(T)
+    prob = np.full((T, 2), 0.05)
+    prob[5:35, 0] = 0.9
+    cfg = replace(TrackerRuntimeConfig(), lock_smooth_frames=0.0)
+    _, p_raw = fk_np(R, J, transl)
+    _, p_heel = fk_np(offline_foot_lock(R, transl, prob, J, cfg)[0], J, transl)
+    _, p_flat = fk_np(offline_foot_lock(R, transl, prob, J, replace(cfg, lock_reach=1.0))[0], J, transl)
+    lock = np.median(p_raw[5:35, 10], axis=0)
+    err = lambda p: np.linalg.norm(p[5:35, 10] - lock, axis=-1).max()  # noqa: E731
+    assert err(p_flat) > 0.01  # a straight leg cannot reach the lock at the segment's ends
+    assert err(p_heel) < err(p_flat) / 2
+    leg = np.linalg.norm(J[4] - J[1]) + np.linalg.norm(J[7] - J[4])
+    assert (np.linalg.norm(p_heel[5:35, 7] - p_heel[5:35, 1], axis=-1) <= cfg.lock_reach * leg + 1e-6).all()
+
+
+def standing_signals(T: int = 150) -> tuple:
+    """Standing, the pelvis swaying a few centimetres, one forearm waving: trackers, rest joints."""
+    from smplik.rotations import axis_angle_to_matrix
+
+    t = np.arange(T) / 60.0
+    aa = np.zeros((T, 24, 3))
+    aa[:, 16, 2], aa[:, 17, 2] = -1.2, 1.2
+    aa[:, 18, 1], aa[:, 19, 1] = -0.8 - 0.5 * np.sin(2 * np.pi * 0.7 * t), 0.8
+    transl = np.stack([0.04 * np.sin(2 * np.pi * 0.5 * t), np.zeros(T), 0.03 * np.sin(2 * np.pi * 0.3 * t)], -1)
+    J = rest_joints()
+    return signals_from_motion(axis_angle_to_matrix(torch.as_tensor(aa)).numpy(), transl, J, TRACKERS, 60.0), J
+
+
+def test_track_command_locks_the_feet_offline(tmp_path, model):
+    """``smplik track`` on a synthetic recording of a person standing and swaying: one pose per frame, and the
+    feet still on their locked frames (the network alone moves them)."""
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+    from smplik.kinematics import forward_kinematics
+    from smplik.rotations import axis_angle_to_matrix
+    from workflows.animation.files import load_animation
+
+    sig, J = standing_signals(150)
+    src = tmp_path / "trackers.json"
+    src.write_text(json.dumps(sig.to_dict()))
+    res = CliRunner().invoke(app, ["track", str(src), "--out", str(tmp_path / "out"), "--export", "bvh"])
+    assert res.exit_code == 0, res.output
+    track = load_animation(tmp_path / "out" / "animation.json").tracks[0]
+    assert track.num_frames == 150
+    aa = np.concatenate([track.global_orient[:, None], track.body_pose], axis=1)
+    _, p = forward_kinematics(axis_angle_to_matrix(torch.as_tensor(aa)), torch.as_tensor(J),
+                              torch.as_tensor(track.transl))
+    p, contacts = p.numpy(), np.asarray(track.contacts, bool)
+    free = track_sequence(Tracker.load(config=TrackerRuntimeConfig(foot_lock=False)), sig)
+    _, p_free = forward_kinematics(torch.as_tensor(free.R_local), torch.as_tensor(J), torch.as_tensor(free.transl))
+    p_free = p_free.numpy()
+    held = 0
+    for side, foot in enumerate((10, 11)):
+        both = contacts[1:, side] & contacts[:-1, side]
+        held += int(both.sum())
+        if both.any():
+            assert np.linalg.norm(np.diff(p[:, foot], axis=0), axis=-1)[both].max() < 1e-4
+            assert np.linalg.norm(np.diff(p_free[:, foot], axis=0), axis=-1)[both].mean() > 5e-4
+    assert held > 100  # standing: the feet are locked most of the time

@@ -141,6 +141,9 @@ class TrackerRuntimeConfig:
     """... and ends where it falls below this (hysteresis)."""
     min_contact_frames: int = 4
     """Offline locks: contact segments shorter than this are dropped."""
+    lock_spread_m: float = 0.4
+    """Offline locks: a segment over which the network's foot strays farther than this (horizontally) from its
+    median is not locked (the pose disagrees with the contact; locking it would stretch the leg)."""
     lock_blend_frames: int = 15
     """Offline locks: frames before and after a segment over which the lock is blended in and out (smoothstep)."""
     lock_reach: float = 0.98

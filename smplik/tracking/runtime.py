@@ -499,15 +499,20 @@ def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray,
     """Foot locks over a whole recording. R_local (T, 24, 3, 3), transl (T, 3), contact probabilities prob (T, 2)
     (left, right), rest joints J_rest (24, 3) -> ``(R_local (T, 24, 3, 3), locked (T, 2) bool)``.
 
-    Per foot: contact segments (:func:`contact_segments`: above ``cfg.contact_on`` to below
-    ``cfg.contact_off``, at least ``cfg.min_contact_frames`` long); each segment's lock is the median of the
-    network's foot joint over the segment (its height the median or, ``cfg.lock_centre == "min"``, the low
-    point); the foot's target is the lock inside the segment, blended from and back to the network's foot by
-    smoothstep over ``cfg.lock_blend_frames`` frames on each side (:func:`lock_weights`; overlapping ramps of two
-    segments share the weight). The legs reach the targets by two-bone IK (:func:`smplik.limb_ik.two_bone_ik`,
-    hip and knee; the ankle keeps its world rotation); where the ankle would then be farther from the hip than
-    ``cfg.lock_reach`` of the leg's length, the foot first pivots about its foot joint (:func:`heel_rise`, the
-    heel lifting as at toe-off) so the knee stays off full extension. The rest of the body is untouched."""
+    Per foot: contact segments (:func:`contact_segments`: above ``cfg.contact_on`` to below ``cfg.contact_off``,
+    at least ``cfg.min_contact_frames`` long); a segment over which the network's foot strays horizontally farther
+    than ``cfg.lock_spread_m`` from its median is dropped (the pose disagrees with the contact). Each segment's
+    lock is the median of the network's foot joint over the segment (its height the median or, with
+    ``cfg.lock_centre == "min"``, the low point); the foot's target is the lock inside the segment, blended from
+    and back to the network's foot by smoothstep over ``cfg.lock_blend_frames`` frames on each side
+    (:func:`lock_weights`; overlapping ramps of two segments share the weight). The legs reach the targets by
+    two-bone IK (:func:`smplik.limb_ik.two_bone_ik`, hip and knee; the ankle keeps its world rotation); where the
+    ankle would then be farther from the hip than ``cfg.lock_reach`` of the leg's length, the foot first pivots
+    about its foot joint (:func:`heel_rise`, the heel lifting as at toe-off) so the knee stays off full extension.
+    With ``cfg.lock_smooth_frames`` > 0 the legs' corrections (rotation vectors of hip, knee and ankle) are
+    smoothed in time by a Gaussian of that sigma (the IK follows the network's hip jitter near full extension:
+    acceleration), and with ``cfg.lock_repin`` the feet are pinned again on the segments' own frames. The rest of
+    the body is untouched."""
     from smplik.tracking.fast import fk_np
 
     R_local = np.asarray(R_local, dtype=np.float64)
@@ -521,9 +526,14 @@ def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray,
         if not segments:
             continue
         foot = p[:, leg[3]]
-        locks = np.empty((len(segments), 3))
+        centres = [np.median(foot[a:b], axis=0) for a, b in segments]
+        kept = [k for k, ((a, b), c) in enumerate(zip(segments, centres, strict=True))
+                if np.linalg.norm((foot[a:b] - c)[:, [0, 2]], axis=-1).max() <= cfg.lock_spread_m]
+        if not kept:
+            continue
+        segments = [segments[k] for k in kept]
+        locks = np.stack([centres[k] for k in kept])
         for k, (a, b) in enumerate(segments):
-            locks[k] = np.median(foot[a:b], axis=0)
             if cfg.lock_centre == "min":
                 locks[k, 1] = foot[a:b, 1].min()
             locked[a:b, side] = True
