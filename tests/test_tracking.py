@@ -597,3 +597,13 @@ def test_track_command_locks_the_feet_offline(tmp_path, model):
             assert np.linalg.norm(np.diff(p[:, foot], axis=0), axis=-1)[both].max() < 1e-4
             assert np.linalg.norm(np.diff(p_free[:, foot], axis=0), axis=-1)[both].mean() > 5e-4
     assert held > 100  # standing: the feet are locked most of the time
+
+
+@pytest.mark.parametrize(("change", "message"), [({"contact_off": 0.6}, "contact_off"),
+                                                 ({"lock_centre": "mean"}, "lock_centre"),
+                                                 ({"min_contact_frames": 0}, "min_contact_frames")])
+def test_offline_lock_settings_are_checked(change, message):
+    from dataclasses import replace
+
+    with pytest.raises(ValueError, match=message):
+        Tracker.load(config=replace(TrackerRuntimeConfig(), **change))

@@ -204,6 +204,11 @@ class Tracker:
             raise ValueError(f"samples must be at least 1, got {config.samples}.")
         if config.lock_centre not in ("median", "min"):
             raise ValueError(f"lock_centre must be 'median' or 'min', got {config.lock_centre!r}.")
+        if not config.contact_off <= config.contact_on:
+            raise ValueError(f"contact_off ({config.contact_off}) must not exceed contact_on ({config.contact_on}).")
+        if config.min_contact_frames < 1 or config.lock_blend_frames < 0 or config.lock_smooth_frames < 0:
+            raise ValueError("min_contact_frames must be at least 1, lock_blend_frames and lock_smooth_frames at "
+                             "least 0.")
         self.stream_lock = True  # the causal locks of step 4 (track_sequence turns them off for its offline pass)
         self.model, self.net, self.cfg = model, model.net, config
         self.trackers = model.cfg.trackers
