@@ -4,14 +4,17 @@ the deterministic tracker for lock settings of :class:`TrackerRuntimeConfig`, ea
 
 Same data, bodies and trackers (exact) as ``benchmarks/tracking.py``; the network runs once per clip without locks
 and :func:`smplik.tracking.runtime.offline_foot_lock` is applied per setting. Also reports the share of the
-truth's contact frames inside a locked segment. Usage: ``python benchmarks/tracking_locks.py --cache PATH
-[--split validation] [--frames 100]`` -> ``benchmarks/results/tracking_locks.json``.
+truth's contact frames inside a locked segment, and the offline pass's cost per frame (default settings).
+
+Usage: ``python benchmarks/tracking_locks.py --cache PATH [--split validation] [--frames 100]`` ->
+``benchmarks/results/tracking_locks.json``.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -102,6 +105,11 @@ def main() -> None:
     base = TrackerRuntimeConfig()
     results["default"] = score(lambda J, raw, causal: offline_foot_lock(raw[0], raw[1], raw[2], J, base))
     print(f"{'default':60s} {results['default']}", flush=True)
+    t0 = time.perf_counter()
+    for J, _, _, raw, *_ in clips:
+        offline_foot_lock(raw[0], raw[1], raw[2], J, base)
+    cost = 1000 * (time.perf_counter() - t0) / sum(len(c[3][0]) for c in clips)
+    print(f"offline pass, default settings: {cost:.3f} ms per frame (one thread)")
     for key, values in SWEEP.items():
         for value in values:
             if value == getattr(base, key):
@@ -110,7 +118,8 @@ def main() -> None:
             label = f"{key}={value}"
             results[label] = score(lambda J, raw, causal, cfg=cfg: offline_foot_lock(raw[0], raw[1], raw[2], J, cfg))
             print(f"{label:60s} {results[label]}", flush=True)
-    path = save("tracking_locks", {"split": args.split, "frames_per_clip": args.frames, "results": results})
+    path = save("tracking_locks", {"split": args.split, "frames_per_clip": args.frames, "results": results,
+                                   "offline_ms_per_frame": round(cost, 4)})
     print(f"wrote {path}")
 
 
