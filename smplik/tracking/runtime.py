@@ -473,15 +473,6 @@ def lock_weights(segments: list[tuple[int, int]], T: int, blend: int) -> np.ndar
     return W
 
 
-def _axis_rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rotations (..., 3, 3) about unit axes (..., 3) by angles (...) (Rodrigues)."""
-    K = np.zeros((*axis.shape[:-1], 3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
-    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
-    return np.eye(3) + s * K + (1.0 - c) * K @ K
-
-
 def heel_rise(foot: np.ndarray, ankle_offset: np.ndarray, hip: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """The least rotation (n, 3, 3) of the foot about its foot joint (toe pivot) that brings the ankle within
     ``reach`` (n,) of the hip: foot targets (n, 3), ankle offsets ankle - foot (n, 3), hips (n, 3). Identity where
@@ -496,7 +487,10 @@ def heel_rise(foot: np.ndarray, ankle_offset: np.ndarray, hip: np.ndarray, reach
     axis = np.cross(a, u)
     n = np.linalg.norm(axis, axis=-1)
     angle = np.where(n > 1e-9, np.maximum(phi_u - psi, 0.0), 0.0)
-    return _axis_rotation(axis / np.maximum(n, 1e-9)[:, None], angle)
+    from scipy.spatial.transform import Rotation
+
+    rotvec = axis / np.maximum(n, 1e-9)[:, None] * angle[:, None]
+    return Rotation.from_rotvec(rotvec).as_matrix().reshape(-1, 3, 3)
 
 
 def offline_foot_lock(R_local: np.ndarray, transl: np.ndarray, prob: np.ndarray, J_rest: np.ndarray,
