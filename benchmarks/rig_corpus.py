@@ -115,7 +115,7 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         char = read_character(path)
-        estimate = estimator.estimate(char.features)
+        estimate = estimator.estimate(char.features, char.mapped_rest())
     expected = entry["expected"]
     got = char.joint_map
     row.update(rig=char.rig.name, root=char.rig.root, map_correct=got == expected,
@@ -126,7 +126,9 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
                stature_m=float(char.head_ankle_height_m / 0.84), scale=float(estimate.scale),
                smpl_stature_m=float(estimate.scale * 1.7),
                fit_residual_mm=float(estimate.max_feature_residual_m * 1000),
-               effective_samples=float(estimate.effective_samples),
+               effective_samples=float(estimate.effective_samples), joint_fit=bool(estimate.joint_fit),
+               first_stage_rest_joint_residual_pct=float(100 * estimate.first_stage_rest_joint_residual_m
+                                                         / (char.head_ankle_height_m / 0.84)),
                warnings=[str(w.message) for w in caught] + [f"map: {w}" for w in char.rig.warnings])
     if char.skeleton.humanoid:
         from shape_inversion.rig_mapper import RigMappingError

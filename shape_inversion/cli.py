@@ -41,6 +41,19 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
     return out
 
 
+def joint_fit_note(character, estimate) -> str:
+    """``, rest joints off by X % of the stature (joint fit: from Y %)``: SMPL-SI's rest-joint residual."""
+    import math
+
+    if not math.isfinite(estimate.rest_joint_residual_m):
+        return ""
+    stature = character.head_ankle_height_m / 0.84
+    note = f", rest joints {100 * estimate.rest_joint_residual_m / stature:.1f} % of stature off"
+    if estimate.joint_fit:
+        note += f" (joint fit; first stage {100 * estimate.first_stage_rest_joint_residual_m / stature:.1f} %)"
+    return note
+
+
 @app.command("invert-shape")
 @with_character_options
 def invert_shape(
@@ -79,7 +92,7 @@ def invert_shape(
         start = time.perf_counter()
         with warnings.catch_warnings():  # its notes are printed below, once
             warnings.simplefilter("ignore")
-            estimate = estimator.estimate(char.features)
+            estimate = estimator.estimate(char.features, char.mapped_rest())
         elapsed = time.perf_counter() - start
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
@@ -93,7 +106,7 @@ def invert_shape(
     write_json_atomic(out, payload)
     console.print(f"rig {char.rig.name}, units {char.units_m:g} m ({char.units_source}), up {char.up}; "
                   f"scale {estimate.scale:.3f}, max feature residual {estimate.max_feature_residual_m * 1000:.2f} mm, "
-                  f"effective samples {estimate.effective_samples:.1f} -> {out}")
+                  f"effective samples {estimate.effective_samples:.1f}{joint_fit_note(char, estimate)} -> {out}")
     if render_png is not None:
         from shape_inversion.preview import render_comparison
         from smplik.render import RenderError, save_png
