@@ -80,7 +80,8 @@ class EstimatorConfig:
     refine_max_evaluations: int = 100
     """Cap on the refinement's least-squares iterations."""
     weak_residual_m: float = 0.04
-    """A fit whose largest feature residual exceeds this (metres) is reported as weak in ``warnings``."""
+    """A fit whose largest feature residual (of the first stage, before the joint fit) exceeds this (metres) is
+    reported as weak in ``warnings``."""
     weak_effective_samples: float = 5.0
     """A fit resting on fewer effective bank samples than this is reported as weak in ``warnings``."""
     edge_fraction: float = 0.05
@@ -268,7 +269,8 @@ class ShapeEstimator:
     def estimate(self, features: np.ndarray, rest: MappedRest | None = None) -> ShapeEstimate:
         """Estimate (beta, scale) from a skeleton's features (6,) in metres.
 
-        ``rest``: the skeleton's mapped rest joints (:class:`shape_inversion.joint_fit.MappedRest`, metres), for
+        ``rest``: the skeleton's mapped rest joints (:class:`shape_inversion.joint_fit.MappedRest`, metres, smplik's
+        frame; :meth:`shape_inversion.skeleton_io.Character.mapped_rest`), for
         the joint fit (second stage, ``config.joint_fit``); the features alone decide whether it is a human.
 
         Raises:
@@ -306,7 +308,7 @@ class ShapeEstimator:
         kernel_mean = mean.copy()
         if cfg.refine:
             mean = self._refine(query, mean, cov)
-        fitted, rest_residual, first_residual = False, float("nan"), float("nan")
+        fitted, rest_residual, first_residual, first = False, float("nan"), float("nan"), mean
         if rest is not None and self.joint_template is not None and len(rest) >= 3 \
                 and np.all(np.isfinite(rest.positions)):
             first_residual = rest_residual = self.rest_joint_residual(mean, rest)
@@ -319,11 +321,13 @@ class ShapeEstimator:
         residual = self.features_of(betas, scale) - query
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
         notes = (*stylised, *self._edge_check(betas, scale, query))
-        max_residual, n_eff = float(np.abs(residual).max()), float(w.sum() ** 2 / (w**2).sum())
+        # a weak fit is judged on the first stage: the joint fit trades feature residual for the rest joints
+        judged = self.features_of(first[:NUM_BETAS], float(first[NUM_BETAS])) - query if fitted else residual
+        max_residual, n_eff = float(np.abs(judged).max()), float(w.sum() ** 2 / (w**2).sum())
         if max_residual > cfg.weak_residual_m or n_eff < cfg.weak_effective_samples:
             import warnings
 
-            worst = FEATURE_NAMES[int(np.argmax(np.abs(residual)))]
+            worst = FEATURE_NAMES[int(np.argmax(np.abs(judged)))]
             note = (f"weak shape inversion: largest feature residual {max_residual * 1000:.0f} mm ({worst}; limit "
                     f"{cfg.weak_residual_m * 1000:.0f} mm), {n_eff:.1f} effective samples (limit "
                     f"{cfg.weak_effective_samples:g}): check the joint map and the rest pose (--rest, --map)")

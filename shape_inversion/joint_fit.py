@@ -33,7 +33,8 @@ class MappedRest:
 
     Attributes:
         smpl: (M,) SMPL joint index of each mapped joint.
-        positions: (M, 3) rest positions, metres (any rigid frame).
+        positions: (M, 3) rest positions, metres, in smplik's frame (y-up, facing +z: SMPL's rest frame; the
+            rest alignments are minimal rotations, so a skeleton turned about its bones would be twisted).
         parents: (M,) index (into the M joints) of the nearest mapped ancestor in the skeleton's hierarchy,
             -1 for a joint without one; every parent comes before its children.
     """
