@@ -42,16 +42,17 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
 
 
 def joint_fit_note(character, estimate) -> str:
-    """``, rest joints off by X % of the stature (joint fit: from Y %)``: SMPL-SI's rest-joint residual."""
+    """One line: the mapped rest joints' mean distance from the SMPL body (% of the stature), and the stage kept."""
     import math
 
     if not math.isfinite(estimate.rest_joint_residual_m):
         return ""
     stature = character.head_ankle_height_m / 0.84
-    note = f", rest joints {100 * estimate.rest_joint_residual_m / stature:.1f} % of stature off"
+    first, last = (100 * r / stature for r in (estimate.first_stage_rest_joint_residual_m,
+                                                estimate.rest_joint_residual_m))
     if estimate.joint_fit:
-        note += f" (joint fit; first stage {100 * estimate.first_stage_rest_joint_residual_m / stature:.1f} %)"
-    return note
+        return f"joint fit: rest joints {last:.1f} % of the stature from the SMPL body (six features: {first:.1f} %)"
+    return f"joint fit not kept: rest joints {first:.1f} % of the stature from the SMPL body (six features)"
 
 
 @app.command("invert-shape")
@@ -104,9 +105,11 @@ def invert_shape(
     for note in estimate.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     write_json_atomic(out, payload)
+    if note := joint_fit_note(char, estimate):
+        console.print(note, soft_wrap=True, highlight=False)
     console.print(f"rig {char.rig.name}, units {char.units_m:g} m ({char.units_source}), up {char.up}; "
                   f"scale {estimate.scale:.3f}, max feature residual {estimate.max_feature_residual_m * 1000:.2f} mm, "
-                  f"effective samples {estimate.effective_samples:.1f}{joint_fit_note(char, estimate)} -> {out}")
+                  f"effective samples {estimate.effective_samples:.1f} -> {out}")
     if render_png is not None:
         from shape_inversion.preview import render_comparison
         from smplik.render import RenderError, save_png
