@@ -127,15 +127,16 @@ def test_the_threejs_soldier_exports_with_its_own_clips_and_joints_in_metres(tmp
 
 
 def test_cmu_cgspeed_lands_near_its_smpl_pose(shared_data, estimator):
-    """CMU's cgspeed BVH (01_01): 3.0-3.4 % of the stature off its SMPL pose, 3.0 % already in SMPL's rest pose
-    (``benchmarks/rig_corpus.py``: ``rest_pose_error_mean_pct``), i.e. the rig's joint placement against its
-    SMPL-SI body, not the retarget: the ASF clavicles start on the spine's midline (SMPL's collars 8 cm out),
-    the spine1 joint ``LowerBack`` starts on the root (SMPL's spine1 is 11 cm above its pelvis) and the SMPL-SI
-    body's upper arm is 4 cm shorter and forearm 5 cm longer than CMU's (feature residuals). Guarded at the
-    level reached, so that it cannot get worse unseen."""
+    """CMU's cgspeed BVH (01_01): with the six features alone 3.0-3.4 % of the stature off its SMPL pose, 3.0 %
+    already in SMPL's rest pose (``benchmarks/rig_corpus.py``: ``rest_pose_error_mean_pct``), i.e. the rig's joint
+    placement against its SMPL-SI body, not the retarget: the ASF clavicles start on the spine's midline (SMPL's
+    collars 8 cm out), the spine1 joint ``LowerBack`` starts on the root (SMPL's spine1 is 11 cm above its
+    pelvis) and the body's upper arm is 4 cm shorter and forearm 5 cm longer than CMU's (feature residuals).
+    SMPL-SI's joint fit chooses the body for the mapped rest joints: 2.0-2.3 %. Guarded with a little margin,
+    so that it cannot get worse unseen."""
     char = read_character(shared_data.cmu("01_01.bvh"))
     assert char.rig.name == "cmu" and char.joint_map["neck"] == "Neck1"
-    assert max(_posed_error_pct(char, estimator)) <= 3.5
+    assert max(_posed_error_pct(char, estimator)) <= 2.7
 
 
 def test_a_preset_whose_spine_stops_below_the_arms_branch_gives_way_to_the_skeleton(shared_data, monkeypatch):
