@@ -98,6 +98,9 @@ class EstimatorConfig:
         ("left_foot", 0.5), ("right_foot", 0.5), ("left_hand", 0.5), ("right_hand", 0.5))
     """Joints whose placement depends on the rig's conventions (spine, collars, hand and foot ends) and their
     weight in the joint fit; every other mapped joint weighs 1."""
+    joint_fit_beta_std: float = 2.0
+    """Population prior of the joint fit: ``|beta|^2 / std^2`` is added (SMPL's betas are whitened shape
+    components, ~N(0, 1) over its training bodies); 0: none."""
     joint_fit_max_evaluations: int = 200
     """Cap on the joint fit's least-squares iterations."""
 
@@ -399,8 +402,11 @@ class ShapeEstimator:
         S = cov + 1e-4 * np.diag((hi - lo) ** 2 / 12.0)
         L_inv = np.linalg.inv(np.linalg.cholesky(S))
 
+        population = 1.0 / cfg.joint_fit_beta_std if cfg.joint_fit_beta_std > 0 else 0.0
+
         def fun(x: np.ndarray) -> np.ndarray:
-            return np.concatenate([(self._rest_distances(x, rest, w) * sqrt_w).ravel(), L_inv @ (x - x0)])
+            return np.concatenate([(self._rest_distances(x, rest, w) * sqrt_w).ravel(), L_inv @ (x - x0),
+                                   population * x[:NUM_BETAS]])
 
         start = np.clip(x0, lo + 1e-9, hi - 1e-9)
         sol = scipy.optimize.least_squares(fun, start, bounds=(lo, hi), method="trf",
