@@ -33,6 +33,14 @@ Choices, documented because the paper leaves them open:
   for extreme values of unobserved components (hip width, mass -> +-5), a worse-looking body than
   the kernel mean's. Use it when matching the six distances matters more than the mesh. The paper's
   estimate is kept in :attr:`ShapeEstimate.kernel_betas` / :attr:`ShapeEstimate.kernel_scale`.
+* **Joint fit (second stage, on by default when the mapped rest joints are given).** SMPL's rest joints are
+  linear in beta, so ``(beta, scale)`` is fitted to every mapped joint of the skeleton's rest pose, each bone
+  laid along SMPL's direction as retargeting lays it (:mod:`shape_inversion.joint_fit`), after a rigid
+  alignment: ``sum_m w_m |scale J_m(beta) - (R q_m + t)|^2 / tol^2 + (x - x_0)^T S^-1 (x - x_0) +
+  |beta|^2 / std^2`` with the first stage's estimate ``x_0`` and covariance ``S`` as the prior (``tol = 1 cm``,
+  ``std = 2``, convention-dependent joints weighing 0.5), inside the bank's box short of its edge. It is kept
+  only when it lowers the mapped joints' mean rest residual (:attr:`ShapeEstimate.rest_joint_residual_m`);
+  the features alone decide whether the skeleton is a human and whether the fit is weak.
 """
 
 from __future__ import annotations
