@@ -17,10 +17,14 @@ Per humanoid, exactly as ``smplik invert-shape`` / ``scene from-estimate --chara
   rigid alignment, mean and largest distance in % of the stature; a BVH character should be within 3 %), and
   the same measure for SMPL's rest pose (what the rig's joint placement against its SMPL body costs before
   any pose: the part no retarget of rotations can remove, only a map choosing other joints or another body);
+* SMPL-SI's joint fit: whether the second stage was kept and the rest residual of the first stage;
 * export round trip: a pose (the example ``reach`` pose) retargeted onto the character, written as BVH
   (re-read with smplik's BVH reader) and, for glTF/VRM characters, as GLB (re-read with pygltflib and
   trimesh; the GLB is in the scene's world frame and keeps the source's animation clips); largest joint
   position error against the retargeted pose (mm).
+
+Rigs whose file is absent here but which have a row in the previous results keep that row, marked
+``"stale": true`` (measured by an earlier run, not now); the summary counts only the rigs run now.
 
 Non-humanoids (a real rig made non-human: arms 2.5 x longer, legs 0.3 x) must be refused in one line
 naming the features out of range.
@@ -115,7 +119,7 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         char = read_character(path)
-        estimate = estimator.estimate(char.features)
+        estimate = estimator.estimate(char.features, char.mapped_rest())
     expected = entry["expected"]
     got = char.joint_map
     row.update(rig=char.rig.name, root=char.rig.root, map_correct=got == expected,
@@ -126,7 +130,9 @@ def run_humanoid(entry: dict, path: Path, estimator, tmp: Path) -> dict:
                stature_m=float(char.head_ankle_height_m / 0.84), scale=float(estimate.scale),
                smpl_stature_m=float(estimate.scale * 1.7),
                fit_residual_mm=float(estimate.max_feature_residual_m * 1000),
-               effective_samples=float(estimate.effective_samples),
+               effective_samples=float(estimate.effective_samples), joint_fit=bool(estimate.joint_fit),
+               first_stage_rest_joint_residual_pct=float(100 * estimate.first_stage_rest_joint_residual_m
+                                                         / (char.head_ankle_height_m / 0.84)),
                warnings=[str(w.message) for w in caught] + [f"map: {w}" for w in char.rig.warnings])
     if char.skeleton.humanoid:
         from shape_inversion.rig_mapper import RigMappingError
@@ -197,13 +203,17 @@ def main() -> None:
 
     estimator = ShapeEstimator.build(load_body_model("neutral"), BankConfig(num_samples=args.bank_samples))
     manifest = json.loads(MANIFEST.read_text())
-    rows, skipped = [], []
+    previous = REPO / "benchmarks" / "results" / "rig_corpus.json"
+    earlier = {r["id"]: r for r in json.loads(previous.read_text()).get("rigs", [])} if previous.is_file() else {}
+    rows, skipped, carried = [], [], []
     with tempfile.TemporaryDirectory() as tmp_dir:
         tmp = Path(tmp_dir)
         for entry in manifest["rigs"]:
             path = resolve(entry["file"], args.corpus)
             if not path.is_file():
                 skipped.append({"id": entry["id"], "file": entry["file"], "why": f"{path} not found"})
+                if entry["id"] in earlier:  # kept from the previous run, marked as not measured now
+                    carried.append({**earlier[entry["id"]], "stale": True})
                 continue
             try:
                 row = run_humanoid(entry, path, estimator, tmp)
@@ -251,7 +261,9 @@ def main() -> None:
     print(f"{summary['passed']}/{summary['humanoids']} humanoid rigs pass with no options ({summary['tools']} tools "
           f"or pipelines, {len(skipped)} skipped); {summary['non_humanoids_refused']}/{len(non_human)} non-humanoids "
           "refused in one line")
-    path = save("rig_corpus", {"summary": summary, "rigs": rows, "non_humanoids": non_human, "skipped": skipped,
+    summary["stale_rows_from_previous_run"] = len(carried)
+    path = save("rig_corpus", {"summary": summary, "rigs": rows + carried, "non_humanoids": non_human,
+                               "skipped": skipped,
                                "corpus": str(args.corpus), "bank_samples": args.bank_samples})
     print(f"wrote {path}")
 

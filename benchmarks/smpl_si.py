@@ -13,7 +13,10 @@
    BVH, CMU-unit BVH, Blender-style GLB (armature scale 0.01, rotated root node), .gltf + .bin, and
    the same skeleton as plain-metres JSON: units detected, stature in (skeleton as read) and out (the
    SMPL estimate), max feature residual.
-4. Timings: bank build, estimator build from the cached bank, query per character.
+4. Joint fit (second stage) on known truth: the held-out bodies' own 24 rest joints (300 of them): rest-joint
+   error of the body found (mm, after a rigid alignment), first stage against joint fit; on the real
+   skeletons of 2., the bone-length errors with the joint fit (``kernel_joint_fit``).
+5. Timings: bank build, estimator build from the cached bank, query per character.
 
 Run: ``python benchmarks/smpl_si.py [--gender neutral] [--samples 1000]``.
 """
@@ -89,6 +92,36 @@ def synthetic(model, estimators: dict[str, ShapeEstimator], n: int, seed: int) -
                    "time_ms": _stats(np.array(r["t"]) * 1000)} for name, r in rows.items()}
 
 
+def joint_fit_held_out(model, estimator: ShapeEstimator, n: int, seed: int) -> dict:
+    """Known truth for the joint fit: the held-out bodies' own rest joints (all 24, moved off the origin) given to
+    the estimator with their features. Rest-joint error of the body found (mean over the 24 joints after a rigid
+    alignment, mm), beta / scale error and time, first stage (kernel mean) against the joint fit."""
+    from shape_inversion.joint_fit import MappedRest
+    from smplik.conventions import JOINT_NAMES, PARENTS
+
+    held = sample_bank(model, BankConfig(num_samples=n, seed=seed))
+    every = {name: j for j, name in enumerate(JOINT_NAMES)}
+    rows: dict[str, dict[str, list]] = {k: {"joint": [], "beta": [], "scale": []} for k in ("kernel", "joint_fit")}
+    times, kept = [], 0
+    for f, b, s in zip(held.features, held.betas, held.scales, strict=True):
+        J = s * model.rest_joints(torch.tensor(b)).double().numpy()
+        rest = MappedRest.from_skeleton(J + np.array([0.3, -0.2, 0.5]), PARENTS, every)
+        t0 = time.perf_counter()
+        e = estimator.estimate(f, rest)
+        times.append(time.perf_counter() - t0)
+        kept += e.joint_fit
+        found = {"kernel": (e.kernel_betas, e.kernel_scale), "joint_fit": (e.betas, e.scale)}
+        for name, (betas, scale) in found.items():
+            x = np.append(betas, scale)
+            rows[name]["joint"].append(estimator.rest_joint_residual(x, rest))
+            rows[name]["beta"].append(np.abs(betas - b).mean())
+            rows[name]["scale"].append(abs(scale - s))
+    out = {name: {"rest_joint_error_mm": _stats(np.array(r["joint"]) * 1000),
+                  "beta_mean_abs_error": _stats(np.array(r["beta"])),
+                  "scale_abs_error": _stats(np.array(r["scale"]))} for name, r in rows.items()}
+    return {"num_bodies": n, **out, "joint_fit_kept": kept, "time_ms": _stats(np.array(times) * 1000)}
+
+
 def edge_refusals(estimator: ShapeEstimator, n: int, seed: int, model) -> int:
     """How many held-out bodies the default edge-of-bank check refuses (scale within 5 % of 0.2 or 2)."""
     held = sample_bank(model, BankConfig(num_samples=n, seed=seed))
@@ -120,7 +153,7 @@ def real_characters(model, estimators: dict[str, ShapeEstimator], shared: Path) 
         for name, est in estimators.items():
             try:
                 t0 = time.perf_counter()
-                e = est.estimate(char.features)
+                e = est.estimate(char.features, char.mapped_rest() if name == "kernel_joint_fit" else None)
                 dt = time.perf_counter() - t0
             except ShapeInversionError as exc:
                 entry[name] = {"error": str(exc)}
@@ -197,6 +230,7 @@ def main() -> None:
     no_edge = EstimatorConfig(edge_fraction=0.0)
     estimators = {"kernel": ShapeEstimator.build(model, config=no_edge),
                   "kernel_refined": ShapeEstimator.build(model, config=EstimatorConfig(refine=True, edge_fraction=0.0))}
+    with_joint_fit = {**estimators, "kernel_joint_fit": estimators["kernel"]}  # real skeletons: + their rest joints
     result = {
         "gender": args.gender, "body_model": {"source": model.source, "fingerprint": model.fingerprint},
         "bank": {"num_samples": BankConfig().num_samples, "seed": BankConfig().seed, "bandwidth_m": 0.02,
@@ -204,7 +238,8 @@ def main() -> None:
         "held_out": {"num_bodies": args.samples, "seed": args.seed,
                      "refused_at_bank_edge_by_default": edge_refusals(kernel, args.samples, args.seed, model),
                      **synthetic(model, estimators, args.samples, args.seed)},
-        "characters": real_characters(model, estimators, shared) if (shared / "data").is_dir()
+        "joint_fit_held_out": joint_fit_held_out(model, estimators["kernel"], min(args.samples, 300), args.seed),
+        "characters": real_characters(model, with_joint_fit, shared) if (shared / "data").is_dir()
         else f"skipped: {shared / 'data'} not found",
     }
     import tempfile
@@ -218,6 +253,13 @@ def main() -> None:
         print(f"{name:15s} feature err mm median {r['max_feature_error_mm']['median']:.2f} "
               f"p95 {r['max_feature_error_mm']['p95']:.2f} | beta MAE {r['beta_mean_abs_error']['mean']:.3f} "
               f"| scale err {r['scale_abs_error']['mean']:.4f} | {r['time_ms']['median']:.2f} ms")
+    jf = result["joint_fit_held_out"]
+    err0, err1 = jf["kernel"]["rest_joint_error_mm"], jf["joint_fit"]["rest_joint_error_mm"]
+    print(f"joint fit ({jf['num_bodies']} bodies, own rest joints): rest joint error mm median "
+          f"{err0['median']:.2f} -> {err1['median']:.2f}, p95 {err0['p95']:.2f} -> {err1['p95']:.2f}"
+          f" | beta MAE {jf['kernel']['beta_mean_abs_error']['mean']:.3f} -> "
+          f"{jf['joint_fit']['beta_mean_abs_error']['mean']:.3f} | kept {jf['joint_fit_kept']} | "
+          f"{jf['time_ms']['median']:.1f} ms")
     print(f"bank build {bank_build_s * 1000:.1f} ms, estimator from cache {estimator_from_cache_s * 1000:.1f} ms")
     if isinstance(result["characters"], dict):
         for label, entry in result["characters"].items():
@@ -225,8 +267,10 @@ def main() -> None:
             if "error" in k:
                 print(f"{label:28s} ERROR {k['error'][:100]}")
                 continue
+            j = entry.get("kernel_joint_fit", {}).get("bone_mean_abs_error_mm", float("nan"))
             print(f"{label:28s} stature err {k['stature_head_ankle_error_mm']:7.1f} mm | bone MAE "
-                  f"{k['bone_mean_abs_error_mm']:5.1f} mm | scale {k['scale']:.3f} | {k['query_ms']:.2f} ms")
+                  f"{k['bone_mean_abs_error_mm']:5.1f} mm (joint fit {j:5.1f})"
+                  f" | scale {k['scale']:.3f} | {k['query_ms']:.2f} ms")
     for label, r in result["real_layouts"].items():
         print(f"{label:24s} units {r['units_m']:.4f} ({r['units_source']}) stature in {r['stature_in_m']:.3f} m "
               f"out {r['stature_out_m']:.3f} m | residual {r['max_feature_residual_mm']:.1f} mm | "

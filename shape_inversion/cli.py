@@ -41,6 +41,20 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
     return out
 
 
+def joint_fit_note(character, estimate) -> str:
+    """One line: the mapped rest joints' mean distance from the SMPL body (% of the stature), and the stage kept."""
+    import math
+
+    if not math.isfinite(estimate.rest_joint_residual_m):
+        return ""
+    stature = character.head_ankle_height_m / 0.84
+    first, last = (100 * r / stature for r in (estimate.first_stage_rest_joint_residual_m,
+                                                estimate.rest_joint_residual_m))
+    if estimate.joint_fit:
+        return f"joint fit: rest joints {last:.1f} % of the stature from the SMPL body (six features: {first:.1f} %)"
+    return f"joint fit not kept: rest joints {first:.1f} % of the stature from the SMPL body (six features)"
+
+
 @app.command("invert-shape")
 @with_character_options
 def invert_shape(
@@ -79,7 +93,7 @@ def invert_shape(
         start = time.perf_counter()
         with warnings.catch_warnings():  # its notes are printed below, once
             warnings.simplefilter("ignore")
-            estimate = estimator.estimate(char.features)
+            estimate = estimator.estimate(char.features, char.mapped_rest())
         elapsed = time.perf_counter() - start
     except ValueError as exc:  # SkeletonError, RigError, ShapeInversionError, ModelFileError
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
@@ -91,6 +105,8 @@ def invert_shape(
     for note in estimate.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     write_json_atomic(out, payload)
+    if note := joint_fit_note(char, estimate):
+        console.print(note, soft_wrap=True, highlight=False)
     console.print(f"rig {char.rig.name}, units {char.units_m:g} m ({char.units_source}), up {char.up}; "
                   f"scale {estimate.scale:.3f}, max feature residual {estimate.max_feature_residual_m * 1000:.2f} mm, "
                   f"effective samples {estimate.effective_samples:.1f} -> {out}")

@@ -33,6 +33,14 @@ Choices, documented because the paper leaves them open:
   for extreme values of unobserved components (hip width, mass -> +-5), a worse-looking body than
   the kernel mean's. Use it when matching the six distances matters more than the mesh. The paper's
   estimate is kept in :attr:`ShapeEstimate.kernel_betas` / :attr:`ShapeEstimate.kernel_scale`.
+* **Joint fit (second stage, on by default when the mapped rest joints are given).** SMPL's rest joints are
+  linear in beta, so ``(beta, scale)`` is fitted to every mapped joint of the skeleton's rest pose, each bone
+  laid along SMPL's direction as retargeting lays it (:mod:`shape_inversion.joint_fit`), after a rigid
+  alignment: ``sum_m w_m |scale J_m(beta) - (R q_m + t)|^2 / tol^2 + (x - x_0)^T S^-1 (x - x_0) +
+  |beta|^2 / std^2`` with the first stage's estimate ``x_0`` and covariance ``S`` as the prior (``tol = 1 cm``,
+  ``std = 2``, convention-dependent joints weighing 0.5), inside the bank's box short of its edge. It is kept
+  only when it lowers the mapped joints' mean rest residual (:attr:`ShapeEstimate.rest_joint_residual_m`);
+  the features alone decide whether the skeleton is a human and whether the fit is weak.
 """
 
 from __future__ import annotations
@@ -42,12 +50,15 @@ from pathlib import Path
 
 import numpy as np
 import scipy.optimize
+import torch
 from sklearn.neighbors import KDTree
 
 from shape_inversion.bank import BankConfig, SampleBank, load_or_build_bank
 from shape_inversion.features import FEATURE_NAMES, FEATURE_PAIRS, NUM_FEATURES
+from shape_inversion.joint_fit import MappedRest, reposed_rest
 from smplik.body_model import BodyModel
-from smplik.conventions import JOINT_INDEX, NUM_BETAS, Gender
+from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, Gender
+from smplik.metrics import rigid_align
 
 
 class ShapeInversionError(ValueError):
@@ -77,12 +88,29 @@ class EstimatorConfig:
     refine_max_evaluations: int = 100
     """Cap on the refinement's least-squares iterations."""
     weak_residual_m: float = 0.04
-    """A fit whose largest feature residual exceeds this (metres) is reported as weak in ``warnings``."""
+    """A fit whose largest feature residual (of the first stage, before the joint fit) exceeds this (metres) is
+    reported as weak in ``warnings``."""
     weak_effective_samples: float = 5.0
     """A fit resting on fewer effective bank samples than this is reported as weak in ``warnings``."""
     edge_fraction: float = 0.05
     """An estimate within this fraction of the bank's range from its edge is at the edge: a scale there is
     refused (wrong units, or a body the bank does not cover), a beta there is reported in ``warnings``."""
+    joint_fit: bool = True
+    """Second stage, when the skeleton's mapped rest joints are given: fit SMPL's rest joints to them (see the
+    module docstring); kept only when it lowers their residual after a rigid alignment."""
+    joint_fit_tolerance_m: float = 0.01
+    """Joint residual (metres, per coordinate of a joint of weight 1) that costs as much as moving one posterior
+    standard deviation away from the first stage's estimate."""
+    joint_fit_weights: tuple[tuple[str, float], ...] = (
+        ("spine1", 0.5), ("spine2", 0.5), ("spine3", 0.5), ("left_collar", 0.5), ("right_collar", 0.5),
+        ("left_foot", 0.5), ("right_foot", 0.5), ("left_hand", 0.5), ("right_hand", 0.5))
+    """Joints whose placement depends on the rig's conventions (spine, collars, hand and foot ends) and their
+    weight in the joint fit; every other mapped joint weighs 1."""
+    joint_fit_beta_std: float = 2.0
+    """Population prior of the joint fit: ``|beta|^2 / std^2`` is added (SMPL's betas are whitened shape
+    components, ~N(0, 1) over its training bodies); 0: none."""
+    joint_fit_max_evaluations: int = 200
+    """Cap on the joint fit's least-squares iterations."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,6 +132,10 @@ class ShapeEstimate:
         kernel_betas: (10,) the paper's plain kernel-regression estimate (eq. 3).
         kernel_scale: its scale.
         refined: whether ``betas``/``scale`` were refined from the kernel estimate.
+        joint_fit: whether ``betas``/``scale`` come from the joint fit (second stage).
+        rest_joint_residual_m: mean distance (metres) of the skeleton's mapped rest joints from
+            ``scale * J(betas)`` after a rigid alignment; NaN when the joints were not given.
+        first_stage_rest_joint_residual_m: the same for the first stage's estimate (kernel mean, or refined).
         warnings: betas at the edge of the bank's range, with the numbers (also sent to :mod:`warnings`).
     """
 
@@ -122,6 +154,9 @@ class ShapeEstimate:
     kernel_scale: float = field(repr=False)
     refined: bool = False
     warnings: tuple[str, ...] = ()
+    joint_fit: bool = False
+    rest_joint_residual_m: float = float("nan")
+    first_stage_rest_joint_residual_m: float = float("nan")
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (lists and floats)."""
@@ -142,9 +177,16 @@ class ShapeEstimate:
                 "kernel_betas": [float(b) for b in self.kernel_betas],
                 "kernel_scale": float(self.kernel_scale),
                 "refined": bool(self.refined),
+                "joint_fit": bool(self.joint_fit),
+                "rest_joint_residual_m": _json_float(self.rest_joint_residual_m),
+                "first_stage_rest_joint_residual_m": _json_float(self.first_stage_rest_joint_residual_m),
                 "warnings": list(self.warnings),
             },
         }
+
+
+def _json_float(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def _pair_dirs(J_template: np.ndarray, J_dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,6 +221,8 @@ class ShapeEstimator:
         tree: KD-tree over ``bank.features``.
         pair_template: (6, 3), pair_dirs: (6, 3, 10): the features' linear parts (float64).
         config: estimator settings.
+        joint_template: (24, 3), joint_dirs: (24, 3, 10): SMPL's rest joints ``J(beta) = joint_template +
+            joint_dirs @ beta`` (float64) for the joint fit; None (no joint fit) when built without them.
     """
 
     bank: SampleBank
@@ -186,6 +230,8 @@ class ShapeEstimator:
     pair_template: np.ndarray = field(repr=False)
     pair_dirs: np.ndarray = field(repr=False)
     config: EstimatorConfig = EstimatorConfig()
+    joint_template: np.ndarray | None = field(default=None, repr=False)
+    joint_dirs: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
     def build(cls, model: BodyModel, bank_config: BankConfig | None = None, config: EstimatorConfig | None = None,
@@ -194,8 +240,9 @@ class ShapeEstimator:
         bank_config = BankConfig() if bank_config is None else bank_config
         config = EstimatorConfig() if config is None else config
         bank = load_or_build_bank(model, bank_config, root=cache_root, use_cache=use_cache)
-        T, D = _pair_dirs(model.J_template.double().numpy(), model.J_dirs.double().numpy())
-        return cls(bank, KDTree(bank.features), T, D, config)
+        J_template, J_dirs = model.J_template.double().numpy(), model.J_dirs.double().numpy()
+        T, D = _pair_dirs(J_template, J_dirs)
+        return cls(bank, KDTree(bank.features), T, D, config, J_template, J_dirs)
 
     @property
     def gender(self) -> Gender:
@@ -230,8 +277,12 @@ class ShapeEstimator:
                 f"{max(self.config.max_stylised_distance, self.config.max_nearest_distance) * 1000:.0f} mm). "
                 "Features off: " + "; ".join(off) + ".")
 
-    def estimate(self, features: np.ndarray) -> ShapeEstimate:
+    def estimate(self, features: np.ndarray, rest: MappedRest | None = None) -> ShapeEstimate:
         """Estimate (beta, scale) from a skeleton's features (6,) in metres.
+
+        ``rest``: the skeleton's mapped rest joints (:class:`shape_inversion.joint_fit.MappedRest`, metres, smplik's
+        frame; :meth:`shape_inversion.skeleton_io.Character.mapped_rest`), for
+        the joint fit (second stage, ``config.joint_fit``); the features alone decide whether it is a human.
 
         Raises:
             ShapeInversionError: non-finite/non-positive features, or proportions outside the bank.
@@ -268,15 +319,26 @@ class ShapeEstimator:
         kernel_mean = mean.copy()
         if cfg.refine:
             mean = self._refine(query, mean, cov)
+        fitted, rest_residual, first_residual, first = False, float("nan"), float("nan"), mean
+        if rest is not None and self.joint_template is not None and len(rest) >= 3 \
+                and np.all(np.isfinite(rest.positions)):
+            first_residual = rest_residual = self.rest_joint_residual(mean, rest)
+            if cfg.joint_fit:
+                candidate = self._fit_joints(rest, mean, cov)
+                candidate_residual = self.rest_joint_residual(candidate, rest)
+                if candidate_residual < first_residual:  # never worse than the first stage
+                    mean, rest_residual, fitted = candidate, candidate_residual, True
         betas, scale = mean[:NUM_BETAS], float(mean[NUM_BETAS])
         residual = self.features_of(betas, scale) - query
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
         notes = (*stylised, *self._edge_check(betas, scale, query))
-        max_residual, n_eff = float(np.abs(residual).max()), float(w.sum() ** 2 / (w**2).sum())
+        # a weak fit is judged on the first stage: the joint fit trades feature residual for the rest joints
+        judged = self.features_of(first[:NUM_BETAS], float(first[NUM_BETAS])) - query if fitted else residual
+        max_residual, n_eff = float(np.abs(judged).max()), float(w.sum() ** 2 / (w**2).sum())
         if max_residual > cfg.weak_residual_m or n_eff < cfg.weak_effective_samples:
             import warnings
 
-            worst = FEATURE_NAMES[int(np.argmax(np.abs(residual)))]
+            worst = FEATURE_NAMES[int(np.argmax(np.abs(judged)))]
             note = (f"weak shape inversion: largest feature residual {max_residual * 1000:.0f} mm ({worst}; limit "
                     f"{cfg.weak_residual_m * 1000:.0f} mm), {n_eff:.1f} effective samples (limit "
                     f"{cfg.weak_effective_samples:g}): check the joint map and the rest pose (--rest, --map)")
@@ -287,7 +349,8 @@ class ShapeEstimator:
             effective_samples=float(w.sum() ** 2 / (w**2).sum()), neighbours_used=int(w.size),
             nearest_distance_m=float(dist[0]), query_features_m=query, feature_residual_m=residual,
             max_feature_residual_m=float(np.abs(residual).max()), kernel_betas=kernel_mean[:NUM_BETAS],
-            kernel_scale=float(kernel_mean[NUM_BETAS]), refined=cfg.refine, warnings=notes,
+            kernel_scale=float(kernel_mean[NUM_BETAS]), refined=cfg.refine, warnings=notes, joint_fit=fitted,
+            rest_joint_residual_m=rest_residual, first_stage_rest_joint_residual_m=first_residual,
         )
 
     def _edge_check(self, betas: np.ndarray, scale: float, query: np.ndarray) -> tuple[str, ...]:
@@ -308,6 +371,55 @@ class ShapeEstimator:
         for note in notes:
             warnings.warn(note, stacklevel=3)
         return notes
+
+    def rest_joints_of(self, x: np.ndarray) -> np.ndarray:
+        """SMPL's rest joints ``J(beta)`` (24, 3) at unit scale for ``x = (beta, scale)`` (11,)."""
+        assert self.joint_template is not None and self.joint_dirs is not None
+        return self.joint_template + self.joint_dirs @ x[:NUM_BETAS]
+
+    def _rest_distances(self, x: np.ndarray, rest: MappedRest, weights: np.ndarray | None = None) -> np.ndarray:
+        """(M, 3) differences ``scale * J(beta)`` minus the mapped joints reposed on SMPL's bone directions
+        (:func:`shape_inversion.joint_fit.reposed_rest`), rigidly aligned (weights (M,), default all 1)."""
+        J = self.rest_joints_of(x)
+        target = x[NUM_BETAS] * J[rest.smpl]
+        q = torch.as_tensor(reposed_rest(rest, J))
+        w = None if weights is None else torch.as_tensor(weights)
+        return target - rigid_align(q, torch.as_tensor(target), w, scale=False).apply(q).numpy()
+
+    def rest_joint_residual(self, x: np.ndarray, rest: MappedRest) -> float:
+        """Mean distance (metres) of the mapped rest joints, reposed on SMPL's bone directions, from
+        ``scale * J(beta)`` after a rigid alignment, for ``x = (beta, scale)`` (11,)."""
+        return float(np.linalg.norm(self._rest_distances(x, rest), axis=1).mean())
+
+    def _fit_joints(self, rest: MappedRest, x0: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """(beta, scale) (11,) whose rest joints best match the skeleton's mapped rest joints.
+
+        Minimises ``sum_m w_m |scale J_m(beta) - (R q_m(beta) + t)|^2 / tol^2 + (x - x0)^T S^-1 (x - x0)`` over
+        ``x = (beta, scale)`` inside the bank's box (betas short of its edge), where ``q(beta)`` are the mapped
+        joints reposed on SMPL's bone directions and ``(R, t)`` their weighted Kabsch alignment for each ``x``
+        (variable projection), ``S = cov`` (plus a small ridge), ``w`` from ``config.joint_fit_weights`` and
+        ``tol = config.joint_fit_tolerance_m``.
+        """
+        cfg, bank = self.config, self.bank
+        weights = dict(cfg.joint_fit_weights)
+        w = np.array([weights.get(JOINT_NAMES[j], 1.0) for j in rest.smpl])
+        sqrt_w = np.sqrt(w)[:, None] / cfg.joint_fit_tolerance_m
+        beta_edge = (1 - cfg.edge_fraction) * bank.config.beta_range
+        lo = np.append(np.full(NUM_BETAS, -beta_edge), bank.config.scale_range[0])
+        hi = np.append(np.full(NUM_BETAS, beta_edge), bank.config.scale_range[1])
+        S = cov + 1e-4 * np.diag((hi - lo) ** 2 / 12.0)
+        L_inv = np.linalg.inv(np.linalg.cholesky(S))
+
+        population = 1.0 / cfg.joint_fit_beta_std if cfg.joint_fit_beta_std > 0 else 0.0
+
+        def fun(x: np.ndarray) -> np.ndarray:
+            return np.concatenate([(self._rest_distances(x, rest, w) * sqrt_w).ravel(), L_inv @ (x - x0),
+                                   population * x[:NUM_BETAS]])
+
+        start = np.clip(x0, lo + 1e-9, hi - 1e-9)
+        sol = scipy.optimize.least_squares(fun, start, bounds=(lo, hi), method="trf",
+                                           max_nfev=cfg.joint_fit_max_evaluations)
+        return sol.x
 
     def _refine(self, query: np.ndarray, x0: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """Refined (beta, scale) (11,) from the kernel mean ``x0`` (11,), posterior ``cov`` (11, 11), query (6,).

@@ -383,6 +383,12 @@ class Character:
     R_canon_file: np.ndarray = field(default_factory=lambda: np.eye(3))
     shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
+    def mapped_rest(self):
+        """The mapped joints at rest (:class:`shape_inversion.joint_fit.MappedRest`, metres) for SMPL-SI's joint fit."""
+        from shape_inversion.joint_fit import MappedRest
+
+        return MappedRest.from_skeleton(self.positions, self.skeleton.parents, self.smpl_joints)
+
     @property
     def joint_map(self) -> dict[str, str]:
         """SMPL joint -> joint name of the map used (SMPL order)."""

@@ -69,7 +69,7 @@ def test_a_posed_bvh_character_lands_near_its_smpl_pose(rig_id, estimator):
 
     entry = HUMANS[rig_id]
     char = read_character(RIGS / entry["file"])
-    cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    cc = build_character(char.skeleton, estimator.estimate(char.features, char.mapped_rest()), rig=char.rig)
     stature = char.head_ankle_height_m / 0.84
     for person in example_poses():
         pose = dataclasses.replace(person.pose, betas=cc.betas, gender=cc.gender)
@@ -81,7 +81,7 @@ def _posed_error_pct(char, estimator) -> list[float]:
     from workflows.character import build_character, retarget_error_m
     from workflows.examples_gen import example_poses
 
-    cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    cc = build_character(char.skeleton, estimator.estimate(char.features, char.mapped_rest()), rig=char.rig)
     stature = char.head_ankle_height_m / 0.84
     return [100 * float(retarget_error_m(dataclasses.replace(p.pose, betas=cc.betas, gender=cc.gender), cc).mean())
             / stature for p in example_poses()]
@@ -112,7 +112,7 @@ def test_the_threejs_soldier_exports_with_its_own_clips_and_joints_in_metres(tmp
     from workflows.scene.export import posed_character_glb
 
     char = read_character(RIGS / "threejs_Soldier.glb")
-    cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    cc = build_character(char.skeleton, estimator.estimate(char.features, char.mapped_rest()), rig=char.rig)
     pose = dataclasses.replace(example_poses()[1].pose, betas=cc.betas, gender=cc.gender)
     custom = smpl_to_custom(pose, cc)
     out = tmp_path / "soldier_posed.glb"
@@ -127,15 +127,16 @@ def test_the_threejs_soldier_exports_with_its_own_clips_and_joints_in_metres(tmp
 
 
 def test_cmu_cgspeed_lands_near_its_smpl_pose(shared_data, estimator):
-    """CMU's cgspeed BVH (01_01): 3.0-3.4 % of the stature off its SMPL pose, 3.0 % already in SMPL's rest pose
-    (``benchmarks/rig_corpus.py``: ``rest_pose_error_mean_pct``), i.e. the rig's joint placement against its
-    SMPL-SI body, not the retarget: the ASF clavicles start on the spine's midline (SMPL's collars 8 cm out),
-    the spine1 joint ``LowerBack`` starts on the root (SMPL's spine1 is 11 cm above its pelvis) and the SMPL-SI
-    body's upper arm is 4 cm shorter and forearm 5 cm longer than CMU's (feature residuals). Guarded at the
-    level reached, so that it cannot get worse unseen."""
+    """CMU's cgspeed BVH (01_01): with the six features alone 3.0-3.4 % of the stature off its SMPL pose, 3.0 %
+    already in SMPL's rest pose (``benchmarks/rig_corpus.py``: ``rest_pose_error_mean_pct``), i.e. the rig's joint
+    placement against its SMPL-SI body, not the retarget: the ASF clavicles start on the spine's midline (SMPL's
+    collars 8 cm out), the spine1 joint ``LowerBack`` starts on the root (SMPL's spine1 is 11 cm above its
+    pelvis) and the body's upper arm is 4 cm shorter and forearm 5 cm longer than CMU's (feature residuals).
+    SMPL-SI's joint fit chooses the body for the mapped rest joints: 2.0-2.3 %. Guarded with a little margin,
+    so that it cannot get worse unseen."""
     char = read_character(shared_data.cmu("01_01.bvh"))
     assert char.rig.name == "cmu" and char.joint_map["neck"] == "Neck1"
-    assert max(_posed_error_pct(char, estimator)) <= 3.5
+    assert max(_posed_error_pct(char, estimator)) <= 2.7
 
 
 def test_a_preset_whose_spine_stops_below_the_arms_branch_gives_way_to_the_skeleton(shared_data, monkeypatch):
@@ -404,7 +405,7 @@ def test_a_root_joint_left_on_the_floor_draws_no_stray_bone(tmp_path, estimator)
     path.write_text(head + "MOTION\n" + "\n".join(lines[:2] + frames) + "\n")
     char = read_character(path)
     assert char.joint_map["pelvis"] == "mixamorig:Hips" and "joint_Root" in char.skeleton.names
-    cc = build_character(char.skeleton, estimator.estimate(char.features), rig=char.rig)
+    cc = build_character(char.skeleton, estimator.estimate(char.features, char.mapped_rest()), rig=char.rig)
     pose = dataclasses.replace(example_poses()[0].pose, betas=cc.betas, gender=cc.gender)
     custom = smpl_to_custom(pose, cc)
     segments = custom_skeleton_segments(cc, custom)
@@ -412,3 +413,16 @@ def test_a_root_joint_left_on_the_floor_draws_no_stray_bone(tmp_path, estimator)
     _, p_file = custom.positions(cc)
     root = cc.file_to_canon_points(p_file)[cc.names.index("joint_Root")]
     assert all(not np.allclose(s.start, root) for s in segments)
+
+
+def test_the_joint_fit_puts_the_jumping_jacks_rest_joints_within_3_pct_of_the_stature(estimator):
+    """CMU's ASF-unit jumping jacks: its ASF clavicles, LowerBack and arm ratios put its mapped rest joints 3.2 %
+    of the stature off the first stage's SMPL body (the six features); SMPL-SI's joint fit brings them under
+    3 %, and the posed character under 3 % of its SMPL pose."""
+    char = read_character(RIGS / HUMANS["cmu_asf_jumping_jacks"]["file"])
+    stature = char.head_ankle_height_m / 0.84
+    est = estimator.estimate(char.features, char.mapped_rest())
+    assert est.joint_fit
+    assert 100 * est.first_stage_rest_joint_residual_m / stature > 3.0
+    assert 100 * est.rest_joint_residual_m / stature < 3.0
+    assert max(_posed_error_pct(char, estimator)) < 3.0

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from shape_inversion.estimator import ShapeEstimate
+from shape_inversion.joint_fit import AIM_CHILD, rest_alignments  # noqa: F401  (AIM_CHILD re-exported)
 from shape_inversion.options import (  # noqa: F401  (re-exported: every command taking a character uses them)
     BindOption,
     CharacterOptions,
@@ -54,15 +55,12 @@ from shape_inversion.options import (  # noqa: F401  (re-exported: every command
 from shape_inversion.rigs import RigMap
 from shape_inversion.skeleton_io import Character, Skeleton, prepare_character, read_character
 from smplik.atomic import write_text_atomic
-from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, Gender
+from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS, Gender
 from smplik.data.bvh import format_bvh, matrix_to_euler_channels
 from smplik.data.retarget import swing_rotation
 from smplik.kinematics import forward_kinematics, global_to_local
 from smplik.pose import Pose
 from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-
-AIM_CHILD = {"pelvis": "spine1", "spine3": "neck"}
-"""SMPL joints with several children aim at this one; others at their first mapped child."""
 
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
 JOINT_CHANNELS = ("Zrotation", "Yrotation", "Xrotation")
@@ -210,18 +208,9 @@ def build_character(skeleton: Skeleton, estimate: ShapeEstimate, options: Charac
     s = float(estimate.scale)
     J_placed = placed(s * smpl_rest, JOINT_INDEX["left_hip"], JOINT_INDEX["right_hip"])
     align = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-    for k in range(K):
-        j = int(smpl_of[k])
-        if j < 0:
-            continue
-        children = [c for c in range(NUM_JOINTS) if PARENTS[c] == j and c in custom_of]
-        preferred = JOINT_INDEX.get(AIM_CHILD.get(JOINT_NAMES[j], ""), -1)
-        child = preferred if preferred in children else (children[0] if children else -1)
-        if child < 0:
-            continue
-        d_custom = P[custom_of[child]] - P[k]
-        d_smpl = smpl_rest[child] - smpl_rest[j]
-        align[k] = swing_rotation(d_custom, d_smpl)
+    mapped = np.array(sorted(custom_of.values()), dtype=np.int64)
+    if len(mapped):
+        align[mapped] = rest_alignments(P[mapped], smpl_of[mapped], smpl_rest)
     root_smpl = int(smpl_of[0]) if smpl_of[0] >= 0 else 0
     root_offset = P[0] - J_placed[root_smpl]
     offsets = np.zeros((K, 3))
@@ -249,7 +238,7 @@ def load_character(path: str | Path, options: CharacterOptions | None = None, *,
     if rig is not None:
         options = dataclasses.replace(options, rig=rig, map=None)
     char = read_character(path, options)
-    estimate = ShapeEstimator.build(load_body_model(gender)).estimate(char.features)
+    estimate = ShapeEstimator.build(load_body_model(gender)).estimate(char.features, char.mapped_rest())
     return build_character(char.skeleton, estimate, options, rig=char.rig)
 
 
