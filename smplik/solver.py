@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -53,6 +53,9 @@ from smplik.pose import Pose
 from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, fast_backend_default, refine_output
 from smplik.rotations import axis_angle_to_matrix
 from smplik.validation import check_betas
+
+if TYPE_CHECKING:
+    from smplik.variants import Variant
 
 PACKAGED_MODEL = "smplik_cmu.pt"
 """File name of the shipped model in ``smplik/checkpoints``."""
@@ -336,6 +339,44 @@ class IKSolver:
             if len(genders) != B:
                 raise ValueError(f"gender has {len(genders)} entries for {B} poses.")
         return self._solve_rows(rows, beta_arr, genders)
+
+    def sample(self, effectors: Sequence[EffectorLike], k: int = 4, *, betas: Any = None,
+               gender: Gender | str = Gender.NEUTRAL, seed: int = 0, candidates: int = 32,
+               floor: float | None = None) -> list[Pose]:
+        """Up to ``k`` diverse poses that all meet ``effectors`` ("variants", :mod:`smplik.variants`).
+
+        Pose 0 is :meth:`solve`'s; the others are the network's poses for the effectors plus 1-3 random soft
+        *guide* effectors on free limbs (``candidates`` of them solved in one batch), kept when they still meet the
+        effectors and are plausible, picked far apart (farthest points on the 24 joints). Deterministic for a seed.
+        :meth:`sample_variants` also returns the guides of each pose.
+
+        Args:
+            effectors: non-empty list of :class:`Effector` or JSON dicts.
+            k: number of poses wanted (>= 1); fewer come back when the effectors leave too little freedom.
+            betas: (10,) body shape (default zeros). gender: as in :meth:`solve`.
+            seed: seed (>= 0) of the random guides. candidates: guided effector sets tried (>= 1).
+            floor: height (y, metres) of a floor no joint may go below, or None.
+
+        Returns:
+            list of up to ``k`` :class:`~smplik.pose.Pose` (each ``body_pose`` (23, 3), ``joints`` (24, 3)).
+
+        Raises:
+            ValueError: one line naming the problem (bad effector, betas, k, seed, candidates or floor).
+        """
+        return [v.pose for v in self.sample_variants(effectors, k, betas=betas, gender=gender, seed=seed,
+                                                     candidates=candidates, floor=floor)]
+
+    def sample_variants(self, effectors: Sequence[EffectorLike], k: int = 4, *, betas: Any = None,
+                        gender: Gender | str = Gender.NEUTRAL, seed: int = 0, candidates: int = 32,
+                        floor: float | None = None) -> list[Variant]:
+        """:meth:`sample` returning :class:`~smplik.variants.Variant` records: each pose with the guide effectors
+        that produced it (``variant.effectors`` = the effectors + its guides, which re-solve to its pose) and its
+        mean joint distance to pose 0 (metres)."""
+        from smplik.variants import sample_variants
+
+        user = as_effector_list(effectors)
+        return sample_variants(self, user, k, betas=check_betas(betas), gender=_parse_gender(gender), seed=seed,
+                               candidates=candidates, floor=floor)
 
     def _solve_rows(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
         if self.network is not None and self.ensemble.size == 1 and (self.refine.iterations == 0
