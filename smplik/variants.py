@@ -7,7 +7,9 @@ come from the same network, guided:
 2. ``candidates`` effector sets = the user's effectors + 1-3 *guide* effectors on joints the user did not constrain
    (:data:`GUIDE_JOINTS`, drawn at random), each a position effector at the base pose's joint plus a random offset
    of :data:`OFFSET_RANGE_M` kept within the limb's reach, with tolerance :data:`GUIDE_TOLERANCE`; all solved in
-   one :meth:`~smplik.solver.IKSolver.solve_batch` call;
+   one batch; then each guide is moved to where that solve put its joint (the random target is often out of the
+   pose's reach) and the candidates are solved again in a second batch: the guides a variant stores are then near
+   its pose, and re-solving the user's effectors + the guides gives that pose;
 3. a candidate is kept when it still meets the user's effectors (:func:`meets_effectors`: each residual from
    :func:`smplik.solver.effector_residuals` within :func:`allowed_residual`, or no worse than the base pose's
    plus :data:`SLACK_MM` / :data:`SLACK_DEG` when the base itself cannot meet it) and is plausible
@@ -52,15 +54,14 @@ OFFSET_RANGE_M = (0.10, 0.40)
 """A guide target is the base pose's joint moved by a random direction times a length drawn in this range."""
 REACH_FRACTION = 0.95
 """A guide target further than this fraction of the limb's length from the limb's root is pulled back to it."""
-GUIDE_TOLERANCE = 0.5
+GUIDE_TOLERANCE = 0.8
 """Tolerance of the guide effectors: soft, so that they bend the free limbs without pulling the user's effectors."""
-ALLOWED_MM = 20.0
-"""A candidate meets an exact position effector when its residual is at most this (plus
-:data:`TOLERANCE_MM` x tolerance for soft ones)."""
-TOLERANCE_MM = 200.0
+ALLOWED_MM = 10.0
+"""A candidate meets a position effector when its residual is at most this plus 3 x the training sampler's noise at
+the effector's tolerance (``3 * 0.1 * tolerance ** 13`` m): the allowance of the scene's conflict report
+(:func:`workflows.scene.edits.allowance`), so a kept variant shows its user effectors as met."""
 ALLOWED_DEG = 5.0
-"""Same for rotation and look-at effectors, in degrees (plus :data:`TOLERANCE_DEG` x tolerance)."""
-TOLERANCE_DEG = 45.0
+"""Same for rotation and look-at effectors, in degrees (plus ``3 * degrees(0.1 * tolerance ** 13)``)."""
 SLACK_MM = 10.0
 """An effector the base pose cannot meet (unreachable) is met by a candidate no worse than the base + this."""
 SLACK_DEG = 3.0
@@ -89,9 +90,10 @@ class Variant:
 
 def allowed_residual(effector: Effector) -> float:
     """The residual (mm for position effectors, degrees otherwise) a variant may leave on a user's effector."""
+    noise = 0.1 * float(effector.tolerance) ** 13
     if effector.type == EffectorType.POSITION:
-        return ALLOWED_MM + TOLERANCE_MM * effector.tolerance
-    return ALLOWED_DEG + TOLERANCE_DEG * effector.tolerance
+        return ALLOWED_MM + 3000.0 * noise
+    return ALLOWED_DEG + 3.0 * float(np.degrees(noise))
 
 
 def meets_effectors(residuals: Sequence[float], base: Sequence[float], effectors: Sequence[Effector]) -> bool:
@@ -210,9 +212,13 @@ def sample_variants(solver: IKSolver, effectors: Sequence[Effector], k: int = 4,
     if k == 1 or not free:
         return variants
     rng = np.random.default_rng(seed)
-    guides = [guide_effectors(base, free, rng) for _ in range(candidates)]
-    poses = solver._solve_rows([list(user + g) for g in guides], np.repeat(np.asarray(betas, np.float64)[None],
-                                                                         candidates, 0), [gender] * candidates)
+    drawn = [guide_effectors(base, free, rng) for _ in range(candidates)]
+    b = np.repeat(np.asarray(betas, np.float64)[None], candidates, 0)
+    poses = solver._solve_rows([list(user + g) for g in drawn], b, [gender] * candidates)
+    # pass 2: each guide moved to where pass 1 put its joint, so the stored guides describe the variant's pose
+    guides = [tuple(Effector.position(e.joint, p.joints[e.joint], e.tolerance) for e in g)
+              for g, p in zip(drawn, poses, strict=True)]
+    poses = solver._solve_rows([list(user + g) for g in guides], b, [gender] * candidates)
     base_res = [r.value for r in effector_residuals(base, user, solver.bodies)]
     ok = implausibility(poses, floor) <= ANOMALY_MAX
     keep = [m for m in range(candidates) if ok[m] and meets_effectors(
