@@ -20,9 +20,10 @@ come from the same network, guided:
    metres), starting from the base pose; candidates closer than :data:`MIN_DISTANCE_M` to a picked pose are never
    picked. All random draws come from ``numpy.random.default_rng(seed)``: the same seed gives the same variants.
 
-A :class:`Variant` holds its pose and the guides that produced it: the user's effectors + the guides re-solve to
-(about, see :func:`sample_variants`) the same pose, so a variant is made persistent by adding its guides to the
-effector set (``smplik scene variants``, the editor's "Keep variant").
+A :class:`Variant` holds its pose and the guides that produced it: the user's effectors + the guides re-solve to the
+same pose (to within float32 rounding: a batch may run another network backend than one solve), so a variant is made
+persistent by adding its guides to the effector set (``smplik scene variants``, the editor's "Keep variant").
+The sampling itself is :meth:`smplik.solver.IKSolver.sample_variants`; this module holds its parts.
 """
 
 from __future__ import annotations
@@ -30,16 +31,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from smplik.conventions import JOINT_INDEX, PARENTS, EffectorType, Gender
+from smplik.conventions import JOINT_INDEX, PARENTS, EffectorType
 from smplik.effectors import Effector
 from smplik.pose import Pose
-
-if TYPE_CHECKING:
-    from smplik.solver import IKSolver
 
 GUIDE_JOINTS: tuple[str, ...] = ("head", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
                                  "left_knee", "right_knee", "left_ankle", "right_ankle")
@@ -157,7 +155,7 @@ def farthest_points(distance: np.ndarray, k: int, min_distance: float) -> list[i
     return picked
 
 
-def _check_count(name: str, value: Any, low: int) -> int:
+def check_count(name: str, value: Any, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < low:
         raise ValueError(f"{name} must be an integer >= {low}, got {value!r:.40}.")
     return int(value)
@@ -187,47 +185,15 @@ def guide_effectors(base: Pose, free: Sequence[int], rng: np.random.Generator) -
 _NAMES = {JOINT_INDEX[n]: n for n in GUIDE_JOINTS}
 
 
-def sample_variants(solver: IKSolver, effectors: Sequence[Effector], k: int = 4, *, betas: np.ndarray,
-                    gender: Gender, seed: int = 0, candidates: int = 32,
-                    floor: float | None = None) -> list[Variant]:
-    """Up to ``k`` diverse poses meeting ``effectors`` (validated :class:`Effector` objects, SMPL space); see the
-    module docstring. ``betas`` (10,) validated, ``gender`` parsed. Variant 0 is ``solver.solve``'s pose; fewer
-    than ``k`` come back when fewer plausible, distinct candidates exist (e.g. every guide joint is constrained).
+def free_guide_joints(effectors: Sequence[Effector]) -> list[int]:
+    """The :data:`GUIDE_JOINTS` (indices) that no effector targets."""
+    constrained = {e.joint for e in effectors}
+    return [JOINT_INDEX[n] for n in GUIDE_JOINTS if JOINT_INDEX[n] not in constrained]
 
-    The candidates are solved in one batch, whose network calls may run another backend than a single solve
-    (onnxruntime session vs. numba kernel): re-solving a variant's ``effectors`` alone gives its pose to within
-    float32 rounding."""
-    k = _check_count("k", k, 1)
-    seed = _check_count("seed", seed, 0)
-    candidates = _check_count("candidates", candidates, 1)
-    if floor is not None and not np.isfinite(floor):
-        raise ValueError(f"floor must be a finite height (metres) or None, got {floor!r}.")
-    from smplik.solver import effector_residuals
 
-    user = tuple(effectors)
-    base = solver._solve_rows([list(user)], np.asarray(betas, np.float64)[None], [gender])[0]
-    variants = [Variant(base, (), user, 0.0)]
-    constrained = {e.joint for e in user}
-    free = [JOINT_INDEX[n] for n in GUIDE_JOINTS if JOINT_INDEX[n] not in constrained]
-    if k == 1 or not free:
-        return variants
-    rng = np.random.default_rng(seed)
-    drawn = [guide_effectors(base, free, rng) for _ in range(candidates)]
-    b = np.repeat(np.asarray(betas, np.float64)[None], candidates, 0)
-    poses = solver._solve_rows([list(user + g) for g in drawn], b, [gender] * candidates)
-    # pass 2: each guide moved to where pass 1 put its joint, so the stored guides describe the variant's pose
-    guides = [tuple(Effector.position(e.joint, p.joints[e.joint], e.tolerance) for e in g)
-              for g, p in zip(drawn, poses, strict=True)]
-    poses = solver._solve_rows([list(user + g) for g in guides], b, [gender] * candidates)
-    base_res = [r.value for r in effector_residuals(base, user, solver.bodies)]
-    ok = implausibility(poses, floor) <= ANOMALY_MAX
-    keep = [m for m in range(candidates) if ok[m] and meets_effectors(
-        [r.value for r in effector_residuals(poses[m], user, solver.bodies)], base_res, user)]
-    if not keep:
-        return variants
+def pick_variants(base: Pose, poses: Sequence[Pose], keep: Sequence[int], k: int) -> list[tuple[int, float]]:
+    """Farthest-point selection of up to ``k - 1`` of ``poses[keep]`` around ``base``: (index into ``poses``, mean
+    joint distance to ``base`` in metres) in picking order."""
     joints = np.stack([base.joints] + [poses[m].joints for m in keep])  # (1 + kept, 24, 3)
     distance = np.linalg.norm(joints[:, None] - joints[None], axis=-1).mean(-1)  # (1 + kept, 1 + kept)
-    for i in farthest_points(distance, k, MIN_DISTANCE_M)[1:]:
-        m = keep[i - 1]
-        variants.append(Variant(poses[m], guides[m], user + guides[m], float(distance[0, i])))
-    return variants
+    return [(keep[i - 1], float(distance[0, i])) for i in farthest_points(distance, k, MIN_DISTANCE_M)[1:]]
