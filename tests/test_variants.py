@@ -220,3 +220,22 @@ def test_editor_app_wires_the_variants_control(state):
         assert len(state.character().effectors) > 3 and tuple(app.variant_dropdown.options) == (NO_VARIANT,)
     finally:
         app.stop()
+
+
+def test_scene_variants_says_when_fewer_than_k_exist(shipped_solver, tmp_path):
+    """Every guide joint constrained: only the plain solve, and a notice saying so."""
+    from smplik.cli.main import app
+    from workflows.editor.state import fresh_scene
+    from workflows.scene import save_scene
+
+    plain = shipped_solver.solve(EFFECTORS)
+    names = ("head", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_knee", "right_knee",
+             "left_ankle", "right_ankle")
+    effectors = tuple(Effector.position(n, plain.joints[Effector.position(n, (0, 0, 0)).joint]) for n in names)
+    scene = fresh_scene()
+    scene = dataclasses.replace(scene, characters=(dataclasses.replace(scene.characters[0], effectors=effectors),))
+    path = save_scene(scene, tmp_path / "scene.json")
+    res = CliRunner().invoke(app, ["scene", "variants", str(path), "--out", str(tmp_path / "v")])
+    assert res.exit_code == 0, res.output
+    assert "room for only 1 distinct plausible variant(s) of 4" in res.output
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["variant_0.json"]
