@@ -53,6 +53,7 @@ from smplik.pose import Pose
 from smplik.refine import DEFAULT_REFINEMENT, RefineConfig, fast_backend_default, refine_output
 from smplik.rotations import axis_angle_to_matrix
 from smplik.validation import check_betas
+from smplik.variants import Variant
 
 PACKAGED_MODEL = "smplik_cmu.pt"
 """File name of the shipped model in ``smplik/checkpoints``."""
@@ -336,6 +337,77 @@ class IKSolver:
             if len(genders) != B:
                 raise ValueError(f"gender has {len(genders)} entries for {B} poses.")
         return self._solve_rows(rows, beta_arr, genders)
+
+    def sample(self, effectors: Sequence[EffectorLike], k: int = 4, *, betas: Any = None,
+               gender: Gender | str = Gender.NEUTRAL, seed: int = 0, candidates: int = 32,
+               floor: float | None = None) -> list[Pose]:
+        """Up to ``k`` diverse poses that all meet ``effectors`` ("variants", :mod:`smplik.variants`).
+
+        Pose 0 is :meth:`solve`'s; the others are the network's poses for the effectors plus 1-3 random soft
+        *guide* effectors on free limbs (``candidates`` of them solved in one batch), kept when they still meet the
+        effectors and are plausible, picked far apart (farthest points on the 24 joints). Deterministic for a seed.
+        :meth:`sample_variants` also returns the guides of each pose.
+
+        Args:
+            effectors: non-empty list of :class:`Effector` or JSON dicts.
+            k: number of poses wanted (>= 1); fewer come back when the effectors leave too little freedom.
+            betas: (10,) body shape (default zeros). gender: as in :meth:`solve`.
+            seed: seed (>= 0) of the random guides. candidates: guided effector sets tried (>= 1).
+            floor: height (y, metres) of a floor no joint may go below, or None.
+
+        Returns:
+            list of up to ``k`` :class:`~smplik.pose.Pose` (each ``body_pose`` (23, 3), ``joints`` (24, 3)).
+
+        Raises:
+            ValueError: one line naming the problem (bad effector, betas, k, seed, candidates or floor).
+        """
+        return [v.pose for v in self.sample_variants(effectors, k, betas=betas, gender=gender, seed=seed,
+                                                     candidates=candidates, floor=floor)]
+
+    def sample_variants(self, effectors: Sequence[EffectorLike], k: int = 4, *, betas: Any = None,
+                        gender: Gender | str = Gender.NEUTRAL, seed: int = 0, candidates: int = 32,
+                        floor: float | None = None) -> list[Variant]:
+        """:meth:`sample` returning :class:`~smplik.variants.Variant` records: each pose with the guide effectors
+        that produced it (``variant.effectors`` = the effectors + its guides, which re-solve to its pose) and its
+        mean joint distance to pose 0 (metres)."""
+        from smplik.variants import (
+            ANOMALY_MAX,
+            check_count,
+            free_guide_joints,
+            guide_effectors,
+            implausibility,
+            meets_effectors,
+            pick_variants,
+        )
+
+        user = tuple(as_effector_list(effectors))
+        b, g = check_betas(betas), _parse_gender(gender)
+        k, seed = check_count("k", k, 1), check_count("seed", seed, 0)
+        candidates = check_count("candidates", candidates, 1)
+        if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.floating))
+                                  or not np.isfinite(floor)):
+            raise ValueError(f"floor must be a finite height (metres) or None, got {floor!r:.40}.")
+        base = self._solve_rows([list(user)], b[None], [g])[0]  # exactly solve()'s pose
+        variants = [Variant(base, (), user, 0.0)]
+        free = free_guide_joints(user)
+        if k == 1 or not free:
+            return variants
+        rng = np.random.default_rng(seed)
+        drawn = [guide_effectors(base, free, rng) for _ in range(candidates)]
+        rows_b, rows_g = np.repeat(b[None], candidates, 0), [g] * candidates
+        poses = self._solve_rows([list(user + d) for d in drawn], rows_b, rows_g)
+        # pass 2: each guide moved to where pass 1 put its joint, so the stored guides describe the variant's pose
+        guides = [tuple(Effector.position(e.joint, p.joints[e.joint], e.tolerance) for e in d)
+                  for d, p in zip(drawn, poses, strict=True)]
+        poses = self._solve_rows([list(user + gs) for gs in guides], rows_b, rows_g)
+        base_res = [r.value for r in effector_residuals(base, user, self.bodies)]
+        plausible = implausibility(poses, floor) <= ANOMALY_MAX
+        keep = [m for m in range(candidates) if plausible[m] and meets_effectors(
+            [r.value for r in effector_residuals(poses[m], user, self.bodies)], base_res, user)]
+        if keep:
+            variants += [Variant(poses[m], guides[m], user + guides[m], d)
+                         for m, d in pick_variants(base, poses, keep, k)]
+        return variants
 
     def _solve_rows(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
         if self.network is not None and self.ensemble.size == 1 and (self.refine.iterations == 0

@@ -124,6 +124,36 @@ def solve_cmd(
     say(f"wrote {path}")
 
 
+@scene_app.command("variants")
+def variants_cmd(
+    scene: Annotated[Path, typer.Argument(help="Scene JSON.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder (variant_0.json, variant_1.json, ...).")],
+    k: Annotated[int, typer.Option("--k", min=1, max=64, help="Number of variants (variant 0: the plain solve).")] = 4,
+    character: Annotated[str | None, typer.Option("--character", help="Character whose effectors get variants "
+                                                  "(default: the first with effectors).")] = None,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the random guide effectors.")] = 0,
+    candidates: Annotated[int, typer.Option("--candidates", min=1, max=1024,
+                                            help="Guided effector sets tried (one batch).")] = 32,
+    checkpoint: Checkpoint = None,
+) -> None:
+    """K alternative poses of one character for its effectors: OUT/variant_I.json, each the scene with that
+    character's effectors + the variant's guide effectors and the variant's pose (variant 0: the plain solve)."""
+    from workflows.scene.variants import scene_variants, write_variants
+
+    with user_errors():
+        from workflows.scene import load_scene
+
+        loaded = load_scene(scene)
+        solver = cli_shared._solver(checkpoint)
+        scenes, name = scene_variants(loaded, solver, k=k, character=character, seed=seed, candidates=candidates)
+        paths = write_variants(scenes, out)
+    if len(paths) < k:
+        say(f"notice: {name}'s effectors leave room for only {len(paths)} distinct plausible variant(s) of {k}.")
+    for i, (path, (_, guides, dist)) in enumerate(zip(paths, scenes, strict=True)):
+        what = "the plain solve" if i == 0 else f"{guides} guide effector(s), joints {100 * dist:.1f} cm from variant 0"
+        say(f"wrote {path} ({name}: {what})")
+
+
 @scene_app.command("render")
 def render_cmd(
     scene: Annotated[Path, typer.Argument(help="Scene JSON.")],

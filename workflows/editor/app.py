@@ -35,6 +35,9 @@ log = logging.getLogger(__name__)
 PALETTE = ((158, 178, 219), (219, 178, 140), (158, 214, 163), (219, 158, 189), (204, 204, 148), (153, 204, 214))
 GIZMO_SCALE = 0.18
 NO_EFFECTOR = "(none)"
+NO_VARIANT = "(none: press Variants)"
+VARIANT_COUNT = 4
+"""Variants the Variants button asks for (variant 0: the current pose)."""
 MAX_IMAGE_SIDE = 1280
 IMAGE_WXYZ = (0.0, 1.0, 0.0, 0.0)
 """viser draws an image in OpenCV camera axes (rows along -y down, seen from -z); a half turn about x
@@ -201,6 +204,12 @@ class EditorApp:
             self.delete_button = gui.add_button("Delete effector", icon=viser.Icon.TRASH, color="red")
             self.refine_checkbox = gui.add_checkbox("Refinement", s.refine,
                                                     hint="Levenberg-Marquardt steps after the network.")
+        with gui.add_folder("Variants", expand_by_default=False):
+            self.variants_button = gui.add_button("Variants", icon=viser.Icon.ARROWS_SHUFFLE,
+                                                  hint="Alternative poses that meet the same effectors.")
+            self.variant_dropdown = gui.add_dropdown("Variant", [NO_VARIANT], initial_value=NO_VARIANT)
+            self.keep_variant_button = gui.add_button("Keep variant", icon=viser.Icon.CHECK,
+                                                      hint="Add the shown variant's guide effectors (undoable).")
         with gui.add_folder("Recovery", expand_by_default=False):
             self.max_effectors_slider = gui.add_slider("Max effectors", 1, 16, 1, 8)
             self.recover_button = gui.add_button("Recover effectors",
@@ -228,6 +237,10 @@ class EditorApp:
         self.delete_button.on_click(user(lambda e: self.state.delete_effector()))
         self.refine_checkbox.on_update(user(lambda e: self.state.set_refine(bool(e.target.value))))
         self.recover_button.on_click(user(lambda e: self._recover()))
+        self.variants_button.on_click(user(lambda e: self._generate_variants()))
+        self.variant_dropdown.on_update(user(lambda e: None if e.target.value == NO_VARIANT else
+                                             self.state.preview_variant(int(e.target.value.split(":")[0]))))
+        self.keep_variant_button.on_click(user(lambda e: self._keep_variant()))
         self.undo_button.on_click(user(lambda e: self.undo()))
         self.redo_button.on_click(user(lambda e: self.redo()))
         self.save_button.on_click(user(lambda e: self.save()))
@@ -261,6 +274,16 @@ class EditorApp:
     def _recover(self) -> None:
         errors = self.state.recover(int(self.max_effectors_slider.value))
         self._set_status(f"Recovered {len(errors)} effectors; error {errors[-1] * 1000:.0f} mm.")
+
+    def _generate_variants(self) -> None:
+        n = self.state.generate_variants(VARIANT_COUNT)
+        self._set_status(f"{n} variant(s) of {self.state.character().name}: pick one under Variant, then Keep "
+                         "variant." if n > 1 else "The effectors leave no room for other plausible poses.")
+
+    def _keep_variant(self) -> None:
+        added = self.state.keep_variant()
+        self._set_status(f"Kept the variant: {added} guide effector(s) added." if added else
+                         "Variant 0 is the current pose: nothing added.")
 
     def undo(self) -> bool:
         """The Undo button."""
@@ -392,8 +415,9 @@ class EditorApp:
     # ------------------------------------------------------------------------- drawing
 
     def _draw_character(self, i: int) -> None:
-        c = self.state.scene.characters[i]
-        if self._drawn.get(i) is c:
+        c, shown = self.state.view_key(i)
+        drawn = self._drawn.get(i)
+        if drawn is not None and drawn[0] is c and drawn[1] == shown:
             return
         view = self.state.view(i)
         if i in self._meshes:
@@ -424,7 +448,7 @@ class EditorApp:
                     else:
                         self._own_meshes[i] = self.server.scene.add_mesh_simple(
                             f"/char{i}/own_mesh", own[0].astype(np.float32), own[1], color=(217, 184, 153))
-        self._drawn[i] = c
+        self._drawn[i] = (c, shown)
 
     def _pick(self, i: int, event: Any) -> None:
         self.state.select_character(i)
@@ -456,5 +480,10 @@ class EditorApp:
         if s.selected is not None:
             self.tolerance_slider.value = float(c.effectors[s.selected].tolerance)
         self.refine_checkbox.value = s.refine
+        variants = s.variants
+        self.variant_dropdown.options = [f"{k}: " + ("current pose" if k == 0 else f"{100 * v.distance_m:.0f} cm away")
+                                         for k, v in enumerate(variants)] or [NO_VARIANT]
+        self.variant_dropdown.value = self.variant_dropdown.options[s.variant_index]
+        self.variant_dropdown.disabled = self.keep_variant_button.disabled = len(variants) < 2
         self.undo_button.disabled = not s.can_undo
         self.redo_button.disabled = not s.can_redo

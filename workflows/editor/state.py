@@ -29,9 +29,11 @@ from smplik.conventions import JOINT_NAMES, NUM_BETAS, NUM_JOINTS, EffectorType,
 from smplik.effectors import Effector
 from smplik.pose import Pose
 from smplik.refine import RefineConfig
+from smplik.variants import Variant
 from workflows.editor.skinning import ShapedBody, Skinner
 from workflows.scene import Scene, SceneCharacter, load_scene, save_scene, solve_character
 from workflows.scene.edits import ConflictReport, conflict_report, relax_stale, solve_drag
+from workflows.scene.variants import with_variant
 
 EFFECTOR_TYPES: tuple[str, ...] = tuple(t.name.lower() for t in EffectorType)
 """Effector type names, in :class:`~smplik.conventions.EffectorType` order."""
@@ -179,6 +181,9 @@ class EditorState(UndoStacks):
         :data:`workflows.scene.edits.RELAXED_TOLERANCE`); shown by the editor."""
         self._drag_base: Pose | None = None
         self._reports: dict[int, tuple[SceneCharacter, ConflictReport]] = {}
+        self._variants: tuple[int, SceneCharacter, tuple[Variant, ...]] | None = None
+        self._variant_index = 0
+        self._variant_views: dict[tuple[int, int], tuple[SceneCharacter, CharacterView]] = {}
 
     @classmethod
     def open(cls, path: str | Path, solver: Any, **kwargs: Any) -> EditorState:
@@ -236,12 +241,26 @@ class EditorState(UndoStacks):
         """The posed mesh and joints of a character (cached until that character changes)."""
         i = self.active if index is None else self._check_character(index)
         c = self.scene.characters[i]
+        if i == self.active and self.variant_index:  # previewing a variant of this character
+            key = (i, self.variant_index)
+            cached_variant = self._variant_views.get(key)
+            if cached_variant is None or cached_variant[0] is not c:
+                posed = with_variant(c, self.variants[self.variant_index])
+                cached_variant = (c, self._compute_view(i, posed))
+                self._variant_views[key] = cached_variant
+            return cached_variant[1]
         cached = self._views.get(i)
         if cached is not None and cached[0] is c:
             return cached[1]
         view = self._compute_view(i, c)
         self._views[i] = (c, view)
         return view
+
+    def view_key(self, index: int | None = None) -> tuple[SceneCharacter, int]:
+        """What :meth:`view` of a character depends on: the character record and the previewed variant (0: none);
+        the drawing is up to date while this is unchanged (compare records with ``is``)."""
+        i = self.active if index is None else self._check_character(index)
+        return self.scene.characters[i], self.variant_index if i == self.active else 0
 
     def conflicts(self, index: int | None = None) -> ConflictReport:
         """The conflict report of a character (:func:`workflows.scene.edits.conflict_report`: per effector its
@@ -417,6 +436,71 @@ class EditorState(UndoStacks):
         result = recover_effectors(self._current_solver(), TargetPose.from_pose(target), cfg, scale=c.scale)
         self._edit(dataclasses.replace(c, effectors=result.effectors), selected=None)
         return result.errors
+
+    # ------------------------------------------------------------------------- variants
+
+    @property
+    def variants(self) -> tuple[Variant, ...]:
+        """The variants (:mod:`smplik.variants`) last generated for the active character, while its effectors, shape
+        and pose are unchanged (any edit, undo or a change of character drops them); SMPL space."""
+        if self._variants is None:
+            return ()
+        i, c, variants = self._variants
+        if i != self.active or self.scene.characters[i] is not c:
+            self._variants, self._variant_index = None, 0
+            self._variant_views.clear()
+            return ()
+        return variants
+
+    @property
+    def variant_index(self) -> int:
+        """The variant shown in place of the active character's pose (0: its own pose, the plain solve)."""
+        return self._variant_index if self.variants else 0
+
+    def generate_variants(self, k: int = 4, *, seed: int = 0, candidates: int = 32) -> int:
+        """Up to ``k`` alternative poses for the active character's effectors (variant 0: its current solve) with
+        :func:`workflows.scene.variants.character_variants` (floor at y = 0 when the scene has a ground record);
+        shows variant 0 and returns how many there are. Not an edit: nothing to undo."""
+        from workflows.scene.variants import character_variants
+
+        c = self.character()
+        floor = 0.0 if self.scene.ground is not None else None
+        try:
+            variants = character_variants(c, self._current_solver(), k, seed=seed, candidates=candidates,
+                                          floor=floor)
+        except ValueError as exc:
+            raise EditorError(str(exc)) from None
+        self._variants = (self.active, c, tuple(variants))
+        self._variant_index = 0
+        self._variant_views.clear()
+        self.version += 1
+        return len(variants)
+
+    def preview_variant(self, index: int) -> None:
+        """Show variant ``index`` (0..len(variants) - 1) in place of the active character's pose."""
+        n = len(self.variants)
+        if n == 0:
+            raise EditorError("No variants: generate them first.")
+        if isinstance(index, bool) or not 0 <= int(index) < n:
+            raise EditorError(f"No variant {index}: there are {n} (0..{n - 1}).")
+        if int(index) != self._variant_index:
+            self._variant_index = int(index)
+            self.version += 1
+
+    def keep_variant(self, index: int | None = None) -> int:
+        """Make a variant (default: the one shown) the character's pose: its guide effectors are added to the
+        character's (one undo step; :meth:`save` writes them) and the character re-solved. Returns the number of
+        effectors added (0 for variant 0, the current pose: nothing changes)."""
+        k = self.variant_index if index is None else index
+        self.preview_variant(k)
+        variant = self.variants[k]
+        if not variant.guides:
+            self._variant_index = 0
+            self.version += 1
+            return 0
+        c = self.character()
+        self._edit(with_variant(c, variant), selected=None)
+        return len(variant.guides)
 
     def end_gesture(self) -> None:
         """End the current drag / slider gesture: the next edit starts a new undo step."""
