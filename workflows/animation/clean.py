@@ -131,6 +131,10 @@ class CleanConfig:
     offset to blend is larger than ``blend_max_m`` per frame)."""
     blend_max_m: float = 0.02
     """Most a lock's blend moves the foot from one frame to the next (m): no snap at a release."""
+    hold_frames: int = 1
+    """Adaptive: frames before and after each contact run that the lock also holds (0 or 1; :func:`lock_plan`):
+    the blends happen outside the run, so the foot is still (zero speed by central differences) on every frame
+    reported as contact; frames where a lock hands over to the next one are reported free."""
     root_from_locks: bool = True
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
@@ -177,6 +181,8 @@ class CleanConfig:
             raise CleanError(f"contact_release_ratio must be >= 1, got {self.contact_release_ratio}.")
         if self.contact_min_frames < 1 or self.blend_frames < 0:
             raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
+        if self.hold_frames not in (0, 1):
+            raise CleanError(f"hold_frames must be 0 or 1, got {self.hold_frames}.")
 
 
 # ----------------------------------------------------------------------------- filters
@@ -372,20 +378,20 @@ def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
 
 
 def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3,
-              ground: np.ndarray | None = None, blend_max: float | None = None) -> np.ndarray:
+              ground: np.ndarray | None = None, blend_max: float | None = None, hold: int = 0) -> np.ndarray:
     """Pin each foot joint to its lock (:func:`lock_targets`) over each contact run by two-bone leg IK.
 
     Args:
         R_parent_joint: (T, 24, 3, 3) local rotations; p_world: (T, 24, 3) their joint positions;
         contact: (T, 2) bool (left, right) from :func:`foot_contacts`; ground: (3,) the ground's velocity
-        (units per frame; default still).
+        (units per frame; default still); blend_max, hold: as in :func:`lock_plan`.
 
     Returns: new local rotations (T, 24, 3, 3); only the hips, knees and ankles of locked legs change
     (the ankles keep their world rotations).
     """
     R_out = R_parent_joint.copy()
     G = local_to_world(R_parent_joint)
-    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max, hold)
     for side, ((hip, knee, ankle), foot) in enumerate(zip(LEG_CHAINS, FOOT_JOINTS, strict=True)):
         rows = np.nonzero(weights[:, side] > 0)[0]
         if rows.size == 0:
@@ -456,34 +462,51 @@ def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray, gr
 
 
 def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None,
-                 blend_max: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs.
+                 blend_max: float | None = None, hold: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs: the targets
+    (T, 2, 3) and weights (T, 2) of :func:`lock_plan` (same arguments)."""
+    targets, weights, _ = lock_plan(p_world, contact, blend_frames, ground, blend_max, hold)
+    return targets, weights
+
+
+def lock_plan(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None,
+              blend_max: float | None = None, hold: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs, and the
+    contact frames on which the lock holds the foot still.
 
     Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right), ground (3,) the ground's
     velocity (units per frame; default still); blend_max: most the target may move relative to the foot from one
-    frame to the next during a blend (units; None: no limit).
+    frame to the next during a blend (units; None: no limit); hold: frames before and after each run also held at
+    its lock (0 or 1), so that the blends happen outside the run and the foot's speed (central differences) is
+    zero on every frame of it.
 
-    Returns: foot targets (T, 2, 3) and weights (T, 2). Inside a run, the target is the run's mean foot position
-    relative to the ground (moving with the ground). Around it the lock is blended as an offset: before the run,
-    the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the run's first frame (k = 1..n, n frames);
-    after it, the foot plus the shrinking offset of its last frame, so the foot follows its own motion and the
-    offset changes by the same step each frame: ``n`` is ``blend_frames``, or more where the offset divided by
-    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way. Between two runs
-    of one foot at most ``2 * blend_frames`` frames apart, the offset moves from the first lock's to the second's
-    in equal steps (weight 1), over the gap and as many frames at the runs' ends as keep a step within
-    ``blend_max``.
+    Returns: foot targets (T, 2, 3), weights (T, 2) and ``held`` (T, 2) bool, the contact frames whose foot and
+    both neighbouring frames' feet are at one lock (with ``hold`` 1: every contact frame but those a hand-over
+    between two runs moves; with 0: ``contact`` itself). Inside a run (and ``hold`` frames around it), the target
+    is the run's mean foot position relative to the ground (moving with the ground). Around it the lock is
+    blended as an offset: before, the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the first held
+    frame (k = 1..n, n frames); after, the foot plus the shrinking offset of the last held frame, so the foot
+    follows its own motion and the offset changes by the same step each frame: ``n`` is ``blend_frames``, or more
+    where the offset divided by ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the
+    same way. Between two runs of one foot at most ``2 * blend_frames`` frames apart, the offset moves from the
+    first lock's to the second's in equal steps (weight 1), over the gap (less the held frames) and as many frames
+    at the runs' ends as keep a step within ``blend_max``; with ``hold``, those run frames are not ``held``.
     """
+    if hold not in (0, 1):
+        raise CleanError(f"hold must be 0 or 1, got {hold}.")
     T = p_world.shape[0]
     targets = p_world[:, list(FOOT_JOINTS)].copy()
     weights = np.zeros(contact.shape)
+    held = contact.copy()
     drift = (np.zeros(3) if ground is None else np.asarray(ground)) * np.arange(T)[:, None]
     for side, foot in enumerate(FOOT_JOINTS):
         for s, e in _runs(contact[:, side]):
             lock = (p_world[s:e, foot] - drift[s:e]).mean(0) + drift  # (T, 3)
-            inside = np.arange(s, e)
+            inside = np.arange(max(0, s - hold), min(T, e + hold))
+            inside = inside[(weights[inside, side] < 1.0) | contact[inside, side]]  # a held frame beats a blend
             targets[inside, side] = lock[inside]
             weights[inside, side] = 1.0
-            for edge, direction in ((s, -1), (e - 1, 1)):
+            for edge, direction in ((max(0, s - hold), -1), (min(T, e + hold) - 1, 1)):
                 offset = lock[edge] - p_world[edge, foot]
                 n = blend_frames
                 if blend_max is not None and blend_max > 0:
@@ -503,21 +526,30 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
             # two locks close in time (a run cut by a lift or a slide, split_on_lift): move the offset from the
             # first lock's to the second's in equal steps, over the gap and as many frames at the runs' ends as keep
             # each step within blend_max (otherwise the foot jumps from one lock to the next: a snap)
-            a, b = e0 - 1, s1
-            held = targets[:, side] - p_world[:, foot] - drift  # (T, 3) the offsets, relative to the ground
+            a, b = e0 - 1 + hold, s1 - hold
+            if a >= b:  # one free frame between the runs: both locks would hold it
+                a, b = e0 - 1, s1
+            lock0 = (p_world[s0:e0, foot] - drift[s0:e0]).mean(0)  # the locks, relative to the ground
+            lock1 = (p_world[s1:e1, foot] - drift[s1:e1]).mean(0)
             while True:
-                change = held[b] - held[a]
+                start = lock0 - p_world[a, foot]  # the held offsets (target minus foot, less the ground's drift)
+                stop = lock1 - p_world[b, foot]
+                change = stop - start
                 if blend_max is None or np.linalg.norm(change) <= blend_max * (b - a) or (a == s0 and b == e1 - 1):
                     break
                 a, b = max(s0, a - 1), min(e1 - 1, b + 1)
             for t in range(a + 1, b):
-                targets[t, side] = p_world[t, foot] + held[a] + change * (t - a) / (b - a) + drift[t]
+                targets[t, side] = p_world[t, foot] + start + change * (t - a) / (b - a) + drift[t]
                 weights[t, side] = 1.0
-    return targets, weights
+            if hold:  # the hand-over's ends are held at the locks; the frames that move and their ends are not still
+                targets[a, side], targets[b, side] = lock0 + drift[a], lock1 + drift[b]
+                weights[a, side] = weights[b, side] = 1.0
+                held[a:b + 1, side] = False
+    return targets, weights, held
 
 
 def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None,
-                          blend_max: float | None, smoothness: float) -> np.ndarray:
+                          blend_max: float | None, smoothness: float, hold: int = 0) -> np.ndarray:
     """How far to move the root (T, 3) so that the locked feet's offsets go into the root, not the legs.
 
     A still foot of a noisy estimate moves with the root's noise (a monocular depth's above all); pinning it by leg
@@ -527,7 +559,7 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     locks see, and the root takes it. p_world (T, 24, 3), contact (T, 2)."""
     from workflows.animation.denoise import whittaker
 
-    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max, hold)
     offset = targets - p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
     total = weights.sum(1)  # (T,)
     mean = (weights[..., None] * offset).sum(1) / np.maximum(total, 1e-9)[:, None]

@@ -47,6 +47,7 @@ from workflows.animation.clean import (
     glitch_frames,
     ground_of,
     lock_feet,
+    lock_plan,
     root_shift_from_locks,
     sequence_clean,
     smooth_motion,
@@ -659,12 +660,16 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         drift = ground * np.arange(len(poses))[:, None, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames, both_ways=True)
+        hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
         if cfg.root_from_locks and cfg.smoothing == "adaptive":
             # the smoothness weighs squared second differences per frame: (fps / 30)^4 keeps its span in seconds
             t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,
-                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4)
+                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4, hold)
             p_s = joints_of(R_s, t_s, J_rest)
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
+        # the contacts reported are the frames the locks hold still (a hand-over between two locks moves the foot)
+        held = lock_plan(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale, hold)[2]
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale, hold)
+        contacts = held
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
 
