@@ -89,6 +89,12 @@ class CleanConfig:
     noise_gain: float = 1.0
     """Adaptive: multiplier of each channel's smoothness (chosen by :func:`.denoise.sure_smoothness`);
     noise correlated over frames raises it further (:func:`correlation_gain`)."""
+    motion_weight_max: float = float("inf")
+    """Adaptive: the most ``motion_trust`` raises a frame's data weight (:func:`.denoise.motion_weights`)."""
+    min_smoothness: float = 2.0
+    """Adaptive: the least smoothness of every channel (per-frame Whittaker weight, as ``smoothness`` of the
+    previous default's sequence solve): a clean estimate whose measured noise asks for less is smoothed no less
+    than that (0: the measured noise alone decides)."""
     motion_trust: float = 1.0
     """Adaptive: how much more the data count where the smoothing would bend fast motion
     (:func:`workflows.animation.denoise.motion_weights`; 0: not at all)."""
@@ -170,6 +176,10 @@ class CleanConfig:
                 raise CleanError(f"{name} must be a positive number, got {value}.")
         if self.pose_budget_mm is not None and not (np.isfinite(self.pose_budget_mm) and self.pose_budget_mm > 0):
             raise CleanError(f"pose_budget_mm must be a positive number or None, got {self.pose_budget_mm}.")
+        if not self.motion_weight_max >= 1:  # inf: no cap
+            raise CleanError(f"motion_weight_max must be >= 1, got {self.motion_weight_max}.")
+        if not (np.isfinite(self.min_smoothness) and self.min_smoothness >= 0):
+            raise CleanError(f"min_smoothness must be >= 0, got {self.min_smoothness}.")
         if not (np.isfinite(self.motion_trust) and self.motion_trust >= 0):
             raise CleanError(f"motion_trust must be >= 0, got {self.motion_trust}.")
         if not (np.isfinite(self.beta) and self.beta >= 0):
@@ -295,9 +305,10 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     lam = cfg.noise_gain * sure_smoothness(y, noise.sigma)
     lam[:4 * J] *= correlation_gain(noise.lag1[:4 * J])
     lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
+    lam = np.maximum(lam, cfg.min_smoothness)
     z = whittaker(y, np.ones_like(y), lam)
     if cfg.motion_trust > 0:
-        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust), lam)
+        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust, cap=cfg.motion_weight_max), lam)
     return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
 
 
