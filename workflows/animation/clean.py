@@ -89,12 +89,15 @@ class CleanConfig:
     noise_gain: float = 1.0
     """Adaptive: multiplier of each channel's smoothness (chosen by :func:`.denoise.sure_smoothness`);
     noise correlated over frames raises it further (:func:`correlation_gain`)."""
-    motion_weight_max: float = float("inf")
-    """Adaptive: the most ``motion_trust`` raises a frame's data weight (:func:`.denoise.motion_weights`)."""
-    min_smoothness: float = 2.0
-    """Adaptive: the least smoothness of every channel (per-frame Whittaker weight, as ``smoothness`` of the
-    previous default's sequence solve): a clean estimate whose measured noise asks for less is smoothed no less
-    than that (0: the measured noise alone decides)."""
+    motion_noise_share: float = 0.3
+    """Adaptive: ``motion_trust`` applies only to a clip whose noise is at least this share of its frame-to-frame
+    change (median over channels, :func:`.denoise.noise_share`: about 0.4-0.7 on noisy estimates, 0.1-0.2 on the
+    clean world-frame ones). On a clean estimate the smoothing bends little motion, and measured against a noise
+    far below the motion the trust would hand the estimator's own jitter back."""
+    min_smoothness: float = 3.0
+    """Adaptive: the least smoothness of every channel (per-frame Whittaker weight; the previous default's sequence
+    solve used 2 on joint paths): a clean estimate whose measured noise asks for less is smoothed no less than that
+    (0: the measured noise alone decides)."""
     motion_trust: float = 1.0
     """Adaptive: how much more the data count where the smoothing would bend fast motion
     (:func:`workflows.animation.denoise.motion_weights`; 0: not at all)."""
@@ -176,8 +179,8 @@ class CleanConfig:
                 raise CleanError(f"{name} must be a positive number, got {value}.")
         if self.pose_budget_mm is not None and not (np.isfinite(self.pose_budget_mm) and self.pose_budget_mm > 0):
             raise CleanError(f"pose_budget_mm must be a positive number or None, got {self.pose_budget_mm}.")
-        if not self.motion_weight_max >= 1:  # inf: no cap
-            raise CleanError(f"motion_weight_max must be >= 1, got {self.motion_weight_max}.")
+        if not (np.isfinite(self.motion_noise_share) and self.motion_noise_share >= 0):
+            raise CleanError(f"motion_noise_share must be >= 0, got {self.motion_noise_share}.")
         if not (np.isfinite(self.min_smoothness) and self.min_smoothness >= 0):
             raise CleanError(f"min_smoothness must be >= 0, got {self.min_smoothness}.")
         if not (np.isfinite(self.motion_trust) and self.motion_trust >= 0):
@@ -290,11 +293,12 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
     own noise level (:func:`.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
     choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
-    rotation channels or of the root's), then a Whittaker smoothing; with ``motion_trust``, a second pass weighs
-    the estimate more where the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
+    rotation channels or of the root's, at least ``min_smoothness``), then a Whittaker smoothing; with
+    ``motion_trust``, on a noisy clip (``motion_noise_share``), a second pass weighs the estimate more where the
+    first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
 
     Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
-    from workflows.animation.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
+    from workflows.animation.denoise import estimate_noise, motion_weights, noise_share, sure_smoothness, whittaker
 
     T, J = R_parent_joint.shape[:2]
     if T < 3:
@@ -307,8 +311,8 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
     lam = np.maximum(lam, cfg.min_smoothness)
     z = whittaker(y, np.ones_like(y), lam)
-    if cfg.motion_trust > 0:
-        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust, cap=cfg.motion_weight_max), lam)
+    if cfg.motion_trust > 0 and np.median(noise_share(y, noise.sigma)) >= cfg.motion_noise_share:
+        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust), lam)
     return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
 
 

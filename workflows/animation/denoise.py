@@ -100,6 +100,17 @@ def sure_smoothness(y: np.ndarray, sigma: np.ndarray, grid: np.ndarray = LAMBDA_
     return best
 
 
+def noise_share(y: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per channel, the noise ``sigma`` (C,) as a share of the rms frame-to-frame change of y (T, C) (C,): about
+    0.7 for noise alone (sqrt(1/2) of white noise's), less the more the motion moves the channel; 0 for a
+    constant channel."""
+    y = np.asarray(y, dtype=np.float64)
+    if y.shape[0] < 2:
+        return np.zeros(y.shape[1])
+    step = np.sqrt(np.mean(np.diff(y, axis=0) ** 2, axis=0))
+    return np.where(step > 0, np.asarray(sigma) / np.maximum(step, 1e-300), 0.0)
+
+
 def motion_weights(y: np.ndarray, z: np.ndarray, sigma: np.ndarray, strength: float = 1.0, floor: float = 2.0,
                    cap: float = np.inf) -> np.ndarray:
     """Per-frame data weights (T, C) that trust the estimate y where the motion is fast.
