@@ -666,16 +666,18 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames, both_ways=True)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
+        ease = cfg.blend_ease and cfg.smoothing == "adaptive"
+        within = cfg.hold_within_m / scale if cfg.hold_within_m is not None else None
         blend_max = cfg.blend_max_m / scale
         if cfg.root_from_locks and cfg.smoothing == "adaptive":
             # the smoothness weighs squared second differences per frame: (fps / 30)^4 keeps its span in seconds
             t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, blend_max,
-                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4, hold)
+                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4, hold, ease, within)
             p_s = joints_of(R_s, t_s, J_rest)
             blend_max *= ROOT_SHIFT_BLEND_SHARE  # the root's shift moves a blending foot a little too
         # the contacts reported are the frames the locks hold still (a hand-over between two locks moves the foot)
-        held = lock_plan(p_s, contacts, cfg.blend_frames, ground, blend_max, hold)[2]
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold)
+        held = lock_plan(p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)[2]
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)
         contacts = held
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
