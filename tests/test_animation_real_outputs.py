@@ -56,8 +56,9 @@ def test_a_run_cut_by_a_real_step_still_moves_the_lock_by_the_step():
 
 def test_camera_frame_stance_is_found_despite_the_depth_wobble():
     """Standing still in a camera frame, the root's depth wobbling as 4D-Humans' does (correlated over frames,
-    15 cm, AR(1) with rho 0.8): the feet are locked on 48 % of the frames (21 % with the fixed 0.35 m/s; the rest
-    are runs cut where the cleaned foot wobbles 3 cm from its lock, :func:`split_on_lift`)."""
+    15 cm, AR(1) with rho 0.8): the feet are in contact on 48 % of the frames (21 % with the fixed 0.35 m/s; the
+    rest are runs cut where the cleaned foot wobbles 3 cm from its lock, :func:`split_on_lift`); the frames where
+    one lock hands over to the next move the foot and are reported free, so about a third stay held still."""
     rng = np.random.default_rng(0)
     T = 90
     aa = np.zeros((T, 24, 3))
@@ -70,7 +71,8 @@ def test_camera_frame_stance_is_found_despite_the_depth_wobble():
     poses = [Pose(aa[t, 0], aa[t, 1:], transl[t], np.zeros(10)) for t in range(T)]
     camera = CleanConfig(ground_moves=True)
     contacts = clean_track(poses, 30.0, camera, 1.0)[2]
-    assert contacts.mean() > 0.4
+    assert contacts.mean() > 0.3
+    assert clean_track(poses, 30.0, CleanConfig(ground_moves=True, hold_frames=0), 1.0)[2].mean() > 0.4
     R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
     p = joints_of(R, transl, rest_joints(np.zeros(10), poses[0].gender))
     assert np.abs(np.diff(p[:, FOOT_JOINTS[0], 2])).max() * 30.0 > 0.35  # the wobble is faster than 0.35 m/s

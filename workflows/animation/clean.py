@@ -313,7 +313,8 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     lam = cfg.noise_gain * sure_smoothness(y, noise.sigma)
     lam[:4 * J] *= correlation_gain(noise.lag1[:4 * J])
     lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
-    clean = np.median(noise_share(y, noise.sigma)) < cfg.clean_noise_share
+    share = noise_share(y, noise.sigma)  # constant channels (NaN) say nothing about the estimate's noise
+    clean = bool(np.isfinite(share).any() and np.nanmedian(share) < cfg.clean_noise_share)
     if clean:
         lam = np.maximum(lam, cfg.min_smoothness)
     z = whittaker(y, np.ones_like(y), lam)

@@ -102,13 +102,13 @@ def sure_smoothness(y: np.ndarray, sigma: np.ndarray, grid: np.ndarray = LAMBDA_
 
 def noise_share(y: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Per channel, the noise ``sigma`` (C,) as a share of the rms frame-to-frame change of y (T, C) (C,): about
-    0.7 for noise alone (sqrt(1/2) of white noise's), less the more the motion moves the channel; 0 for a
-    constant channel."""
+    0.7 for noise alone (sqrt(1/2) of white noise's), less the more the motion moves the channel; NaN for a
+    constant channel (and for fewer than 2 frames)."""
     y = np.asarray(y, dtype=np.float64)
     if y.shape[0] < 2:
-        return np.zeros(y.shape[1])
+        return np.full(y.shape[1], np.nan)
     step = np.sqrt(np.mean(np.diff(y, axis=0) ** 2, axis=0))
-    return np.where(step > 0, np.asarray(sigma) / np.maximum(step, 1e-300), 0.0)
+    return np.where(step > 0, np.asarray(sigma) / np.maximum(step, 1e-300), np.nan)
 
 
 def motion_weights(y: np.ndarray, z: np.ndarray, sigma: np.ndarray, strength: float = 1.0, floor: float = 2.0,
