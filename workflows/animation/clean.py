@@ -91,7 +91,7 @@ class CleanConfig:
     noise correlated over frames raises it further (:func:`correlation_gain`)."""
     clean_noise_share: float = 0.3
     """Adaptive: a clip whose noise is below this share of its frame-to-frame change (median over channels,
-    :func:`.denoise.noise_share`: 0.4-0.7 on noisy estimates and the known-truth checks, 0.1-0.2 on the clean
+    :func:`.denoise.noise_share`: 0.36-0.7 on noisy estimates and the known-truth checks, 0.11-0.22 on the clean
     world-frame estimates of GVHMR, WHAM, AIST++) is a *clean estimate*: smoothed at least ``min_smoothness``,
     without ``motion_trust`` (measured against a noise far below the motion, the trust would hand the estimator's
     own jitter back). Noisy clips keep the measured smoothness and the trust: a floor there bends fast motion."""
