@@ -89,6 +89,15 @@ class CleanConfig:
     noise_gain: float = 1.0
     """Adaptive: multiplier of each channel's smoothness (chosen by :func:`.denoise.sure_smoothness`);
     noise correlated over frames raises it further (:func:`correlation_gain`)."""
+    clean_noise_share: float = 0.3
+    """Adaptive: a clip whose noise is below this share of its frame-to-frame change (median over channels,
+    :func:`.denoise.noise_share`: 0.36-0.7 on noisy estimates and the known-truth checks, 0.11-0.22 on the clean
+    world-frame estimates of GVHMR, WHAM, AIST++) is a *clean estimate*: smoothed at least ``min_smoothness``,
+    without ``motion_trust`` (measured against a noise far below the motion, the trust would hand the estimator's
+    own jitter back). Noisy clips keep the measured smoothness and the trust: a floor there bends fast motion."""
+    min_smoothness: float = 3.0
+    """Adaptive: the least smoothness of every channel of a clean estimate (per-frame Whittaker weight; the
+    previous default's sequence solve used 2 on joint paths; 0: the measured noise alone decides)."""
     motion_trust: float = 1.0
     """Adaptive: how much more the data count where the smoothing would bend fast motion
     (:func:`workflows.animation.denoise.motion_weights`; 0: not at all)."""
@@ -131,6 +140,14 @@ class CleanConfig:
     offset to blend is larger than ``blend_max_m`` per frame)."""
     blend_max_m: float = 0.02
     """Most a lock's blend moves the foot from one frame to the next (m): no snap at a release."""
+    hold_frames: int = 1
+    """Adaptive: frames before and after each contact run that the lock also holds (0 or 1; :func:`lock_plan`):
+    the blends happen outside the run, so the foot is still (zero speed by central differences) on every frame
+    reported as contact; frames where a lock hands over to the next one are reported free."""
+    hold_within_m: float | None = None
+    """Adaptive: a frame next to a run is held only if its foot is within this of the lock (m; None: always)."""
+    blend_ease: bool = True
+    """Adaptive: blends in and out follow a half cosine rather than a straight ramp (:func:`lock_plan`)."""
     root_from_locks: bool = True
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
@@ -166,6 +183,10 @@ class CleanConfig:
                 raise CleanError(f"{name} must be a positive number, got {value}.")
         if self.pose_budget_mm is not None and not (np.isfinite(self.pose_budget_mm) and self.pose_budget_mm > 0):
             raise CleanError(f"pose_budget_mm must be a positive number or None, got {self.pose_budget_mm}.")
+        if not (np.isfinite(self.clean_noise_share) and self.clean_noise_share >= 0):
+            raise CleanError(f"clean_noise_share must be >= 0, got {self.clean_noise_share}.")
+        if not (np.isfinite(self.min_smoothness) and self.min_smoothness >= 0):
+            raise CleanError(f"min_smoothness must be >= 0, got {self.min_smoothness}.")
         if not (np.isfinite(self.motion_trust) and self.motion_trust >= 0):
             raise CleanError(f"motion_trust must be >= 0, got {self.motion_trust}.")
         if not (np.isfinite(self.beta) and self.beta >= 0):
@@ -177,6 +198,8 @@ class CleanConfig:
             raise CleanError(f"contact_release_ratio must be >= 1, got {self.contact_release_ratio}.")
         if self.contact_min_frames < 1 or self.blend_frames < 0:
             raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
+        if self.hold_frames not in (0, 1):
+            raise CleanError(f"hold_frames must be 0 or 1, got {self.hold_frames}.")
 
 
 # ----------------------------------------------------------------------------- filters
@@ -274,11 +297,12 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
     own noise level (:func:`.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
     choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
-    rotation channels or of the root's), then a Whittaker smoothing; with ``motion_trust``, a second pass weighs
-    the estimate more where the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
+    rotation channels or of the root's; on a clean estimate, ``clean_noise_share``, at least ``min_smoothness``),
+    then a Whittaker smoothing; with ``motion_trust``, on a noisy clip, a second pass weighs the estimate more where
+    the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
 
     Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
-    from workflows.animation.denoise import estimate_noise, motion_weights, sure_smoothness, whittaker
+    from workflows.animation.denoise import estimate_noise, motion_weights, noise_share, sure_smoothness, whittaker
 
     T, J = R_parent_joint.shape[:2]
     if T < 3:
@@ -289,8 +313,12 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     lam = cfg.noise_gain * sure_smoothness(y, noise.sigma)
     lam[:4 * J] *= correlation_gain(noise.lag1[:4 * J])
     lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
+    share = noise_share(y, noise.sigma)  # constant channels (NaN) say nothing about the estimate's noise
+    clean = bool(np.isfinite(share).any() and np.nanmedian(share) < cfg.clean_noise_share)
+    if clean:
+        lam = np.maximum(lam, cfg.min_smoothness)
     z = whittaker(y, np.ones_like(y), lam)
-    if cfg.motion_trust > 0:
+    if cfg.motion_trust > 0 and not clean:
         z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust), lam)
     return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
 
@@ -372,20 +400,21 @@ def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
 
 
 def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3,
-              ground: np.ndarray | None = None, blend_max: float | None = None) -> np.ndarray:
+              ground: np.ndarray | None = None, blend_max: float | None = None, hold: int = 0, ease: bool = False,
+              hold_within: float | None = None) -> np.ndarray:
     """Pin each foot joint to its lock (:func:`lock_targets`) over each contact run by two-bone leg IK.
 
     Args:
         R_parent_joint: (T, 24, 3, 3) local rotations; p_world: (T, 24, 3) their joint positions;
         contact: (T, 2) bool (left, right) from :func:`foot_contacts`; ground: (3,) the ground's velocity
-        (units per frame; default still).
+        (units per frame; default still); blend_max, hold, ease: as in :func:`lock_plan`.
 
     Returns: new local rotations (T, 24, 3, 3); only the hips, knees and ankles of locked legs change
     (the ankles keep their world rotations).
     """
     R_out = R_parent_joint.copy()
     G = local_to_world(R_parent_joint)
-    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max, hold, ease, hold_within)
     for side, ((hip, knee, ankle), foot) in enumerate(zip(LEG_CHAINS, FOOT_JOINTS, strict=True)):
         rows = np.nonzero(weights[:, side] > 0)[0]
         if rows.size == 0:
@@ -455,44 +484,86 @@ def motion_metrics(p: np.ndarray, reference: np.ndarray, contact: np.ndarray, gr
 # ----------------------------------------------------------------------------- sequence cleaning
 
 
+HOLD_REACH = 1.0
+"""Most of the leg's length (hip to ankle, straight) a frame held next to a contact run may ask of it
+(:func:`lock_plan`): a target beyond the leg's reach (a toe-off or a heel strike of a run, the leg straight) would
+flip the knee under the leg IK, so such a frame is blended instead."""
+
+
+def _holdable(p: np.ndarray, target: np.ndarray, side: int, within: float | None) -> bool:
+    """Whether the foot of joints p (24, 3) on ``side`` may be held at ``target`` (3,) one frame beyond its run:
+    within ``within`` of it (None: any distance) and within the leg's reach (:data:`HOLD_REACH`)."""
+    hip, knee, ankle = LEG_CHAINS[side]
+    foot = FOOT_JOINTS[side]
+    if within is not None and np.linalg.norm(target - p[foot]) > within:
+        return False
+    length = np.linalg.norm(p[knee] - p[hip]) + np.linalg.norm(p[ankle] - p[knee])
+    return bool(np.linalg.norm(target - (p[foot] - p[ankle]) - p[hip]) <= HOLD_REACH * length)
+
+
 def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None,
-                 blend_max: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs.
+                 blend_max: float | None = None, hold: int = 0, ease: bool = False, hold_within: float | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs: the targets
+    (T, 2, 3) and weights (T, 2) of :func:`lock_plan` (same arguments)."""
+    targets, weights, _ = lock_plan(p_world, contact, blend_frames, ground, blend_max, hold, ease, hold_within)
+    return targets, weights
+
+
+def lock_plan(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None = None,
+              blend_max: float | None = None, hold: int = 0, ease: bool = False, hold_within: float | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs, and the
+    contact frames on which the lock holds the foot still.
 
     Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right), ground (3,) the ground's
     velocity (units per frame; default still); blend_max: most the target may move relative to the foot from one
-    frame to the next during a blend (units; None: no limit).
+    frame to the next during a blend (units; None: no limit); hold: frames before and after each run also held at
+    its lock (0 or 1), so that the blends happen outside the run and the foot's speed (central differences) is
+    zero on every frame of it; ease: blends follow a half cosine (no kink where they meet the held frame or the
+    free foot) instead of a straight ramp.
 
-    Returns: foot targets (T, 2, 3) and weights (T, 2). Inside a run, the target is the run's mean foot position
-    relative to the ground (moving with the ground). Around it the lock is blended as an offset: before the run,
-    the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the run's first frame (k = 1..n, n frames);
-    after it, the foot plus the shrinking offset of its last frame, so the foot follows its own motion and the
-    offset changes by the same step each frame: ``n`` is ``blend_frames``, or more where the offset divided by
-    ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the same way. Between two runs
-    of one foot at most ``2 * blend_frames`` frames apart, the offset moves from the first lock's to the second's
-    in equal steps (weight 1), over the gap and as many frames at the runs' ends as keep a step within
-    ``blend_max``.
+    Returns: foot targets (T, 2, 3), weights (T, 2) and ``held`` (T, 2) bool, the contact frames whose foot and
+    both neighbouring frames' feet are at one lock (with ``hold`` 1: every contact frame but those a hand-over
+    between two runs moves; with 0: ``contact`` itself). Inside a run (and ``hold`` frames around it), the target
+    is the run's mean foot position relative to the ground (moving with the ground). Around it the lock is
+    blended as an offset: before, the foot plus ``k / (n + 1)`` of the offset (lock minus foot) at the first held
+    frame (k = 1..n, n frames); after, the foot plus the shrinking offset of the last held frame, so the foot
+    follows its own motion and the offset changes by the same step each frame: ``n`` is ``blend_frames``, or more
+    where the offset divided by ``n + 1`` would exceed ``blend_max`` (no snap at a release). The weight ramps the
+    same way. Between two runs of one foot at most ``2 * blend_frames`` frames apart, the offset moves from the
+    first lock's to the second's in equal steps (weight 1), over the gap (less the held frames) and as many frames
+    at the runs' ends as keep a step within ``blend_max``; with ``hold``, those run frames are not ``held``.
     """
+    if hold not in (0, 1):
+        raise CleanError(f"hold must be 0 or 1, got {hold}.")
     T = p_world.shape[0]
     targets = p_world[:, list(FOOT_JOINTS)].copy()
     weights = np.zeros(contact.shape)
+    held = contact.copy()
     drift = (np.zeros(3) if ground is None else np.asarray(ground)) * np.arange(T)[:, None]
     for side, foot in enumerate(FOOT_JOINTS):
         for s, e in _runs(contact[:, side]):
             lock = (p_world[s:e, foot] - drift[s:e]).mean(0) + drift  # (T, 3)
-            inside = np.arange(s, e)
+            first, last = s, e - 1
+            if hold and s > 0 and _holdable(p_world[s - 1], lock[s - 1], side, hold_within):
+                first = s - 1
+            if hold and e < T and _holdable(p_world[e], lock[e], side, hold_within):
+                last = e
+            inside = np.arange(first, last + 1)
+            inside = inside[(weights[inside, side] < 1.0) | contact[inside, side]]  # a held frame beats a blend
             targets[inside, side] = lock[inside]
             weights[inside, side] = 1.0
-            for edge, direction in ((s, -1), (e - 1, 1)):
+            for edge, direction in ((first, -1), (last, 1)):
                 offset = lock[edge] - p_world[edge, foot]
                 n = blend_frames
-                if blend_max is not None and blend_max > 0:
-                    n = max(n, int(np.ceil(np.linalg.norm(offset) / blend_max)) - 1)
+                if blend_max is not None and blend_max > 0:  # an eased blend's steepest step is pi/2 times the mean
+                    n = max(n, int(np.ceil((np.pi / 2 if ease else 1.0) * np.linalg.norm(offset) / blend_max)) - 1)
                 for k in range(1, n + 1):
                     t = edge + direction * k
                     if not 0 <= t < T:
                         break
-                    w = 1.0 - k / (n + 1)
+                    w = 0.5 + 0.5 * np.cos(np.pi * k / (n + 1)) if ease else 1.0 - k / (n + 1)
                     if w > weights[t, side]:
                         targets[t, side] = p_world[t, foot] + w * (offset + drift[t] - drift[edge])
                         weights[t, side] = w
@@ -503,21 +574,31 @@ def lock_targets(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, gr
             # two locks close in time (a run cut by a lift or a slide, split_on_lift): move the offset from the
             # first lock's to the second's in equal steps, over the gap and as many frames at the runs' ends as keep
             # each step within blend_max (otherwise the foot jumps from one lock to the next: a snap)
-            a, b = e0 - 1, s1
-            held = targets[:, side] - p_world[:, foot] - drift  # (T, 3) the offsets, relative to the ground
+            a, b = e0 - 1 + hold, s1 - hold
+            if a >= b:  # one free frame between the runs: both locks would hold it
+                a, b = e0 - 1, s1
+            lock0 = (p_world[s0:e0, foot] - drift[s0:e0]).mean(0)  # the locks, relative to the ground
+            lock1 = (p_world[s1:e1, foot] - drift[s1:e1]).mean(0)
             while True:
-                change = held[b] - held[a]
+                start = lock0 - p_world[a, foot]  # the held offsets (target minus foot, less the ground's drift)
+                stop = lock1 - p_world[b, foot]
+                change = stop - start
                 if blend_max is None or np.linalg.norm(change) <= blend_max * (b - a) or (a == s0 and b == e1 - 1):
                     break
                 a, b = max(s0, a - 1), min(e1 - 1, b + 1)
             for t in range(a + 1, b):
-                targets[t, side] = p_world[t, foot] + held[a] + change * (t - a) / (b - a) + drift[t]
+                targets[t, side] = p_world[t, foot] + start + change * (t - a) / (b - a) + drift[t]
                 weights[t, side] = 1.0
-    return targets, weights
+            if hold:  # the hand-over's ends are held at the locks; the frames that move and their ends are not still
+                targets[a, side], targets[b, side] = lock0 + drift[a], lock1 + drift[b]
+                weights[a, side] = weights[b, side] = 1.0
+                held[a:b + 1, side] = False
+    return targets, weights, held
 
 
 def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, ground: np.ndarray | None,
-                          blend_max: float | None, smoothness: float) -> np.ndarray:
+                          blend_max: float | None, smoothness: float, hold: int = 0, ease: bool = False,
+                          hold_within: float | None = None) -> np.ndarray:
     """How far to move the root (T, 3) so that the locked feet's offsets go into the root, not the legs.
 
     A still foot of a noisy estimate moves with the root's noise (a monocular depth's above all); pinning it by leg
@@ -527,7 +608,7 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     locks see, and the root takes it. p_world (T, 24, 3), contact (T, 2)."""
     from workflows.animation.denoise import whittaker
 
-    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max)
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max, hold, ease, hold_within)
     offset = targets - p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
     total = weights.sum(1)  # (T,)
     mean = (weights[..., None] * offset).sum(1) / np.maximum(total, 1e-9)[:, None]

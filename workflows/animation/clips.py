@@ -47,6 +47,7 @@ from workflows.animation.clean import (
     glitch_frames,
     ground_of,
     lock_feet,
+    lock_plan,
     root_shift_from_locks,
     sequence_clean,
     smooth_motion,
@@ -625,6 +626,11 @@ def repair_frames(R_parent_joint: np.ndarray, transl: np.ndarray, bad: np.ndarra
     return R, t
 
 
+ROOT_SHIFT_BLEND_SHARE = 0.9
+"""Share of ``blend_max_m`` a lock's blend may change the foot's offset by per frame when the root also moves by the
+locks' offsets (:func:`root_shift_from_locks`, smooth but not still): the shift's own step stays within the rest."""
+
+
 def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Repair glitches, smooth and foot-lock one track's poses (SMPL space, one body).
@@ -659,12 +665,20 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         drift = ground * np.arange(len(poses))[:, None, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames, both_ways=True)
+        hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
+        ease = cfg.blend_ease and cfg.smoothing == "adaptive"
+        within = cfg.hold_within_m / scale if cfg.hold_within_m is not None else None
+        blend_max = cfg.blend_max_m / scale
         if cfg.root_from_locks and cfg.smoothing == "adaptive":
             # the smoothness weighs squared second differences per frame: (fps / 30)^4 keeps its span in seconds
-            t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale,
-                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4)
+            t_s = t_s + root_shift_from_locks(p_s, contacts, cfg.blend_frames, ground, blend_max,
+                                              cfg.root_lock_smoothness * (fps / 30.0) ** 4, hold, ease, within)
             p_s = joints_of(R_s, t_s, J_rest)
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)
+            blend_max *= ROOT_SHIFT_BLEND_SHARE  # the root's shift moves a blending foot a little too
+        # the contacts reported are the frames the locks hold still (a hand-over between two locks moves the foot)
+        held = lock_plan(p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)[2]
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)
+        contacts = held
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
 

@@ -100,17 +100,30 @@ def sure_smoothness(y: np.ndarray, sigma: np.ndarray, grid: np.ndarray = LAMBDA_
     return best
 
 
-def motion_weights(y: np.ndarray, z: np.ndarray, sigma: np.ndarray, strength: float = 1.0, floor: float = 2.0
-                   ) -> np.ndarray:
+def noise_share(y: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per channel, the noise ``sigma`` (C,) as a share of the rms frame-to-frame change of y (T, C) (C,): about
+    0.7 for noise alone (sqrt(1/2) of white noise's), less the more the motion moves the channel; NaN for a
+    constant channel (and for fewer than 2 frames)."""
+    y = np.asarray(y, dtype=np.float64)
+    if y.shape[0] < 2:
+        return np.full(y.shape[1], np.nan)
+    step = np.sqrt(np.mean(np.diff(y, axis=0) ** 2, axis=0))
+    return np.where(step > 0, np.asarray(sigma) / np.maximum(step, 1e-300), np.nan)
+
+
+def motion_weights(y: np.ndarray, z: np.ndarray, sigma: np.ndarray, strength: float = 1.0, floor: float = 2.0,
+                   cap: float = np.inf) -> np.ndarray:
     """Per-frame data weights (T, C) that trust the estimate y where the motion is fast.
 
     Where the smoothing ``z`` (T, C) of y bends fast motion (a swing, a landing), its residual ``y - z`` is
     larger than the noise ``sigma`` (C,) over several frames: its mean square over 5 frames, in units of
     ``sigma^2``, above ``floor`` (noise alone stays below it) raises the data weight as
-    ``1 + strength (ratio - floor)^2``, so a second smoothing keeps that motion and still smooths the slow parts.
+    ``1 + strength (ratio - floor)^2``, so a second smoothing keeps that motion and still smooths the slow parts;
+    at most ``cap`` (a nearly noise-free channel's ratio is huge wherever the smoothing bends it at all: weights
+    jumping by orders of magnitude from frame to frame pin the path there and kink it between, adding jitter).
     """
     from scipy.ndimage import uniform_filter1d
 
     T, C = y.shape
     ratio = uniform_filter1d((y - z) ** 2, 5, axis=0, mode="nearest") / np.maximum(sigma, 1e-12) ** 2
-    return 1.0 + strength * np.maximum(ratio - floor, 0.0) ** 2
+    return np.minimum(1.0 + strength * np.maximum(ratio - floor, 0.0) ** 2, cap)
