@@ -148,20 +148,19 @@ def test_stylised_proportions_fit_the_nearest_human_with_a_warning(fake_estimato
 
 
 def test_inhuman_proportion_refused_at_any_size(fake_estimator):
-    """An upper arm a quarter of the rest body's (a robot) on a small skeleton: the feature distance to the bank
-    shrinks with the size and stays under the limit, but the proportion is more than 2x outside the human range:
-    refused, naming the bone; the same skeleton with a 0.8 x upper arm is accepted."""
+    """Shins a fifth of the rest body's on a small skeleton (0.6 x): the feature distance to the bank shrinks with
+    the size and stays under the limit, but the proportion is more than 2x outside the human range: refused,
+    naming the bone; the same skeleton with 0.8 x shins is accepted."""
     f = 0.6 * joints_to_features(_fake_model().rest_joints(torch.zeros(NUM_BETAS))).numpy().astype(float)
     robot = f.copy()
-    robot[4] *= 0.25  # right_shoulder-right_elbow
-    cfg = fake_estimator.config
+    robot[1] *= 0.2  # right_knee-right_ankle
     nearest = float(fake_estimator.tree.query(robot[None], k=1)[0][0, 0])
-    assert nearest < cfg.max_stylised_distance  # the distance alone would accept it
+    assert nearest < fake_estimator.config.max_stylised_distance  # the distance alone would accept it
     with pytest.raises(ShapeInversionError,
-                       match="^Not a human: .*more than 2x outside the human range, at any size.*right_shoulder"):
+                       match="^Not a human: .*more than 2x outside the human range, at any size.*right_knee-right_"):
         fake_estimator.estimate(robot)
     human = f.copy()
-    human[4] *= 0.8
+    human[1] *= 0.8
     assert fake_estimator.estimate(human).scale > 0
 
 
