@@ -81,6 +81,11 @@ class EstimatorConfig:
     max_stylised_distance: float = 0.30
     """Raise :class:`ShapeInversionError` when the nearest sample is farther than this (metres; 15 h): not a
     human, or wrong units."""
+    max_proportion_factor: float = 2.0
+    """Raise :class:`ShapeInversionError` when a proportion (a feature over head-ankle) lies more than this factor
+    outside the bank's range (below its minimum / factor or above its maximum x factor): not a human at any
+    size. Scale-free, unlike the distances above, which shrink with the skeleton's size (a small robot whose
+    upper arm is a quarter of the shortest human's would pass them)."""
     refine: bool = False
     """Polish the kernel mean so that its features match the query to ~tol (see module docstring)."""
     refine_tolerance_m: float = 0.001
@@ -252,6 +257,14 @@ class ShapeEstimator:
         """Features (6,) of ``scale * J(betas)``, metres."""
         return features_and_jacobian(self.pair_template, self.pair_dirs, np.asarray(betas, float), scale)[0]
 
+    def _proportions_human(self, query: np.ndarray) -> bool:
+        """Whether every proportion of ``query`` (6,) (feature / head-ankle) lies within ``max_proportion_factor``
+        of the bank's range of that proportion."""
+        ratio_bank = self.bank.features / self.bank.features[:, 2:3]  # (N, 6)
+        ratio_q = query / query[2]
+        f = self.config.max_proportion_factor
+        return bool(np.all((ratio_q >= ratio_bank.min(0) / f) & (ratio_q <= ratio_bank.max(0) * f)))
+
     def _out_of_range_message(self, query: np.ndarray, nearest: float) -> str:
         bank_f = self.bank.features
         ratio_bank = bank_f / bank_f[:, 2:3]
@@ -272,9 +285,11 @@ class ShapeEstimator:
             diff = np.abs(query - bank_f[idx[0, 0]])
             off = [f"{FEATURE_NAMES[k]} = {query[k]:.3f} m (nearest human sample: {bank_f[idx[0, 0], k]:.3f} m)"
                    for k in np.argsort(-diff)[:2]]
-        return (f"Not a human: the skeleton's proportions are outside the human range covered by SMPL-SI (nearest "
-                f"bank sample {nearest * 1000:.0f} mm away in feature space, limit "
-                f"{max(self.config.max_stylised_distance, self.config.max_nearest_distance) * 1000:.0f} mm). "
+        limit = max(self.config.max_stylised_distance, self.config.max_nearest_distance)
+        why = (f"nearest bank sample {nearest * 1000:.0f} mm away in feature space, limit {limit * 1000:.0f} mm"
+               if nearest > limit else
+               f"a proportion more than {self.config.max_proportion_factor:g}x outside the human range, at any size")
+        return (f"Not a human: the skeleton's proportions are outside the human range covered by SMPL-SI ({why}). "
                 "Features off: " + "; ".join(off) + ".")
 
     def estimate(self, features: np.ndarray, rest: MappedRest | None = None) -> ShapeEstimate:
@@ -297,7 +312,8 @@ class ShapeEstimator:
         k = min(cfg.max_neighbours, len(self.bank))
         dist, idx = self.tree.query(query[None], k=k)
         dist, idx = dist[0], idx[0]
-        if dist[0] > max(cfg.max_stylised_distance, cfg.max_nearest_distance):
+        if dist[0] > max(cfg.max_stylised_distance, cfg.max_nearest_distance) \
+                or not self._proportions_human(query):
             raise ShapeInversionError(self._out_of_range_message(query, float(dist[0])))
         stylised = ()
         if dist[0] > cfg.max_nearest_distance:  # a stylised human: the nearest human body, said to be approximate

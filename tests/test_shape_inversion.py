@@ -147,6 +147,23 @@ def test_stylised_proportions_fit_the_nearest_human_with_a_warning(fake_estimato
         fake_estimator.estimate(short_legs(0.05))
 
 
+def test_inhuman_proportion_refused_at_any_size(fake_estimator):
+    """Shins a fifth of the rest body's on a small skeleton (0.6 x): the feature distance to the bank shrinks with
+    the size and stays under the limit, but the proportion is more than 2x outside the human range: refused,
+    naming the bone; the same skeleton with 0.8 x shins is accepted."""
+    f = 0.6 * joints_to_features(_fake_model().rest_joints(torch.zeros(NUM_BETAS))).numpy().astype(float)
+    robot = f.copy()
+    robot[1] *= 0.2  # right_knee-right_ankle
+    nearest = float(fake_estimator.tree.query(robot[None], k=1)[0][0, 0])
+    assert nearest < fake_estimator.config.max_stylised_distance  # the distance alone would accept it
+    with pytest.raises(ShapeInversionError,
+                       match="^Not a human: .*more than 2x outside the human range, at any size.*right_knee-right_"):
+        fake_estimator.estimate(robot)
+    human = f.copy()
+    human[1] *= 0.8
+    assert fake_estimator.estimate(human).scale > 0
+
+
 def test_out_of_range_raises(fake_estimator):
     with pytest.raises(ShapeInversionError, match="^Not a human: .*outside the human range.*right_elbow-right_wrist"):
         fake_estimator.estimate(np.array([0.4, 0.4, 1.5, 0.9, 0.25, 0.9]))
