@@ -106,9 +106,9 @@ def mlp_motion(model, sig, betas: np.ndarray, gender: Gender, J: np.ndarray) -> 
     return Rl.double().numpy(), transl.double().numpy()
 
 
-def per_frame_cost(samples: int, sig, frames: int = 300) -> dict[str, float]:
+def per_frame_cost(samples: int, sig, frames: int = 300, model: str | None = None) -> dict[str, float]:
     torch.set_num_threads(1)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(samples=samples))  # the default runtime
+    tracker = Tracker.load(model, config=TrackerRuntimeConfig(samples=samples))  # the default runtime
     tracker.reset(sig.has_rotation)
     times = []
     for t in range(min(frames, sig.num_frames)):
@@ -124,6 +124,9 @@ def main() -> None:
     ap.add_argument("--cache", default="/tmp/smplik_tracking_cmu60.npz", help="60 Hz pose cache (built if missing).")
     ap.add_argument("--frames", type=int, default=600, help="Most frames per test clip.")
     ap.add_argument("--mlp", default=None, help="The AvatarPoser-style baseline's model file.")
+    ap.add_argument("--model", default=None, help="Tracking model file (default: the shipped 4-tracker model); "
+                    "its trackers are the ones synthesised, e.g. smplik/checkpoints/smplik_tracking_3.pt -> "
+                    "results tracking_3trackers*.json.")
     ap.add_argument("--split", default="test", choices=("train", "validation", "test"),
                     help="Clips of configs/split_cmu_dance.json to run (choose parameters on validation).")
     ap.add_argument("--no-clean", action="store_true", help="Skip the IK + cleaning baseline.")
@@ -143,7 +146,7 @@ def main() -> None:
                     out=cache, skip_unassigned=True)
     data = load_cache(cache).subset(args.split)
     fps = data.fps
-    model = load_model()
+    model = load_model(args.model)
     lo, hi = model.pose_lo.numpy(), model.pose_hi.numpy()
     mlp = load_model(args.mlp) if args.mlp and Path(args.mlp).exists() else None
     from smplik.solver import IKSolver
@@ -184,7 +187,7 @@ def main() -> None:
             for label, samples, fit, offline in (("ours", 1, False, True), ("ours_causal", 1, False, False),
                                                  ("ours_16", 16, False, True), ("ours_fit", 1, True, True)):
                 t0 = time.perf_counter()
-                tr = Tracker.load(betas=betas, gender=gender,
+                tr = Tracker.load(args.model, betas=betas, gender=gender,
                                   config=TrackerRuntimeConfig(samples=samples, tracker_fit=fit, offline_lock=offline))
                 res = track_sequence(tr, sig)
                 seconds[label] = seconds.get(label, 0.0) + time.perf_counter() - t0
@@ -220,7 +223,8 @@ def main() -> None:
             summary[noise][label] = {k: round(float(np.average([r[k] for r in rs], weights=w)), 3) for k in keys}
             summary[noise][label]["frames"] = int(w.sum())
     sig = signals_from_motion(R_true, transl_true, J, model.cfg.trackers, fps)
-    cost = {"deterministic": per_frame_cost(1, sig), "samples_16": per_frame_cost(16, sig)}
+    cost = {"deterministic": per_frame_cost(1, sig, model=args.model),
+            "samples_16": per_frame_cost(16, sig, model=args.model)}
     for noise, table in summary.items():
         print(f"\n{noise}: " + ", ".join(f"{k}" for k in table))
         for label, m in table.items():
@@ -229,7 +233,9 @@ def main() -> None:
     if not args.reuse:
         mlp_info = None if mlp is None else {k: mlp.info.get(k) for k in ("net", "val_mpjpe_mm", "steps", "seconds",
                                                                           "continued_from")}
-    path = save("tracking" if args.split == "test" else f"tracking_{args.split}", {"summary": summary,
+    stem = "tracking" if len(model.cfg.trackers) == 4 else f"tracking_{len(model.cfg.trackers)}trackers"
+    path = save(stem if args.split == "test" else f"{stem}_{args.split}", {
+                "trackers": list(model.cfg.trackers), "summary": summary,
                              "split": args.split, "per_clip": rows, "per_frame_cost_ms": cost,
                              "seconds": {k: round(v, 1) for k, v in seconds.items()}, "frames_per_clip": args.frames,
                              "model": {k: model.info.get(k) for k in ("net", "val_mpjpe_mm", "steps", "seconds")},

@@ -607,3 +607,43 @@ def test_offline_lock_settings_are_checked(change, message):
 
     with pytest.raises(ValueError, match=message):
         Tracker.load(config=replace(TrackerRuntimeConfig(), **change))
+
+
+# ----------------------------------------------------------------------------- head and hands only
+
+
+def test_shipped_model_follows_the_recordings_trackers():
+    from smplik.tracking.model_io import DEFAULT_CHECKPOINT, THREE_TRACKER_CHECKPOINT, shipped_checkpoint
+
+    assert shipped_checkpoint(TRACKER_SETS["4"]) == DEFAULT_CHECKPOINT
+    assert shipped_checkpoint(("right_wrist", "head", "left_wrist", "left_ankle")) == THREE_TRACKER_CHECKPOINT
+    assert shipped_checkpoint(("head", "left_wrist")) == DEFAULT_CHECKPOINT  # its error names right_wrist
+    three = load_model(THREE_TRACKER_CHECKPOINT)
+    assert three.cfg.trackers == TRACKER_SETS["3"] and three.cfg.kind == "cvae"
+
+
+def test_track_command_with_head_and_hands_only(tmp_path):
+    """A recording without a waist tracker runs through the shipped 3-tracker model: one pose per frame, the
+    walk's forward progress followed, and the pelvis tracker really absent from what the model read."""
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+    from workflows.animation.files import load_animation
+
+    R, transl = walking_motion(90)
+    sig = signals_from_motion(R, transl, rest_joints(), TRACKER_SETS["3"], 60.0)
+    assert "pelvis" not in sig.names
+    src = tmp_path / "quest.json"
+    src.write_text(json.dumps(sig.to_dict()))
+    res = CliRunner().invoke(app, ["track", str(src), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    track = load_animation(tmp_path / "out" / "animation.json").tracks[0]
+    assert track.num_frames == 90
+    moved = track.transl[-1] - track.transl[0]
+    assert 1.0 < moved[2] < 2.0 and abs(moved[0]) < 0.3  # 1.5 s at 1 m/s along +z
+    # with the 4-tracker model forced, the same file is one line naming the missing tracker
+    from smplik.tracking.model_io import DEFAULT_CHECKPOINT
+
+    res = CliRunner().invoke(app, ["track", str(src), "--out", str(tmp_path / "o2"), "--checkpoint",
+                                   str(DEFAULT_CHECKPOINT)])
+    assert res.exit_code == 1 and "trackers.pelvis: missing" in res.output.strip().splitlines()[-1]

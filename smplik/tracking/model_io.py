@@ -8,6 +8,7 @@ percentiles of the training set's axis-angle local rotations, for the anomaly sc
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,10 +23,24 @@ from smplik.tracking.network import TrackingNet, WindowMLP, build_network
 CHECKPOINT_FORMAT = "smplik-tracking"
 CHECKPOINT_VERSION = 1
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "smplik_tracking.pt"
+THREE_TRACKER_CHECKPOINT = DEFAULT_CHECKPOINT.with_name("smplik_tracking_3.pt")
+"""The shipped model for head and hands only (no waist tracker)."""
 
 
 class TrackingModelError(ValueError):
     """A tracking model file cannot be used (one line, names the file)."""
+
+
+def shipped_checkpoint(tracker_names: Iterable[str]) -> Path:
+    """The shipped model for a recording with trackers ``tracker_names``: the 4-tracker model (head, hands,
+    pelvis) when the recording has all four, else the 3-tracker model (head and hands) when it has those (a
+    recording without them gets the 4-tracker model, whose one-line error names the first missing tracker)."""
+    from smplik.tracking.config import TRACKER_SETS
+
+    have = set(tracker_names)
+    if set(TRACKER_SETS["4"]) <= have or not set(TRACKER_SETS["3"]) <= have:
+        return DEFAULT_CHECKPOINT
+    return THREE_TRACKER_CHECKPOINT
 
 
 @dataclass(frozen=True)

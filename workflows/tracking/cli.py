@@ -30,9 +30,9 @@ def track_cmd(
     fit_trackers: Annotated[bool, typer.Option("--fit-trackers", help="Set the root, wrists and head from the "
                                                "trackers (two-bone arm IK).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Tracking model file (default: "
-                                                    "shipped).")] = None,
+                                                    "the shipped model for the recording's trackers).")] = None,
 ) -> None:
-    """Tracker recording (head, wrists, pelvis) -> OUT/animation.json (smplik-animation) and BVH/GLB."""
+    """Tracker recording (head, wrists, pelvis; or head and wrists) -> OUT/animation.json and BVH/GLB."""
     from workflows.animation.clips import AnimationError
     from workflows.tracking.run import track_file
 

@@ -71,6 +71,10 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
                                           float(character.scale))
         skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
         signals = replace(signals, positions=signals.positions / scale)
+    if checkpoint is None:  # the shipped model for the trackers the recording has (4, or head and hands only)
+        from smplik.tracking.model_io import shipped_checkpoint
+
+        checkpoint = shipped_checkpoint(signals.names)
     tracker = Tracker.load(checkpoint, betas=body_betas, gender=body_gender,
                            config=TrackerRuntimeConfig(samples=samples, seed=seed, tracker_fit=fit_trackers))
     result = track_sequence(tracker, signals)
