@@ -170,6 +170,11 @@ class CleanConfig:
     """... and at least this far (m; only matters on a nearly noise-free clip) ..."""
     glitch_ratio: float = 2.0
     """... and more than this many times the distance between those neighbours (fast real motion does not)."""
+    glitch_rotation_sigmas: float = 11.0
+    """A glitch may also turn a limb's joint (one with at least two joints below it) away from the midpoint of its
+    neighbouring frames' rotations by more than this many times the clip's own robust spread of that rotation's
+    spike (:func:`glitch_frames`): a limb's own turn stands out of one joint's rotation noise where its joints'
+    positions, which add up the noise and the motion of every joint above them, do not (a fast dance's arms)."""
 
     def __post_init__(self) -> None:
         if self.smoothing not in ("adaptive", "sequence", "one_euro", "savgol", "none"):
@@ -177,6 +182,7 @@ class CleanConfig:
                              f"{self.smoothing!r}.")
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
                      "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
+                     "glitch_rotation_sigmas",
                      "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -343,7 +349,8 @@ def _root_outliers(root: np.ndarray) -> np.ndarray:
     return offset
 
 
-def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, sigmas: float = 5.5) -> np.ndarray:
+def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, sigmas: float = 5.5,
+                  R_parent_joint: np.ndarray | None = None, rotation_sigmas: float = 11.0) -> np.ndarray:
     """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3) (a pose that jumps away and comes back,
     as when a tracker briefly swaps limbs or misjudges the depth).
 
@@ -357,7 +364,16 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     largest of its frame and the two neighbouring frames (a jump's neighbours see two thirds of it), moves the joint
     at least ``min_m`` from the midpoint of the neighbouring frames and, for joints other than the root, more than
     ``ratio`` times the distance between those neighbours (a fast limb advances more than it bends). The first and
-    last two frames are never flagged."""
+    last two frames are never flagged.
+
+    With the local rotations ``R_parent_joint`` (T, J, 3, 3), a frame is also a glitch where a limb's joint (one
+    with at least two joints below it: hips, knees, shoulders, elbows, the spine; not the feet, hands or head,
+    whose turns move little) turns away and comes back (:func:`rotation_spikes`): the fourth difference of its
+    sign-continuous quaternion, scaled by its robust spread over the clip, above ``rotation_sigmas``, the largest of
+    its frame and the neighbouring frames, an angle from the neighbours' mean rotation above ``ratio`` times the
+    angle between them, and some joint below it moved at least ``min_m`` from the midpoint of its neighbouring
+    frames (relative to the root). Such a test does not depend on how fast the body moves: one joint's rotation
+    noise is what a limb's turn is measured against, not the summed noise and motion of its parents."""
     T = p_world.shape[0]
     flags = np.zeros(T, dtype=bool)
     if T < 5:
@@ -380,12 +396,63 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     jumps[:, 0] = True
     hit = (score > sigmas) & peak & (offset >= min_m) & jumps
     strength = np.where(hit, score, 0.0).max(-1)  # (T,)
+    if R_parent_joint is not None:
+        strength = np.maximum(strength, sigmas / rotation_sigmas * rotation_spikes(
+            R_parent_joint, offset, min_m, ratio, rotation_sigmas))
     for t in np.argsort(-strength):  # a strong jump's neighbours two frames away may pass too: keep the jump
         if strength[t] == 0.0:
             break
         if 2 <= t < T - 2 and not flags[max(0, t - 2):t + 3].any():
             flags[t] = True
     return flags
+
+
+def _ancestors(j: int) -> set[int]:
+    """The joints above joint j in SMPL's tree."""
+    out: set[int] = set()
+    while PARENTS[j] >= 0:
+        j = PARENTS[j]
+        out.add(j)
+    return out
+
+
+LIMB_JOINTS = tuple(j for j in range(1, len(PARENTS))
+                    if sum(1 for k in range(len(PARENTS)) if k != j and j in _ancestors(k)) >= 2)
+"""Joints with at least two joints below them (hips, knees, spine, collars, shoulders, elbows), tested by
+:func:`rotation_spikes`."""
+
+
+def rotation_spikes(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float = 0.03, ratio: float = 2.0,
+                    sigmas: float = 11.0) -> np.ndarray:
+    """The strongest limb-joint rotation glitch score (T,) of local rotations R_parent_joint (T, J, 3, 3), 0 where
+    none (:func:`glitch_frames`); offset (T, J): each joint's distance (m) from the midpoint of its neighbouring
+    frames, relative to the root."""
+    T, J = R_parent_joint.shape[:2]
+    out = np.zeros(T)
+    if T < 5:
+        return out
+    q = continuous_quaternions(R_parent_joint)  # (T, J, 4)
+    spike = np.zeros_like(q)
+    spike[2:-2] = -(q[:-4] - 4 * q[1:-3] + 6 * q[2:-2] - 4 * q[3:-1] + q[4:]) / 4.0
+    inner = spike[2:-2]
+    spread = np.maximum(1.4826 * np.median(np.abs(inner - np.median(inner, axis=0)), axis=0), 1e-5)  # (J, 4)
+    score = np.linalg.norm(spike / spread, axis=-1)  # (T, J)
+    peak = np.zeros_like(score, dtype=bool)
+    peak[1:-1] = (score[1:-1] >= score[:-2]) & (score[1:-1] >= score[2:])
+    mid = q[:-2] + q[2:]
+    mid /= np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-12)
+    turn = np.zeros((T, J))
+    gap = np.zeros((T, J))
+    turn[1:-1] = np.abs((q[1:-1] * mid).sum(-1))  # cosines of half the angles: smaller is farther
+    gap[1:-1] = np.abs((q[:-2] * q[2:]).sum(-1))
+    away = 2 * np.arccos(np.clip(turn, 0.0, 1.0)) > ratio * 2 * np.arccos(np.clip(gap, 0.0, 1.0))
+    for j in LIMB_JOINTS:
+        below = [k for k in range(J) if k != j and j in _ancestors(k)]
+        hit = (score[:, j] > sigmas) & peak[:, j] & away[:, j] & (offset[:, below].max(-1) >= min_m)
+        out = np.maximum(out, np.where(hit, score[:, j], 0.0))
+    out[:2] = 0.0
+    out[-2:] = 0.0
+    return out
 
 
 # ----------------------------------------------------------------------------- contacts
