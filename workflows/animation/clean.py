@@ -371,8 +371,9 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     whose turns move little) turns away and comes back (:func:`rotation_spikes`): the fourth difference of its
     sign-continuous quaternion, scaled by its robust spread over the clip, above ``rotation_sigmas``, the largest of
     its frame and the neighbouring frames, an angle from the neighbours' mean rotation above ``ratio`` times the
-    angle between them, and some joint below it moved at least ``min_m`` from the midpoint of its neighbouring
-    frames (relative to the root). Such a test does not depend on how fast the body moves: one joint's rotation
+    angle between them, and some joint below it moved at least twice ``min_m`` from the midpoint of its
+    neighbouring frames (relative to the root: on a nearly noise-free clip, a limb's few-degree wobble is not a
+    glitch). Such a test does not depend on how fast the body moves: one joint's rotation
     noise is what a limb's turn is measured against, not the summed noise and motion of its parents."""
     T = p_world.shape[0]
     flags = np.zeros(T, dtype=bool)
@@ -448,7 +449,7 @@ def rotation_spikes(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float
     away = 2 * np.arccos(np.clip(turn, 0.0, 1.0)) > ratio * 2 * np.arccos(np.clip(gap, 0.0, 1.0))
     for j in LIMB_JOINTS:
         below = [k for k in range(J) if k != j and j in _ancestors(k)]
-        hit = (score[:, j] > sigmas) & peak[:, j] & away[:, j] & (offset[:, below].max(-1) >= min_m)
+        hit = (score[:, j] > sigmas) & peak[:, j] & away[:, j] & (offset[:, below].max(-1) >= 2.0 * min_m)
         out = np.maximum(out, np.where(hit, score[:, j], 0.0))
     out[:2] = 0.0
     out[-2:] = 0.0
