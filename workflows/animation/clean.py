@@ -400,6 +400,8 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     if R_parent_joint is not None:
         strength = np.maximum(strength, sigmas / rotation_sigmas * rotation_spikes(
             R_parent_joint, offset, min_m, ratio, rotation_sigmas))
+        strength = np.where(swap_frames(R_parent_joint, offset, min_m, ratio) & (strength == 0.0), sigmas,
+                            strength)
     for t in np.argsort(-strength):  # a strong jump's neighbours two frames away may pass too: keep the jump
         if strength[t] == 0.0:
             break
@@ -453,6 +455,51 @@ def rotation_spikes(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float
         out = np.maximum(out, np.where(hit, score[:, j], 0.0))
     out[:2] = 0.0
     out[-2:] = 0.0
+    return out
+
+
+SWAP_LIMBS = tuple(tuple((JOINT_INDEX[f"left_{j}"], JOINT_INDEX[f"right_{j}"]) for j in joints)
+                   for joints in (("hip", "knee", "ankle", "foot"),
+                                  ("collar", "shoulder", "elbow", "wrist", "hand")))
+"""Left / right joint pairs of the legs and the arms, tested for a swap by :func:`swap_frames`."""
+MIRROR_QUATERNION = np.array([1.0, 1.0, -1.0, -1.0])
+"""A local rotation mirrored across SMPL's sagittal (x = 0) plane: quaternion (w, x, y, z) -> (w, x, -y, -z)."""
+
+
+def swap_frames(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float = 0.03, ratio: float = 2.0
+                ) -> np.ndarray:
+    """Left/right limb swaps (T,) bool of local rotations R_parent_joint (T, J, 3, 3) (:func:`glitch_frames`).
+
+    For each limb pair (:data:`SWAP_LIMBS`: the legs, the arms), a frame's *misfit* is the summed angle of the
+    limbs' local rotations from the mean rotation of the neighbouring frames, once as estimated and once with the
+    left and right limbs exchanged (each mirrored). A frame is a swap where the estimated misfit is more than
+    ``ratio`` times the exchanged one, exceeds it by more than the clip's median misfit (the noise of a typical
+    frame) and some joint of the limbs moved at least twice ``min_m`` from the midpoint of its neighbouring frames
+    (offset (T, J), relative to the root). How fast the body moves does not enter: a swap fits the neighbours once
+    undone, a fast real move does not. The first and last frames are never flagged."""
+    T = R_parent_joint.shape[0]
+    out = np.zeros(T, dtype=bool)
+    if T < 5:
+        return out
+    q = continuous_quaternions(R_parent_joint)  # (T, J, 4)
+    mid = q[:-2] + q[2:]
+    mid /= np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-12)
+    mirrored = q[1:-1] * MIRROR_QUATERNION
+
+    def misfit(rows: np.ndarray, joints: list[int]) -> np.ndarray:
+        cos = np.abs((rows * mid[:, joints]).sum(-1))
+        return 2 * np.arccos(np.clip(cos, 0.0, 1.0)).sum(-1)  # (T - 2,)
+
+    for pairs in SWAP_LIMBS:
+        left, right = [a for a, _ in pairs], [b for _, b in pairs]
+        as_is = misfit(q[1:-1, left + right], left + right)
+        swapped = misfit(np.concatenate([mirrored[:, right], mirrored[:, left]], axis=1), left + right)
+        gain = as_is - swapped
+        hit = (as_is > ratio * swapped) & (gain > np.median(as_is)) \
+            & (offset[1:-1, left + right].max(-1) >= 2.0 * min_m)
+        out[1:-1] |= hit
+    out[:2] = False
+    out[-2:] = False
     return out
 
 
