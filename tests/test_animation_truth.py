@@ -208,6 +208,35 @@ def test_arm_jumps_on_a_fast_dance_are_repaired_against_the_rotation_noise(share
     assert flagged[clean].mean() <= 0.02
 
 
+def test_leg_swaps_on_a_fast_dance_are_repaired_as_swaps(shared_data):
+    """Legs swapped (exchanged and mirrored) for one frame of a fast dance: neither the joints' positions nor one
+    joint's rotation stands out of the dance's own spread on half of them; exchanged back, the legs fit their
+    neighbouring frames."""
+    from smplik.data.retarget import retarget_bvh
+
+    path = shared_data.cmu_dir / "55_01.bvh"  # a validation-split dance
+    if not path.is_file():
+        pytest.skip(f"no {path}")
+    clip = retarget_bvh(path, "cmu", fps=30.0)
+    rows = slice(clip.motion_start, clip.motion_start + 240)
+    aa = np.concatenate([clip.global_orient[rows, None], clip.body_pose[rows]], 1).astype(float)
+    poses = _estimate(aa, clip.transl[rows].astype(float), seed=11)
+    frames = list(range(10, 231, 10))
+    for t in frames:
+        p = poses[t]
+        swapped = np.concatenate([p.global_orient[None], p.body_pose])
+        swapped[LEGS_LEFT], swapped[LEGS_RIGHT] = swapped[LEGS_RIGHT] * [1, -1, -1], swapped[LEGS_LEFT] * [1, -1, -1]
+        poses[t] = Pose(swapped[0], swapped[1:], p.transl, p.betas)
+    out = clean_track(poses, 30.0, CleanConfig(foot_lock=False), 1.0)
+    truth = _truth_joints(aa, clip.transl[rows].astype(float))
+    visible = [t for t in frames if np.linalg.norm(out[3][t] - truth[t], axis=-1).max() >= 0.15]
+    assert len(visible) >= 15  # the swaps that move some joint 15 cm (the legs apart), as the benchmark's
+    assert out[5][visible].all()
+    clean = np.ones(len(poses), dtype=bool)
+    clean[frames] = False
+    assert out[5][clean].mean() <= 0.02
+
+
 def test_rotation_glitches_count_on_limb_joints_only():
     """A knee turned 60 degrees for one frame of a noisy walk is a glitch; a wrist turned as far (its hand moves a
     few centimetres) is left to the position test, which finds nothing; the noisy walk itself has none."""
