@@ -31,8 +31,9 @@ foot to its mean position over each contact run (blended in and out, :func:`lock
 lands on the locked point exactly when the leg can reach it.
 
 Plausibility (:func:`glitch_frames`): single-frame glitches (a pose that jumps away and comes back, as
-when a tracker briefly swaps limbs) are flagged and, before smoothing, replaced by interpolating their
-neighbours.
+when a tracker briefly swaps limbs: joint positions, limb joints' rotations, :func:`rotation_spikes`, and
+left/right swaps, :func:`swap_frames`, each against the clip's own noise) are flagged and, before smoothing,
+replaced by interpolating their neighbours.
 
 Metrics (:func:`motion_metrics`), on joint positions ``(T, 24, 3)`` in metres: jitter = mean joint
 acceleration ``|p[t+1] - 2 p[t] + p[t-1]|`` (mm/frame^2); skating = mean speed of the foot joints
@@ -374,7 +375,8 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     angle between them, and some joint below it moved at least twice ``min_m`` from the midpoint of its
     neighbouring frames (relative to the root: on a nearly noise-free clip, a limb's few-degree wobble is not a
     glitch). Such a test does not depend on how fast the body moves: one joint's rotation
-    noise is what a limb's turn is measured against, not the summed noise and motion of its parents."""
+    noise is what a limb's turn is measured against, not the summed noise and motion of its parents. With them, a
+    frame is a glitch too where the left and right legs or arms are swapped (:func:`swap_frames`)."""
     T = p_world.shape[0]
     flags = np.zeros(T, dtype=bool)
     if T < 5:
