@@ -376,7 +376,10 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     neighbouring frames (relative to the root: on a nearly noise-free clip, a limb's few-degree wobble is not a
     glitch). Such a test does not depend on how fast the body moves: one joint's rotation
     noise is what a limb's turn is measured against, not the summed noise and motion of its parents. With them, a
-    frame is a glitch too where the left and right legs or arms are swapped (:func:`swap_frames`)."""
+    frame is a glitch too where the left and right legs or arms are swapped (:func:`swap_frames`), and a joint
+    other than the root jumps in position only where some joint above it (the root's rotation included) turns out
+    of its noise (:func:`rotation_scores` above ``sigmas``): a limb cannot jump without a turn, and noise summed
+    along a limb's chain, with no joint standing out, is no glitch."""
     T = p_world.shape[0]
     flags = np.zeros(T, dtype=bool)
     if T < 5:
@@ -398,6 +401,10 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     jumps = offset > ratio * gap
     jumps[:, 0] = True
     hit = (score > sigmas) & peak & (offset >= min_m) & jumps
+    if R_parent_joint is not None and p.shape[1] == len(PARENTS):  # a limb's jump needs a turn above it
+        turns = rotation_scores(continuous_quaternions(R_parent_joint))  # (T, J)
+        for j in range(1, len(PARENTS)):
+            hit[:, j] &= turns[:, sorted(_ancestors(j))].max(-1) > sigmas
     strength = np.where(hit, score, 0.0).max(-1)  # (T,)
     if R_parent_joint is not None:
         strength = np.maximum(strength, sigmas / rotation_sigmas * rotation_spikes(
@@ -427,6 +434,16 @@ LIMB_JOINTS = tuple(j for j in range(1, len(PARENTS))
 :func:`rotation_spikes`."""
 
 
+def rotation_scores(q: np.ndarray) -> np.ndarray:
+    """Each joint's rotation spike (T, J) of sign-continuous quaternions q (T, J, 4) (T >= 5): the fourth difference
+    of each component over its robust spread over the clip (1.4826 MAD), the norm over the components."""
+    spike = np.zeros_like(q)
+    spike[2:-2] = -(q[:-4] - 4 * q[1:-3] + 6 * q[2:-2] - 4 * q[3:-1] + q[4:]) / 4.0
+    inner = spike[2:-2]
+    spread = np.maximum(1.4826 * np.median(np.abs(inner - np.median(inner, axis=0)), axis=0), 1e-5)  # (J, 4)
+    return np.linalg.norm(spike / spread, axis=-1)
+
+
 def rotation_spikes(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float = 0.03, ratio: float = 2.0,
                     sigmas: float = 11.0) -> np.ndarray:
     """The strongest limb-joint rotation glitch score (T,) of local rotations R_parent_joint (T, J, 3, 3), 0 where
@@ -437,11 +454,7 @@ def rotation_spikes(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float
     if T < 5:
         return out
     q = continuous_quaternions(R_parent_joint)  # (T, J, 4)
-    spike = np.zeros_like(q)
-    spike[2:-2] = -(q[:-4] - 4 * q[1:-3] + 6 * q[2:-2] - 4 * q[3:-1] + q[4:]) / 4.0
-    inner = spike[2:-2]
-    spread = np.maximum(1.4826 * np.median(np.abs(inner - np.median(inner, axis=0)), axis=0), 1e-5)  # (J, 4)
-    score = np.linalg.norm(spike / spread, axis=-1)  # (T, J)
+    score = rotation_scores(q)
     peak = np.zeros_like(score, dtype=bool)
     peak[1:-1] = (score[1:-1] >= score[:-2]) & (score[1:-1] >= score[2:])
     mid = q[:-2] + q[2:]
