@@ -237,6 +237,25 @@ def test_leg_swaps_on_a_fast_dance_are_repaired_as_swaps(shared_data):
     assert out[5][clean].mean() <= 0.02
 
 
+def test_a_limb_jump_without_a_turn_above_it_is_not_a_glitch():
+    """A wrist 30 cm off for one frame in positions that its joints' rotations do not show (no joint above it
+    turned) is noise summed along the arm, not a glitch; with the turn it is one."""
+    aa, transl = _walk(120)
+    poses = _estimate(aa, transl, seed=17)
+    R = Rotation.from_rotvec(np.stack([np.concatenate([p.global_orient[None], p.body_pose]) for p in poses])
+                             .reshape(-1, 3)).as_matrix().reshape(len(poses), 24, 3, 3)
+    p_world = joints_of(R, np.stack([p.transl for p in poses]), rest_joints(np.zeros(10), Gender.NEUTRAL))
+    moved = p_world.copy()
+    moved[60, JOINT_INDEX["left_wrist"]] += [0.0, 0.3, 0.0]
+    assert glitch_frames(moved)[60]  # positions alone
+    assert not glitch_frames(moved, R_parent_joint=R).any()
+    turned = R.copy()
+    elbow = JOINT_INDEX["left_elbow"]
+    turned[60, elbow] = turned[60, elbow] @ Rotation.from_rotvec([0.0, np.deg2rad(40), 0.0]).as_matrix()
+    p_turned = joints_of(turned, np.stack([p.transl for p in poses]), rest_joints(np.zeros(10), Gender.NEUTRAL))
+    assert np.nonzero(glitch_frames(p_turned, R_parent_joint=turned))[0].tolist() == [60]
+
+
 def test_rotation_glitches_count_on_limb_joints_only():
     """A knee turned 60 degrees for one frame of a noisy walk is a glitch; a wrist turned as far (its hand moves a
     few centimetres) is left to the position test, which finds nothing; the noisy walk itself has none."""
