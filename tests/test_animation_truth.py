@@ -179,6 +179,106 @@ def test_glitch_threshold_follows_the_clips_noise():
     assert not glitch_frames(loud)[50]
 
 
+def test_arm_jumps_on_a_fast_dance_are_repaired_against_the_rotation_noise(shared_data):
+    """A shoulder turned 70 degrees for one frame of a fast dance: the arm's joints move so fast (and add up the
+    noise of every joint above them) that their positions hide it, one joint's rotation noise does not."""
+    from smplik.data.retarget import retarget_bvh
+
+    path = shared_data.cmu_dir / "55_01.bvh"  # a validation-split dance
+    if not path.is_file():
+        pytest.skip(f"no {path}")
+    clip = retarget_bvh(path, "cmu", fps=30.0)
+    rows = slice(clip.motion_start, clip.motion_start + 240)
+    aa = np.concatenate([clip.global_orient[rows, None], clip.body_pose[rows]], 1).astype(float)
+    poses = _estimate(aa, clip.transl[rows].astype(float), seed=11)
+    rng = np.random.default_rng(12)
+    frames = list(range(10, 231, 10))  # 23 glitches; joint positions alone miss 6 of them
+    for k, t in enumerate(frames):
+        p = poses[t]
+        turned = np.concatenate([p.global_orient[None], p.body_pose])
+        j = JOINT_INDEX[("left_shoulder", "right_shoulder")[k % 2]]
+        axis = rng.normal(size=3)
+        turned[j] = (Rotation.from_rotvec(turned[j]) * Rotation.from_rotvec(np.deg2rad(70) * axis
+                                                                             / np.linalg.norm(axis))).as_rotvec()
+        poses[t] = Pose(turned[0], turned[1:], p.transl, p.betas)
+    flagged = clean_track(poses, 30.0, CleanConfig(foot_lock=False), 1.0)[5]
+    clean = np.ones(len(poses), dtype=bool)
+    clean[frames] = False
+    assert flagged[frames].all()
+    assert flagged[clean].mean() <= 0.02
+
+
+def test_leg_swaps_on_a_fast_dance_are_repaired_as_swaps(shared_data):
+    """Legs swapped (exchanged and mirrored) for one frame of a fast dance: neither the joints' positions nor one
+    joint's rotation stands out of the dance's own spread on half of them; exchanged back, the legs fit their
+    neighbouring frames."""
+    from smplik.data.retarget import retarget_bvh
+
+    path = shared_data.cmu_dir / "55_01.bvh"  # a validation-split dance
+    if not path.is_file():
+        pytest.skip(f"no {path}")
+    clip = retarget_bvh(path, "cmu", fps=30.0)
+    rows = slice(clip.motion_start, clip.motion_start + 240)
+    aa = np.concatenate([clip.global_orient[rows, None], clip.body_pose[rows]], 1).astype(float)
+    poses = _estimate(aa, clip.transl[rows].astype(float), seed=11)
+    frames = list(range(10, 231, 10))
+    for t in frames:
+        p = poses[t]
+        swapped = np.concatenate([p.global_orient[None], p.body_pose])
+        swapped[LEGS_LEFT], swapped[LEGS_RIGHT] = swapped[LEGS_RIGHT] * [1, -1, -1], swapped[LEGS_LEFT] * [1, -1, -1]
+        poses[t] = Pose(swapped[0], swapped[1:], p.transl, p.betas)
+    out = clean_track(poses, 30.0, CleanConfig(foot_lock=False), 1.0)
+    truth = _truth_joints(aa, clip.transl[rows].astype(float))
+    visible = [t for t in frames if np.linalg.norm(out[3][t] - truth[t], axis=-1).max() >= 0.15]
+    assert len(visible) >= 15  # the swaps that move some joint 15 cm (the legs apart), as the benchmark's
+    assert out[5][visible].all()
+    clean = np.ones(len(poses), dtype=bool)
+    clean[frames] = False
+    assert out[5][clean].mean() <= 0.02
+
+
+def test_a_limb_jump_without_a_turn_above_it_is_not_a_glitch():
+    """A wrist 30 cm off for one frame in positions that its joints' rotations do not show (no joint above it
+    turned) is noise summed along the arm, not a glitch; with the turn it is one."""
+    aa, transl = _walk(120)
+    poses = _estimate(aa, transl, seed=17)
+    R = Rotation.from_rotvec(np.stack([np.concatenate([p.global_orient[None], p.body_pose]) for p in poses])
+                             .reshape(-1, 3)).as_matrix().reshape(len(poses), 24, 3, 3)
+    p_world = joints_of(R, np.stack([p.transl for p in poses]), rest_joints(np.zeros(10), Gender.NEUTRAL))
+    moved = p_world.copy()
+    moved[60, JOINT_INDEX["left_wrist"]] += [0.0, 0.3, 0.0]
+    assert glitch_frames(moved)[60]  # positions alone
+    assert not glitch_frames(moved, R_parent_joint=R).any()
+    turned = R.copy()
+    elbow = JOINT_INDEX["left_elbow"]
+    turned[60, elbow] = turned[60, elbow] @ Rotation.from_rotvec([0.0, np.deg2rad(40), 0.0]).as_matrix()
+    p_turned = joints_of(turned, np.stack([p.transl for p in poses]), rest_joints(np.zeros(10), Gender.NEUTRAL))
+    assert np.nonzero(glitch_frames(p_turned, R_parent_joint=turned))[0].tolist() == [60]
+
+
+def test_rotation_glitches_count_on_limb_joints_only():
+    """A knee turned 60 degrees for one frame of a noisy walk is a glitch; a wrist turned as far (its hand moves a
+    few centimetres) is left to the position test, which finds nothing; the noisy walk itself has none."""
+    aa, transl = _walk(120)
+    poses = _estimate(aa, transl, seed=17)
+
+    def flags(poses: list[Pose]) -> np.ndarray:
+        R = Rotation.from_rotvec(np.stack([np.concatenate([p.global_orient[None], p.body_pose]) for p in poses])
+                                 .reshape(-1, 3)).as_matrix().reshape(len(poses), 24, 3, 3)
+        p_world = joints_of(R, np.stack([p.transl for p in poses]), rest_joints(np.zeros(10), Gender.NEUTRAL))
+        return glitch_frames(p_world, R_parent_joint=R)
+
+    assert not flags(poses).any()
+    for joint, expected in (("left_knee", [60]), ("left_wrist", [])):
+        turned = list(poses)
+        p = poses[60]
+        aa60 = np.concatenate([p.global_orient[None], p.body_pose])
+        j = JOINT_INDEX[joint]
+        aa60[j] = (Rotation.from_rotvec(aa60[j]) * Rotation.from_rotvec([np.deg2rad(60), 0.0, 0.0])).as_rotvec()
+        turned[60] = Pose(aa60[0], aa60[1:], p.transl, p.betas)
+        assert np.nonzero(flags(turned))[0].tolist() == expected
+
+
 # ----------------------------------------------------------------------------- foot locks
 
 
@@ -264,6 +364,7 @@ def test_new_cleaning_settings_are_checked_with_one_line():
     from workflows.animation.clean import CleanError
 
     for bad in ({"release_m": 0.0}, {"blend_max_m": -0.02}, {"glitch_sigmas": float("nan")}, {"noise_gain": 0.0},
-                {"motion_trust": -1.0}, {"root_lock_smoothness": 0.0}, {"smoothing": "wiener"}):
+                {"motion_trust": -1.0}, {"root_lock_smoothness": 0.0}, {"smoothing": "wiener"},
+                {"glitch_rotation_sigmas": 0.0}):
         with pytest.raises(CleanError, match=next(iter(bad)).split("_")[0]):
             CleanConfig(**bad)

@@ -31,8 +31,9 @@ foot to its mean position over each contact run (blended in and out, :func:`lock
 lands on the locked point exactly when the leg can reach it.
 
 Plausibility (:func:`glitch_frames`): single-frame glitches (a pose that jumps away and comes back, as
-when a tracker briefly swaps limbs) are flagged and, before smoothing, replaced by interpolating their
-neighbours.
+when a tracker briefly swaps limbs: joint positions, limb joints' rotations, :func:`rotation_spikes`, and
+left/right swaps, :func:`swap_frames`, each against the clip's own noise) are flagged and, before smoothing,
+replaced by interpolating their neighbours.
 
 Metrics (:func:`motion_metrics`), on joint positions ``(T, 24, 3)`` in metres: jitter = mean joint
 acceleration ``|p[t+1] - 2 p[t] + p[t-1]|`` (mm/frame^2); skating = mean speed of the foot joints
@@ -170,6 +171,11 @@ class CleanConfig:
     """... and at least this far (m; only matters on a nearly noise-free clip) ..."""
     glitch_ratio: float = 2.0
     """... and more than this many times the distance between those neighbours (fast real motion does not)."""
+    glitch_rotation_sigmas: float = 11.0
+    """A glitch may also turn a limb's joint (one with at least two joints below it) away from the midpoint of its
+    neighbouring frames' rotations by more than this many times the clip's own robust spread of that rotation's
+    spike (:func:`glitch_frames`): a limb's own turn stands out of one joint's rotation noise where its joints'
+    positions, which add up the noise and the motion of every joint above them, do not (a fast dance's arms)."""
 
     def __post_init__(self) -> None:
         if self.smoothing not in ("adaptive", "sequence", "one_euro", "savgol", "none"):
@@ -177,6 +183,7 @@ class CleanConfig:
                              f"{self.smoothing!r}.")
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
                      "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
+                     "glitch_rotation_sigmas",
                      "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -343,7 +350,8 @@ def _root_outliers(root: np.ndarray) -> np.ndarray:
     return offset
 
 
-def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, sigmas: float = 5.5) -> np.ndarray:
+def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, sigmas: float = 5.5,
+                  R_parent_joint: np.ndarray | None = None, rotation_sigmas: float = 11.0) -> np.ndarray:
     """Single-frame glitches (T,) bool of joint positions p_world (T, J, 3) (a pose that jumps away and comes back,
     as when a tracker briefly swaps limbs or misjudges the depth).
 
@@ -357,7 +365,21 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     largest of its frame and the two neighbouring frames (a jump's neighbours see two thirds of it), moves the joint
     at least ``min_m`` from the midpoint of the neighbouring frames and, for joints other than the root, more than
     ``ratio`` times the distance between those neighbours (a fast limb advances more than it bends). The first and
-    last two frames are never flagged."""
+    last two frames are never flagged.
+
+    With the local rotations ``R_parent_joint`` (T, J, 3, 3), a frame is also a glitch where a limb's joint (one
+    with at least two joints below it: hips, knees, shoulders, elbows, the spine; not the feet, hands or head,
+    whose turns move little) turns away and comes back (:func:`rotation_spikes`): the fourth difference of its
+    sign-continuous quaternion, scaled by its robust spread over the clip, above ``rotation_sigmas``, the largest of
+    its frame and the neighbouring frames, an angle from the neighbours' mean rotation above ``ratio`` times the
+    angle between them, and some joint below it moved at least twice ``min_m`` from the midpoint of its
+    neighbouring frames (relative to the root: on a nearly noise-free clip, a limb's few-degree wobble is not a
+    glitch). Such a test does not depend on how fast the body moves: one joint's rotation
+    noise is what a limb's turn is measured against, not the summed noise and motion of its parents. With them, a
+    frame is a glitch too where the left and right legs or arms are swapped (:func:`swap_frames`), and a joint
+    other than the root jumps in position only where some joint above it (the root's rotation included) turns out
+    of its noise (:func:`rotation_scores` above ``sigmas``): a limb cannot jump without a turn, and noise summed
+    along a limb's chain, with no joint standing out, is no glitch."""
     T = p_world.shape[0]
     flags = np.zeros(T, dtype=bool)
     if T < 5:
@@ -379,13 +401,121 @@ def glitch_frames(p_world: np.ndarray, min_m: float = 0.03, ratio: float = 2.0, 
     jumps = offset > ratio * gap
     jumps[:, 0] = True
     hit = (score > sigmas) & peak & (offset >= min_m) & jumps
+    if R_parent_joint is not None and p.shape[1] == len(PARENTS):  # a limb's jump needs a turn above it
+        turns = rotation_scores(continuous_quaternions(R_parent_joint))  # (T, J)
+        for j in range(1, len(PARENTS)):
+            hit[:, j] &= turns[:, sorted(_ancestors(j))].max(-1) > sigmas
     strength = np.where(hit, score, 0.0).max(-1)  # (T,)
+    if R_parent_joint is not None:
+        strength = np.maximum(strength, sigmas / rotation_sigmas * rotation_spikes(
+            R_parent_joint, offset, min_m, ratio, rotation_sigmas))
+        strength = np.where(swap_frames(R_parent_joint, offset, min_m, ratio) & (strength == 0.0), sigmas,
+                            strength)
     for t in np.argsort(-strength):  # a strong jump's neighbours two frames away may pass too: keep the jump
         if strength[t] == 0.0:
             break
         if 2 <= t < T - 2 and not flags[max(0, t - 2):t + 3].any():
             flags[t] = True
     return flags
+
+
+def _ancestors(j: int) -> set[int]:
+    """The joints above joint j in SMPL's tree."""
+    out: set[int] = set()
+    while PARENTS[j] >= 0:
+        j = PARENTS[j]
+        out.add(j)
+    return out
+
+
+LIMB_JOINTS = tuple(j for j in range(1, len(PARENTS))
+                    if sum(1 for k in range(len(PARENTS)) if k != j and j in _ancestors(k)) >= 2)
+"""Joints with at least two joints below them (hips, knees, spine, collars, shoulders, elbows), tested by
+:func:`rotation_spikes`."""
+
+
+def rotation_scores(q: np.ndarray) -> np.ndarray:
+    """Each joint's rotation spike (T, J) of sign-continuous quaternions q (T, J, 4) (T >= 5): the fourth difference
+    of each component over its robust spread over the clip (1.4826 MAD), the norm over the components."""
+    spike = np.zeros_like(q)
+    spike[2:-2] = -(q[:-4] - 4 * q[1:-3] + 6 * q[2:-2] - 4 * q[3:-1] + q[4:]) / 4.0
+    inner = spike[2:-2]
+    spread = np.maximum(1.4826 * np.median(np.abs(inner - np.median(inner, axis=0)), axis=0), 1e-5)  # (J, 4)
+    return np.linalg.norm(spike / spread, axis=-1)
+
+
+def rotation_spikes(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float = 0.03, ratio: float = 2.0,
+                    sigmas: float = 11.0) -> np.ndarray:
+    """The strongest limb-joint rotation glitch score (T,) of local rotations R_parent_joint (T, J, 3, 3), 0 where
+    none (:func:`glitch_frames`); offset (T, J): each joint's distance (m) from the midpoint of its neighbouring
+    frames, relative to the root."""
+    T, J = R_parent_joint.shape[:2]
+    out = np.zeros(T)
+    if T < 5:
+        return out
+    q = continuous_quaternions(R_parent_joint)  # (T, J, 4)
+    score = rotation_scores(q)
+    peak = np.zeros_like(score, dtype=bool)
+    peak[1:-1] = (score[1:-1] >= score[:-2]) & (score[1:-1] >= score[2:])
+    mid = q[:-2] + q[2:]
+    mid /= np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-12)
+    turn = np.zeros((T, J))
+    gap = np.zeros((T, J))
+    turn[1:-1] = np.abs((q[1:-1] * mid).sum(-1))  # cosines of half the angles: smaller is farther
+    gap[1:-1] = np.abs((q[:-2] * q[2:]).sum(-1))
+    away = 2 * np.arccos(np.clip(turn, 0.0, 1.0)) > ratio * 2 * np.arccos(np.clip(gap, 0.0, 1.0))
+    for j in LIMB_JOINTS:
+        below = [k for k in range(J) if k != j and j in _ancestors(k)]
+        hit = (score[:, j] > sigmas) & peak[:, j] & away[:, j] & (offset[:, below].max(-1) >= 2.0 * min_m)
+        out = np.maximum(out, np.where(hit, score[:, j], 0.0))
+    out[:2] = 0.0
+    out[-2:] = 0.0
+    return out
+
+
+SWAP_LIMBS = tuple(tuple((JOINT_INDEX[f"left_{j}"], JOINT_INDEX[f"right_{j}"]) for j in joints)
+                   for joints in (("hip", "knee", "ankle", "foot"),
+                                  ("collar", "shoulder", "elbow", "wrist", "hand")))
+"""Left / right joint pairs of the legs and the arms, tested for a swap by :func:`swap_frames`."""
+MIRROR_QUATERNION = np.array([1.0, 1.0, -1.0, -1.0])
+"""A local rotation mirrored across SMPL's sagittal (x = 0) plane: quaternion (w, x, y, z) -> (w, x, -y, -z)."""
+
+
+def swap_frames(R_parent_joint: np.ndarray, offset: np.ndarray, min_m: float = 0.03, ratio: float = 2.0
+                ) -> np.ndarray:
+    """Left/right limb swaps (T,) bool of local rotations R_parent_joint (T, J, 3, 3) (:func:`glitch_frames`).
+
+    For each limb pair (:data:`SWAP_LIMBS`: the legs, the arms), a frame's *misfit* is the summed angle of the
+    limbs' local rotations from the mean rotation of the neighbouring frames, once as estimated and once with the
+    left and right limbs exchanged (each mirrored). A frame is a swap where the estimated misfit is more than
+    ``ratio`` times the exchanged one, exceeds it by more than the clip's median misfit (the noise of a typical
+    frame) and some joint of the limbs moved at least twice ``min_m`` from the midpoint of its neighbouring frames
+    (offset (T, J), relative to the root). How fast the body moves does not enter: a swap fits the neighbours once
+    undone, a fast real move does not. The first and last frames are never flagged."""
+    T = R_parent_joint.shape[0]
+    out = np.zeros(T, dtype=bool)
+    if T < 5:
+        return out
+    q = continuous_quaternions(R_parent_joint)  # (T, J, 4)
+    mid = q[:-2] + q[2:]
+    mid /= np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-12)
+    mirrored = q[1:-1] * MIRROR_QUATERNION
+
+    def misfit(rows: np.ndarray, joints: list[int]) -> np.ndarray:
+        cos = np.abs((rows * mid[:, joints]).sum(-1))
+        return 2 * np.arccos(np.clip(cos, 0.0, 1.0)).sum(-1)  # (T - 2,)
+
+    for pairs in SWAP_LIMBS:
+        left, right = [a for a, _ in pairs], [b for _, b in pairs]
+        as_is = misfit(q[1:-1, left + right], left + right)
+        swapped = misfit(np.concatenate([mirrored[:, right], mirrored[:, left]], axis=1), left + right)
+        gain = as_is - swapped
+        hit = (as_is > ratio * swapped) & (gain > np.median(as_is)) \
+            & (offset[1:-1, left + right].max(-1) >= 2.0 * min_m)
+        out[1:-1] |= hit
+    out[:2] = False
+    out[-2:] = False
+    return out
 
 
 # ----------------------------------------------------------------------------- contacts

@@ -646,7 +646,8 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     raw = joints_of(R, transl, J_rest) * scale
     glitches = np.zeros(len(poses), dtype=bool)
     if cfg.repair_glitches:
-        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio, cfg.glitch_sigmas)
+        glitches = glitch_frames(raw, cfg.glitch_min_m, cfg.glitch_ratio, cfg.glitch_sigmas, R,
+                                 cfg.glitch_rotation_sigmas)
         if glitches.any():
             R, transl = repair_frames(R, transl, glitches)
     if cfg.smoothing == "sequence":
