@@ -24,7 +24,8 @@ from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from smplik.data.retarget import swing_rotation
 
 AIM_CHILD = {"pelvis": "spine1", "spine3": "neck"}
-"""SMPL joints with several children aim at this one; others at their first mapped child."""
+"""SMPL joints with several children aim at this one, or up the trunk past it when it is unmapped
+(:func:`aim_children`); others at their first mapped child."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,16 +74,24 @@ class MappedRest:
 def aim_children(smpl: np.ndarray) -> np.ndarray:
     """Per mapped joint (SMPL indices ``smpl`` (M,)), the index into ``smpl`` of its aim child, -1 if none.
 
-    The aim child of SMPL joint ``j`` is :data:`AIM_CHILD`'s choice when it is mapped, else ``j``'s first
-    mapped SMPL child.
+    A joint with several SMPL children (:data:`AIM_CHILD`: the pelvis, spine3) aims up the trunk at the first
+    mapped joint from its :data:`AIM_CHILD` on, through unmapped ones (spine1 -> spine2 -> spine3 -> neck ->
+    head): a pelvis whose spine1 and spine2 are unmapped aims at spine3, as the retargeted unmapped joints keep
+    its rotation, not sideways at a hip, whose direction from the root is the rig's convention (SMPL's hips sit
+    below its pelvis, many rigs' level with their root). Without such a joint, and for every other joint: its
+    first mapped SMPL child.
     """
     where = {int(j): m for m, j in enumerate(smpl)}
     out = np.full(len(smpl), -1, dtype=np.int64)
     for m, j in enumerate(smpl):
+        chain = JOINT_INDEX.get(AIM_CHILD.get(JOINT_NAMES[int(j)], ""), -1)
+        while chain >= 0 and chain not in where:  # up the trunk through unmapped joints
+            chain = next((c for c in range(NUM_JOINTS) if PARENTS[c] == chain), -1)
+        if chain >= 0:
+            out[m] = where[chain]
+            continue
         children = [c for c in range(NUM_JOINTS) if PARENTS[c] == j and c in where]
-        preferred = JOINT_INDEX.get(AIM_CHILD.get(JOINT_NAMES[int(j)], ""), -1)
-        child = preferred if preferred in children else (children[0] if children else -1)
-        out[m] = where[child] if child >= 0 else -1
+        out[m] = where[children[0]] if children else -1
     return out
 
 

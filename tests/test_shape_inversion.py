@@ -434,3 +434,21 @@ def test_joint_fit_can_be_turned_off_and_never_makes_the_rest_residual_worse(fak
     assert on.rest_joint_residual_m <= off.rest_joint_residual_m
     assert on.to_dict()["diagnostics"]["joint_fit"] == on.joint_fit
     assert np.isnan(fake_estimator.estimate(f).rest_joint_residual_m)  # no joints given: the first stage only
+
+
+@pytest.mark.parametrize(("mapped", "aims"), [
+    (("pelvis", "left_hip", "right_hip", "spine3", "neck", "left_collar"), {"pelvis": "spine3", "spine3": "neck"}),
+    (("pelvis", "left_hip", "spine1", "spine3", "head", "left_collar"), {"pelvis": "spine1", "spine1": None,
+                                                                          "spine3": "head"}),
+    (("pelvis", "left_hip", "right_hip", "left_knee"), {"pelvis": "left_hip", "left_hip": "left_knee"}),
+])
+def test_the_pelvis_and_spine3_aim_up_the_trunk_through_unmapped_joints(mapped, aims):
+    """The rest alignment's aim: a pelvis whose spine1-2 are unmapped aims at spine3 (not sideways at a hip), a
+    spine3 without a neck at the head; a pelvis without any trunk joint at its first mapped child; a single-child
+    joint whose child is unmapped (spine1 without spine2) has no aim, as before."""
+    from shape_inversion.joint_fit import aim_children
+
+    smpl = np.array([JOINT_INDEX[n] for n in mapped])
+    aim = aim_children(smpl)
+    got = {n: (mapped[aim[m]] if aim[m] >= 0 else None) for m, n in enumerate(mapped)}
+    assert {n: got[n] for n in aims} == aims

@@ -14,8 +14,9 @@ has at rest; character space is the SMPL body scaled by ``scale`` about the worl
 Retargeting (per mapped custom joint ``k`` <-> SMPL joint ``j``):
 
 * Rest alignment ``A_k``: the minimal rotation taking the custom rest direction of ``k``'s aim bone
-  (towards the custom joint mapped to ``j``'s aim child, e.g. spine3 -> neck) onto SMPL's rest
-  direction of the same bone; identity for joints without a mapped child.
+  (towards the custom joint mapped to ``j``'s aim child, e.g. spine3 -> neck, a pelvis without spine1-2
+  -> spine3: :func:`shape_inversion.joint_fit.aim_children`) onto SMPL's rest direction of the same
+  bone; identity for joints without a mapped child.
 * SMPL -> custom: ``G_custom[k] = G_smpl[j] A_k``; an unmapped custom joint keeps its parent's
   global rotation (identity local rotation). Locals: ``R_parent_joint = G_parent^T G_joint``.
 * Custom -> SMPL: ``G_smpl[j] = G_custom[k] A_k^T``; an unmapped SMPL joint keeps its parent's.
