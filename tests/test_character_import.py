@@ -230,23 +230,18 @@ def test_rig_without_preset_maps_by_name_and_topology(files, tmp_path):
         detect_rig(swapped, PARENTS)
 
 
-SHARED_DATA = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
-
-
-@pytest.mark.skipif(not (SHARED_DATA / "cmu" / "01_01.bvh").is_file(),
-                    reason=f"the CMU data folder {SHARED_DATA}/cmu is absent")
-def test_shared_cmu_and_makehuman_map_by_name_without_a_preset():
+def test_shared_cmu_and_makehuman_map_by_name_without_a_preset(shared_data):
     """The CMU skeleton renamed to another scheme (no preset fits) maps to the same joints as the cmu preset."""
     from shape_inversion.rigs import detect_rig, load_preset
     from shape_inversion.skeleton_io import read_bvh
 
-    sk = read_bvh(SHARED_DATA / "cmu" / "01_01.bvh")
+    sk = read_bvh(shared_data.cmu("01_01.bvh"))
     cmu = dict(load_preset("cmu").joints)
     auto = dict(detect_rig([n.replace("Left", "L_").replace("Right", "R_") for n in sk.names], sk.parents).joints)
     for smpl in ("left_hip", "right_knee", "left_ankle", "right_shoulder", "left_elbow", "right_wrist", "head"):
         assert auto[smpl] == cmu[smpl].replace("Left", "L_").replace("Right", "R_"), smpl
-    mh = SHARED_DATA / "custom-characters" / "mh_default_tpose.bvh"
-    if mh.is_file():
+    mh = shared_data.root / "data" / "custom-characters" / "mh_default_tpose.bvh" if shared_data.root else None
+    if mh is not None and mh.is_file():
         skm = read_bvh(mh)
         assert skm.bvh.position_mode == "add"  # MakeHuman's zero position channels beside full OFFSETs
         char = read_character(mh)
