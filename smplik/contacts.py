@@ -155,8 +155,9 @@ GROUND_PRIOR = 1e-3
 does it matter: the fit then runs on from its neighbours' velocity)."""
 GROUND_VARYING_GAIN = 2.0
 """:func:`ground_track` keeps a varying ground only where it explains at least this many times as many low frames
-as the constant (or still) ground: its freedom fits some noise too, and on static-camera known truth (CMU
-validation clips, frame-correlated noise) a varying ground that explained a few more frames locked worse feet."""
+as the constant (or still) ground: its freedom fits some noise too, and on static-camera known truth
+(``benchmarks/animation_ground.py``: CMU clips, frame-correlated noise) a varying ground that explained only a
+few more frames made the feet skate more."""
 
 
 def varying_ground(v: np.ndarray, weight: np.ndarray, tolerance: float | np.ndarray, smoothness: float,
