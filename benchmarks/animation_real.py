@@ -67,11 +67,12 @@ def find_files(folder: Path) -> list[Path]:
 def lock_check(raw: np.ndarray, free: np.ndarray, out: np.ndarray, contacts: np.ndarray, ground: np.ndarray,
                step_m: float = STEP_M) -> dict:
     """Steps hidden by locks (module docstring). raw, free, out (T, 24, 3) joints in metres: the estimate, the
-    default cleaning without locks, the default; contacts (T, 2) the default's locks; ground (3,) m/frame."""
-    from smplik.contacts import FOOT_JOINTS, _runs
+    default cleaning without locks, the default; contacts (T, 2) the default's locks; ground (3,) or (T, 3)
+    m/frame."""
+    from smplik.contacts import FOOT_JOINTS, _runs, ground_drift
 
     T = raw.shape[0]
-    drift = ground[None] * np.arange(T)[:, None]
+    drift = ground_drift(ground, T)
     moves, steps, worst_drift, worst_release, where = 0, 0, 0.0, 0.0, []
     for side, foot in enumerate(FOOT_JOINTS):
         r = raw[:, foot] - drift

@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from smplik.conventions import JOINT_INDEX
+from smplik.smoothing import whittaker
 
 FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
 """The joints that touch the floor, per side (left, right)."""
@@ -31,9 +32,11 @@ class ContactSettings(Protocol):
 
 
 class GroundSettings(ContactSettings, Protocol):
-    """What :func:`ground_of` reads: the contact settings and whether the ground may move."""
+    """What :func:`ground_of` reads: the contact settings, whether the ground may move and how smoothly its
+    velocity may change (None: a constant velocity)."""
 
     ground_moves: bool
+    ground_smoothness: float | None
 
 
 @dataclass(frozen=True)
@@ -135,14 +138,102 @@ def contact_threshold(cfg: ContactSettings, noise: np.ndarray | None = None) -> 
     return np.maximum(cfg.contact_speed_mps, cfg.contact_noise_ratio * sigma)
 
 
+def ground_drift(ground: np.ndarray | None, T: int) -> np.ndarray:
+    """How far the ground has moved since frame 0 (T, 3), from its velocity (units per frame): ``ground`` (3,)
+    constant or (T, 3) per frame (trapezoids between frames: a constant velocity g gives exactly ``g * t``),
+    None still."""
+    if ground is None:
+        return np.zeros((T, 3))
+    g = np.broadcast_to(np.asarray(ground, dtype=np.float64), (T, 3))
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]), axis=0)])
+
+
+GROUND_ITERATIONS = 5
+"""Reweighting passes of :func:`varying_ground` (each down-weights the observations far from the last fit)."""
+GROUND_PRIOR = 1e-3
+"""Data weight of the constant start velocity on every frame of :func:`varying_ground` (only where no foot is low
+does it matter: the fit then runs on from its neighbours' velocity)."""
+GROUND_VARYING_GAIN = 2.0
+""":func:`ground_track` keeps a varying ground only where it explains at least this many times as many low frames
+as the constant (or still) ground: its freedom fits some noise too, and on static-camera known truth
+(``benchmarks/animation_ground.py``: CMU clips, frame-correlated noise) a varying ground that explained only a
+few more frames made the feet skate more."""
+
+
+def varying_ground(v: np.ndarray, weight: np.ndarray, tolerance: float | np.ndarray, smoothness: float,
+                   start: np.ndarray, plane: np.ndarray | None = None) -> np.ndarray:
+    """A ground velocity (T, 3) that varies smoothly over time: a camera panning with a runner at a changing speed.
+
+    The observations are the lower foot's velocity v (T, 3) (units per frame), each frame weighted by ``weight``
+    (T,) >= 0 (how low the foot is; 0: no foot near the floor, a flight). The fit is a weighted Whittaker smoothing
+    over time (``smoothness``: weight of the squared second difference, frames) of the observations, reweighted
+    :data:`GROUND_ITERATIONS` times by ``1 / (1 + r^2)``, r the observation's distance from the fit scaled per
+    axis by ``tolerance`` (units per frame, scalar or (3,)): a foot landing or taking off while low barely counts.
+    ``start`` (3,) (a constant ground velocity) starts the fit and weakly holds the frames without observations.
+    With ``plane`` (a, b, c) of the floor ``y = a x + b z + c`` (:func:`floor_plane`), the ground slides along it:
+    only x and z are fitted, ``y = a x + b z``."""
+    v = np.asarray(v, dtype=np.float64)
+    T = v.shape[0]
+    start = np.asarray(start, dtype=np.float64)
+    g = np.repeat(start[None], T, axis=0)
+    axes = [0, 2] if plane is not None else [0, 1, 2]
+    for _ in range(GROUND_ITERATIONS):
+        r = np.linalg.norm((v - g) / tolerance, axis=-1)
+        w = np.asarray(weight, dtype=np.float64) / (1.0 + r ** 2)
+        y = (w[:, None] * v[:, axes] + GROUND_PRIOR * start[axes]) / (w[:, None] + GROUND_PRIOR)
+        g[:, axes] = whittaker(y, np.repeat((w + GROUND_PRIOR)[:, None], len(axes), axis=1),
+                               np.full(len(axes), smoothness))
+        if plane is not None:
+            g[:, 1] = plane[0] * g[:, 0] + plane[1] * g[:, 2]
+    return g
+
+
+def ground_track(p_world: np.ndarray, tolerance: float | np.ndarray, height: float,
+                 smoothness: float | None = None) -> np.ndarray:
+    """The ground's velocity per frame (T, 3) (units per frame) in the frame of joints p_world (T, 24, 3), y up.
+
+    :func:`ground_velocity` (constant, or still) unless ``smoothness`` is given and :func:`varying_ground` explains
+    far more of the low frames (lower foot within ``height`` of the floor) than it does: of those frames, the lower
+    foot moves within ``tolerance`` (scaled speed below 1, as in :func:`ground_velocity`) of the varying ground on
+    at least :data:`GROUND_VARYING_GAIN` times as many (and 3 more) as of the constant one (a camera panning with a
+    runner at a changing speed, whose stance feet the constant pan leaves moving). The observations are the lower
+    foot's velocity, weighted by its lowness ``1 - h / height`` (h its height above the floor, :func:`floor_plane`);
+    the fitted ground slides along that floor."""
+    T = p_world.shape[0]
+    constant = ground_velocity(p_world, tolerance, height)
+    if smoothness is None or T < 3:
+        return np.repeat(constant[None], T, axis=0)
+    feet = p_world[:, list(FOOT_JOINTS)]
+    plane = floor_plane(p_world)
+    heights = height_above_floor(feet, plane)
+    lower = np.argmin(heights, axis=1)
+    rows = np.arange(T)
+    h = heights[rows, lower]
+    v = np.gradient(feet, axis=0)[rows, lower]
+    low = h < height
+    if not low.any():
+        return np.repeat(constant[None], T, axis=0)
+    start = np.median(v[low], axis=0)
+    fit = varying_ground(v, np.clip(1.0 - h / height, 0.0, 1.0), tolerance, smoothness, start, plane)
+    explained = (np.linalg.norm((v - fit) / tolerance, axis=-1) < 1)[low].sum()
+    explained_constant = (np.linalg.norm((v - constant) / tolerance, axis=-1) < 1)[low].sum()
+    if explained >= max(GROUND_VARYING_GAIN * explained_constant, explained_constant + 3):
+        return fit
+    return np.repeat(constant[None], T, axis=0)
+
+
 def ground_of(p_world: np.ndarray, fps: float, cfg: GroundSettings, scale: float = 1.0,
               noise: np.ndarray | None = None) -> np.ndarray:
-    """:func:`ground_velocity` (p_world's units per frame) when ``cfg.ground_moves``, else zero (3,); p_world in
-    SMPL space, the contact height, speed and the foot ``noise`` (3,) (:func:`foot_noise`) in character space
-    (``scale`` times SMPL space)."""
+    """The ground's velocity per frame (T, 3) (p_world's units per frame; :func:`ground_track`, varying with
+    ``cfg.ground_smoothness`` at 30 frames/s, scaled by ``(fps / 30) ** 4`` so it spans the same time) when
+    ``cfg.ground_moves``, else zeros; p_world (T, 24, 3) in SMPL space, the contact height, speed and the foot
+    ``noise`` (3,) (:func:`foot_noise`) in character space (``scale`` times SMPL space)."""
+    T = p_world.shape[0]
     if not cfg.ground_moves:
-        return np.zeros(3)
-    return ground_velocity(p_world, contact_threshold(cfg, noise) / fps / scale, cfg.contact_height_m / scale)
+        return np.zeros((T, 3))
+    smoothness = None if cfg.ground_smoothness is None else cfg.ground_smoothness * (fps / 30.0) ** 4
+    return ground_track(p_world, contact_threshold(cfg, noise) / fps / scale, cfg.contact_height_m / scale,
+                        smoothness)
 
 
 def foot_noise(p_raw: np.ndarray, p_smooth: np.ndarray, fps: float) -> np.ndarray:
@@ -162,17 +253,17 @@ def foot_noise(p_raw: np.ndarray, p_smooth: np.ndarray, fps: float) -> np.ndarra
 def foot_contacts(p_world: np.ndarray, fps: float, cfg: ContactSettings, ground: np.ndarray | None = None,
                   noise: np.ndarray | None = None) -> np.ndarray:
     """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up: feet low
-    above the floor and slow relative to the ground moving at ``ground`` (3,) m/frame (default: still).
+    above the floor and slow relative to the ground moving at ``ground`` (3,) or (T, 3) m/frame (constant or per
+    frame, :func:`ground_drift`; default: still).
 
     Slow: per axis, the velocity relative to the ground is scaled by that axis's threshold, the larger of
     ``contact_speed_mps`` and ``contact_noise_ratio`` times ``noise`` (3,) m/s (:func:`foot_noise`; default
     none), and the scaled speed is below 1. Hysteresis: each run extends over neighbouring low frames whose
     scaled speed is below ``contact_release_ratio``; runs shorter than ``contact_min_frames`` are dropped."""
     feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
-    g = np.zeros(3) if ground is None else np.asarray(ground)
     threshold = contact_threshold(cfg, noise)  # (3,) m/s per axis
     low = height_above_floor(feet, floor_plane(p_world)) < cfg.contact_height_m
-    relative = feet - g * np.arange(feet.shape[0])[:, None, None]
+    relative = feet - ground_drift(ground, feet.shape[0])[:, None]
     v = (np.gradient(relative, axis=0) if feet.shape[0] >= 2 else np.zeros_like(relative)) * fps
     scaled = np.linalg.norm(v / threshold, axis=-1)  # (T, 2)
     contact = low & (scaled < 1.0)

@@ -201,7 +201,8 @@ def test_running_stances_are_found_on_a_noisy_panning_estimate_and_flights_stay_
     noise = foot_noise(p_raw, smooth, fps)
     assert noise[2] > 3 * max(noise[0], noise[1])  # the depth axis is the noisy one, and it is measured
     ground = ground_of(smooth, fps, cfg, noise=noise)
-    assert ground[0] == pytest.approx(-3.0 / fps, abs=0.4 / fps)  # the pan is found from the low feet only
+    assert ground.shape == (len(smooth), 3)  # per frame (a steady pan: the same on every frame)
+    assert ground[:, 0] == pytest.approx(np.full(len(smooth), -3.0 / fps), abs=0.4 / fps)  # from the low feet only
     found = foot_contacts(smooth, fps, cfg, ground, noise)
     airborne = height > 0.05  # flight and swing frames with the foot well off the ground
     assert not found[airborne].any()  # no false contact in the air
@@ -239,3 +240,64 @@ def test_contact_hysteresis_and_the_noise_scaled_threshold():
     assert noise[2] == pytest.approx(0.674 * 0.4, rel=0.35) and noise[0] == noise[1] == 0.0
     assert contact_threshold(cfg, noise)[:2] == pytest.approx([0.35, 0.35])
     assert contact_threshold(cfg, noise)[2] == pytest.approx(3 * noise[2])
+
+
+def _panning_run(T: int = 90, fps: float = 30.0, speed_mps: float = 3.0, sway: float = 0.3):
+    """Feet of a person running along +x (a stride of 20 frames; each foot's stance 5 frames, flights between)
+    seen by a camera that pans with them at a varying speed, ``speed_mps * (1 + sway * sin(2 pi t / 45))``: the
+    ground moves through the frame at minus that. Returns joints (T, 24, 3) y up, the true contacts (T, 2) and the
+    ground's true velocity (T, 3) m/frame."""
+    t = np.arange(T)
+    period, stance_frames = 20, 5
+    travel = speed_mps * period / fps
+    pan = speed_mps / fps * (1 + sway * np.sin(2 * np.pi * t / 45))  # m/frame
+    camera = np.concatenate([[0.0], np.cumsum(0.5 * (pan[1:] + pan[:-1]))])  # the camera's x
+    p = np.zeros((T, 24, 3))
+    truth = np.zeros((T, 2), dtype=bool)
+    for side, foot in enumerate(FOOT_JOINTS):
+        shifted = t + side * period // 2
+        phase, cycles = shifted % period, shifted // period
+        stance = phase < stance_frames
+        s = np.clip((phase - stance_frames + 1) / (period - stance_frames + 1), 0, 1)  # swing progress
+        x = cycles * travel + np.where(stance, 0.0, (3 * s ** 2 - 2 * s ** 3) * travel)
+        truth[:, side] = stance
+        p[:, foot] = np.stack([x - camera, np.where(stance, 0.0, 0.3 * np.sin(np.pi * s)),
+                               np.full(T, -0.1 if side else 0.1)], 1)
+    p[:, JOINT_INDEX["pelvis"]] = [0.0, 0.95, 0.0]
+    return p + [0.0, -0.9, -4.0], truth, np.stack([-pan, np.zeros(T), np.zeros(T)], 1)
+
+
+def test_a_pan_of_varying_speed_gives_a_varying_ground_and_short_stances_are_found_and_locked_on_it():
+    from workflows.animation.clean import ground_drift, ground_of, lock_plan
+
+    fps = 30.0
+    p, truth, pan = _panning_run()
+    cfg = CleanConfig(ground_moves=True)
+    ground = ground_of(p, fps, cfg)
+    assert ground.shape == (len(p), 3)
+    stance = truth.any(1)
+    # the ground follows the pan where a foot stands (its speed changes by 1.8 m/s over the clip)
+    assert np.abs(ground - pan)[stance].max() < 0.2 / fps
+    found = foot_contacts(p, fps, cfg, ground)
+    inner = [(side, s, e) for side in range(2) for s, e in _runs_of(truth[:, side]) if s > 1 and e < len(p) - 1]
+    assert len(inner) >= 7 and all(found[s:e, side].sum() >= 3 for side, s, e in inner)  # 3 of 5 frames
+    assert not (found & ~truth).any()  # no swing or flight frame
+    # a constant ground (the clip's median pan) misses most stances: they move up to 0.9 m/s against it
+    constant = ground_of(p, fps, dataclasses.replace(cfg, ground_smoothness=None))
+    assert np.ptp(constant, axis=0).max() == 0.0
+    assert foot_contacts(p, fps, cfg, constant).sum() < 0.5 * found.sum()
+    # the locks hold each foot still relative to the moving ground, and skating is measured against it
+    targets, weights, held = lock_plan(p, found, 3, ground, 0.02, hold=1, ease=True)
+    drift = ground_drift(ground, len(p))
+    for side, s, e in inner:
+        rows = np.arange(s, e)[held[s:e, side]]
+        relative = targets[rows, side] - drift[rows]
+        assert len(rows) >= 3 and np.abs(relative - relative.mean(0)).max() < 1e-9
+    # blending in and out moves the foot by its own offset from the lock, not by the ground's drift (10 cm/frame)
+    assert np.linalg.norm(targets - p[:, list(FOOT_JOINTS)], axis=-1)[weights > 0].max() < 0.005
+    assert foot_skating(p, found, ground) < 0.002 < 0.01 < foot_skating(p, found, constant)  # m/frame
+    # a still camera (the same run, the pan taken out) keeps a still ground, and a steady pan a constant one
+    still = p - ground_drift(pan, len(p))[:, None]
+    assert np.abs(ground_of(still, fps, cfg)).max() < 1e-12
+    steady = ground_of(_camera_walk()[0], fps, cfg)
+    assert np.ptp(steady, axis=0).max() == 0.0 and np.linalg.norm(steady[0]) == pytest.approx(1.2 / fps, abs=0.1 / fps)

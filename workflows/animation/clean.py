@@ -58,6 +58,7 @@ from smplik.contacts import (
     _runs,
     foot_contacts,
     foot_noise,
+    ground_drift,
     ground_of,
     joint_speed,
 )
@@ -158,10 +159,14 @@ class CleanConfig:
     release_m: float = 0.03
     """A lock releases when the (smoothed) foot leaves its locked point by this much (m): a lift or a step."""
     ground_moves: bool = False
-    """The ground may move through the frame at a constant velocity (a camera-space clip: a camera panning with
-    the person, a treadmill): contacts are feet slow *relative to the ground* and locks move with it
-    (:func:`ground_velocity`). Off for world-frame motion, whose ground is still; ``scene animate`` turns it on
-    for camera-space clips."""
+    """The ground may move through the frame (a camera-space clip: a camera panning with the person, a
+    treadmill): contacts are feet slow *relative to the ground* and locks move with it (:func:`ground_of`). Off
+    for world-frame motion, whose ground is still; ``scene animate`` turns it on for camera-space clips."""
+    ground_smoothness: float | None = 10.0
+    """With ``ground_moves``: the ground's velocity may vary over time (a pan that speeds up and slows down),
+    smoothed with this weight of its squared second difference at 30 frames/s (:func:`smplik.contacts.ground_track`;
+    scaled by ``(fps / 30) ** 4``), where that explains far more low feet than a constant velocity. None: always
+    constant."""
     repair_glitches: bool = True
     """Detect single-frame glitches (:func:`glitch_frames`) and replace them by interpolation before smoothing."""
     glitch_sigmas: float = 5.5
@@ -188,6 +193,9 @@ class CleanConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
+        if self.ground_smoothness is not None and not (np.isfinite(self.ground_smoothness)
+                                                       and self.ground_smoothness > 0):
+            raise CleanError(f"ground_smoothness must be a positive number or None, got {self.ground_smoothness}.")
         if self.pose_budget_mm is not None and not (np.isfinite(self.pose_budget_mm) and self.pose_budget_mm > 0):
             raise CleanError(f"pose_budget_mm must be a positive number or None, got {self.pose_budget_mm}.")
         if not (np.isfinite(self.clean_noise_share) and self.clean_noise_share >= 0):
@@ -536,8 +544,8 @@ def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarr
 
     Args:
         R_parent_joint: (T, 24, 3, 3) local rotations; p_world: (T, 24, 3) their joint positions;
-        contact: (T, 2) bool (left, right) from :func:`foot_contacts`; ground: (3,) the ground's velocity
-        (units per frame; default still); blend_max, hold, ease: as in :func:`lock_plan`.
+        contact: (T, 2) bool (left, right) from :func:`foot_contacts`; ground: (3,) or (T, 3) the ground's
+        velocity (units per frame; default still); blend_max, hold, ease: as in :func:`lock_plan`.
 
     Returns: new local rotations (T, 24, 3, 3); only the hips, knees and ankles of locked legs change
     (the ankles keep their world rotations).
@@ -594,9 +602,8 @@ def jitter(p: np.ndarray) -> float:
 
 def foot_skating(p: np.ndarray, contact: np.ndarray, ground: np.ndarray | None = None) -> float:
     """Mean speed (units/frame) of the foot joints over their contact frames, relative to the ground moving at
-    ``ground`` (3,) units/frame (default still). p (T, 24, 3), contact (T, 2)."""
-    g = np.zeros(3) if ground is None else np.asarray(ground)
-    speed = joint_speed(p[:, list(FOOT_JOINTS)] - g * np.arange(p.shape[0])[:, None, None])
+    ``ground`` (3,) or (T, 3) units/frame (:func:`ground_drift`; default still). p (T, 24, 3), contact (T, 2)."""
+    speed = joint_speed(p[:, list(FOOT_JOINTS)] - ground_drift(ground, p.shape[0])[:, None])
     return float(speed[contact].mean()) if contact.any() else 0.0
 
 
@@ -646,12 +653,12 @@ def lock_plan(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, groun
     """Where each foot should be and how firmly (the lock blend weight in [0, 1]) over its contact runs, and the
     contact frames on which the lock holds the foot still.
 
-    Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right), ground (3,) the ground's
-    velocity (units per frame; default still); blend_max: most the target may move relative to the foot from one
-    frame to the next during a blend (units; None: no limit); hold: frames before and after each run also held at
-    its lock (0 or 1), so that the blends happen outside the run and the foot's speed (central differences) is
-    zero on every frame of it; ease: blends follow a half cosine (no kink where they meet the held frame or the
-    free foot) instead of a straight ramp.
+    Args: p_world (T, 24, 3) joint positions, contact (T, 2) bool (left, right), ground (3,) or (T, 3) the
+    ground's velocity (units per frame, :func:`ground_drift`; default still); blend_max: most the target may move
+    relative to the foot from one frame to the next during a blend (units; None: no limit); hold: frames before and
+    after each run also held at its lock (0 or 1), so that the blends happen outside the run and the foot's speed
+    (central differences) is zero on every frame of it; ease: blends follow a half cosine (no kink where they meet
+    the held frame or the free foot) instead of a straight ramp.
 
     Returns: foot targets (T, 2, 3), weights (T, 2) and ``held`` (T, 2) bool, the contact frames whose foot and
     both neighbouring frames' feet are at one lock (with ``hold`` 1: every contact frame but those a hand-over
@@ -671,7 +678,7 @@ def lock_plan(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, groun
     targets = p_world[:, list(FOOT_JOINTS)].copy()
     weights = np.zeros(contact.shape)
     held = contact.copy()
-    drift = (np.zeros(3) if ground is None else np.asarray(ground)) * np.arange(T)[:, None]
+    drift = ground_drift(ground, T)
     for side, foot in enumerate(FOOT_JOINTS):
         for s, e in _runs(contact[:, side]):
             lock = (p_world[s:e, foot] - drift[s:e]).mean(0) + drift  # (T, 3)
@@ -694,8 +701,8 @@ def lock_plan(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, groun
                     if not 0 <= t < T:
                         break
                     w = 0.5 + 0.5 * np.cos(np.pi * k / (n + 1)) if ease else 1.0 - k / (n + 1)
-                    if w > weights[t, side]:
-                        targets[t, side] = p_world[t, foot] + w * (offset + drift[t] - drift[edge])
+                    if w > weights[t, side]:  # the offset is the same in the camera's and the ground's frame
+                        targets[t, side] = p_world[t, foot] + w * offset
                         weights[t, side] = w
         runs = _runs(contact[:, side])
         for (s0, e0), (s1, e1) in zip(runs[:-1], runs[1:], strict=True):
@@ -710,14 +717,14 @@ def lock_plan(p_world: np.ndarray, contact: np.ndarray, blend_frames: int, groun
             lock0 = (p_world[s0:e0, foot] - drift[s0:e0]).mean(0)  # the locks, relative to the ground
             lock1 = (p_world[s1:e1, foot] - drift[s1:e1]).mean(0)
             while True:
-                start = lock0 - p_world[a, foot]  # the held offsets (target minus foot, less the ground's drift)
-                stop = lock1 - p_world[b, foot]
+                start = lock0 + drift[a] - p_world[a, foot]  # the held offsets (target minus foot)
+                stop = lock1 + drift[b] - p_world[b, foot]
                 change = stop - start
                 if blend_max is None or np.linalg.norm(change) <= blend_max * (b - a) or (a == s0 and b == e1 - 1):
                     break
                 a, b = max(s0, a - 1), min(e1 - 1, b + 1)
             for t in range(a + 1, b):
-                targets[t, side] = p_world[t, foot] + start + change * (t - a) / (b - a) + drift[t]
+                targets[t, side] = p_world[t, foot] + start + change * (t - a) / (b - a)
                 weights[t, side] = 1.0
             if hold:  # the hand-over's ends are held at the locks; the frames that move and their ends are not still
                 targets[a, side], targets[b, side] = lock0 + drift[a], lock1 + drift[b]
@@ -833,7 +840,7 @@ def sequence_clean(R_parent_joint: np.ndarray, transl: np.ndarray, J_rest: np.nd
         noise = foot_noise(p_raw, smooth, fps) * scale
         ground = ground_of(smooth, fps, cfg, scale, noise)
         contacts = foot_contacts(smooth * scale, fps, cfg, ground * scale, noise)
-        drift = ground * np.arange(T)[:, None, None]
+        drift = ground_drift(ground, T)[:, None]
         contacts = split_on_lift((smooth[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames)
         feet, lock = lock_targets(smooth, contacts, cfg.blend_frames, ground, cfg.blend_max_m / scale)

@@ -45,6 +45,7 @@ from workflows.animation.clean import (
     foot_contacts,
     foot_noise,
     glitch_frames,
+    ground_drift,
     ground_of,
     lock_feet,
     lock_plan,
@@ -663,7 +664,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
-        drift = ground * np.arange(len(poses))[:, None, None]
+        drift = ground_drift(ground, len(poses))[:, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
                                  cfg.contact_min_frames, both_ways=True)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
