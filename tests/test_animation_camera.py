@@ -165,14 +165,11 @@ def test_a_noisy_estimate_is_cleaned_within_the_pose_budget():
     assert motion_metrics(free[4], raw, free[2]).mpjpe_mm > 5.0  # uncapped, the default smoothness moves it more
 
 
-def _camera_run(T: int = 80, fps: float = 30.0, speed_mps: float = 3.0, seed: int = 0):
-    """Feet of a person running along +x (a stride of 20 frames; each foot's stance 6 frames, two flight phases
-    of 4 frames) seen by a camera panning with them, y up, with a monocular estimator's per-frame noise: 5 mm
-    on the image axes, 40 mm in depth (z; PHALP's depth comes from the person's image scale). Returns the
-    noisy joints (T, 24, 3), the true contacts (T, 2) and the true foot heights (T, 2)."""
+def _running_feet(T: int, camera_x: np.ndarray, travel: float, stance_frames: int, period: int = 20):
+    """Joints (T, 24, 3) of a runner's feet and pelvis along +x, seen from a camera at ``camera_x`` (T,): each foot
+    stands ``stance_frames`` of every ``period`` frames (half a period apart) and moves ``travel`` metres during
+    its swing, 0.3 m at its highest. Returns the joints, the true contacts (T, 2) and the foot heights (T, 2)."""
     t = np.arange(T)
-    period, stance_frames = 20, 6
-    travel = speed_mps * period / fps  # each foot moves one stride per period, all of it during its swing
     p = np.zeros((T, 24, 3))
     truth = np.zeros((T, 2), dtype=bool)
     height = np.zeros((T, 2))
@@ -184,8 +181,17 @@ def _camera_run(T: int = 80, fps: float = 30.0, speed_mps: float = 3.0, seed: in
         x = cycles * travel + np.where(stance, 0.0, (3 * s ** 2 - 2 * s ** 3) * travel)
         y = np.where(stance, 0.0, 0.3 * np.sin(np.pi * s))
         truth[:, side], height[:, side] = stance, y
-        p[:, foot] = np.stack([x - speed_mps / fps * t, y, np.full(T, -0.1 if side else 0.1)], 1)
+        p[:, foot] = np.stack([x - camera_x, y, np.full(T, -0.1 if side else 0.1)], 1)
     p[:, JOINT_INDEX["pelvis"]] = [0.0, 0.95, 0.0]
+    return p, truth, height
+
+
+def _camera_run(T: int = 80, fps: float = 30.0, speed_mps: float = 3.0, seed: int = 0):
+    """Feet of a person running along +x (a stride of 20 frames; each foot's stance 6 frames, two flight phases
+    of 4 frames) seen by a camera panning with them, y up, with a monocular estimator's per-frame noise: 5 mm
+    on the image axes, 40 mm in depth (z; PHALP's depth comes from the person's image scale). Returns the
+    noisy joints (T, 24, 3), the true contacts (T, 2) and the true foot heights (T, 2)."""
+    p, truth, height = _running_feet(T, speed_mps * np.arange(T) / fps, speed_mps * 20 / fps, stance_frames=6)
     noise = np.random.default_rng(seed).normal(size=p.shape) * [0.005, 0.005, 0.04]
     return p + noise + [0.0, -0.9, -4.0], truth, height
 
@@ -247,23 +253,9 @@ def _panning_run(T: int = 90, fps: float = 30.0, speed_mps: float = 3.0, sway: f
     seen by a camera that pans with them at a varying speed, ``speed_mps * (1 + sway * sin(2 pi t / 45))``: the
     ground moves through the frame at minus that. Returns joints (T, 24, 3) y up, the true contacts (T, 2) and the
     ground's true velocity (T, 3) m/frame."""
-    t = np.arange(T)
-    period, stance_frames = 20, 5
-    travel = speed_mps * period / fps
-    pan = speed_mps / fps * (1 + sway * np.sin(2 * np.pi * t / 45))  # m/frame
+    pan = speed_mps / fps * (1 + sway * np.sin(2 * np.pi * np.arange(T) / 45))  # m/frame
     camera = np.concatenate([[0.0], np.cumsum(0.5 * (pan[1:] + pan[:-1]))])  # the camera's x
-    p = np.zeros((T, 24, 3))
-    truth = np.zeros((T, 2), dtype=bool)
-    for side, foot in enumerate(FOOT_JOINTS):
-        shifted = t + side * period // 2
-        phase, cycles = shifted % period, shifted // period
-        stance = phase < stance_frames
-        s = np.clip((phase - stance_frames + 1) / (period - stance_frames + 1), 0, 1)  # swing progress
-        x = cycles * travel + np.where(stance, 0.0, (3 * s ** 2 - 2 * s ** 3) * travel)
-        truth[:, side] = stance
-        p[:, foot] = np.stack([x - camera, np.where(stance, 0.0, 0.3 * np.sin(np.pi * s)),
-                               np.full(T, -0.1 if side else 0.1)], 1)
-    p[:, JOINT_INDEX["pelvis"]] = [0.0, 0.95, 0.0]
+    p, truth, _ = _running_feet(T, camera, speed_mps * 20 / fps, stance_frames=5)
     return p + [0.0, -0.9, -4.0], truth, np.stack([-pan, np.zeros(T), np.zeros(T)], 1)
 
 
