@@ -95,6 +95,11 @@ class TrackingTrainConfig:
     """Seed of the batch stream and initialisation."""
     threads: int = 1
     """Torch CPU threads."""
+    device: str = "cpu"
+    """Torch device of the network and its batches (``"cuda"`` on a GPU machine); batches are drawn on the CPU."""
+    workers: int = 0
+    """Processes drawing batches in the background (0: drawn in the training loop). Each worker has its own seeded
+    batch stream, so a run with workers is reproducible for a given worker count, not equal to one without."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -90,7 +90,7 @@ class TrackingNet(nn.Module):
         mu_p, ls_p = self.prior_params(h)
         mu_q, ls_q = self.posterior(torch.cat([h, target], dim=-1)).chunk(2, dim=-1)
         ls_q = ls_q.clamp(-6.0, 2.0)
-        eps = torch.randn(mu_q.shape, generator=generator)
+        eps = torch.randn(mu_q.shape, generator=generator).to(mu_q)  # a CPU generator on any device
         z = mu_q + ls_q.exp() * eps
         out = self.decode(h, z, body[:, None, :].expand(-1, x.shape[1], -1))
         kl = ls_p - ls_q + ((2 * ls_q).exp() + (mu_q - mu_p) ** 2) / (2 * (2 * ls_p).exp()) - 0.5
@@ -100,7 +100,7 @@ class TrackingNet(nn.Module):
         """Whole sequences with one noise vector per sequence: x (B, T, d_x), body (B, 13), eps (B, Z) or None
         (deterministic) -> outputs (B, T, OUT_DIM)."""
         h, _ = self.condition(x, body)
-        e = torch.zeros(h.shape[0], self.cfg.latent) if eps is None else eps
+        e = h.new_zeros(h.shape[0], self.cfg.latent) if eps is None else eps
         return self.sample(h, e[:, None, :].expand(-1, h.shape[1], -1), body[:, None, :].expand(-1, h.shape[1], -1))
 
 

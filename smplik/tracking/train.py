@@ -67,6 +67,37 @@ def batch_loss(net: TrackingNet | WindowMLP, b: WindowBatch, cfg: TrackingTrainC
                   "legs_mm": 1000 * legs.item(), "foot": foot.item(), "bce": bce.item(), "kl": kl_m.item()}
 
 
+def to_device(b: WindowBatch, device: torch.device | str) -> WindowBatch:
+    """The batch with every tensor on ``device``."""
+    return WindowBatch(**{f.name: getattr(b, f.name).to(device, non_blocking=True) for f in dataclasses.fields(b)})
+
+
+class _BatchStream(torch.utils.data.IterableDataset):
+    """Endless training batches drawn in a worker process, each worker with its own seeded generator."""
+
+    def __init__(self, make_sampler: Any, seed: int) -> None:
+        self.make_sampler, self.seed = make_sampler, seed
+
+    def __iter__(self) -> Any:
+        info = torch.utils.data.get_worker_info()
+        torch.set_num_threads(1)
+        sampler = self.make_sampler(torch.Generator().manual_seed(self.seed + 1000 * (info.id + 1 if info else 0)))
+        while True:
+            yield sampler.sample()
+
+
+def batch_stream(make_sampler: Any, seed: int, workers: int) -> Any:
+    """An iterator of training batches: drawn inline (``workers`` 0) or by ``workers`` background processes."""
+    if workers <= 0:
+        sampler = make_sampler(torch.Generator().manual_seed(seed))
+        while True:
+            yield sampler.sample()
+    loader = torch.utils.data.DataLoader(_BatchStream(make_sampler, seed), batch_size=None, num_workers=workers,
+                                         prefetch_factor=4, persistent_workers=True,
+                                         multiprocessing_context="fork")
+    yield from loader
+
+
 @torch.no_grad()
 def evaluate(net: TrackingNet | WindowMLP, batches: list[WindowBatch]) -> float:
     """Deterministic MPJPE (mm, world frame) over fixed batches."""
@@ -94,13 +125,18 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print, init: str
         raise ValueError(f"{cfg.cache}: the cache is at {fps:g} fps; the network config expects {cfg.net.fps:g}.")
     bodies = BodyModelSet.load()
     train_data, val_data = data.subset("train"), data.subset("validation")
-    sampler = WindowSampler(train_data, bodies, trackers=cfg.net.trackers, length=cfg.length, batch=cfg.batch,
-                            generator=g, beta_noise=cfg.beta_noise, noise_m=cfg.noise_m,
-                            rotation_dropout=cfg.rotation_dropout)
+    device = torch.device(cfg.device)
+
+    def make_sampler(generator: torch.Generator) -> WindowSampler:
+        return WindowSampler(train_data, bodies, trackers=cfg.net.trackers, length=cfg.length, batch=cfg.batch,
+                             generator=generator, beta_noise=cfg.beta_noise, noise_m=cfg.noise_m,
+                             rotation_dropout=cfg.rotation_dropout)
+
+    sampler = make_sampler(g)
     val_sampler = WindowSampler(val_data, bodies, trackers=cfg.net.trackers, length=128, batch=32,
                                 generator=torch.Generator().manual_seed(1234), beta_noise=cfg.beta_noise,
                                 augment=False)
-    val_batches = [val_sampler.sample() for _ in range(4)]
+    val_batches = [to_device(val_sampler.sample(), device) for _ in range(4)]
     net = build_network(cfg.net)
     previous: dict[str, Any] = {}
     if init is not None:
@@ -113,9 +149,14 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print, init: str
         xs = torch.cat([sampler.sample().x.flatten(0, 1) for _ in range(10)])
         net.x_mean.copy_(xs.mean(0))
         net.x_std.copy_(xs.std(0).clamp_min(1e-3))
+    net.to(device)
+    batches = batch_stream(make_sampler, cfg.seed + 1, cfg.workers) if cfg.workers > 0 else None
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     start = time.perf_counter()
     best, best_state, history, step = math.inf, None, [], 0
+    if init is not None:  # a continued run never ends worse than the model it started from
+        best, best_state = evaluate(net, val_batches), copy.deepcopy(net.state_dict())
+        log(json.dumps({"step": 0, "val_mpjpe_mm": best}))
     budget = 60.0 * cfg.minutes
     while step < cfg.max_steps:
         frac = min(1.0, (time.perf_counter() - start) / budget)
@@ -123,7 +164,8 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print, init: str
             break
         for group in opt.param_groups:
             group["lr"] = cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac)))
-        loss, terms = batch_loss(net, sampler.sample(), cfg, fps, g)
+        batch = next(batches) if batches is not None else sampler.sample()
+        loss, terms = batch_loss(net, to_device(batch, device), cfg, fps, g)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
@@ -140,6 +182,7 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print, init: str
     if val < best or best_state is None:
         best, best_state = val, copy.deepcopy(net.state_dict())
     net.load_state_dict(best_state)
+    net.to("cpu")
     pose = train_data.pose.float()
     lo = torch.quantile(pose[::7].flatten(1), 0.001, dim=0).reshape(24, 3)
     hi = torch.quantile(pose[::7].flatten(1), 0.999, dim=0).reshape(24, 3)
@@ -159,6 +202,11 @@ def main() -> None:
     ap.add_argument("--kind", choices=["cvae", "mlp"], default="cvae")
     ap.add_argument("--trackers", choices=["3", "4"], default="4")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu", help="Torch device of the network, e.g. cuda.")
+    ap.add_argument("--workers", type=int, default=0, help="Background processes drawing batches.")
+    ap.add_argument("--batch", type=int, default=TrackingTrainConfig.batch)
+    ap.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: the config's; half of "
+                    "it when continuing with --init).")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init", default=None, help="Model file to continue from.")
     ap.add_argument("--rotation-weight", type=float, default=TrackingTrainConfig.rotation_weight)
@@ -168,8 +216,9 @@ def main() -> None:
     net = TrackingNetConfig(kind=args.kind, trackers=TRACKER_SETS[args.trackers])
     cfg = dataclasses.replace(TrackingTrainConfig(), cache=args.cache, net=net, minutes=args.minutes,
                               threads=args.threads, seed=args.seed + (1 if args.init else 0),
-                              lr=TrackingTrainConfig.lr * (0.5 if args.init else 1.0),
-                              rotation_weight=args.rotation_weight)
+                              lr=args.lr or TrackingTrainConfig.lr * (0.5 if args.init else 1.0),
+                              rotation_weight=args.rotation_weight, device=args.device, workers=args.workers,
+                              batch=args.batch)
     info = train(cfg, args.out, log=lambda s: print(s, flush=True), init=args.init)
     print(f"best validation MPJPE {info['val_mpjpe_mm']:.1f} mm after {info['steps']} steps")
 
