@@ -281,7 +281,8 @@ def test_known_pose_in_same_pose_out_over_udp_and_record_replays(tmp_path):
 
     # record -> replay: `smplik track FILE --foot-locks streaming` gives the same poses
     doc = json.loads(record.read_text())
-    assert doc["format"] == "smplik-trackers" and doc["fps"] == 60.0 and list(doc["trackers"]) == list(TRACKER_SETS["4"])
+    assert doc["format"] == "smplik-trackers" and doc["fps"] == 60.0
+    assert list(doc["trackers"]) == list(TRACKER_SETS["4"])
     assert len(doc["trackers"]["head"]["position"]) == T and "rotation" not in doc["trackers"]["left_wrist"]
     outputs = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[])
     track = outputs.animation.tracks[0]

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from smplik.conventions import JOINT_INDEX, PARENTS
+from smplik.tracking.io import HMD_TO_HEAD_M
 
 VMC_BONES: tuple[tuple[str, str], ...] = (
     ("Hips", "pelvis"), ("LeftUpperLeg", "left_hip"), ("RightUpperLeg", "right_hip"), ("Spine", "spine1"),
@@ -44,7 +45,7 @@ BONE_JOINTS = np.array([JOINT_INDEX[j] for _, j in VMC_BONES])
 MIRROR = np.diag([-1.0, 1.0, 1.0])
 """``S``: Unity <-> SMPL (x negated; module docstring)."""
 
-HMD_TO_HEAD_SMPL_M = np.array([0.0, -0.07, -0.09])
+HMD_TO_HEAD_SMPL_M = np.diag([-1.0, 1.0, -1.0]) @ HMD_TO_HEAD_M
 """The SMPL head joint relative to a headset, in the head's SMPL frame (+z forward): 7 cm down, 9 cm behind the
 eyes (:data:`smplik.tracking.io.HMD_TO_HEAD_M`, there in OpenVR's -z-forward frame)."""
 

@@ -134,6 +134,9 @@ def _live(betas: list[float] | None, height: float | None, gender: str, checkpoi
                            vmc_in=None if vmc_in is None else lv.parse_endpoint(vmc_in, "--vmc-in", "127.0.0.1"),
                            left_serial=left_serial, right_serial=right_serial, waist_serial=waist_serial, fps=fps,
                            max_frames=max_frames, idle_timeout_s=idle_timeout, record=record)
+    if config.vmc_in is not None and config.vmc_in[0] not in ("127.0.0.1", "localhost"):
+        say(f"warning: listening on {config.vmc_in[0]}: anyone who reaches port {config.vmc_in[1]} can drive the "
+            "avatar (VMC has no authentication)")
     body = np.zeros(10) if betas is None else np.asarray(betas, dtype=np.float64)
     if height is not None:
         body = lv.betas_for_height(height, gender)

@@ -106,7 +106,7 @@ class DeviceFrames:
     def __init__(self, trackers: tuple[str, ...], left: str | None = None, right: str | None = None,
                  waist: str | None = None) -> None:
         self.trackers, self.left, self.right, self.waist = trackers, left, right, waist
-        self.poses: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+        self.poses: dict[tuple[str, str], tuple[np.ndarray, np.ndarray | None]] = {}
         self.fresh: set[tuple[str, str]] = set()
         self.sides: tuple[tuple[str, str], tuple[str, str]] | None = None
         if left is not None and right is not None:
@@ -142,8 +142,9 @@ class DeviceFrames:
         # left = on the headset's left: SMPL's head frame has +x to the body's left (as read_steamvr_jsonl)
         return (ctrls[0], ctrls[1]) if (pa - pb) @ R_head[:, 0] > 0 else (ctrls[1], ctrls[0])
 
-    def update(self, kind: str, serial: str, p: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """One device pose (SMPL frame). Returns the pending frame first when this device already updated it (the
+    def update(self, kind: str, serial: str, p: np.ndarray, R: np.ndarray | None
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+        """One device pose (SMPL frame; R (3, 3) needed for the headset only). Returns the pending frame first when this device already updated it (the
         sender moved on to the next frame), else None."""
         key = (kind, serial)
         out = None
@@ -378,7 +379,7 @@ def run_vmc(live: LiveTracker, config: LiveConfig, *, on_ready: Callable[[tuple[
     """Receive VMC device messages on ``config.vmc_in``, send a bundle per input frame to ``config.vmc_out``,
     until ``max_frames``, ``idle_timeout_s`` or Ctrl-C (KeyboardInterrupt, re-raised after the recording is
     saved). ``on_ready`` gets the bound (host, port) once the socket listens (port 0 picks a free one)."""
-    from smplik.tracking.vmc import device_to_smpl
+    from smplik.tracking.vmc import device_to_smpl, mirror_points
 
     assert config.vmc_in is not None
     stats = LiveStats() if stats is None else stats
@@ -391,7 +392,8 @@ def run_vmc(live: LiveTracker, config: LiveConfig, *, on_ready: Callable[[tuple[
         try:
             sock.bind(config.vmc_in)
         except OSError as exc:
-            raise LiveError(f"--vmc-in {config.vmc_in[0]}:{config.vmc_in[1]}: cannot listen ({exc.strerror}).") from None
+            host, port = config.vmc_in
+            raise LiveError(f"--vmc-in {host}:{port}: cannot listen ({exc.strerror}).") from None
         sock.settimeout(0.25)
         if on_ready is not None:
             on_ready(sock.getsockname()[:2])
@@ -400,7 +402,7 @@ def run_vmc(live: LiveTracker, config: LiveConfig, *, on_ready: Callable[[tuple[
         while config.max_frames is None or stats.frames_in < config.max_frames:
             try:
                 dgram = sock.recv(MAX_DATAGRAM)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 if config.idle_timeout_s is not None and time.monotonic() - last_input > config.idle_timeout_s:
                     stats.stopped = f"no input for {config.idle_timeout_s:g} s"
                     break
@@ -419,7 +421,10 @@ def run_vmc(live: LiveTracker, config: LiveConfig, *, on_ready: Callable[[tuple[
                 serial, p_u, q_u = device
                 if kind == "tracker" and serial != config.waist_serial:
                     continue
-                p, R = device_to_smpl(p_u, q_u)
+                if kind == "hmd":
+                    p, R = device_to_smpl(p_u, q_u)
+                else:  # controllers and the waist tracker give positions only (their frames are not the joints')
+                    p, R = mirror_points(p_u), None
                 frame = devices.update(kind, serial, p, R)
                 if frame is not None:
                     frames.append(frame)
