@@ -427,3 +427,42 @@ def test_height_sets_the_body_stature():
     assert abs(float(verts[0, :, 1].max() - verts[0, :, 1].min()) - 1.85) < 0.01
     with pytest.raises(LiveError, match="--height"):
         betas_for_height(0.2)
+
+
+def test_ctrl_c_stops_with_one_line_and_keeps_the_recording(tmp_path):
+    """The command on a VMC port: a few frames, then SIGINT (Ctrl-C): exit 0, one closing line, the recording."""
+    import os
+    import queue
+    import re
+    import signal
+
+    T = 5
+    sig = smpl_trackers(T)
+    receiver = Receiver()
+    record = tmp_path / "rec.json"
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "smplik.cli", "track", "--live", "--vmc-in", "0",
+                             "--vmc-out", f"127.0.0.1:{receiver.port}", "--record", str(record)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=tmp_path)
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout], daemon=True).start()
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        first = lines.get(timeout=300)
+        match = re.match(r"listening on 127\.0\.0\.1:(\d+) \(head, left_wrist, right_wrist\)", first)
+        assert match, first
+        for t in range(T):
+            sender.sendto(device_bundle(unity_devices(sig, t)[:3]), ("127.0.0.1", int(match.group(1))))
+            receiver.bundle()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(HANG_GUARD_S) == 0
+    finally:
+        sender.close()
+        receiver.close()
+        if proc.poll() is None:
+            proc.kill()
+    rest = []
+    while not lines.empty():
+        rest.append(lines.get())
+    assert len(rest) == 1 and rest[0].startswith(f"stopped (Ctrl-C): {T} frames in, {T} bundles"), rest
+    assert len(json.loads(record.read_text())["trackers"]["head"]["position"]) == T

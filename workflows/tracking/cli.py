@@ -115,6 +115,7 @@ def _live(betas: list[float] | None, height: float | None, gender: str, checkpoi
           waist_serial: str | None, fps: float | None, record: Path | None, max_frames: int | None,
           idle_timeout: float | None) -> None:
     """``smplik track --live`` (logic in :mod:`workflows.tracking.live`). Ctrl-C ends it with one line."""
+    import signal
     import sys
 
     import numpy as np
@@ -155,6 +156,14 @@ def _live(betas: list[float] | None, height: float | None, gender: str, checkpoi
     session = lv.LiveTracker(tracker, fps, record=record is not None)
     stats = lv.LiveStats()
     where = f"{config.vmc_out[0]}:{config.vmc_out[1]}"
+
+    def on_ctrl_c(signum: int, frame: object) -> None:  # a frame in flight is finished (sent and counted) first
+        if stats.busy:
+            stats.interrupted = True
+        else:
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_ctrl_c)
     try:
         if lines is None:
             def ready(addr: tuple[str, int]) -> None:
@@ -166,6 +175,8 @@ def _live(betas: list[float] | None, height: float | None, gender: str, checkpoi
         stopped = stats.stopped
     except KeyboardInterrupt:
         stopped = "Ctrl-C"
+    finally:
+        signal.signal(signal.SIGINT, previous)
     lat = np.asarray(stats.latency_s) * 1e3
     timing = f", latency p50 {np.median(lat):.2f} ms" if lat.size else ""
     ignored = f", {stats.ignored} malformed messages ignored" if stats.ignored else ""

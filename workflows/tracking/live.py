@@ -83,6 +83,16 @@ class LiveStats:
     ignored: int = 0
     latency_s: list[float] = field(default_factory=list)
     stopped: str = ""
+    busy: bool = False
+    """True while a frame is being processed and sent (a Ctrl-C handler then defers: :attr:`interrupted`)."""
+    interrupted: bool = False
+    """Set by a deferred Ctrl-C: the loop raises KeyboardInterrupt once the frame is out, so counts stay exact."""
+
+    def frame_done(self) -> None:
+        """End of a frame's critical section: raise the Ctrl-C that arrived during it."""
+        self.busy = False
+        if self.interrupted:
+            raise KeyboardInterrupt
 
 
 def parse_endpoint(text: str, option: str, default_host: str | None = None) -> tuple[str, int]:
@@ -144,8 +154,8 @@ class DeviceFrames:
 
     def update(self, kind: str, serial: str, p: np.ndarray, R: np.ndarray | None
                ) -> tuple[np.ndarray, np.ndarray] | None:
-        """One device pose (SMPL frame; R (3, 3) needed for the headset only). Returns the pending frame first when this device already updated it (the
-        sender moved on to the next frame), else None."""
+        """One device pose (SMPL frame; R (3, 3) needed for the headset only). Returns the pending frame first when
+        this device already updated it (the sender moved on to the next frame), else None."""
         key = (kind, serial)
         out = None
         if key in self.fresh and key in (self.needed() or ()):
@@ -408,6 +418,7 @@ def run_vmc(live: LiveTracker, config: LiveConfig, *, on_ready: Callable[[tuple[
                     break
                 continue
             t_recv = time.perf_counter()
+            stats.busy = True
             last_input = time.monotonic()
             frames = []
             for address, args in vmc_messages(dgram):
@@ -438,6 +449,7 @@ def run_vmc(live: LiveTracker, config: LiveConfig, *, on_ready: Callable[[tuple[
                     sock.sendto(bundle, out)
                     stats.bundles_out += 1
                     stats.latency_s.append(time.perf_counter() - t_recv)
+            stats.frame_done()
         if not stats.stopped:
             stats.stopped = f"{stats.frames_in} frames"
     finally:
@@ -470,6 +482,7 @@ def run_steamvr(live: LiveTracker, config: LiveConfig, lines: Iterable[str] | Te
             if not line.strip():
                 continue
             t_recv = time.perf_counter()
+            stats.busy = True
             for kind, serial, p, R in steamvr_devices(line, n):
                 if kind == "tracker":
                     waist = serial if waist is None else waist
@@ -478,14 +491,14 @@ def run_steamvr(live: LiveTracker, config: LiveConfig, lines: Iterable[str] | Te
                         continue
                 devices.poses[(kind, serial)] = (p, R)
             frame = devices.take()
-            if frame is None:
-                continue
-            stats.frames_in += 1
-            bundle = live.frame(*frame)
-            if bundle is not None:
-                send(bundle)
-                stats.bundles_out += 1
-                stats.latency_s.append(time.perf_counter() - t_recv)
+            if frame is not None:
+                stats.frames_in += 1
+                bundle = live.frame(*frame)
+                if bundle is not None:
+                    send(bundle)
+                    stats.bundles_out += 1
+                    stats.latency_s.append(time.perf_counter() - t_recv)
+            stats.frame_done()
         stats.stopped = f"{stats.frames_in} frames"
     finally:
         if sock is not None:
