@@ -466,3 +466,30 @@ def test_ctrl_c_stops_with_one_line_and_keeps_the_recording(tmp_path):
         rest.append(lines.get())
     assert len(rest) == 1 and rest[0].startswith(f"stopped (Ctrl-C): {T} frames in, {T} bundles"), rest
     assert len(json.loads(record.read_text())["trackers"]["head"]["position"]) == T
+
+
+def test_a_90hz_stream_steps_the_model_at_60hz_and_sends_a_bundle_per_frame(tmp_path):
+    """--fps 90: every input frame gets a bundle (of the newest pose), the model steps at its 60 Hz ticks, and the
+    recording holds those ticks, which replay to the poses that were sent."""
+    from workflows.tracking.live import LiveConfig, LiveTracker, open_tracker, run_steamvr
+    from workflows.tracking.run import track_file
+
+    sig = smpl_trackers(30)
+    record = tmp_path / "rec.json"
+    sent: list[bytes] = []
+    config = LiveConfig(vmc_out=("127.0.0.1", 9), fps=90.0, record=record)
+    live = LiveTracker(open_tracker(TRACKER_SETS["4"], betas=np.zeros(10), gender="neutral"), 90.0, record=True)
+    stats = run_steamvr(live, config, steamvr_lines(sig), send=sent.append)
+    assert stats.frames_in == 30 and len(sent) == 30
+    ticks = json.loads(record.read_text())
+    assert ticks["fps"] == 60.0 and len(ticks["trackers"]["head"]["position"]) == 20  # k / 60 <= 29 / 90 s
+    bones = np.stack([np.array([args[1:] for address, args in
+                                [(m.address, list(m.params)) for m in OscBundle(d)]
+                                if address == "/VMC/Ext/Bone/Pos"]) for d in sent])
+    R_got, _ = vmc.vmc_bones_to_pose(bones)
+    track = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[]).animation.tracks[0]
+    aa = np.concatenate([track.global_orient[:, None], track.body_pose], 1)
+    R_replay = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(20, 24, 3, 3)[:, vmc.BONE_JOINTS]
+    newest_tick = np.floor(np.arange(30) * 60 / 90 + 1e-9).astype(int)  # the last tick at or before each frame
+    rel = np.swapaxes(R_got, -1, -2) @ R_replay[newest_tick]
+    assert np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1).max() < 2e-3
