@@ -401,6 +401,7 @@ def test_steamvr_lines_on_stdin_through_the_command(tmp_path):
     (["--live", "--vmc-out", "127.0.0.1:9", "--vmc-in", "70000"], "--vmc-in must be PORT or HOST:PORT"),
     (["--live", "--vmc-out", "127.0.0.1:9", "--samples", "4"], "--samples"),
     (["--record", "x.json"], "--record needs --live"),
+    (["--live", "--vmc-out", "127.0.0.1:9", "--left-serial", "A", "--right-serial", "A"], "each controller"),
     (["--live", "--vmc-out", "127.0.0.1:9", "--betas", "0,0,0,0,0,0,0,0,0,0", "--height", "1.7"], "not both"),
 ])
 def test_live_option_errors_are_one_line(args, message):

@@ -125,6 +125,8 @@ def _live(betas: list[float] | None, height: float | None, gender: str, checkpoi
 
     if vmc_out is None:
         raise lv.LiveError("--live needs --vmc-out HOST:PORT (where the VMC receiver listens).")
+    if left_serial is not None and left_serial == right_serial:
+        raise lv.LiveError(f"--left-serial and --right-serial are both {left_serial!r}; give each controller's own.")
     if fps is not None and not 1.0 <= fps <= 1000.0:
         raise lv.LiveError(f"--fps must be in [1, 1000], got {fps}.")
     if max_frames is not None and max_frames < 1:
