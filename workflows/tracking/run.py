@@ -42,9 +42,10 @@ def _axis_angle(R: np.ndarray) -> np.ndarray:
 def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas: Sequence[float] | None = None,
                gender: Gender | str = Gender.NEUTRAL, character_path: str | Path | None = None,
                character_options: Any = None, formats: Sequence[str] = ("bvh",), checkpoint: str | Path | None = None,
-               seed: int = 0, fit_trackers: bool = False) -> TrackOutputs:
-    """Tracker recording -> ``out_dir/animation.json`` (+ ``formats``: bvh, glb). Raises the project's one-line
-    errors (tracker file, model file, character, export)."""
+               seed: int = 0, fit_trackers: bool = False, foot_locks: str = "offline") -> TrackOutputs:
+    """Tracker recording -> ``out_dir/animation.json`` (+ ``formats``: bvh, glb). ``foot_locks``: ``offline`` (the
+    whole recording known), ``streaming`` (causal, as ``smplik track --live``) or ``off``. Raises the project's
+    one-line errors (tracker file, model file, character, export)."""
     from smplik.tracking.config import TrackerRuntimeConfig
     from smplik.tracking.io import read_trackers
     from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, track_sequence
@@ -55,6 +56,8 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
     bad = [f for f in formats if f not in FORMATS]
     if bad:
         raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
+    if foot_locks not in ("offline", "streaming", "off"):
+        raise AnimationError(f"foot_locks must be offline, streaming or off, got {foot_locks!r}.")
     if samples < 1 or samples > 1024:
         raise AnimationError(f"--samples must be in 1..1024, got {samples}.")
     signals = read_trackers(path)
@@ -76,7 +79,9 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
 
         checkpoint = shipped_checkpoint(signals.names)
     tracker = Tracker.load(checkpoint, betas=body_betas, gender=body_gender,
-                           config=TrackerRuntimeConfig(samples=samples, seed=seed, tracker_fit=fit_trackers))
+                           config=TrackerRuntimeConfig(samples=samples, seed=seed, tracker_fit=fit_trackers,
+                                                       foot_lock=foot_locks != "off",
+                                                       offline_lock=foot_locks == "offline"))
     result = track_sequence(tracker, signals)
     aa = _axis_angle(result.R_local)
     track = AnimationTrack("person_0", "0", body_gender, body_betas, scale, skeleton, 0, aa[:, 0], aa[:, 1:],
