@@ -19,7 +19,8 @@ every 10 %; shorter ones print nothing but their result."""
 @with_character_options
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
-                                            "AIST++, AMASS, ...), or a folder of per-frame outputs (SMPLer-X).")],
+                                            "AIST++, AMASS, ...), a folder of per-frame outputs (SMPLer-X), or "
+                                            "joint positions (HumanML3D .npy, MDM results.npy, a BVH).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder (animation.json, one BVH per track).")],
     frames: Annotated[str, typer.Option("--frames", help="'all' or A:B (frames A..B-1).")] = "all",
     fps: Annotated[float | None, typer.Option("--fps", help="Source frame rate (default: the file's; GVHMR: 30; "
@@ -59,9 +60,13 @@ def animate_cmd(
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
+    mean: Annotated[Path | None, typer.Option("--mean", help="HumanML3D features (T, 263): the dataset's Mean.npy "
+                                              "(with --std) to undo the normalisation.")] = None,
+    std: Annotated[Path | None, typer.Option("--std", help="HumanML3D features: the dataset's Std.npy.")] = None,
 ) -> None:
-    """Video estimates -> per track: cleaned per-frame poses on the body or character, effectors on keyframes,
-    OUT/animation.json and an animated BVH (and GLB) at the source frame rate."""
+    """Video estimates or joint-position motion (HumanML3D joints or features, MDM results.npy, a BVH) -> per
+    track: cleaned per-frame poses on the body or character, effectors on keyframes, OUT/animation.json and an
+    animated BVH (and GLB) at the source frame rate."""
     from rich.progress import Progress
 
     from smplik.cli.errors import console
@@ -101,8 +106,7 @@ def animate_cmd(
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,
                                trust_pickle=trust_pickle, space=space, progress=progress,
-                               formats=formats,
-                               max_frames=max_frames)
+                               formats=formats, max_frames=max_frames, mean=mean, std=std)
         files = list(outputs.all_files)
         anim = outputs.animation
         shown = None
