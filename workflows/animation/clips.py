@@ -224,6 +224,10 @@ def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
             return len(data["smpl_poses"])
         if fmt == "amass":
             return len(data["poses"])
+        if fmt == "humandata":
+            from workflows.estimators.humandata import frames_of
+
+            return len(frames_of(data))
         if fmt == "plain":
             from workflows.estimators.plain import sequence_length
 
