@@ -151,5 +151,6 @@ def test_smplerx_folder_one_person_is_one_track(tmp_path):
 def test_closest_hint_names_real_missing_keys():
     nested = {"params": {"global_orient": 1, "body_pose": 2, "transl": 3, "betas": 4}}
     assert "needs ." not in closest_format(nested)
-    assert "closest: phalp" not in closest_format({"smpl": {"a": 1}, "meta": {}})
+    hint = closest_format({"smpl": {"global_orient": 1}, "meta": {}})  # mmhuman3d HumanData without its row keys
+    assert "closest: humandata, which also needs '__data_len__', 'image_path'" in hint
     assert "closest: wham, which also needs 'betas'" in closest_format({"pose": 1, "trans": 2})

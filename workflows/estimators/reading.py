@@ -221,9 +221,12 @@ def closest_format(data: Any) -> str:
         return (f"an array of shape {data.shape}: the pose_array format needs (T, 72 | 156 | 165) floats "
                 f"(axis-angle, root first).")
     keys = _record_keys(data)
-    scored = [(len(keys & set(sig)), len(keys & set(sig)) / len(sig), name) for name, sig in SIGNATURES.items()]
+    candidates = dict(SIGNATURES)
+    if isinstance(data, dict) and isinstance(data.get("smpl"), dict):  # PHALP's 'smpl' is per-frame lists, not a
+        candidates.pop("phalp")  # dict of arrays (mmhuman3d HumanData's)
+    scored = [(len(keys & set(sig)), len(keys & set(sig)) / len(sig), name) for name, sig in candidates.items()]
     shared, share, name = max(scored, key=lambda t: (t[0], t[1]))
-    if shared == 0 or (shared == 1 and share < 1):  # one common key ('smpl', 'pose') is no evidence of a layout
+    if shared == 0:
         return f"no known layout shares its keys (known formats: {', '.join(FORMATS)})."
     lacks = [k for k in SIGNATURES[name] if k not in keys]
     if not lacks:  # every key is there, in a nested record: the reader's own checks name what is wrong
