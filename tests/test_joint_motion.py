@@ -201,3 +201,101 @@ def test_bad_joint_files_are_one_line(animate, tmp_path):
     np.save(tmp_path / "flat.npy", np.zeros((10, 22, 3)))
     result = animate(tmp_path / "flat.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "error" in result.output.lower() and "Traceback" not in result.output
+
+
+# ----------------------------------------------------------------------------- a BVH whose body is in its rotations
+
+_UNIT = 0.0254 / 0.45  # cgspeed CMU units
+_BVH_JOINTS = (  # (name, parent, SMPL joint or None for a zero-OFFSET helper), CMU cgspeed names
+    ("Hips", None, 0), ("LHipJoint", "Hips", None), ("LeftUpLeg", "LHipJoint", 1), ("LeftLeg", "LeftUpLeg", 4),
+    ("LeftFoot", "LeftLeg", 7), ("LeftToeBase", "LeftFoot", 10), ("RHipJoint", "Hips", None),
+    ("RightUpLeg", "RHipJoint", 2), ("RightLeg", "RightUpLeg", 5), ("RightFoot", "RightLeg", 8),
+    ("RightToeBase", "RightFoot", 11), ("LowerBack", "Hips", 3), ("Spine", "LowerBack", 6), ("Spine1", "Spine", 9),
+    ("Neck", "Spine1", None), ("Neck1", "Neck", 12), ("Head", "Neck1", 15), ("LCollarRoot", "Spine1", None),
+    ("LeftShoulder", "LCollarRoot", 13), ("LeftArm", "LeftShoulder", 16), ("LeftForeArm", "LeftArm", 18),
+    ("LeftHand", "LeftForeArm", 20), ("RCollarRoot", "Spine1", None), ("RightShoulder", "RCollarRoot", 14),
+    ("RightArm", "RightShoulder", 17), ("RightForeArm", "RightArm", 19), ("RightHand", "RightForeArm", 21))
+
+
+def _from_up(d: np.ndarray) -> np.ndarray:
+    """(T, 3, 3): the smallest rotations taking +y onto the directions d (T, 3)."""
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    axis = np.cross([0.0, 1.0, 0.0], d)
+    s, c = np.linalg.norm(axis, axis=-1), d[:, 1]
+    rotvec = axis / np.maximum(s, 1e-12)[:, None] * np.arctan2(s, c)[:, None]
+    return Rotation.from_rotvec(rotvec).as_matrix()
+
+
+def write_rotation_only_bvh(path, P: np.ndarray, fps: float = 30.0) -> None:
+    """The layout MediaPipe-to-BVH tools write: every OFFSET along one "up" vector (+y, its bone's length; helper
+    joints zero), the body only in the rotations. P (T, 22, 3): SMPL joints, metres."""
+    T = len(P)
+    names = [n for n, _, _ in _BVH_JOINTS]
+    parent = {n: p for n, p, _ in _BVH_JOINTS}
+    pos = {}
+    for n, p, j in _BVH_JOINTS:
+        pos[n] = P[:, j] if j is not None else pos[p]
+    children = {n: [c for c, q, _ in _BVH_JOINTS if q == n] for n in names}
+    length = {n: 0.0 if p is None else float(np.linalg.norm(pos[n][0] - pos[p][0])) for n, p, _ in _BVH_JOINTS}
+    G = {}
+    for n in names:
+        real = [c for c in children[n] if length[c] > 1e-9]
+        if len(real) == 1:
+            G[n] = _from_up(pos[real[0]] - pos[n])
+        else:
+            G[n] = G[parent[n]] if parent[n] else np.broadcast_to(np.eye(3), (T, 3, 3))
+    lines = ["HIERARCHY"]
+
+    def emit(n: str, depth: int) -> None:
+        pad = "  " * depth
+        head = "ROOT" if parent[n] is None else "JOINT"
+        lines.append(f"{pad}{head} {n}")
+        lines.append(f"{pad}{{")
+        lines.append(f"{pad}  OFFSET 0 {length[n] / _UNIT:.6f} 0")
+        chans = "6 Xposition Yposition Zposition" if parent[n] is None else "3"
+        lines.append(f"{pad}  CHANNELS {chans} Zrotation Yrotation Xrotation")
+        for c in children[n]:
+            emit(c, depth + 1)
+        if not children[n]:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 1 0", f"{pad}  }}"])
+        lines.append(f"{pad}}}")
+
+    emit("Hips", 0)
+    lines += ["MOTION", f"Frames: {T}", f"Frame Time: {1 / fps:.6f}"]
+    order = []
+
+    def walk(n: str) -> None:
+        order.append(n)
+        for c in children[n]:
+            walk(c)
+
+    walk("Hips")
+    for t in range(T):
+        row = list(P[t, 0] / _UNIT)
+        for n in order:
+            R_local = G[n][t] if parent[n] is None else G[parent[n]][t].T @ G[n][t]
+            row += list(Rotation.from_matrix(R_local).as_euler("ZYX", degrees=True))
+        lines.append(" ".join(f"{v:.6f}" for v in row))
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_bvh_whose_body_is_in_its_rotations(animate, tmp_path):
+    """Every OFFSET along +y (MediaPipe-to-BVH): read by forward kinematics as joint positions, no options."""
+    from smplik.data.bvh import read_bvh
+    from workflows.animation.files import load_animation
+    from workflows.animation.joint_motion import offsets_share_one_direction
+
+    P = _walk(30)[:, :22]
+    write_rotation_only_bvh(tmp_path / "mp.bvh", P)
+    motion = read_bvh(tmp_path / "mp.bvh")
+    names = list(motion.joint_names)
+    fk = motion.positions[:, [names.index(n) for n, _, j in _BVH_JOINTS if j is not None]] * _UNIT
+    smpl = [j for _, _, j in _BVH_JOINTS if j is not None]
+    assert np.allclose(fk, P[:, smpl], atol=1e-4)  # the fixture's FK is the body
+    assert offsets_share_one_direction(tmp_path / "mp.bvh")
+    result = animate(tmp_path / "mp.bvh", "--out", tmp_path / "out", "--export", "")
+    assert result.exit_code == 0, result.output
+    assert "OFFSETs all point one way" in result.output
+    (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
+    err = np.linalg.norm(_track_joints(track)[:, :22] - P, axis=-1)
+    assert err.mean() < 0.03, err.mean()

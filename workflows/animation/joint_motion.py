@@ -249,20 +249,24 @@ def read_bvh_joints(path: str | Path, options: Any = None) -> JointMotion:
     missing = [JOINT_NAMES[j] for j in range(NUM_MOTION_JOINTS) if j not in set(joints.tolist())]
     note = (f"{path}: a BVH read as joint positions (forward kinematics of its {motion.num_frames} frames; "
             f"{len(cols)} SMPL joints mapped{'' if not missing else ', no ' + ', '.join(missing)}; "
-            f"{char.units_m:g} m per unit)")
+            f"{char.units_m:g} m per unit"
+            f"{'; its OFFSETs all point one way: the body lives in its rotations' if _one_direction(motion) else ''})")
     return JointMotion({"0": _checked(P, str(path))}, joints, fps, "bvh_joints", (note,))
 
 
 def offsets_share_one_direction(path: str | Path) -> bool:
-    """Whether a BVH's joints' OFFSETs all point one way (MediaPipe-to-BVH tools: the body exists only once
+    """Whether a BVH's joints' non-zero OFFSETs all point one way (MediaPipe-to-BVH tools: the body exists only once
     the rotations are applied; its OFFSET pose is a vertical line)."""
     from smplik.data.bvh import BVHError
     from smplik.data.bvh import read_bvh as bvh_read
 
     try:
-        motion = bvh_read(path)
+        return _one_direction(bvh_read(path))
     except BVHError:
         return False
+
+
+def _one_direction(motion: Any) -> bool:
     off = np.asarray(motion.offsets, dtype=np.float64)[1:]
     lengths = np.linalg.norm(off, axis=-1)
     off = off[lengths > 1e-9] / lengths[lengths > 1e-9, None]
