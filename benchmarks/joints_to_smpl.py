@@ -7,9 +7,13 @@ truth. Its first 22 joints (HumanML3D's layout, y-up metres) are the input, as a
 Methods, on the same joints:
 
 * ``smplik``: what ``smplik scene animate joints.npy`` does (:mod:`workflows.animation.joint_motion`): SMPL-SI's
-  body for the bone lengths, the SMPL-IK solver per frame (all frames in one batch), then the animation's
-  cleaning and foot locks (:func:`workflows.animation.clips.animation_from_clip`); keyframe effector recovery
+  body for the bone lengths, the SMPL-IK solver per frame (all frames in one batch), then the animation's glitch
+  repair and foot locks, no smoothing (joints a model made are smooth already: ``AnimateConfig.
+  model_motion_smoothing``) (:func:`workflows.animation.clips.animation_from_clip`); keyframe effector recovery
   is switched off here (an editing aid, not part of the fit).
+* ``smplik_adaptive``: the same with the video default's ``adaptive`` smoothing (``--smoothing adaptive``).
+* ``smplik_solve_only``: the same without the cleaning (no glitch repair, smoothing or foot locks): the solver's
+  own accuracy.
 * ``smplify``: an SMPLify-style fit as text-to-motion projects do (MDM's ``joints2smpl``): Adam on every frame's
   axis-angle pose and translation (torch, CPU, all frames at once), minimising the squared joint distances plus
   a pose prior (``|theta|^2`` weight :data:`PRIOR`) and a temporal smoothness term (weight :data:`SMOOTH`), on
@@ -92,14 +96,18 @@ def metrics(go, bp, transl, betas, scale, truth: list[Pose], P_true: np.ndarray)
             "joint_angle_error_deg": angle_error_deg(R, R_true)}
 
 
-def run_smplik(J: np.ndarray, solver, truth: list[Pose], P_true: np.ndarray) -> dict:
+def run_smplik(J: np.ndarray, solver, truth: list[Pose], P_true: np.ndarray, clean: bool = True,
+               model_smoothing: str | None = "none") -> dict:
+    from workflows.animation.clean import CleanConfig
     from workflows.animation.clips import AnimateConfig
     from workflows.animation.joint_motion import JointMotion
     from workflows.animation.run import joint_animation
     from workflows.scene.recovery import RecoveryConfig
 
     motion = JointMotion({"0": J}, np.arange(22), FPS, "joints")
-    config = AnimateConfig(keyframe_threshold_m=10.0, max_keyframe_share=1e-9,
+    config = AnimateConfig(CleanConfig() if clean else CleanConfig(smoothing="none", foot_lock=False,
+                                                                   repair_glitches=False),
+                           model_motion_smoothing=model_smoothing, keyframe_threshold_m=10.0, max_keyframe_share=1e-9,
                            recovery=RecoveryConfig(max_effectors=1, threshold=0.03))
     t0 = time.process_time()
     anim, _ = joint_animation(motion, "truth", solver, config=config)
@@ -156,18 +164,22 @@ def main() -> None:
         P_true = joints(go, bp, np.stack([p.transl for p in truth]), truth[0].betas)
         J = P_true[:, :22]
         ours = run_smplik(J, solver, truth, P_true)
+        solve_only = run_smplik(J, solver, truth, P_true, clean=False)
+        adaptive = run_smplik(J, solver, truth, P_true, model_smoothing=None)
         body = fit_body(J, np.arange(22))
         base = run_smplify(J, truth, P_true, body.betas, body.scale)
         rows.append({"clip": name, "label": CLIPS.get(name, ""), "frames": len(truth), "smplik": ours,
-                     "smplify": base})
+                     "smplik_solve_only": solve_only, "smplik_adaptive": adaptive, "smplify": base})
         print(f"{name} {CLIPS.get(name, ''):6s} {len(truth):4d} frames | smplik MPJPE {ours['mpjpe_22_mm']:6.1f} mm "
               f"(24 joints {ours['mpjpe_24_mm']:5.1f}), angle {ours['joint_angle_error_deg']:5.1f} deg, "
               f"{ours['frames_per_cpu_s']:6.1f} frames/CPU s | smplify MPJPE {base['mpjpe_22_mm']:6.1f} mm "
               f"(24 {base['mpjpe_24_mm']:5.1f}), angle {base['joint_angle_error_deg']:5.1f} deg, "
-              f"{base['frames_per_cpu_s']:6.1f} frames/CPU s", flush=True)
+              f"{base['frames_per_cpu_s']:6.1f} frames/CPU s | solve only MPJPE {solve_only['mpjpe_22_mm']:6.1f} mm, "
+              f"angle {solve_only['joint_angle_error_deg']:5.1f} deg | adaptive smoothing MPJPE "
+              f"{adaptive['mpjpe_22_mm']:6.1f} mm", flush=True)
     summary = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in
                    ("mpjpe_22_mm", "mpjpe_24_mm", "joint_angle_error_deg", "frames_per_cpu_s")}
-               for m in ("smplik", "smplify")}
+               for m in ("smplik", "smplik_solve_only", "smplik_adaptive", "smplify")}
     print("mean:", summary)
     save("joints_to_smpl", {"fps": FPS, "max_frames": args.frames, "smplify": {"iterations": ITERATIONS,
                             "prior": PRIOR, "smooth": SMOOTH, "lr": LEARNING_RATE}, "clips": rows,

@@ -299,3 +299,29 @@ def test_bvh_whose_body_is_in_its_rotations(animate, tmp_path):
     (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
     err = np.linalg.norm(_track_joints(track)[:, :22] - P, axis=-1)
     assert err.mean() < 0.03, err.mean()
+
+
+def test_t2m_gpt_motion_npy_and_a_character(animate, tmp_path):
+    """T2M-GPT's demo: np.save('motion.npy', recover_from_ric(...).reshape(1, -1, 22, 3)); onto a Mixamo character
+    (workflows/layout_examples.py writes Mixamo's BVH layout): the BVH is the character's own skeleton."""
+    from smplik.data.bvh import read_bvh
+    from workflows.animation.files import load_animation
+    from workflows.layout_examples import write_mixamo_bvh
+
+    P = _walk(24)[:, :22]
+    np.save(tmp_path / "motion.npy", P[None].astype(np.float32))
+    write_mixamo_bvh(tmp_path / "hero.bvh", rest_joints(np.zeros(10), "neutral") * 1.2)
+    result = animate(tmp_path / "motion.npy", "--out", tmp_path / "out", "--character", tmp_path / "hero.bvh")
+    assert result.exit_code == 0, result.output
+    (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
+    assert track.num_frames == 24 and track.scale == pytest.approx(1.2, rel=0.05)  # the character's size
+    out = read_bvh(tmp_path / "out" / "person_0.bvh")
+    assert out.num_frames == 24 and out.joint_names[0].startswith("mixamorig:")
+
+
+def test_from_estimate_on_joints_points_to_animate(tmp_path):
+    from workflows.estimators import EstimateFormatError, read_estimate
+
+    np.save(tmp_path / "j.npy", np.zeros((5, 22, 3)))
+    with pytest.raises(EstimateFormatError, match="scene animate FILE"):
+        read_estimate(tmp_path / "j.npy")

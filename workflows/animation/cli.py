@@ -32,8 +32,9 @@ def animate_cmd(
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
     character_cli: CharacterCLI = NO_CHARACTER_CLI,
     smoothing: Annotated[str, typer.Option(
-        "--smoothing", help="adaptive (each channel smoothed as its measured noise asks, the default), sequence "
-        "(a joint-space sequence solve), one_euro, savgol or none.")] = "adaptive",
+        "--smoothing", help="auto (the default: adaptive, each channel smoothed as its measured noise asks; none for "
+        "joints a model made), adaptive, sequence (a joint-space sequence solve), one_euro, savgol or "
+        "none.")] = "auto",
     smoothness: Annotated[float, typer.Option("--smoothness", help="sequence cleaning: weight of the joints' "
                                               "acceleration; higher smooths more.")] = 2.0,
     pose_budget: Annotated[float, typer.Option("--pose-budget", help="sequence cleaning: most the smoothing may "
@@ -87,8 +88,10 @@ def animate_cmd(
             check_preview_path(preview)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
-        config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
-                                           foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
+        config = AnimateConfig(CleanConfig(smoothing="adaptive" if smoothing == "auto" else smoothing,  # type: ignore[arg-type]
+                                           smoothness=smoothness, foot_lock=foot_lock,
+                                           pose_budget_mm=pose_budget or None),
+                               model_motion_smoothing="none" if smoothing == "auto" else None,
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))

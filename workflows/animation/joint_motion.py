@@ -4,9 +4,10 @@ Inputs (:func:`read_joint_motion`), every one y-up metres, the joints SMPL's fir
 (pelvis .. right_wrist) unless said otherwise:
 
 * **HumanML3D joints** ``(T, 22, 3)`` ``.npy``: HumanML3D's ``new_joints/*.npy`` (github.com/EricGuo5513/HumanML3D,
-  ``motion_representation.ipynb``: ``np.save(pjoin(save_dir1, source_file), rec_ric_data...)`` of the
-  ``recover_from_ric`` positions), and what text-to-motion demos write for one motion (T2M-GPT / MoMask
-  ``xyz`` arrays, MotionGPT's ``*_out.npy``). HumanML3D runs at 20 frames/s: the default rate, with a note.
+  ``motion_representation.ipynb``: ``np.save`` of the ``recover_from_ric`` positions), and what text-to-motion demos
+  write: T2M-GPT's demo ``np.save('motion.npy', xyz)`` with ``xyz = recover_from_ric(...).reshape(1, -1, 22, 3)``
+  (a leading batch axis: ``(N, T, 22, 3)`` is N tracks), MoMask's per-sample joint arrays. HumanML3D runs at 20
+  frames/s: the default rate, with a note.
 * **MDM's** ``results.npy`` (github.com/GuyTevet/motion-diffusion-model, ``sample/generate.py``:
   ``np.save(npy_path, {'motion': all_motions, 'text': all_text, 'lengths': all_lengths, 'num_samples': ...,
   'num_repetitions': ...})``, ``all_motions`` ``(N, 22, 3, T)``): an object ``.npy`` read through the project's
@@ -140,7 +141,7 @@ def recover_from_ric(data: np.ndarray, joints_num: int = NUM_MOTION_JOINTS) -> n
 def joint_motion_kind(data: Any) -> str | None:
     """Which joint-motion layout a loaded ``.npy`` holds (:data:`FORMATS`), or None."""
     if isinstance(data, np.ndarray) and data.dtype.kind in "fiu":
-        if data.ndim == 3 and data.shape[1:] == (NUM_MOTION_JOINTS, 3):
+        if data.ndim in (3, 4) and data.shape[-2:] == (NUM_MOTION_JOINTS, 3):
             return "joints"
         if data.ndim == 2 and data.shape[1] == HUMANML3D_FEATURES:
             return "humanml3d_vec"
@@ -191,10 +192,12 @@ def joint_motion_from_data(data: Any, source: str, *, mean: str | Path | None = 
         return None
     joints = np.arange(NUM_MOTION_JOINTS)
     note = (f"{source}: {{what}}; {HUMANML3D_FPS:g} frames/s assumed (HumanML3D's rate; --fps sets another).")
-    if kind == "joints":
-        return JointMotion({"0": _checked(data, source)}, joints, HUMANML3D_FPS, kind,
-                           (note.format(what=f"HumanML3D joint positions ({data.shape[0]} frames, 22 SMPL joints, "
-                                        "y-up metres)"),))
+    if kind == "joints":  # (T, 22, 3), or (N, T, 22, 3): T2M-GPT's motion.npy is (1, T, 22, 3)
+        batch = data if data.ndim == 4 else data[None]
+        tracks = {str(i): _checked(m, source if len(batch) == 1 else f"{source}[{i}]") for i, m in enumerate(batch)}
+        what = (f"HumanML3D joint positions ({batch.shape[1]} frames, 22 SMPL joints, y-up metres"
+                f"{'' if len(batch) == 1 else f'; {len(batch)} motions, each a track'})")
+        return JointMotion(tracks, joints, HUMANML3D_FPS, kind, (note.format(what=what),))
     if kind == "humanml3d_vec":
         if (mean is None) != (std is None):
             raise JointMotionError("--mean and --std go together (HumanML3D's Mean.npy and Std.npy).")

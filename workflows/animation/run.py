@@ -6,6 +6,7 @@ this module writes the files (:mod:`workflows.animation.files`, :func:`workflows
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,6 +138,12 @@ def joint_animation(motion: JointMotion, source: str, solver: TensorSolver, *, f
     tracks, motions = [], []
     notes = [n if fps is None else n.split("; ")[0] + "." for n in motion.notes]  # no rate assumed with --fps
     rate = fps
+    config = AnimateConfig() if config is None else config
+    if motion.format != "bvh_joints" and config.model_motion_smoothing is not None:
+        config = dataclasses.replace(config, clean=dataclasses.replace(config.clean,
+                                                                       smoothing=config.model_motion_smoothing))
+        notes.append(f"{source}: joints made by a model are smooth already: smoothing "
+                     f"{config.model_motion_smoothing!r} (--smoothing sets another), glitch repair and foot locks kept")
     for tid in ids:
         clip, body = joints_to_clip(motion, solver, source, tid, frames)
         notes.append(f"track {tid}: SMPL-SI body for its bone lengths: scale {body.scale:.3f}, betas "

@@ -217,6 +217,12 @@ def closest_format(data: Any) -> str:
     the keys it lacks; or, sharing none, the formats known."""
     if isinstance(data, np.ndarray) and data.ndim >= 2 and data.shape[-1] == 3 and data.shape[-2] in MESH_VERTICES:
         return (f"an array of shape {data.shape} holds {MESH_VERTICES[data.shape[-2]]} mesh vertices: {MESH_HINT}")
+    if isinstance(data, np.ndarray) and data.ndim in (3, 4) and data.shape[-2:] == (22, 3):
+        return (f"an array of shape {data.shape} holds joint positions (HumanML3D's 22 SMPL joints): "
+                "`smplik scene animate FILE` fits SMPL to them (docs/animation.md).")
+    if isinstance(data, np.ndarray) and data.ndim == 2 and data.shape[1] == 263:
+        return (f"an array of shape {data.shape} holds HumanML3D features: `smplik scene animate FILE` (with "
+                "--mean/--std when normalised) recovers their joints and fits SMPL to them (docs/animation.md).")
     if isinstance(data, np.ndarray):
         return (f"an array of shape {data.shape}: the pose_array format needs (T, 72 | 156 | 165) floats "
                 f"(axis-angle, root first).")
