@@ -8,8 +8,17 @@ import pickle
 
 import numpy as np
 import pytest
-from estimator_fixtures import HEAD, PELVIS, people, producer_joints, project, write_smplerx
-from scipy.spatial.transform import Rotation
+from estimator_fixtures import (
+    HEAD,
+    PELVIS,
+    people,
+    producer_joints,
+    project,
+    write_agora,
+    write_humandata,
+    write_smplerx,
+    write_smplifyx,
+)
 
 from workflows.estimators import EstimateFormatError, read_estimate
 from workflows.estimators.base import M_WORLD_CAMERA
@@ -22,35 +31,10 @@ def _pelvis_world(p) -> np.ndarray:
     return pelvis_of(p)
 
 
-def _write_agora(folder, aa, transl, betas, *, smplx: bool, pose2rot: bool = True):
-    """agora_evaluation docs/prediction_format.md: one pickle per person, ``<image>_personId_<k>.pkl``."""
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for k in range(len(aa)):
-        body = aa[k, 1:22] if smplx else aa[k, 1:]
-        if pose2rot:
-            params = {"global_orient": aa[k, :1].reshape(1, 3) if smplx else aa[k, :1].reshape(1, 1, 3),
-                      "body_pose": body.reshape(1, -1) if smplx else body.reshape(1, -1, 3)}
-        else:
-            params = {"global_orient": Rotation.from_rotvec(aa[k, :1]).as_matrix().reshape(1, 1, 3, 3),
-                      "body_pose": Rotation.from_rotvec(body).as_matrix().reshape(1, -1, 3, 3)}
-        params.update({"transl": transl[k].reshape(1, 3), "betas": betas[k].reshape(1, 10)})
-        if smplx:
-            params.update({"left_hand_pose": np.zeros((1, 45)), "right_hand_pose": np.zeros((1, 45)),
-                           "jaw_pose": np.zeros((1, 3)), "leye_pose": np.zeros((1, 3)), "reye_pose": np.zeros((1, 3)),
-                           "expression": np.zeros((1, 10))})
-        pred = {"params": {k2: v.astype(np.float32) for k2, v in params.items()}, "pose2rot": pose2rot,
-                "joints": np.zeros((24, 2), np.float32), "gender": "neutral", "num_betas": 10}
-        paths.append(folder / f"ag_trainset_3_{k}_00000_personId_{k}.pkl".replace(f"_{k}_00000", "_00000"))
-        with open(paths[-1], "wb") as fh:
-            pickle.dump(pred, fh)
-    return paths
-
-
 @pytest.mark.parametrize("smplx,pose2rot", [(False, True), (True, True), (False, False)])
 def test_agora_people_of_an_image(tmp_path, smplx, pose2rot):
     aa, transl, betas = people(seed=1, n=3, depth=6.0)
-    paths = _write_agora(tmp_path, aa, transl, betas, smplx=smplx, pose2rot=pose2rot)
+    paths = write_agora(tmp_path, aa, transl, betas, smplx=smplx, pose2rot=pose2rot)
     found = read_estimate(paths[1])
     assert [p.person_id for p in found] == ["0", "1", "2"]
     family = "smplx" if smplx else "smpl"
@@ -64,11 +48,8 @@ def test_agora_people_of_an_image(tmp_path, smplx, pose2rot):
 def test_humandata_frames_and_people(tmp_path):
     """mmhuman3d HumanData.dump: np.savez_compressed(path, **{'smpl': dict, 'image_path': ..., ...})."""
     aa, transl, betas = people(seed=2, n=3, depth=5.0)
-    rows = [0, 1, 2, 0, 1]  # image a: people 0, 1; image b: 2 ... as rows of instances
-    images = ["a.jpg", "a.jpg", "b.jpg", "c.jpg", "c.jpg"]
-    smpl = {"global_orient": aa[rows, 0], "body_pose": aa[rows, 1:], "betas": betas[rows], "transl": transl[rows]}
-    np.savez_compressed(tmp_path / "hd.npz", smpl=smpl, image_path=np.array(images), bbox_xywh=np.zeros((5, 5)),
-                        __data_len__=5, __key_strict__=False)
+    write_humandata(tmp_path / "hd.npz", aa, transl, betas, rows=[0, 1, 2, 0, 1],
+                    images=["a.jpg", "a.jpg", "b.jpg", "c.jpg", "c.jpg"])  # images a: 2 people, b: 1, c: 2
     assert len(read_estimate(tmp_path / "hd.npz", frame=0)) == 2
     (only,) = read_estimate(tmp_path / "hd.npz", frame=1)
     assert np.allclose(_pelvis_world(only), M_WORLD_CAMERA @ producer_joints(aa[2:3], transl[2:3])[0, PELVIS],
@@ -92,24 +73,13 @@ def test_smplx_sequence_in_layer_keys_is_one_person_over_frames(tmp_path):
         assert np.allclose(p.global_orient, aa[f, 0])
 
 
-def _write_smplifyx(path, aa, t, *, body: str = "smplx"):
-    """smplify-x fit_single_frame: pickle.dump({'camera_' + k: ...camera params, **body_model params}, protocol=2)."""
-    bp = aa[1:22].reshape(1, 63) if body == "smplx" else aa[1:].reshape(1, 69)
-    result = {"camera_rotation": np.eye(3)[None].astype(np.float32), "camera_translation": t.reshape(1, 3),
-              "betas": np.zeros((1, 10), np.float32), "global_orient": aa[:1].reshape(1, 3), "body_pose": bp,
-              "left_hand_pose": np.zeros((1, 12)), "right_hand_pose": np.zeros((1, 12)), "jaw_pose": np.zeros((1, 3)),
-              "leye_pose": np.zeros((1, 3)), "reye_pose": np.zeros((1, 3)), "expression": np.zeros((1, 10))}
-    with open(path, "wb") as fh:
-        pickle.dump({k: np.asarray(v, np.float32) for k, v in result.items()}, fh, protocol=2)
-
-
 def test_smplifyx_upright_and_on_its_photo(tmp_path):
     """The body stands upright and its pelvis and head land where SMPLify-X's own camera (focal 5000, image centre,
     model frame = OpenCV camera frame) draws them, within 3 % of the body's image height."""
     W, H = 1000, 1200
     aa, transl, _ = people(seed=4, n=1, depth=25.0, focal=5000.0)
     t = transl[0]  # camera_translation: the model frame is the camera frame (no transl)
-    _write_smplifyx(tmp_path / "000.pkl", aa[0], t)
+    write_smplifyx(tmp_path / "000.pkl", aa[0], t)
     (p,) = read_estimate(tmp_path / "000.pkl")
     assert p.camera is not None and p.camera.focal_px == 5000.0
     from estimator_fixtures import our_joints
@@ -126,7 +96,7 @@ def test_smplifyx_upright_and_on_its_photo(tmp_path):
 
 def test_smplifyx_vposer_embedding_is_named(tmp_path):
     aa, transl, _ = people(seed=4, n=1)
-    _write_smplifyx(tmp_path / "r.pkl", aa[0], transl[0])
+    write_smplifyx(tmp_path / "r.pkl", aa[0], transl[0])
     with open(tmp_path / "r.pkl", "rb") as fh:
         data = pickle.load(fh)
     data["body_pose"] = np.zeros((1, 32), np.float32)

@@ -58,7 +58,9 @@ def from_data(data: Any, *, source: str = "<smplifyx>", frame: int = 0, max_peop
     R = np.eye(3)
     if "camera_rotation" in data:
         R = base.finite(data["camera_rotation"], "camera_rotation", source).reshape(-1, 3, 3)[0]
-        if np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+        with np.errstate(all="ignore"):  # 1e308 entries overflow to inf: not a rotation
+            orthogonal = np.abs(R.T @ R - np.eye(3)).max() <= 1e-3
+        if not orthogonal:
             raise base.EstimateFormatError(f"{source}: 'camera_rotation' is not a rotation matrix.")
     betas = np.zeros((1, 10))
     b = base.finite(data.get("betas", np.zeros(10)), "betas", source).reshape(-1)
