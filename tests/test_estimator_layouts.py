@@ -57,6 +57,10 @@ def test_humandata_frames_and_people(tmp_path):
     assert len(read_estimate(tmp_path / "hd.npz", frame=2)) == 2
     with pytest.raises(EstimateFormatError, match="out of range"):
         read_estimate(tmp_path / "hd.npz", frame=3)
+    from workflows.animation.clips import read_clip
+
+    clip = read_clip(tmp_path / "hd.npz")  # scene animate: the images are the clip's frames
+    assert clip.length == 3 and [f for f, _ in clip.tracks["0"]] == [0, 1, 2]
 
 
 def test_smplx_sequence_in_layer_keys_is_one_person_over_frames(tmp_path):
