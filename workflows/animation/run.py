@@ -75,8 +75,9 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
         options = CharacterOptions() if character_options is None else character_options
         character = load_character(character_path, options)
         skeleton = SkeletonSource.from_options(str(Path(character_path).resolve()), options)
+    # a BVH input is mapped with --rig/--map/--units/--up only when they are not the character's
     motion = read_joint_motion_file(results_path, format=format, trust_pickle=trust_pickle, max_bytes=max_bytes,
-                                    mean=mean, std=std, options=character_options)
+                                    mean=mean, std=std, options=character_options if character_path is None else None)
     if motion is not None:
         animation, motions = joint_animation(motion, str(results_path), solver, fps=fps, track=track, frames=span,
                                              character=character, skeleton=skeleton, config=config,
