@@ -151,6 +151,7 @@ def test_humanml3d_features_with_mean_std(animate, tmp_path):
                      "--std", tmp_path / "Std.npy", "--fps", 20, "--export", "")
     assert result.exit_code == 0, result.output
     assert "de-normalised by --mean/--std" in result.output
+    assert "frames/s assumed" not in result.output  # --fps given: no rate assumed
     (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
     shifted = P - np.array([P[0, 0, 0], 0, P[0, 0, 2]])
     assert np.linalg.norm(_track_joints(track)[:, :22] - shifted, axis=-1).mean() < 0.03

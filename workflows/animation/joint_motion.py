@@ -72,7 +72,8 @@ class JointMotion:
         joints: (J,) SMPL joint index of each column.
         fps: the frame rate the file states (BVH) or its format fixes (HumanML3D 20), or None.
         format: one of :data:`FORMATS`.
-        notes: lines saying what the reading assumed.
+        notes: lines saying what the reading found.
+        fps_assumed: whether ``fps`` is the format's rate rather than the file's (said when ``--fps`` is not given).
     """
 
     tracks: dict[str, np.ndarray]
@@ -80,6 +81,7 @@ class JointMotion:
     fps: float | None
     format: str
     notes: tuple[str, ...] = ()
+    fps_assumed: bool = False
 
 
 @dataclass(frozen=True)
@@ -191,13 +193,13 @@ def joint_motion_from_data(data: Any, source: str, *, mean: str | Path | None = 
             raise JointMotionError(f"{source}: --mean/--std apply to HumanML3D features (T, 263) only.")
         return None
     joints = np.arange(NUM_MOTION_JOINTS)
-    note = (f"{source}: {{what}}; {HUMANML3D_FPS:g} frames/s assumed (HumanML3D's rate; --fps sets another).")
+    note = f"{source}: {{what}}."
     if kind == "joints":  # (T, 22, 3), or (N, T, 22, 3): T2M-GPT's motion.npy is (1, T, 22, 3)
         batch = data if data.ndim == 4 else data[None]
         tracks = {str(i): _checked(m, source if len(batch) == 1 else f"{source}[{i}]") for i, m in enumerate(batch)}
         what = (f"HumanML3D joint positions ({batch.shape[1]} frames, 22 SMPL joints, y-up metres"
                 f"{'' if len(batch) == 1 else f'; {len(batch)} motions, each a track'})")
-        return JointMotion(tracks, joints, HUMANML3D_FPS, kind, (note.format(what=what),))
+        return JointMotion(tracks, joints, HUMANML3D_FPS, kind, (note.format(what=what),), True)
     if kind == "humanml3d_vec":
         if (mean is None) != (std is None):
             raise JointMotionError("--mean and --std go together (HumanML3D's Mean.npy and Std.npy).")
@@ -210,7 +212,7 @@ def joint_motion_from_data(data: Any, source: str, *, mean: str | Path | None = 
             said = "de-normalised by --mean/--std"
         return JointMotion({"0": _checked(recover_from_ric(feats), source)}, joints, HUMANML3D_FPS, kind,
                            (note.format(what=f"HumanML3D features ({feats.shape[0]} frames, {said}), joints "
-                                        "recovered as HumanML3D's recover_from_ric"),))
+                                        "recovered as HumanML3D's recover_from_ric"),), True)
     motion = np.asarray(data["motion"], dtype=np.float64)  # (N, 22, 3, T)
     n, T = motion.shape[0], motion.shape[3]
     lengths = data.get("lengths")
@@ -220,7 +222,7 @@ def joint_motion_from_data(data: Any, source: str, *, mean: str | Path | None = 
     tracks = {f"{i}": _checked(motion[i, :, :, :int(lens[i])].transpose(2, 0, 1), f"{source}: motion[{i}]")
               for i in range(n)}
     return JointMotion(tracks, joints, HUMANML3D_FPS, kind,
-                       (note.format(what=f"MDM results: {n} motion(s) of 22 joints, each a track"),))
+                       (note.format(what=f"MDM results: {n} motion(s) of 22 joints, each a track"),), True)
 
 
 def read_bvh_joints(path: str | Path, options: Any = None) -> JointMotion:

@@ -137,7 +137,10 @@ def joint_animation(motion: JointMotion, source: str, solver: TensorSolver, *, f
         raise AnimationError(f"{source}: {total} frames to read; refusing more than {max_frames} "
                              "(--frames A:B reads a part; max_frames / --max-frames raises the cap).")
     tracks, motions = [], []
-    notes = [n if fps is None else n.split("; ")[0] + "." for n in motion.notes]  # no rate assumed with --fps
+    notes = list(motion.notes)
+    if fps is None and motion.fps_assumed:
+        notes.append(f"{source}: {motion.fps:g} frames/s assumed (HumanML3D's rate, that of the text-to-motion models "
+                     "trained on it; --fps sets another).")
     rate = fps
     config = AnimateConfig() if config is None else config
     if motion.format != "bvh_joints" and config.model_motion_smoothing is not None:
