@@ -128,3 +128,32 @@ def test_closest_hint_names_real_missing_keys():
     hint = closest_format({"smpl": {"global_orient": 1}, "meta": {}})  # mmhuman3d HumanData without its row keys
     assert "closest: humandata, which also needs '__data_len__', 'image_path'" in hint
     assert "closest: wham, which also needs 'betas'" in closest_format({"pose": 1, "trans": 2})
+
+
+def test_from_estimate_smplifyx_with_its_photo(tmp_path, monkeypatch, best_solver):
+    """The issue's run: `scene from-estimate result.pkl --image photo --focal 5000`: the body in front of the camera,
+    upright, its pelvis on the producer's projection (within 3 % of its image height)."""
+    from estimator_fixtures import our_joints
+    from PIL import Image
+    from typer.testing import CliRunner
+
+    import workflows.cli as cli_module
+    from workflows.scene import load_scene
+
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
+    W, H = 1000, 1200
+    aa, transl, _ = people(seed=6, n=1, depth=25.0, focal=5000.0)
+    write_smplifyx(tmp_path / "result.pkl", aa[0], transl[0])
+    Image.new("RGB", (W, H)).save(tmp_path / "photo.png")
+    result = CliRunner().invoke(cli_module.scene_app, ["from-estimate", str(tmp_path / "result.pkl"), "--image",
+                                                       str(tmp_path / "photo.png"), "--focal", "5000", "--out",
+                                                       str(tmp_path / "out"), "--no-previews", "--max-effectors", "3"])
+    assert result.exit_code == 0, result.output
+    scene = load_scene(tmp_path / "out" / "scene.json")
+    assert scene.camera.focal_px == pytest.approx(5000.0)
+    (person,) = read_estimate(tmp_path / "result.pkl")
+    J = our_joints(person)
+    assert J[PELVIS, 2] < -20 and J[HEAD, 1] > J[PELVIS, 1] + 0.3
+    ours = project((J[PELVIS] @ M_WORLD_CAMERA.T)[None], 5000.0, W / 2, H / 2)[0]
+    theirs = project(producer_joints(aa, transl, "smplx")[0, PELVIS][None], 5000.0, W / 2, H / 2)[0]
+    assert np.abs(ours - theirs).max() < 0.03 * 5000.0 * 1.7 / 25.0
