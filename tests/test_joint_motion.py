@@ -199,6 +199,9 @@ def test_bad_joint_files_are_one_line(animate, tmp_path):
     np.save(tmp_path / "cm.npy", _walk(10)[:, :22] * 1e5)
     result = animate(tmp_path / "cm.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "expected metres" in result.output
+    np.save(tmp_path / "mdm.npy", {"motion": np.zeros((2, 22, 3, 9)), "lengths": np.array(["9", "x"])})
+    result = animate(tmp_path / "mdm.npy", "--out", tmp_path / "o")
+    assert result.exit_code == 1 and "'lengths'" in result.output
     np.save(tmp_path / "flat.npy", np.zeros((10, 22, 3)))
     result = animate(tmp_path / "flat.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "error" in result.output.lower() and "Traceback" not in result.output

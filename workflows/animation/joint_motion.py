@@ -150,7 +150,7 @@ def joint_motion_kind(data: Any) -> str | None:
         return None
     if isinstance(data, dict) and isinstance(data.get("motion"), np.ndarray):
         m = data["motion"]
-        if m.ndim == 4 and m.shape[1:3] == (NUM_MOTION_JOINTS, 3):
+        if m.ndim == 4 and m.shape[1:3] == (NUM_MOTION_JOINTS, 3) and m.dtype.kind in "fiu":
             return "mdm"
     return None
 
