@@ -537,3 +537,49 @@ def write_smplerx(folder: Path, aa, transl, betas, boxes: list[tuple[float, floa
                  "img_path": f"frames/{frame:06d}.jpg"}, indent=4))
         cams.append(Written(paths[-1], float(np.mean(focal)), princpt[0], princpt[1], family="smplx", fmt="smplerx"))
     return paths, cams
+
+
+def write_agora(folder, aa, transl, betas, *, smplx: bool, pose2rot: bool = True):
+    """agora_evaluation docs/prediction_format.md: one pickle per person, ``<image>_personId_<k>.pkl``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k in range(len(aa)):
+        body = aa[k, 1:22] if smplx else aa[k, 1:]
+        if pose2rot:
+            params = {"global_orient": aa[k, :1].reshape(1, 3) if smplx else aa[k, :1].reshape(1, 1, 3),
+                      "body_pose": body.reshape(1, -1) if smplx else body.reshape(1, -1, 3)}
+        else:
+            params = {"global_orient": Rotation.from_rotvec(aa[k, :1]).as_matrix().reshape(1, 1, 3, 3),
+                      "body_pose": Rotation.from_rotvec(body).as_matrix().reshape(1, -1, 3, 3)}
+        params.update({"transl": transl[k].reshape(1, 3), "betas": betas[k].reshape(1, 10)})
+        if smplx:
+            params.update({"left_hand_pose": np.zeros((1, 45)), "right_hand_pose": np.zeros((1, 45)),
+                           "jaw_pose": np.zeros((1, 3)), "leye_pose": np.zeros((1, 3)), "reye_pose": np.zeros((1, 3)),
+                           "expression": np.zeros((1, 10))})
+        pred = {"params": {k2: v.astype(np.float32) for k2, v in params.items()}, "pose2rot": pose2rot,
+                "joints": np.zeros((24, 2), np.float32), "gender": "neutral", "num_betas": 10}
+        paths.append(folder / f"ag_trainset_renderpeople_bfh_archviz_5_10_cam00_00000_personId_{k}.pkl")
+        with open(paths[-1], "wb") as fh:
+            pickle.dump(pred, fh)
+    return paths
+
+
+def write_smplifyx(path, aa, t, *, body: str = "smplx"):
+    """smplify-x fit_single_frame: pickle.dump({'camera_' + k: ...camera params, **body_model params}, protocol=2)."""
+    bp = aa[1:22].reshape(1, 63) if body == "smplx" else aa[1:].reshape(1, 69)
+    result = {"camera_rotation": np.eye(3)[None].astype(np.float32), "camera_translation": t.reshape(1, 3),
+              "betas": np.zeros((1, 10), np.float32), "global_orient": aa[:1].reshape(1, 3), "body_pose": bp,
+              "left_hand_pose": np.zeros((1, 12)), "right_hand_pose": np.zeros((1, 12)), "jaw_pose": np.zeros((1, 3)),
+              "leye_pose": np.zeros((1, 3)), "reye_pose": np.zeros((1, 3)), "expression": np.zeros((1, 10))}
+    with open(path, "wb") as fh:
+        pickle.dump({k: np.asarray(v, np.float32) for k, v in result.items()}, fh, protocol=2)
+
+
+def write_humandata(path: Path, aa, transl, betas, *, rows: list[int], images: list[str] | None = None) -> Path:
+    """mmhuman3d ``HumanData.dump``: ``np.savez_compressed(path, **dict_to_dump)``, the ``smpl`` dict saved as an
+    object array, one row per person instance (``rows`` index the people), ``image_path`` per row."""
+    smpl = {"global_orient": aa[rows, 0], "body_pose": aa[rows, 1:], "betas": betas[rows], "transl": transl[rows]}
+    extra = {} if images is None else {"image_path": np.array(images)}
+    np.savez_compressed(path, smpl=smpl, bbox_xywh=np.zeros((len(rows), 5)), __data_len__=len(rows),
+                        __key_strict__=False, **extra)
+    return path

@@ -25,12 +25,15 @@ from estimator_fixtures import (
     CAMERA_WRITERS,
     SINGLE_PERSON,
     people,
+    write_agora,
     write_aist,
     write_amass,
+    write_humandata,
     write_hybrik,
     write_romp,
     write_sam3d,
     write_smplerx,
+    write_smplifyx,
     write_tram,
 )
 
@@ -60,6 +63,11 @@ def _fixtures(tmp_path):
     files["tram"] = write_tram(tmp_path / "tram", aa[:2], transl[:2], np.zeros((2, 10)))[1][0]
     files["smplerx"] = write_smplerx(tmp_path / "smplerx", aa[:2], transl[:2], np.zeros((2, 10)),
                                      [(100.0, 80.0, 180.0, 240.0), (380.0, 60.0, 210.0, 280.0)])[0][1]
+    files["agora"] = write_agora(tmp_path / "agora", aa[:2], transl[:2], np.zeros((2, 10)), smplx=True)[1]
+    files["humandata"] = write_humandata(tmp_path / "hd.npz", aa, transl, np.zeros((3, 10)), rows=[0, 1, 2],
+                                         images=["a.jpg", "a.jpg", "b.jpg"])
+    write_smplifyx(tmp_path / "smplifyx.pkl", aa[0], transl[0])
+    files["smplifyx"] = tmp_path / "smplifyx.pkl"
     return files
 
 

@@ -18,7 +18,7 @@ demo_app = typer.Typer(help="End-to-end demo on built-in material.")
 
 Checkpoint = Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: the shipped model).")]
 FORMATS = ("auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist", "amass",
-           "sam3d", "easymocap", "tram", "smplerx", "plain", "pose_array")
+           "sam3d", "easymocap", "tram", "smplerx", "agora", "humandata", "smplifyx", "plain", "pose_array")
 """``--format`` choices (spelled out here so that ``--help`` does not import the readers; a test keeps them equal)."""
 
 

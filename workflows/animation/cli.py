@@ -19,7 +19,8 @@ every 10 %; shorter ones print nothing but their result."""
 @with_character_options
 def animate_cmd(
     results: Annotated[Path, typer.Argument(help="Video estimator output (GVHMR, WHAM, 4D-Humans/PHALP, HybrIK, "
-                                            "AIST++, AMASS, ...), or a folder of per-frame outputs (SMPLer-X).")],
+                                            "AIST++, AMASS, ...), a folder of per-frame outputs (SMPLer-X), or "
+                                            "joint positions (HumanML3D .npy, MDM results.npy, a BVH).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder (animation.json, one BVH per track).")],
     frames: Annotated[str, typer.Option("--frames", help="'all' or A:B (frames A..B-1).")] = "all",
     fps: Annotated[float | None, typer.Option("--fps", help="Source frame rate (default: the file's; GVHMR: 30; "
@@ -31,8 +32,9 @@ def animate_cmd(
     character: Annotated[Path | None, typer.Option("--character", help="Custom skeleton (BVH, glTF, JSON).")] = None,
     character_cli: CharacterCLI = NO_CHARACTER_CLI,
     smoothing: Annotated[str, typer.Option(
-        "--smoothing", help="adaptive (each channel smoothed as its measured noise asks, the default), sequence "
-        "(a joint-space sequence solve), one_euro, savgol or none.")] = "adaptive",
+        "--smoothing", help="auto (the default: adaptive, each channel smoothed as its measured noise asks; none for "
+        "joints a model made), adaptive, sequence (a joint-space sequence solve), one_euro, savgol or "
+        "none.")] = "auto",
     smoothness: Annotated[float, typer.Option("--smoothness", help="sequence cleaning: weight of the joints' "
                                               "acceleration; higher smooths more.")] = 2.0,
     pose_budget: Annotated[float, typer.Option("--pose-budget", help="sequence cleaning: most the smoothing may "
@@ -59,9 +61,13 @@ def animate_cmd(
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,
+    mean: Annotated[Path | None, typer.Option("--mean", help="HumanML3D features (T, 263): the dataset's Mean.npy "
+                                              "(with --std) to undo the normalisation.")] = None,
+    std: Annotated[Path | None, typer.Option("--std", help="HumanML3D features: the dataset's Std.npy.")] = None,
 ) -> None:
-    """Video estimates -> per track: cleaned per-frame poses on the body or character, effectors on keyframes,
-    OUT/animation.json and an animated BVH (and GLB) at the source frame rate."""
+    """Video estimates or joint-position motion (HumanML3D joints or features, MDM results.npy, a BVH) -> per
+    track: cleaned per-frame poses on the body or character, effectors on keyframes, OUT/animation.json and an
+    animated BVH (and GLB) at the source frame rate."""
     from rich.progress import Progress
 
     from smplik.cli.errors import console
@@ -82,8 +88,10 @@ def animate_cmd(
             check_preview_path(preview)
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
-        config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
-                                           foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
+        config = AnimateConfig(CleanConfig(smoothing="adaptive" if smoothing == "auto" else smoothing,  # type: ignore[arg-type]
+                                           smoothness=smoothness, foot_lock=foot_lock,
+                                           pose_budget_mm=pose_budget or None),
+                               model_motion_smoothing="none" if smoothing == "auto" else None,
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
@@ -101,8 +109,7 @@ def animate_cmd(
         outputs = animate_file(results, out, solver, format=format, frames=frames, fps=fps, track=track,
                                character_path=character, character_options=options, config=config,
                                trust_pickle=trust_pickle, space=space, progress=progress,
-                               formats=formats,
-                               max_frames=max_frames)
+                               formats=formats, max_frames=max_frames, mean=mean, std=std)
         files = list(outputs.all_files)
         anim = outputs.animation
         shown = None

@@ -93,6 +93,11 @@ class AnimateConfig:
     threshold itself is also raised to the estimate's noise, :func:`keyframe_threshold`)."""
     recovery: RecoveryConfig = field(default_factory=lambda: RecoveryConfig(max_effectors=6, threshold=0.03))
     """Effector recovery on keyframes."""
+    model_motion_smoothing: str | None = "none"
+    """Smoothing of joint motion made by a model (HumanML3D joints or features, MDM, T2M-GPT: smooth already, so
+    smoothing only moves the joints off their targets; on held-out CMU joints ``adaptive`` cost 4-9 mm of MPJPE for
+    nothing, ``benchmarks/joints_to_smpl.py``) instead of ``clean.smoothing``; glitch repair and foot locks still
+    run. None: ``clean.smoothing`` (``--smoothing`` given). A BVH's joints (a capture) use ``clean.smoothing``."""
     camera_fov_deg: float | None = NORMAL_FOV_DEG
     """Camera-space tracks from a near-orthographic camera (field of view below :data:`NEAR_ORTHOGRAPHIC_FOV_DEG`,
     e.g. 4D-Humans/PHALP): place the body as a camera of this field of view (over the larger image side) sees it
@@ -224,6 +229,10 @@ def clip_length(data: Any, fmt: str, space: str | None = None) -> int:
             return len(data["smpl_poses"])
         if fmt == "amass":
             return len(data["poses"])
+        if fmt == "humandata":
+            from workflows.estimators.humandata import frames_of
+
+            return len(frames_of(data))
         if fmt == "plain":
             from workflows.estimators.plain import sequence_length
 

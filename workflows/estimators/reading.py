@@ -18,11 +18,13 @@ from typing import Any, Literal
 import numpy as np
 
 from workflows.estimators import (
+    agora,
     aist,
     amass_params,
     easymocap,
     glamr,
     gvhmr,
+    humandata,
     hybrik,
     phalp,
     plain,
@@ -31,6 +33,7 @@ from workflows.estimators import (
     romp,
     sam3d,
     smplerx,
+    smplifyx,
     tram,
     vibe,
     wham,
@@ -46,15 +49,18 @@ from workflows.estimators.base import (
 )
 
 FormatName = Literal["auto", "romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
-                     "amass", "sam3d", "easymocap", "tram", "smplerx", "plain", "pose_array"]
+                     "amass", "sam3d", "easymocap", "tram", "smplerx", "agora", "humandata", "smplifyx", "plain",
+                     "pose_array"]
 FORMATS: tuple[str, ...] = ("romp", "bev", "hybrik", "phalp", "wham", "pymafx", "vibe", "gvhmr", "glamr", "aist",
-                            "amass", "sam3d", "easymocap", "tram", "smplerx", "plain", "pose_array")
+                            "amass", "sam3d", "easymocap", "tram", "smplerx", "agora", "humandata", "smplifyx", "plain",
+                            "pose_array")
 _MODULES = {"romp": romp, "bev": romp, "hybrik": hybrik, "phalp": phalp, "wham": wham, "pymafx": pymafx, "vibe": vibe,
             "gvhmr": gvhmr, "glamr": glamr, "aist": aist, "amass": amass_params, "sam3d": sam3d, "easymocap": easymocap,
-            "tram": tram, "smplerx": smplerx, "plain": plain, "pose_array": pose_array}
-_DETECT_ORDER = (romp, hybrik, gvhmr, glamr, aist, sam3d, phalp, wham, pymafx, vibe, amass_params, easymocap, tram,
-                 smplerx, plain, pose_array)
-_PATH_READERS = (amass_params, tram, smplerx)
+            "tram": tram, "smplerx": smplerx, "agora": agora, "humandata": humandata, "smplifyx": smplifyx,
+            "plain": plain, "pose_array": pose_array}
+_DETECT_ORDER = (romp, hybrik, gvhmr, glamr, aist, sam3d, humandata, phalp, wham, pymafx, vibe, amass_params, easymocap,
+                 tram, agora, smplifyx, smplerx, plain, pose_array)
+_PATH_READERS = (amass_params, tram, smplerx, agora)
 """Readers that need the file's path (sibling files: other tracks or people, the camera or meta file)."""
 SIGNATURES: dict[str, tuple[str, ...]] = {
     "romp": ("smpl_thetas", "smpl_betas", "cam_trans"), "hybrik": ("pred_thetas", "pred_betas", "transl"),
@@ -64,6 +70,8 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "aist": ("smpl_poses", "smpl_trans", "smpl_scaling"), "amass": ("poses", "trans", "betas"),
     "sam3d": ("pred_joint_coords", "pred_cam_t"), "easymocap": ("id", "Rh", "Th", "poses", "shapes"),
     "tram": ("pred_rotmat", "pred_trans", "pred_shape", "frame"), "smplerx": smplerx.KEYS,
+    "agora": ("params", "pose2rot", "joints"), "humandata": ("smpl", "__data_len__", "image_path"),
+    "smplifyx": ("camera_translation", "global_orient", "body_pose", "betas"),
     "plain": ("global_orient", "body_pose", "transl", "betas")}
 """The keys that identify each format (in a person's record for per-person layouts), for the closest-format hint."""
 SUFFIXES = (".npz", ".npy", ".json", ".pk", ".pkl", ".pickle", ".joblib", ".pt", ".pth")
@@ -209,16 +217,41 @@ def closest_format(data: Any) -> str:
     the keys it lacks; or, sharing none, the formats known."""
     if isinstance(data, np.ndarray) and data.ndim >= 2 and data.shape[-1] == 3 and data.shape[-2] in MESH_VERTICES:
         return (f"an array of shape {data.shape} holds {MESH_VERTICES[data.shape[-2]]} mesh vertices: {MESH_HINT}")
+    if isinstance(data, np.ndarray) and data.ndim in (3, 4) and data.shape[-2:] == (22, 3):
+        return (f"an array of shape {data.shape} holds joint positions (HumanML3D's 22 SMPL joints): "
+                "`smplik scene animate FILE` fits SMPL to them (docs/animation.md).")
+    if isinstance(data, np.ndarray) and data.ndim == 2 and data.shape[1] == 263:
+        return (f"an array of shape {data.shape} holds HumanML3D features: `smplik scene animate FILE` (with "
+                "--mean/--std when normalised) recovers their joints and fits SMPL to them (docs/animation.md).")
     if isinstance(data, np.ndarray):
         return (f"an array of shape {data.shape}: the pose_array format needs (T, 72 | 156 | 165) floats "
                 f"(axis-angle, root first).")
     keys = _record_keys(data)
-    scored = [(len(keys & set(sig)) / len(sig), name) for name, sig in SIGNATURES.items()]
-    share, name = max(scored, key=lambda t: t[0])
-    if share == 0:
+    candidates = dict(SIGNATURES)
+    if isinstance(data, dict) and isinstance(data.get("smpl"), dict):  # PHALP's 'smpl' is per-frame lists, not a
+        candidates.pop("phalp")  # dict of arrays (mmhuman3d HumanData's)
+    scored = [(len(keys & set(sig)), len(keys & set(sig)) / len(sig), name) for name, sig in candidates.items()]
+    shared, share, name = max(scored, key=lambda t: (t[0], t[1]))
+    if shared == 0:
         return f"no known layout shares its keys (known formats: {', '.join(FORMATS)})."
     lacks = [k for k in SIGNATURES[name] if k not in keys]
+    if not lacks:  # every key is there, in a nested record: the reader's own checks name what is wrong
+        holder = _holder(data, SIGNATURES[name])
+        where = f" (inside {holder!r})" if holder else ""
+        return (f"closest: {name}, whose keys {', '.join(repr(k) for k in SIGNATURES[name])} are here{where} but "
+                f"not in its layout; try --format {name} to see what its reader needs.")
     return f"closest: {name}, which also needs {', '.join(repr(k) for k in lacks)}."
+
+
+def _holder(data: Any, signature: tuple[str, ...]) -> str | None:
+    """The key of the nested record holding ``signature``'s keys, None when they are at the top level."""
+    if isinstance(data, dict) and all(k in data for k in signature):
+        return None
+    if isinstance(data, dict):
+        for k, v in data.items():
+            if isinstance(v, dict) and all(s in v for s in signature):
+                return str(k)
+    return None
 
 
 def read_estimate(path: str | Path, *, format: FormatName = "auto", trust_pickle: bool = False,
@@ -322,13 +355,19 @@ def people_from_data(data: Any, *, source: str, format: FormatName = "auto", fra
 #
 # Tracks (:func:`match_tracks`): per-frame outputs carry no track ids, so people are linked across consecutive
 # frames by their pelvis positions (one-to-one, nearest first: :func:`scipy.optimize.linear_sum_assignment`);
-# a person further than :data:`MAX_STEP_M` from every person of the previous frame starts a new track. Every frame
+# a person further than :data:`MAX_STEP_M` from every person of the previous frame starts a new track. For people in
+# a camera frame the distance counts the step along the line of sight at :data:`DEPTH_WEIGHT` (:func:`step_m`): a
+# monocular depth jumps with the detection box (SMPLer-X's crop camera scales with the box, so a box 12 % taller
+# moves a person 5 m away by 0.6 m in depth while it stays on the same pixels). Every frame
 # is moved into the clip's camera (the first person's of the first frame) when the frames' cameras differ
 # (SMPLer-X's crop cameras): the pelvis keeps its pixel and apparent size (:func:`workflows.estimators.smplerx.
 # move_to_camera`).
 
 MAX_STEP_M = 0.5
 """Farthest (metres) a person's pelvis may move between consecutive frames and stay the same track."""
+DEPTH_WEIGHT = 0.25
+"""Weight of the step along the camera's line of sight in :func:`step_m` (monocular depth is about four times
+noisier than the image axes)."""
 MAX_FILES = 1_000_000
 """Most files listed in one folder."""
 _NUMBERED = re.compile(r"^(\d+)(?:_(\d+))?$")
@@ -449,6 +488,17 @@ def to_camera(person: EstimatedPerson, camera) -> EstimatedPerson:  # noqa: ANN0
     return dataclasses.replace(person, transl=person.transl + M_WORLD_CAMERA @ moved - pelvis, camera=camera)
 
 
+def step_m(a: EstimatedPerson, pa: np.ndarray, pb: np.ndarray) -> float:
+    """How far a pelvis moved from ``pa`` to ``pb`` (3,) for track linking: in a camera frame (``a.camera`` set; the
+    camera at the origin) the step along ``pa``'s line of sight counts at :data:`DEPTH_WEIGHT`; else the distance."""
+    d = pb - pa
+    if a.camera is None or not np.linalg.norm(pa) > 1e-9:
+        return float(np.linalg.norm(d))
+    ray = pa / np.linalg.norm(pa)
+    along = float(d @ ray)
+    return float(np.hypot(np.linalg.norm(d - along * ray), DEPTH_WEIGHT * along))
+
+
 def match_tracks(frames: list[tuple[int, list[EstimatedPerson]]], max_step_m: float = MAX_STEP_M
                  ) -> dict[str, list[tuple[int, EstimatedPerson]]]:
     """Link per-frame people (frames in order) into tracks by nearest pelvis (module docstring); track ids
@@ -457,12 +507,13 @@ def match_tracks(frames: list[tuple[int, list[EstimatedPerson]]], max_step_m: fl
 
     tracks: dict[str, list[tuple[int, EstimatedPerson]]] = {}
     last: dict[str, tuple[int, np.ndarray]] = {}  # track -> (frame, pelvis) of its latest person
+    person: dict[str, EstimatedPerson] = {}
     for f, people in frames:
         pelvis = [pelvis_of(p) for p in people]
         live = [t for t, (g, _) in last.items() if g == f - 1]
         taken: dict[int, str] = {}
         if live and people:
-            cost = np.array([[np.linalg.norm(last[t][1] - q) for q in pelvis] for t in live])
+            cost = np.array([[step_m(person[t], last[t][1], q) for q in pelvis] for t in live])
             for r, c in zip(*linear_sum_assignment(cost), strict=True):
                 if cost[r, c] <= max_step_m:
                     taken[int(c)] = live[int(r)]
@@ -473,4 +524,5 @@ def match_tracks(frames: list[tuple[int, list[EstimatedPerson]]], max_step_m: fl
                 tracks[tid] = []
             tracks[tid].append((f, dataclasses.replace(p, person_id=tid)))
             last[tid] = (f, pelvis[i])
+            person[tid] = p
     return tracks

@@ -40,7 +40,14 @@ _NAME = re.compile(r"^(\d+)_(\d+)$")
 
 
 def matches(data: Any) -> bool:
-    return isinstance(data, dict) and all(k in data for k in KEYS)
+    """SMPLer-X's keys with ONE person of one frame (``global_orient`` 3 numbers): an SMPL-X sequence in the same
+    smplx-layer keys (``global_orient (T, 3)``, one ``betas`` row) is the plain reader's sequence."""
+    if not (isinstance(data, dict) and all(k in data for k in KEYS)):
+        return False
+    try:
+        return np.asarray(data["global_orient"]).size == 3
+    except (TypeError, ValueError):
+        return True  # the reader names the problem
 
 
 def _meta(npz: Path, source: str) -> tuple[np.ndarray, np.ndarray] | None:
