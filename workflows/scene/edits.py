@@ -231,8 +231,73 @@ def _meets(solver: Any, effectors: Sequence[Effector], pose: Pose) -> bool:
                if r.effector.tolerance < RELAXED_TOLERANCE)
 
 
+def chain_drag_target(effectors: Sequence[Effector], joint: int) -> np.ndarray | None:
+    """The target of a chain drag (:mod:`smplik.chain_drag`): the exact position effector (tolerance below
+    :data:`RELAXED_TOLERANCE`) of a dragged joint that :func:`smplik.chain_drag.drag_joint` solves (elbows, knees,
+    head, neck, spine, pelvis), else None."""
+    from smplik.chain_drag import DRAG_JOINTS
+
+    if JOINT_NAMES[int(joint)] not in DRAG_JOINTS:
+        return None
+    pos = [e for e in effectors if e.joint == int(joint) and e.type == EffectorType.POSITION
+           and e.tolerance < RELAXED_TOLERANCE]
+    return np.asarray(pos[-1].value, np.float64) if pos else None
+
+
+def held_positions(effectors: Sequence[Effector], joint: int) -> list[tuple[int, np.ndarray]]:
+    """(joint, position) of the exact position effectors (tolerance below :data:`RELAXED_TOLERANCE`) on joints
+    other than ``joint``: what a chain drag keeps."""
+    return [(e.joint, np.asarray(e.value, np.float64)) for e in effectors
+            if e.type == EffectorType.POSITION and e.tolerance < RELAXED_TOLERANCE and e.joint != int(joint)]
+
+
+def solve_chain_drag(solver: Any, effectors: Sequence[Effector], previous: Pose, joint: int, *,
+                     keep_held: bool = True) -> Pose:
+    """A drag of an elbow, knee, the head, neck, a spine joint or the pelvis (SMPL space): the local solve of
+    :func:`smplik.chain_drag.drag_joint` from ``previous`` (no network), keeping the exact position effectors of
+    other joints (``keep_held=False``: ignoring them, to see which ones pull against the target)."""
+    from scipy.spatial.transform import Rotation
+
+    from smplik.chain_drag import drag_joint
+
+    target = chain_drag_target(effectors, joint)
+    if target is None:
+        raise ValueError(f"No exact position effector on {JOINT_NAMES[int(joint)]} to drag.")
+    betas = torch.as_tensor(np.asarray(previous.betas, np.float64))
+    J_rest = solver.bodies[previous.gender].rest_joints(betas).double().numpy()
+    aa = np.concatenate([np.asarray(previous.global_orient)[None], np.asarray(previous.body_pose)])
+    held = held_positions(effectors, joint) if keep_held else []
+    result = drag_joint(Rotation.from_rotvec(aa).as_matrix(), np.asarray(previous.transl, np.float64), J_rest,
+                        int(joint), target, held_positions=held)
+    out = Rotation.from_matrix(result.R_local).as_rotvec()
+    return Pose(out[0], out[1:], result.transl, np.asarray(previous.betas, np.float64), previous.gender,
+                result.p_world)
+
+
 def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
                moved_joints: Sequence[int], *, analytic: bool = True) -> list[Pose]:
+    """Solve B drags (SMPL space) so that only the dragged chain changes (see :func:`solve_limb_edit`); with
+    ``analytic``, a position drag of an elbow, knee, the head, neck, a spine joint or the pelvis is the local
+    chain solve :func:`solve_chain_drag` instead (:mod:`smplik.chain_drag`)."""
+    B = len(effector_lists)
+    if not len(previous) == len(moved_joints) == B:
+        raise ValueError(f"{B} effector lists, {len(previous)} previous poses, {len(moved_joints)} moved joints.")
+    chain_rows = [b for b in range(B) if analytic and chain_drag_target(effector_lists[b], moved_joints[b])
+                  is not None]
+    out: list[Pose | None] = [None] * B
+    for b in chain_rows:
+        out[b] = solve_chain_drag(solver, effector_lists[b], previous[b], int(moved_joints[b]))
+    rest = [b for b in range(B) if b not in chain_rows]
+    if rest:
+        solved = solve_limb_edit(solver, [effector_lists[b] for b in rest], [previous[b] for b in rest],
+                                 [moved_joints[b] for b in rest], analytic=analytic)
+        for b, pose in zip(rest, solved, strict=True):
+            out[b] = pose
+    return [p for p in out if p is not None]
+
+
+def solve_limb_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
+                    moved_joints: Sequence[int], *, analytic: bool = True) -> list[Pose]:
     """Solve B drags (SMPL space) so that only the dragged chain changes, posed the way the prior finds natural.
 
     Per row, first the *prior's chain*: the network solves the (relaxed) effectors; its local rotations of the
@@ -520,6 +585,35 @@ def solve_scene_edits(scene: Any, solver: Any, *, exact: bool = False, only: Seq
     return dataclasses.replace(scene, characters=tuple(chars)), reports
 
 
+def pulling_effectors(solver: Any, effectors: Sequence[Effector], previous: Pose, solved: Pose, moved: int, *,
+                      scale: float = 1.0) -> tuple[int, ...]:
+    """The effectors that actually pull against a drag of ``effectors[moved]`` (character space).
+
+    Nothing when the drag met its target (within :func:`allowance`). Otherwise the drag is solved again from
+    ``previous`` with the dragged effector alone (:func:`solve_chain_drag` without the held effectors, or
+    :func:`solve_edit` of that one effector); the held effectors (tolerance below :data:`RELAXED_TOLERANCE`) whose
+    residual then grows by more than their allowance over ``previous``'s are the ones that pull against it.
+    ``solved``: the drag's pose; poses are SMPL space.
+    """
+    from workflows.scene.characters import scale_effector
+
+    effectors = tuple(effectors)
+    residual = character_residuals(effectors, solved, scale, solver.bodies)
+    if residual[moved] <= allowance(effectors[moved]):
+        return ()
+    smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
+    joint = effectors[moved].joint
+    previous = dataclasses.replace(previous, joints=None)
+    if chain_drag_target(smpl, joint) is not None:
+        alone = solve_chain_drag(solver, smpl, previous, joint, keep_held=False)
+    else:
+        alone = solve_edit(solver, [[smpl[moved]]], [previous], [joint])[0]
+    before = character_residuals(effectors, previous, scale, solver.bodies)
+    after = character_residuals(effectors, alone, scale, solver.bodies)
+    return tuple(i for i, e in enumerate(effectors) if i != moved and e.tolerance < RELAXED_TOLERANCE
+                 and after[i] - before[i] > allowance(e))
+
+
 @cache
 def _shipped_solver() -> Any:
     from smplik.solver import IKSolver
@@ -614,6 +708,9 @@ class EffectorConflict:
     allowed: float
     network_residual: float
     conflicts_with: tuple[int, ...] = ()
+    drag_solved: bool = False
+    """The pose is a drag's local solve from the previous pose (:func:`pulling_effectors` found what contradicts
+    it), not the network's: :attr:`forced` does not apply."""
 
     @property
     def unit(self) -> str:
@@ -626,7 +723,7 @@ class EffectorConflict:
     @property
     def forced(self) -> bool:
         """Met only by the refinement bending the pose far from the network's answer (:func:`strain_limit`)."""
-        return self.met and self.network_residual > strain_limit(self.effector)
+        return self.met and not self.drag_solved and self.network_residual > strain_limit(self.effector)
 
     @property
     def in_conflict(self) -> bool:
