@@ -104,7 +104,7 @@ def signals_from_dict(data: Any, source: str = "trackers") -> TrackerSignals:
     for name, entry in trackers.items():
         path = f"trackers.{name}"
         if name not in JOINT_NAMES:
-            raise err(path, f"tracker names are SMPL joint names: {unknown_joint(name)}")
+            raise err(path, unknown_joint(name))
         if not isinstance(entry, dict):
             raise err(path, f"expected an object with 'position' (and 'rotation'), got {short_repr(entry)}.")
         bad = sorted(set(entry) - _TRACKER_KEYS)
