@@ -185,7 +185,7 @@ def test_save_elsewhere_rebases_relative_paths(solver, tmp_path):
     src = save_scene(scene, tmp_path / "a" / "scene.json")
     state = EditorState.open(src, solver)
     state.save(tmp_path / "b" / "copy.json")
-    assert json.loads((tmp_path / "b" / "copy.json").read_text())["image"] == str(tmp_path / "a" / "photo.png")
+    assert json.loads((tmp_path / "b" / "copy.json").read_text())["image"] == "../a/photo.png"  # relative to it
     state.save(src)
     assert json.loads(src.read_text())["image"] == "photo.png"
 
