@@ -293,6 +293,12 @@ def test_add_then_drag_an_elbow_in_headless_chromium(editor):
         box = page.locator("canvas").first.bounding_box()
         scale = GIZMO_SCALE * state.character().scale
         centre = start[elbow]
+        eye = centre + [0.0, 0.1, 1.0]  # the user zooms in on the elbow (its handle then spans ~100 px)
+        far = body_pixels(page.screenshot())
+        client.camera.look_at = tuple(centre)
+        client.camera.position = tuple(eye)
+        wait_for(lambda: np.linalg.norm(np.asarray(client.camera.position) - eye) < 1e-3, "the page's camera")
+        wait_for(lambda: body_pixels(page.screenshot()) > 2 * far, "the zoomed-in view drawn")
         # grab the handle's +y arrow (drei PivotControls: an arrow of the handle's scale along each axis)
         grip = _project(client.camera, centre + [0.0, 0.6 * scale, 0.0], box)
         up = _project(client.camera, centre + [0.0, 0.95 * scale, 0.0], box)  # about 6 cm up
