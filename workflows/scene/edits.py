@@ -25,7 +25,8 @@ Effectors outside the chain are kept: they hold the rest of the body. The benchm
 
 **Solving a drag** (:func:`solve_edit`): a dragged wrist or ankle is posed by the analytic two-bone IK of its
 limb on the pose the drag started from, its elbow or knee swivel turned most of the way to the learned
-prior's; everything outside the limb stays put unless an exact effector needs it.
+prior's; everything outside the limb stays put unless an exact effector needs it. A dragged elbow, knee, head,
+neck, spine joint or pelvis is the local chain solve of :mod:`smplik.chain_drag` (:func:`solve_chain_drag`).
 
 **Scripted edits** (:func:`solve_scripted`): a script that changes effectors (in ``scene.json``, an animation's
 keyframe) gets the same drag. The effectors the stored pose does not meet (beyond their :func:`allowance`) are
