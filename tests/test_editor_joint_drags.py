@@ -42,11 +42,19 @@ def solver():
     return IKSolver.load()
 
 
-@pytest.fixture(scope="module")
-def real_pose(shared_data):
-    """Frame 200 of CMU 02_01 (a walk) on the neutral body."""
+@pytest.fixture(scope="module", params=["cmu_02_01", "example_walk"])
+def real_pose(request):
+    """Frame 200 of CMU 02_01 (a walk) on the neutral body (skipped without the shared data), and the built-in
+    example walk (:func:`workflows.examples_gen.example_poses`, always there)."""
     from smplik.data.dataset import find_sources, read_source
 
+    if request.param == "example_walk":
+        from workflows.examples_gen import example_poses
+
+        p = example_poses()[0].pose
+        return Pose(np.asarray(p.global_orient, np.float64), np.asarray(p.body_pose, np.float64),
+                    np.asarray(p.transl, np.float64), np.zeros(NUM_BETAS), Gender.NEUTRAL)
+    shared_data = request.getfixturevalue("shared_data")
     if shared_data.cmu_dir is None:
         pytest.skip("no CMU BVH folder in the shared data")
     src = [s for s in find_sources(shared_data.cmu_dir, "bvh") if s.name.startswith("02_01")]
