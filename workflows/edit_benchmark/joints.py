@@ -11,7 +11,8 @@ drag_effector` relaxes the chain's stale effectors, :func:`workflows.scene.edits
 comparison, by the previous release's solve of such drags (``before``: the network's chain on the scene's pose,
 refined, :func:`workflows.scene.edits.solve_limb_edit`).
 
-Figures per joint: the dragged joint's distance to its target (mm) and the largest displacement of the joints
+Figures per joint (every drag is also a row of ``pairs``): CPU time per drag (one at a time, as the editor
+solves them), the dragged joint's distance to its target (mm) and the largest displacement of the joints
 outside the moved chain (mm: every joint no free rotation of :func:`smplik.chain_drag.drag_plan` carries, and the
 pinned effectors' joints); the pelvis rows also say whether the target was reachable with the feet planted.
 """
@@ -144,8 +145,15 @@ def joint_drag_benchmark(clips: Sequence[Any], solver: Any, *, pairs_per_joint: 
                              reachable(aa0, tr0, aa1, J_rest, joint, target)))
         if not problems:
             continue
-        methods = {"smplik": solve_edit(solver, [p[6] for p in problems], [p[7] for p in problems],
-                                        [j] * len(problems))}
+        import time
+
+        ms: list[float] = []
+        solved = []
+        for p in problems:  # one drag at a time, as the editor solves them: CPU time per drag
+            t = time.process_time()
+            solved += solve_edit(solver, [p[6]], [p[7]], [j])
+            ms.append(1000.0 * (time.process_time() - t))
+        methods = {"smplik": solved}
         if before:
             methods["before"] = solve_limb_edit(solver, [p[6] for p in problems], [p[7] for p in problems],
                                                 [j] * len(problems))
@@ -169,11 +177,14 @@ def joint_drag_benchmark(clips: Sequence[Any], solver: Any, *, pairs_per_joint: 
         out["joints"][joint] = {m: _summary(f["target"], f["outside"], reach) | {
             "move_mm_median": round(float(np.median([1000 * p[5] for p in problems])), 1)}
             for m, f in figures.items()}
+        out["joints"][joint]["smplik"] |= {"cpu_ms_median": round(float(np.median(ms)), 1),
+                                           "cpu_ms_max": round(float(np.max(ms)), 1)}
         out["pairs"] += rows
         s = out["joints"][joint]["smplik"]
         say(f"{joint:12s} {s['pairs']:3d} drags ({s['reachable']} reachable)  target {s['target_mm_median']:5.1f} mm "
             f"median, {s['target_mm_max']:6.1f} max, {100 * s['target_within_10mm']:.0f}% <= 10 mm (reachable: "
-            f"{s['reachable_target_mm_max']:.1f} max); outside the chain {s['outside_mm_max']:5.2f} mm max")
+            f"{s['reachable_target_mm_max']:.1f} max); outside the chain {s['outside_mm_max']:5.2f} mm max; "
+            f"{s['cpu_ms_median']:.0f} ms CPU per drag (median, max {s['cpu_ms_max']:.0f})")
     return out
 
 

@@ -265,7 +265,9 @@ class EditorState(UndoStacks):
 
     def conflicts(self, index: int | None = None) -> ConflictReport:
         """The conflict report of a character (:func:`workflows.scene.edits.conflict_report`: per effector its
-        residual and the effectors it contradicts); cached until that character changes."""
+        residual and the effectors it contradicts); cached until that character changes. Right after a drag it
+        names only the effectors that pull against the dragged one
+        (:func:`workflows.scene.edits.pulling_effectors`)."""
         i = self.active if index is None else self._check_character(index)
         c = self.scene.characters[i]
         cached = self._reports.get(i)

@@ -768,7 +768,7 @@ class ConflictReport:
             {"index": e.index, "joint": e.effector.joint_name, "type": e.effector.type.name.lower(),
              "tolerance": e.effector.tolerance, "residual": e.residual, "unit": e.unit, "allowed": e.allowed,
              "network_residual": e.network_residual, "met": e.met, "forced": e.forced,
-             "conflicts_with": list(e.conflicts_with)} for e in self.entries]}
+             "conflicts_with": list(e.conflicts_with), "drag_solved": e.drag_solved} for e in self.entries]}
 
 
 def conflict_report(character: Any, solver: Any) -> ConflictReport:
