@@ -169,3 +169,19 @@ def test_conflict_report_names_only_the_effectors_that_pull(solver, real_pose):
     for e in report.entries:  # no other entry names anything but the dragged effector
         assert set(e.conflicts_with) <= ({k} if e.index != k else set(entry.conflicts_with))
     assert "left_ankle" not in state.drag_summary() and "right_ankle" not in state.drag_summary()
+
+
+def test_add_effector_on_the_demo_scenes_moves_nothing(solver, tmp_path_factory):
+    """Issue 44's reproduction: on the demo's two scenes, adding a position effector (right wrist, left ankle, left
+    elbow, head) for each person moved the body by 9-104 mm; now by nothing."""
+    from workflows.demo import run_demo
+
+    out = run_demo(tmp_path_factory.mktemp("demo"), solver, previews=False)
+    for scene_path in (out.smpl.scene, out.character.scene):
+        state = EditorState.open(scene_path, solver)
+        for person in range(len(state.scene.characters)):
+            state.select_character(person)
+            for joint in ("right_wrist", "left_ankle", "left_elbow", "head"):
+                before = state.view().joints.copy()
+                state.add_effector(joint)
+                assert _moved_mm(state.view().joints, before) < 0.1, (scene_path.name, person, joint)
