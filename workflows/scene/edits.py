@@ -316,7 +316,8 @@ def solve_limb_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], p
     included, stays exactly where the user left it. Only when that pose misses an effector the user still
     holds exactly (the target out of reach, a kept wrist rotation) does the held refinement start from it,
     so the collar, spine or root take a share only when the edit needs them. A moved joint in no chain
-    (the pelvis) solves as :meth:`~smplik.solver.IKSolver.solve_batch` does.
+    (the pelvis) solves as :meth:`~smplik.solver.IKSolver.solve_batch` does (:func:`solve_edit` solves a
+    pelvis position drag with :mod:`smplik.chain_drag` instead).
 
     Args:
         solver: an :class:`smplik.solver.IKSolver`.
@@ -504,8 +505,8 @@ def unmet_effectors(effectors: Sequence[Effector], pose: Pose, scale: float, bod
 
 
 def drag_order(effectors: Sequence[Effector], moved: Sequence[int]) -> list[int]:
-    """The order in which several moved effectors are solved as drags: those on no chain (the pelvis: they
-    re-pose the whole body) first, then the others as given."""
+    """The order in which several moved effectors are solved as drags: those on no chain (the pelvis: it
+    carries the whole upper body) first, then the others as given."""
     return sorted(moved, key=lambda i: bool(chain_of(effectors[i].joint)))
 
 
