@@ -26,7 +26,7 @@ from pathlib import Path
 
 from shape_inversion.features import REQUIRED_JOINTS
 from shape_inversion.rig_names import NameMatchError, match_humanoid
-from smplik.conventions import JOINT_NAMES
+from smplik.conventions import JOINT_NAMES, unknown_joint
 from smplik.data.retarget import PRESET_DIR, preset_names
 
 
@@ -75,8 +75,7 @@ def rig_from_dict(data: Mapping, name: str) -> RigMap:
         raise RigError(f"Rig map {name}: 'joints' must map SMPL joint names to rig joint names (strings).")
     unknown = [k for k in joints if k not in JOINT_NAMES]
     if unknown:
-        raise RigError(f"Rig map {name}: unknown SMPL joint names {', '.join(map(repr, unknown))}; "
-                       f"valid names: {', '.join(JOINT_NAMES)}.")
+        raise RigError(f"Rig map {name}: {unknown_joint(unknown[0])}")
     units = data.get("units") if "joints" in data else None
     up = data.get("up") if "joints" in data else None
     return RigMap(name=str(data.get("name", name)) if "joints" in data else name,

@@ -138,6 +138,17 @@ class EffectorType(int, Enum):
             raise ValueError(f"Unknown effector type {value!r}; expected one of: {valid}.") from None
 
 
+def unknown_joint(name: object) -> str:
+    """The message for a joint name that is not an SMPL joint: ``unknown joint 'left_wirst' (did you mean
+    'left_wrist'?); valid names: ...`` (:func:`difflib.get_close_matches`; every parser of joint names uses it)."""
+    import difflib
+
+    text = str(name)
+    close = difflib.get_close_matches(text.lower(), JOINT_NAMES, n=1, cutoff=0.6)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"unknown joint {text[:60]!r}{hint}; valid names: {', '.join(JOINT_NAMES)}."
+
+
 def joint_index(joint: str | int) -> int:
     """Return the SMPL index of ``joint`` given by name or index, with a clear error otherwise."""
     if isinstance(joint, bool):
@@ -148,7 +159,8 @@ def joint_index(joint: str | int) -> int:
         return joint
     if isinstance(joint, str) and joint in JOINT_INDEX:
         return JOINT_INDEX[joint]
-    raise ValueError(f"Unknown joint {joint!r}; valid names: {', '.join(JOINT_NAMES)}.")
+    message = unknown_joint(joint)
+    raise ValueError(message[0].upper() + message[1:])
 
 
 def tree_depth(parents: tuple[int, ...] = PARENTS) -> tuple[int, ...]:

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smplik.conventions import JOINT_NAMES, NUM_JOINTS, EffectorType, joint_index
+from smplik.conventions import JOINT_NAMES, NUM_JOINTS, EffectorType, joint_index, unknown_joint
 from smplik.validation import MAX_ABS_POSITION_M, JSONPathError, finite_array, short_repr
 
 _TYPE_NAMES = tuple(t.name.lower() for t in EffectorType)
@@ -129,7 +129,8 @@ def _joint(joint: Any) -> int:
     try:
         return joint_index(joint)
     except (ValueError, KeyError, TypeError, IndexError):
-        raise EffectorError(f"Unknown joint {joint!r:.60}; valid names: {', '.join(JOINT_NAMES)}.") from None
+        message = unknown_joint(joint)
+        raise EffectorError(message[0].upper() + message[1:]) from None
 
 
 def parse_effector_dict(data: Any, path: str = "", error: JSONPathError | None = None) -> Effector:
@@ -158,7 +159,7 @@ def parse_effector_dict(data: Any, path: str = "", error: JSONPathError | None =
             raise err(path, f"missing key '{key}'.")
     joint = data["joint"]
     if not isinstance(joint, str) or joint not in JOINT_NAMES:
-        raise err(sub("joint"), f"unknown joint {joint!r:.60}; valid names: {', '.join(JOINT_NAMES)}.")
+        raise err(sub("joint"), unknown_joint(joint))
     kind_text = data["type"]
     try:
         if not isinstance(kind_text, str):

@@ -122,11 +122,17 @@ def read_text(path: str | Path, error: type[Exception] = ValueError, *, what: st
     except FileNotFoundError:
         raise error(f"{what[0].upper()}{what[1:]} not found: {path}") from None
     except IsADirectoryError:
-        raise error(f"{path}: is a folder, not a {what}.") from None
+        raise error(f"{path}: is a folder, not {article(what)} {what}.") from None
     except UnicodeDecodeError:
         raise error(f"{path}: {what} is not UTF-8 text.") from None
     except OSError as exc:
         raise error(f"{path}: cannot read {what} ({exc.strerror or exc}).") from None
+
+
+def article(noun: str) -> str:
+    """"an" before a vowel sound ("an effector file", "an estimate"), else "a"."""
+    low = noun.lower()
+    return "an" if low[:1] in ("a", "e", "i", "o", "u") and not low.startswith(("uni", "use", "usa")) else "a"
 
 
 def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: str = "JSON file",

@@ -283,3 +283,32 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     J = BodyModelSet.load().rest_joints(torch.zeros(10), torch.tensor(0))
     pairs = select_pairs(clips, J, EditBenchmarkConfig())
     assert pairs and all(p.end == "right_wrist" for p in pairs)  # the test split's right-hand edits of 02_05/06
+
+
+def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(shared_data):
+    """The edit benchmark's joint drags (workflows.edit_benchmark.joints) on a real CMU clip: every joint's drag
+    meets its reachable targets within 1 cm and moves nothing outside its chain by 5 mm; every case is reported."""
+    from smplik.data.dataset import find_sources
+    from smplik.solver import IKSolver
+    from workflows.edit_benchmark.joints import JOINTS, joint_drag_benchmark
+    from workflows.edit_benchmark.run import clips_from_folder
+
+    if shared_data.cmu_dir is None or not any(s.name.startswith("02_01") for s in find_sources(shared_data.cmu_dir,
+                                                                                               "bvh")):
+        pytest.skip("CMU 02_01.bvh is not in the shared data")
+    import shutil
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        shutil.copy(shared_data.cmu_dir / "02_01.bvh", folder)
+        clips = clips_from_folder(folder, preset="cmu")
+    out = joint_drag_benchmark(clips, IKSolver.load(), pairs_per_joint=3, before=False)
+    assert set(out["joints"]) == set(JOINTS)
+    assert len(out["pairs"]) == sum(v["smplik"]["pairs"] for v in out["joints"].values())
+    for joint, figures in out["joints"].items():
+        s = figures["smplik"]
+        assert s["outside_mm_max"] < 5.0, joint
+        if s["reachable"]:
+            assert s["reachable_target_mm_max"] < 10.0, joint
+    for row in out["pairs"]:
+        assert {"joint", "clip", "t0", "t1", "move_mm", "reachable", "smplik"} <= set(row)

@@ -251,3 +251,71 @@ def test_gizmo_drags_re_solve_and_redraw_without_a_browser(editor):
     editor._run(state.undo)
     assert np.allclose(editor._gizmos[1].position, [-0.35, 1.85, 0.25])
     assert editor.undo_button.disabled is False and editor.redo_button.disabled is False
+
+
+def _project(camera: Any, point: np.ndarray, box: dict[str, float]) -> tuple[float, float]:
+    """Page pixel of a world point seen by a viser client's camera (``wxyz``/``position``: camera to world,
+    OpenCV axes; ``fov``: vertical) drawn on the canvas ``box``."""
+    from scipy.spatial.transform import Rotation
+
+    w, x, y, z = np.asarray(camera.wxyz, np.float64)
+    R = Rotation.from_quat([x, y, z, w]).as_matrix()
+    p = R.T @ (np.asarray(point, np.float64) - np.asarray(camera.position, np.float64))
+    f = 0.5 * box["height"] / np.tan(0.5 * camera.fov)
+    return box["x"] + 0.5 * box["width"] + f * p[0] / p[2], box["y"] + 0.5 * box["height"] + f * p[1] / p[2]
+
+
+def test_add_then_drag_an_elbow_in_headless_chromium(editor):
+    """Issue 44 in the browser: "Add effector" on the left elbow does not move the body; dragging its handle's
+    up arrow with the mouse raises the elbow, meets the handle within 1 cm and keeps everything outside the arm
+    (the other arm, the head, the legs) within 5 mm."""
+    from workflows.editor.app import GIZMO_SCALE
+
+    state = editor.state
+    elbow = 18  # left_elbow
+    arm = {16, 18, 20, 22}  # left shoulder, elbow, wrist, hand
+    with editor_page(editor.url) as page:
+        add = page.get_by_role("button", name="Add effector")
+        add.wait_for()
+        wait_for(lambda: body_pixels(page.screenshot(timeout=WAIT_S * 1000)) > 5000, "the body in the 3D view",
+                 timeout=2 * WAIT_S)
+        close = page.locator(".mantine-Notification-closeButton")
+        if close.count():
+            close.first.click()
+        start = state.view().joints.copy()
+        editor.joint_dropdown.value = "left_elbow"  # the Joint field (synchronised to the page)
+        wait_for(lambda: page.locator("input[value='left_elbow']").count() > 0, "left_elbow in the Joint field")
+        add.click()
+        wait_for(lambda: len(state.character().effectors) == 4, "the added elbow effector on the server")
+        assert state.character().effectors[3].joint_name == "left_elbow"
+        assert np.abs(state.view().joints - start).max() < 1e-4  # adding moved nothing
+        client = wait_for(lambda: next(iter(editor.server.get_clients().values()), None), "the page's client")
+        box = page.locator("canvas").first.bounding_box()
+        scale = GIZMO_SCALE * state.character().scale
+        centre = start[elbow]
+        eye = centre + [0.0, 0.1, 1.0]  # the user zooms in on the elbow (its handle then spans ~100 px)
+        far = body_pixels(page.screenshot())
+        client.camera.look_at = tuple(centre)
+        client.camera.position = tuple(eye)
+        wait_for(lambda: np.linalg.norm(np.asarray(client.camera.position) - eye) < 1e-3, "the page's camera")
+        wait_for(lambda: body_pixels(page.screenshot()) > 2 * far, "the zoomed-in view drawn")
+        # grab the handle's +y arrow (drei PivotControls: an arrow of the handle's scale along each axis)
+        grip = _project(client.camera, centre + [0.0, 0.6 * scale, 0.0], box)
+        up = _project(client.camera, centre + [0.0, 0.95 * scale, 0.0], box)  # about 6 cm up
+        page.mouse.move(*grip)
+        page.mouse.down()
+        for t in np.linspace(0.1, 1.0, 10):
+            page.mouse.move(grip[0] + t * (up[0] - grip[0]), grip[1] + t * (up[1] - grip[1]))
+        page.mouse.up()
+
+        def raised() -> bool:
+            e = state.character().effectors[3]
+            return e.value[1] - centre[1] > 0.02
+        wait_for(raised, "the elbow handle dragged up on the server")
+        editor.process_pending()
+        e = state.character().effectors[3]
+        after = state.view().joints
+        assert np.linalg.norm(after[elbow] - e.value) < 0.01, (after[elbow], e.value, centre)
+        outside = [j for j in range(24) if j not in arm]
+        assert np.abs(after[outside] - start[outside]).max() < 0.005
+        assert e.value[1] - centre[1] > 0.02

@@ -311,6 +311,28 @@ def test_two_tracks_one_starting_later(best_solver, tmp_path, monkeypatch):
         app.stop()
 
 
+def test_keyframe_dropdown_always_agrees_with_the_header(app):
+    """Issue 44: picking "(not a keyframe)" on a keyframe left the dropdown saying so while the header said
+    "keyframe, 3 effectors"; the dropdown now always shows what the header says, whatever the user picks."""
+    from workflows.editor.timeline_app import NOT_A_KEYFRAME
+
+    def agree() -> bool:
+        keyframe = "(keyframe," in app._frame_text()
+        return keyframe == (app.keyframe_dropdown.value != NOT_A_KEYFRAME) and (
+            not keyframe or app.keyframe_dropdown.value == str(app.timeline.frame))
+
+    tl = app.timeline
+    key = tl.keyframes()[1]
+    user_event(app.keyframe_dropdown, str(key))
+    assert tl.frame == key and agree()
+    user_event(app.keyframe_dropdown, NOT_A_KEYFRAME)  # a label, not a frame
+    assert tl.frame == key and agree()
+    user_event(app.frame_slider, key + 1)
+    assert agree() and app.keyframe_dropdown.value == NOT_A_KEYFRAME
+    user_event(app.keyframe_dropdown, NOT_A_KEYFRAME)
+    assert agree()
+
+
 def test_timeline_controls_in_headless_chromium(app):
     from tests.test_editor_browser import CHROMIUM, IN_CI, editor_page, wait_for
 

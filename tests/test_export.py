@@ -69,12 +69,12 @@ def test_character_scene_after_edit_and_solve_exports_the_solved_pose(demo, tmp_
     scene = load_scene(edited)
     first = scene.characters[0]
     assert first.skeleton is not None and first.skeleton.rig == "mixamo"
-    char = character_from_estimate(first.skeleton.path, first.skeleton.options, first.betas, first.scale,
-                                   first.gender)
+    skeleton_file = edited.parent / first.skeleton.path  # scene.json stores it relative to itself
+    char = character_from_estimate(skeleton_file, first.skeleton.options, first.betas, first.scale, first.gender)
     custom = smpl_to_custom(dataclasses.replace(first.pose, betas=first.betas), char)
     _, p_file = custom.positions(char)
     bvh = read_bvh(tmp_path / f"{first.name}.bvh")
-    source = read_bvh(first.skeleton.path)
+    source = read_bvh(skeleton_file)
     assert bvh.joint_names == source.joint_names and bvh.channels == source.channels  # layout kept
     assert np.abs(bvh.positions[0] - char.file_to_canon_points(p_file)).max() < MM  # the scene's world, metres
     # the edit moved the right wrist: the exported character's wrist follows the solved SMPL wrist

@@ -96,7 +96,7 @@ def test_preset_validation_and_errors(tmp_path):
     example = load_preset("generic_example")  # the documented template for user rigs stays valid
     assert example.up == "z" and example.units == 0.01 and example.aim["pelvis"] == ("right_hip", "left_hip")
     assert cmu.joints["pelvis"] == "Hips" and cmu.motion_start == 1 and cmu.units == pytest.approx(0.0254 / 0.45)
-    with pytest.raises(RetargetError, match="unknown SMPL joint 'hips'"):
+    with pytest.raises(RetargetError, match="'joints': unknown joint 'hips'"):
         load_preset({"joints": {"hips": "Hips", "pelvis": "Hips"}})
     with pytest.raises(RetargetError, match="must map 'pelvis'"):
         load_preset({"joints": {"left_hip": "L"}})

@@ -102,7 +102,7 @@ def test_fingerprint_mismatch_warns(tmp_path, bodies, model_path):
 
 @pytest.mark.parametrize(("effectors", "kwargs", "message"), [
     ([{"joint": "left_wirst", "type": "position", "value": [0, 0, 0]}], {},
-         r"effectors\[0\].joint: unknown joint 'left_wirst'; valid names"),
+         r"effectors\[0\].joint: unknown joint 'left_wirst' \(did you mean 'left_wrist'\?\); valid names"),
     ([{"joint": "head", "type": "position", "value": [0, float("nan"), 0]}], {}, "NaN or inf"),
     ([{"joint": "head", "type": "position", "value": [0, float("inf"), 0]}], {}, "NaN or inf"),
     ([{"joint": "head", "type": "position", "value": [0, 0]}], {}, r"shape \(2,\); expected \(3,\)"),

@@ -53,7 +53,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, NUM_JOINTS, PARENTS, Gender
+from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, NUM_JOINTS, PARENTS, Gender, unknown_joint
 from smplik.data.bvh import BVHMotion, read_bvh
 from smplik.kinematics import global_to_local
 from smplik.rotations import matrix_to_axis_angle
@@ -106,7 +106,7 @@ class RetargetPreset:
         joints = {str(k): str(v) for k, v in data["joints"].items()}
         for k in joints:
             if k not in JOINT_INDEX:
-                raise bad(f"unknown SMPL joint {k!r} in 'joints' (valid: {', '.join(JOINT_NAMES)})")
+                raise bad(f"'joints': {unknown_joint(k).rstrip('.')}")
         if "pelvis" not in joints:
             raise bad("'joints' must map 'pelvis' (the root)")
         units = data.get("units", 1.0)

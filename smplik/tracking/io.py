@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from smplik.conventions import JOINT_NAMES
+from smplik.conventions import JOINT_NAMES, unknown_joint
 from smplik.validation import JSONPathError, finite_array, read_json, read_text, short_repr
 
 TRACKERS_FORMAT = "smplik-trackers"
@@ -104,7 +104,7 @@ def signals_from_dict(data: Any, source: str = "trackers") -> TrackerSignals:
     for name, entry in trackers.items():
         path = f"trackers.{name}"
         if name not in JOINT_NAMES:
-            raise err(path, f"unknown joint; tracker names are SMPL joint names ({', '.join(JOINT_NAMES[:4])}, ...).")
+            raise err(path, unknown_joint(name))
         if not isinstance(entry, dict):
             raise err(path, f"expected an object with 'position' (and 'rotation'), got {short_repr(entry)}.")
         bad = sorted(set(entry) - _TRACKER_KEYS)

@@ -32,7 +32,7 @@ from smplik.refine import RefineConfig
 from smplik.variants import Variant
 from workflows.editor.skinning import ShapedBody, Skinner
 from workflows.scene import Scene, SceneCharacter, load_scene, save_scene, solve_character
-from workflows.scene.edits import ConflictReport, conflict_report, relax_stale, solve_drag
+from workflows.scene.edits import ConflictReport, conflict_report, pulling_effectors, relax_stale, solve_drag
 from workflows.scene.variants import with_variant
 
 EFFECTOR_TYPES: tuple[str, ...] = tuple(t.name.lower() for t in EffectorType)
@@ -180,6 +180,7 @@ class EditorState(UndoStacks):
         """Labels of the effectors the last drag relaxed (tolerance raised to
         :data:`workflows.scene.edits.RELAXED_TOLERANCE`); shown by the editor."""
         self._drag_base: Pose | None = None
+        self._pulling: tuple[SceneCharacter, int, tuple[int, ...]] | None = None
         self._reports: dict[int, tuple[SceneCharacter, ConflictReport]] = {}
         self._variants: tuple[int, SceneCharacter, tuple[Variant, ...]] | None = None
         self._variant_index = 0
@@ -264,13 +265,22 @@ class EditorState(UndoStacks):
 
     def conflicts(self, index: int | None = None) -> ConflictReport:
         """The conflict report of a character (:func:`workflows.scene.edits.conflict_report`: per effector its
-        residual and the effectors it contradicts); cached until that character changes."""
+        residual and the effectors it contradicts); cached until that character changes. Right after a drag it
+        names only the effectors that pull against the dragged one
+        (:func:`workflows.scene.edits.pulling_effectors`)."""
         i = self.active if index is None else self._check_character(index)
         c = self.scene.characters[i]
         cached = self._reports.get(i)
         if cached is not None and cached[0] is c:
             return cached[1]
         report = conflict_report(c, self._current_solver())
+        pulling = self._pulling
+        if pulling is not None and pulling[0] is c and i == self.active:  # after a drag: only what pulls
+            k, names = pulling[1], set(pulling[2])
+            entries = tuple(dataclasses.replace(
+                e, drag_solved=True, conflicts_with=tuple(names) if e.index == k else
+                tuple(j for j in e.conflicts_with if j == k and e.index in names)) for e in report.entries)
+            report = dataclasses.replace(report, entries=entries)
         self._reports[i] = (c, report)
         return report
 
@@ -332,7 +342,7 @@ class EditorState(UndoStacks):
             target = view.joints[j] + LOOK_AT_DISTANCE * (view.R_world[j] @ d)
             eff = Effector.look_at(j, target, d, tolerance)
         c = self.character()
-        self._edit(dataclasses.replace(c, effectors=c.effectors + (eff,)), selected=len(c.effectors))
+        self._edit(dataclasses.replace(c, effectors=c.effectors + (eff,)), selected=len(c.effectors), hold=True)
         return len(c.effectors)
 
     def delete_effector(self, index: int | None = None) -> None:
@@ -340,7 +350,7 @@ class EditorState(UndoStacks):
         k = self._effector_or_selected(index)
         c = self.character()
         effs = c.effectors[:k] + c.effectors[k + 1:]
-        self._edit(dataclasses.replace(c, effectors=effs), selected=None)
+        self._edit(dataclasses.replace(c, effectors=effs), selected=None, hold=True)
 
     def move_effector(self, index: int, *, position: Sequence[float] | None = None,
                       rotation: np.ndarray | None = None) -> None:
@@ -380,6 +390,13 @@ class EditorState(UndoStacks):
             self._drag_base = c.pose
             self.relaxed = tuple(f"{i}: {effectors[i].joint_name} {effectors[i].type.name.lower()}" for i in relaxed)
         self._edit(moved, selected=k, gesture=gesture, moved=k)
+        self._pulling = None
+        solved = self.character()
+        if self.relax_on_drag and self._drag_base is not None and solved.pose is not None:
+            base = dataclasses.replace(self._drag_base, betas=np.asarray(solved.betas, np.float64),
+                                       gender=solved.gender, joints=None)
+            self._pulling = (solved, k, pulling_effectors(self._current_solver(), solved.effectors, base,
+                                                          solved.pose, k, scale=solved.scale))
 
     def set_tolerance(self, tolerance: float, index: int | None = None) -> None:
         """Set an effector's tolerance in [0, 1] (default: the selected effector)."""
@@ -389,7 +406,7 @@ class EditorState(UndoStacks):
             new = dataclasses.replace(c.effectors[k], tolerance=float(tolerance))
         except ValueError as exc:
             raise EditorError(str(exc)) from None
-        self._edit(self._with_effector(c, k, new), selected=k, gesture=("tolerance", self.active, k))
+        self._edit(self._with_effector(c, k, new), selected=k, gesture=("tolerance", self.active, k), hold=True)
 
     def set_beta(self, component: int, value: float) -> None:
         """Set one shape component of the active character."""
@@ -619,9 +636,15 @@ class EditorState(UndoStacks):
     def _current_solver(self) -> Any:
         return self._solver if self.refine else self._solver_raw
 
-    def _solve(self, c: SceneCharacter, moved: int | None = None) -> SceneCharacter:
+    def _solve(self, c: SceneCharacter, moved: int | None = None, hold: bool = False) -> SceneCharacter:
         """Re-solve from the effectors; without effectors keep the pose's rotations on the new body. ``moved``:
-        the effector being dragged (:func:`workflows.scene.edits.solve_drag` from the pose at the drag's start)."""
+        the effector being dragged (:func:`workflows.scene.edits.solve_drag` from the pose at the drag's start);
+        ``hold``: an edit of the effector list that moves nothing (:meth:`_hold`)."""
+        if hold and c.effectors:
+            try:
+                return self._hold(c)
+            except ValueError as exc:
+                raise EditorError(f"{c.name}: {exc}") from None
         if c.effectors:
             try:
                 if moved is not None and self.relax_on_drag:
@@ -634,16 +657,36 @@ class EditorState(UndoStacks):
         pose = dataclasses.replace(c.pose, betas=np.asarray(c.betas, np.float64), gender=c.gender, joints=None)
         return dataclasses.replace(c, pose=pose)
 
+    def _hold(self, c: SceneCharacter) -> SceneCharacter:
+        """After adding, deleting or re-tolerancing an effector: the current pose (the T-pose when none was
+        solved) is kept when it meets every effector held more tightly than a relaxed hint
+        (:func:`workflows.scene.edits.unmet_effectors`); the ones it misses (a tolerance lowered on an effector
+        the pose was not meeting) are solved as drags from it (:func:`workflows.scene.edits.solve_edit`), so
+        nothing else moves."""
+        from workflows.scene.characters import scale_effector
+        from workflows.scene.edits import drag_order, solve_edit, unmet_effectors
+
+        solver = self._current_solver()
+        pose = c.pose if c.pose is not None else rest_pose(c)
+        pose = dataclasses.replace(pose, betas=np.asarray(c.betas, np.float64), gender=c.gender, joints=None)
+        unmet = [i for i, _ in unmet_effectors(c.effectors, pose, c.scale, solver.bodies)]
+        order = drag_order(c.effectors, unmet)
+        for step, k in enumerate(order):
+            pending = set(order[step + 1:])
+            smpl = [scale_effector(e, 1.0 / c.scale) for i, e in enumerate(c.effectors) if i not in pending]
+            pose = dataclasses.replace(solve_edit(solver, [smpl], [pose], [c.effectors[k].joint])[0], joints=None)
+        return dataclasses.replace(c, pose=pose)
+
     def _push(self) -> None:
         self._undo.append(self._now)
         del self._undo[:-self._max_history]
         self._redo.clear()
 
     def _edit(self, character: SceneCharacter, *, selected: int | None | str = "keep",
-              gesture: Hashable | None = None, moved: int | None = None) -> None:
-        """Replace the active character (re-solved; ``moved``: the effector a drag moves) and record the undo
-        step."""
-        solved = self._solve(character, moved)
+              gesture: Hashable | None = None, moved: int | None = None, hold: bool = False) -> None:
+        """Replace the active character (re-solved; ``moved``: the effector a drag moves; ``hold``: the pose is
+        kept where the effectors allow, :meth:`_hold`) and record the undo step."""
+        solved = self._solve(character, moved, hold)
         if gesture is None or gesture != self._gesture or not self._undo:
             self._push()
         self._gesture = gesture

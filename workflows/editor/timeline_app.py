@@ -113,10 +113,17 @@ class AnimationEditorApp(EditorApp):
         self.frame_slider.on_update(user(lambda e: self.goto(int(e.target.value))))
         self.prev_key_button.on_click(user(lambda e: self.jump_keyframe(-1)))
         self.next_key_button.on_click(user(lambda e: self.jump_keyframe(1)))
-        self.keyframe_dropdown.on_update(user(lambda e: None if e.target.value == NOT_A_KEYFRAME
-                                              else self.goto(int(e.target.value))))
+        self.keyframe_dropdown.on_update(user(lambda e: self._pick_keyframe(e.target.value)))
         self.window_slider.on_update(user(lambda e: setattr(self.timeline, "window", int(e.target.value))))
         self.apply_button.on_click(user(lambda e: self.apply()))
+
+    def _pick_keyframe(self, value: str) -> None:
+        """The Keyframe dropdown: go to the keyframe picked; "(not a keyframe)" is a label, not a choice (picked
+        on a keyframe it would contradict the header), so the dropdown goes back to what the frame is."""
+        if value == NOT_A_KEYFRAME:
+            self.keyframe_dropdown.value = self._keyframe_value()
+        else:
+            self.goto(int(value))
 
     def _keyframe_options(self) -> list[str]:
         return [NOT_A_KEYFRAME] + [str(k) for k in self.timeline.keyframes()]
@@ -128,7 +135,8 @@ class AnimationEditorApp(EditorApp):
         tl = self.timeline
         shown = [c for c in self.state.scene.characters if c.pose is not None]
         effectors = sum(len(c.effectors) for c in shown)
-        kind = f"keyframe, {effectors} effectors" if tl.frame in tl.keyframes() else "not a keyframe"
+        plural = "" if effectors == 1 else "s"
+        kind = f"keyframe, {effectors} effector{plural}" if tl.frame in tl.keyframes() else "not a keyframe"
         return (f"**Frame {tl.frame}** of {tl.frames.start}..{tl.frames.stop - 1} at {tl.animation.fps:g} "
                 f"frames/s ({kind})")
 

@@ -266,9 +266,29 @@ def load_scene(path: str | Path, *, max_characters: int | None = None) -> Scene:
                            max_characters=max_characters)
 
 
+def relative_to_scene(name: str | None, scene_dir: Path) -> str | None:
+    """An absolute file path rewritten relative to the scene file's folder (POSIX separators), so a moved folder
+    keeps working; relative paths (already relative to the scene file) and paths on another drive are kept."""
+    import os
+
+    if name is None or not Path(name).is_absolute():
+        return name
+    try:
+        return Path(os.path.relpath(Path(name), Path(scene_dir).resolve())).as_posix()
+    except ValueError:  # another drive (Windows)
+        return name
+
+
 def save_scene(scene: Scene, path: str | Path) -> Path:
     """Write ``scene`` as JSON, atomically; a scene that would not read back (NaN focal length, betas
-    that do not match a pose, ...) is refused with a :class:`SceneError` and nothing is written."""
+    that do not match a pose, ...) is refused with a :class:`SceneError` and nothing is written.
+
+    Absolute skeleton and image paths are written relative to the scene file (:func:`relative_to_scene`);
+    readers resolve relative paths against the scene file's folder and still read absolute ones."""
+    folder = Path(path).parent
+    scene = dataclasses.replace(scene, image=relative_to_scene(scene.image, folder), characters=tuple(
+        c if c.skeleton is None else dataclasses.replace(c, skeleton=dataclasses.replace(
+            c.skeleton, path=relative_to_scene(c.skeleton.path, folder))) for c in scene.characters))
     data = scene.to_dict()
     scene_from_dict(json.loads(json.dumps(data)), source=str(path),
                     max_characters=max(MAX_CHARACTERS, len(scene.characters)))

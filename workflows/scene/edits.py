@@ -25,7 +25,8 @@ Effectors outside the chain are kept: they hold the rest of the body. The benchm
 
 **Solving a drag** (:func:`solve_edit`): a dragged wrist or ankle is posed by the analytic two-bone IK of its
 limb on the pose the drag started from, its elbow or knee swivel turned most of the way to the learned
-prior's; everything outside the limb stays put unless an exact effector needs it.
+prior's; everything outside the limb stays put unless an exact effector needs it. A dragged elbow, knee, head,
+neck, spine joint or pelvis is the local chain solve of :mod:`smplik.chain_drag` (:func:`solve_chain_drag`).
 
 **Scripted edits** (:func:`solve_scripted`): a script that changes effectors (in ``scene.json``, an animation's
 keyframe) gets the same drag. The effectors the stored pose does not meet (beyond their :func:`allowance`) are
@@ -231,8 +232,73 @@ def _meets(solver: Any, effectors: Sequence[Effector], pose: Pose) -> bool:
                if r.effector.tolerance < RELAXED_TOLERANCE)
 
 
+def chain_drag_target(effectors: Sequence[Effector], joint: int) -> np.ndarray | None:
+    """The target of a chain drag (:mod:`smplik.chain_drag`): the exact position effector (tolerance below
+    :data:`RELAXED_TOLERANCE`) of a dragged joint that :func:`smplik.chain_drag.drag_joint` solves (elbows, knees,
+    head, neck, spine, pelvis), else None."""
+    from smplik.chain_drag import DRAG_JOINTS
+
+    if JOINT_NAMES[int(joint)] not in DRAG_JOINTS:
+        return None
+    pos = [e for e in effectors if e.joint == int(joint) and e.type == EffectorType.POSITION
+           and e.tolerance < RELAXED_TOLERANCE]
+    return np.asarray(pos[-1].value, np.float64) if pos else None
+
+
+def held_positions(effectors: Sequence[Effector], joint: int) -> list[tuple[int, np.ndarray]]:
+    """(joint, position) of the exact position effectors (tolerance below :data:`RELAXED_TOLERANCE`) on joints
+    other than ``joint``: what a chain drag keeps."""
+    return [(e.joint, np.asarray(e.value, np.float64)) for e in effectors
+            if e.type == EffectorType.POSITION and e.tolerance < RELAXED_TOLERANCE and e.joint != int(joint)]
+
+
+def solve_chain_drag(solver: Any, effectors: Sequence[Effector], previous: Pose, joint: int, *,
+                     keep_held: bool = True) -> Pose:
+    """A drag of an elbow, knee, the head, neck, a spine joint or the pelvis (SMPL space): the local solve of
+    :func:`smplik.chain_drag.drag_joint` from ``previous`` (no network), keeping the exact position effectors of
+    other joints (``keep_held=False``: ignoring them, to see which ones pull against the target)."""
+    from scipy.spatial.transform import Rotation
+
+    from smplik.chain_drag import drag_joint
+
+    target = chain_drag_target(effectors, joint)
+    if target is None:
+        raise ValueError(f"No exact position effector on {JOINT_NAMES[int(joint)]} to drag.")
+    betas = torch.as_tensor(np.asarray(previous.betas, np.float64))
+    J_rest = solver.bodies[previous.gender].rest_joints(betas).double().numpy()
+    aa = np.concatenate([np.asarray(previous.global_orient)[None], np.asarray(previous.body_pose)])
+    held = held_positions(effectors, joint) if keep_held else []
+    result = drag_joint(Rotation.from_rotvec(aa).as_matrix(), np.asarray(previous.transl, np.float64), J_rest,
+                        int(joint), target, held_positions=held)
+    out = Rotation.from_matrix(result.R_local).as_rotvec()
+    return Pose(out[0], out[1:], result.transl, np.asarray(previous.betas, np.float64), previous.gender,
+                result.p_world)
+
+
 def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
                moved_joints: Sequence[int], *, analytic: bool = True) -> list[Pose]:
+    """Solve B drags (SMPL space) so that only the dragged chain changes (see :func:`solve_limb_edit`); with
+    ``analytic``, a position drag of an elbow, knee, the head, neck, a spine joint or the pelvis is the local
+    chain solve :func:`solve_chain_drag` instead (:mod:`smplik.chain_drag`)."""
+    B = len(effector_lists)
+    if not len(previous) == len(moved_joints) == B:
+        raise ValueError(f"{B} effector lists, {len(previous)} previous poses, {len(moved_joints)} moved joints.")
+    chain_rows = [b for b in range(B) if analytic and chain_drag_target(effector_lists[b], moved_joints[b])
+                  is not None]
+    out: list[Pose | None] = [None] * B
+    for b in chain_rows:
+        out[b] = solve_chain_drag(solver, effector_lists[b], previous[b], int(moved_joints[b]))
+    rest = [b for b in range(B) if b not in chain_rows]
+    if rest:
+        solved = solve_limb_edit(solver, [effector_lists[b] for b in rest], [previous[b] for b in rest],
+                                 [moved_joints[b] for b in rest], analytic=analytic)
+        for b, pose in zip(rest, solved, strict=True):
+            out[b] = pose
+    return [p for p in out if p is not None]
+
+
+def solve_limb_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previous: Sequence[Pose],
+                    moved_joints: Sequence[int], *, analytic: bool = True) -> list[Pose]:
     """Solve B drags (SMPL space) so that only the dragged chain changes, posed the way the prior finds natural.
 
     Per row, first the *prior's chain*: the network solves the (relaxed) effectors; its local rotations of the
@@ -250,7 +316,8 @@ def solve_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], previo
     included, stays exactly where the user left it. Only when that pose misses an effector the user still
     holds exactly (the target out of reach, a kept wrist rotation) does the held refinement start from it,
     so the collar, spine or root take a share only when the edit needs them. A moved joint in no chain
-    (the pelvis) solves as :meth:`~smplik.solver.IKSolver.solve_batch` does.
+    (the pelvis) solves as :meth:`~smplik.solver.IKSolver.solve_batch` does (:func:`solve_edit` solves a
+    pelvis position drag with :mod:`smplik.chain_drag` instead).
 
     Args:
         solver: an :class:`smplik.solver.IKSolver`.
@@ -438,8 +505,8 @@ def unmet_effectors(effectors: Sequence[Effector], pose: Pose, scale: float, bod
 
 
 def drag_order(effectors: Sequence[Effector], moved: Sequence[int]) -> list[int]:
-    """The order in which several moved effectors are solved as drags: those on no chain (the pelvis: they
-    re-pose the whole body) first, then the others as given."""
+    """The order in which several moved effectors are solved as drags: those on no chain (the pelvis: it
+    carries the whole upper body) first, then the others as given."""
     return sorted(moved, key=lambda i: bool(chain_of(effectors[i].joint)))
 
 
@@ -518,6 +585,35 @@ def solve_scene_edits(scene: Any, solver: Any, *, exact: bool = False, only: Seq
         chars.append(dataclasses.replace(c, effectors=report.effectors, pose=pose))
         reports.append(report)
     return dataclasses.replace(scene, characters=tuple(chars)), reports
+
+
+def pulling_effectors(solver: Any, effectors: Sequence[Effector], previous: Pose, solved: Pose, moved: int, *,
+                      scale: float = 1.0) -> tuple[int, ...]:
+    """The effectors that actually pull against a drag of ``effectors[moved]`` (character space).
+
+    Nothing when the drag met its target (within :func:`allowance`). Otherwise the drag is solved again from
+    ``previous`` with the dragged effector alone (:func:`solve_chain_drag` without the held effectors, or
+    :func:`solve_edit` of that one effector); the held effectors (tolerance below :data:`RELAXED_TOLERANCE`) whose
+    residual then grows by more than their allowance over ``previous``'s are the ones that pull against it.
+    ``solved``: the drag's pose; poses are SMPL space.
+    """
+    from workflows.scene.characters import scale_effector
+
+    effectors = tuple(effectors)
+    residual = character_residuals(effectors, solved, scale, solver.bodies)
+    if residual[moved] <= allowance(effectors[moved]):
+        return ()
+    smpl = [scale_effector(e, 1.0 / scale) for e in effectors]
+    joint = effectors[moved].joint
+    previous = dataclasses.replace(previous, joints=None)
+    if chain_drag_target(smpl, joint) is not None:
+        alone = solve_chain_drag(solver, smpl, previous, joint, keep_held=False)
+    else:
+        alone = solve_edit(solver, [[smpl[moved]]], [previous], [joint])[0]
+    before = character_residuals(effectors, previous, scale, solver.bodies)
+    after = character_residuals(effectors, alone, scale, solver.bodies)
+    return tuple(i for i, e in enumerate(effectors) if i != moved and e.tolerance < RELAXED_TOLERANCE
+                 and after[i] - before[i] > allowance(e))
 
 
 @cache
@@ -614,6 +710,9 @@ class EffectorConflict:
     allowed: float
     network_residual: float
     conflicts_with: tuple[int, ...] = ()
+    drag_solved: bool = False
+    """The pose is a drag's local solve from the previous pose (:func:`pulling_effectors` found what contradicts
+    it), not the network's: :attr:`forced` does not apply."""
 
     @property
     def unit(self) -> str:
@@ -626,7 +725,7 @@ class EffectorConflict:
     @property
     def forced(self) -> bool:
         """Met only by the refinement bending the pose far from the network's answer (:func:`strain_limit`)."""
-        return self.met and self.network_residual > strain_limit(self.effector)
+        return self.met and not self.drag_solved and self.network_residual > strain_limit(self.effector)
 
     @property
     def in_conflict(self) -> bool:
@@ -670,7 +769,7 @@ class ConflictReport:
             {"index": e.index, "joint": e.effector.joint_name, "type": e.effector.type.name.lower(),
              "tolerance": e.effector.tolerance, "residual": e.residual, "unit": e.unit, "allowed": e.allowed,
              "network_residual": e.network_residual, "met": e.met, "forced": e.forced,
-             "conflicts_with": list(e.conflicts_with)} for e in self.entries]}
+             "conflicts_with": list(e.conflicts_with), "drag_solved": e.drag_solved} for e in self.entries]}
 
 
 def conflict_report(character: Any, solver: Any) -> ConflictReport:
