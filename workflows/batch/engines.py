@@ -98,11 +98,10 @@ def _model(key: tuple) -> Any:
 
 def _error_line(exc: BaseException) -> tuple[str, str | None]:
     """(one-line error, traceback or None): a user error's line, else the exception's type and message."""
-    import click
-
     from smplik.cli.errors import error_message, is_user_error
+    from workflows.batch.plan import click_exception
 
-    if isinstance(exc, click.ClickException):
+    if isinstance(exc, click_exception()):
         return " ".join(exc.format_message().split()), None
     if is_user_error(exc) or isinstance(exc, ValueError):
         return error_message(exc), None

@@ -235,8 +235,6 @@ def parse_job_options(job: Job, args: Sequence[str], source: Path, *, base: Path
     values of the batch's common options, :func:`raw_job_options`: a manifest input's own options), else to the
     current folder. Options naming a file to write (``--preview``, ``--render``) must be bare file names: each
     input's folder gets one."""
-    import click
-
     params = raw_job_options(job, args, source)
     for name, value in params.items():
         if isinstance(value, Path) and name not in job.output_files and not value.is_absolute():
@@ -244,23 +242,32 @@ def parse_job_options(job: Job, args: Sequence[str], source: Path, *, base: Path
             params[name] = ((base if own and base is not None else Path.cwd()) / value).resolve()
     try:
         check_options(job.name, params)
-    except click.ClickException as exc:
+    except click_exception() as exc:
         raise BatchError(f"{job.name} options: {' '.join(exc.format_message().split())}") from None
     return params
 
 
+def click_exception() -> type:
+    """The ``ClickException`` of the click that typer runs on (typer may vendor its own copy of click)."""
+    import typer
+
+    return next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+
+
 def raw_job_options(job: Job, args: Sequence[str], source: Path) -> dict[str, Any]:
     """The job command's parameters for ``args`` as its click parser gives them (paths as given)."""
-    import click
+    import typer
 
+    if "--help" in args:
+        raise BatchError(f"{job.name} options: --help is not a job option here; see "
+                         f"'smplik {' '.join(job.command)} --help'.")
     command = job_command(job)
     words = [str(source), "--out", _PLACEHOLDER_OUT, *args]
     try:
         ctx = command.make_context(" ".join(("smplik", *job.command)), words, resilient_parsing=False)
-    except click.exceptions.Exit:
-        raise BatchError(f"{job.name} options {list(args)}: --help is not a batch option; see "
-                         f"'smplik {' '.join(job.command)} --help'.") from None
-    except click.ClickException as exc:
+    except typer.Exit:  # an eager option that exits (none but --help today)
+        raise BatchError(f"{job.name} options {list(args)}: not options to run with.") from None
+    except click_exception() as exc:
         raise BatchError(f"{job.name} options: {' '.join(exc.format_message().split())}") from None
     params = dict(ctx.params)
     if str(params.pop("out")) != _PLACEHOLDER_OUT:
