@@ -194,9 +194,9 @@ def output_names(sources: Sequence[Path]) -> list[str]:
             rel = sources[i].parent.relative_to(common)
             parts = [*rel.parts] if same_file and rel.parts else [*rel.parts, sources[i].stem]
             names[i] = _safe("__".join(parts))
-    for i, name in enumerate(names):
-        if names.count(name) > 1:
-            names[i] = _safe(f"{name}_{sources[i].suffix.lstrip('.')}" if sources[i].suffix else name)
+    clashing = [i for i, name in enumerate(names) if names.count(name) > 1]
+    for i in clashing:
+        names[i] = _safe(f"{names[i]}_{sources[i].suffix.lstrip('.')}" if sources[i].suffix else names[i])
     seen: dict[str, int] = {}
     for i, name in enumerate(names):  # still equal (x.npz and x.npz under other names): number them
         if name in seen:
