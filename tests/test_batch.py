@@ -304,3 +304,55 @@ def test_leftovers_of_a_killed_batch_are_tidied(tmp_path):
     replace_folder(new, tmp_path / "b")
     assert (tmp_path / "b" / "scene.json").read_text() == '{"new": 1}'
     assert sorted(p.name for p in tmp_path.iterdir()) == [".c.partial-123-0123abcd", "b"]
+
+
+# ----------------------------------------------------------------------------- every job, in this process
+
+
+@pytest.mark.slow
+def test_every_job_runs_through_its_entry_point(tmp_path, shipped_solver):
+    """Each job's options reach its command's entry point: one input each, run as a worker runs it
+    (:func:`workflows.batch.engines.run_task`), the files the command writes in the input's folder."""
+    import torch
+    from animation_fixtures import video_motion, write_gvhmr_video
+
+    from smplik.body_model import BodyModelSet
+    from smplik.tracking.config import TRACKER_SETS
+    from smplik.tracking.io import signals_from_motion
+    from workflows.batch.engines import _STATE, run_task
+    from workflows.batch.jobs import JOBS
+    from workflows.batch.plan import BatchInput, plan_tasks
+    from workflows.examples_gen import write_mixamo_character
+
+    _STATE["models"][("solver", None)] = shipped_solver  # as a worker holds it
+    (tmp_path / "video").mkdir()
+    video = write_gvhmr_video(tmp_path / "video", *video_motion(12))
+    J = BodyModelSet.load().rest_joints(torch.zeros(10), torch.tensor(0)).double().numpy()
+    signals = signals_from_motion(np.tile(np.eye(3), (20, 24, 1, 1)), np.zeros((20, 3)), J, TRACKER_SETS["4"], 60.0)
+    trackers = tmp_path / "session.json"
+    trackers.write_text(json.dumps(signals.to_dict()))
+    character = write_mixamo_character(tmp_path / "hero.bvh")
+    scene = write_clip(tmp_path / "romp.npz", seed=3)
+    runs = [("animate", video, ["--export", "bvh", "--smoothing", "none", "--frames", "0:10"],
+             {"animation.json", "person_0.bvh"}),
+            ("from-estimate", scene, ["--no-previews", "--max-effectors", "3"], {"scene.json"}),
+            ("track", trackers, ["--export", "bvh", "--betas", ",".join(["0"] * 10)],
+             {"animation.json", "person_0.bvh"}),
+            ("invert-shape", character, ["--bank-samples", "400", "--gender", "female"], {"shape.json"})]
+    out = tmp_path / "out"
+    out.mkdir()
+    for job, source, args, files in runs:
+        (task,) = plan_tasks(JOBS[job], [BatchInput(source.resolve())], out / job, args)
+        result = run_task(task)
+        assert result.status == "done", (job, result.error, result.traceback)
+        assert set(result.outputs) == files | {"batch_done.json"}, job
+        assert {p.name for p in Path(task.out_dir).iterdir()} == files | {"batch_done.json"}
+    anim = json.loads((out / "animate" / "hmr4d_results" / "animation.json").read_text())
+    assert anim["format"] == "smplik-animation"
+    shape = json.loads((out / "invert-shape" / "hero" / "shape.json").read_text())
+    assert shape["gender"] == "female" and shape["character"]["rig"]
+    # export: the scene written above -> per character a BVH and a GLB
+    (task,) = plan_tasks(JOBS["export"], [BatchInput(out / "from-estimate" / "romp" / "scene.json")], out / "export",
+                         ["--format", "bvh"])
+    result = run_task(task)
+    assert result.status == "done" and set(result.outputs) == {"person_0.bvh", "batch_done.json"}, result

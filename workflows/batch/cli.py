@@ -112,7 +112,7 @@ def run_batch(tasks: list, out: Path, *, engine: str = "local", workers: int | N
                                           outputs=(*done["outputs"], "batch_done.json"))
     to_run = [t for t in tasks if t.name not in rows]
     if engine == "local":
-        workers = min(workers or os.cpu_count() or 1, max(1, len(to_run)))
+        workers = min(workers or os.cpu_count() or 1, len(to_run))
     report_path = out / REPORT_FILE
     start = time.perf_counter()
     last_write = [0.0]

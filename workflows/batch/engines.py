@@ -164,6 +164,19 @@ def run_task(task: BatchTask) -> InputResult:
                            fatal=fatal)
 
 
+def warm_params(tasks: Sequence[BatchTask]) -> tuple[str, dict[str, Any]]:
+    """(job, options) whose model every worker loads when it starts: those of the most inputs (a manifest's
+    per-input options may name another model, loaded when an input needs it)."""
+    from collections import Counter
+
+    from workflows.batch.jobs import model_key
+
+    keys = [model_key(t.job, t.params) for t in tasks]
+    common = Counter(keys).most_common(1)[0][0]
+    task = tasks[keys.index(common)]
+    return task.job, dict(task.params)
+
+
 def died(task: BatchTask, how: str) -> InputResult:
     """The result of an input whose worker process died under it (killed, out of memory, a crash)."""
     return InputResult(task.source, task.name, "failed",
@@ -189,7 +202,7 @@ def run_local(tasks: Sequence[BatchTask], workers: int, on_result: OnResult) -> 
     context = multiprocessing.get_context("spawn")
     while queue:
         pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=context,
-                                   initializer=init_worker, initargs=(tasks[0].job, dict(tasks[0].params)))
+                                   initializer=init_worker, initargs=warm_params(tasks))
         in_flight: dict[Any, BatchTask] = {}
         broken = False
         try:
@@ -251,7 +264,7 @@ def run_ray(tasks: Sequence[BatchTask], workers: int | None, on_result: OnResult
             workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         workers = max(1, min(workers, len(tasks)))
         actor_class = ray.remote(num_cpus=1, max_restarts=0, scheduling_strategy="SPREAD")(BatchWorker)
-        job, params = tasks[0].job, dict(tasks[0].params)
+        job, params = warm_params(tasks)
         idle = [actor_class.remote(job, params) for _ in range(workers)]
         actors = list(idle)
         try:
@@ -281,7 +294,7 @@ def _drive_actors(tasks: Sequence[BatchTask], idle: list[Any], actors: list[Any]
         try:
             result = ray.get(ready[0])
         except ray.exceptions.RayActorError as exc:
-            result = died(task, type(exc).__name__)
+            result = died(task, f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}")
             actor = new_actor()
             actors.append(actor)
         except ray.exceptions.RayTaskError as exc:  # run_task returns failures; this is Ray's own trouble

@@ -83,7 +83,7 @@ def collect_inputs(job: Job, inputs: Sequence[str], manifest: Path | None) -> li
         path = Path(text)
         if path.is_dir():
             files = sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith(".")
-                           and p.suffix.lower() in job.suffixes)
+                           and p.suffix.lower() in job.suffixes and p.name != REPORT_FILE)
             if not files:
                 raise BatchError(f"{text}: the folder holds no {job.name} input ({', '.join(job.suffixes)} files).")
             found += [BatchInput(p.resolve(), where=text) for p in files]
