@@ -6,7 +6,10 @@ The job: ``scene from-estimate --no-previews``. Cases, each timed from the comma
 * ``loop``: one ``smplik scene from-estimate`` process per input, one after the other (``for f in ...; do smplik
   ...; done``); ``loop_x2``: two such processes at a time (``xargs -P 2``);
 * ``batch``: ``smplik batch from-estimate DIR`` with ``--workers 1`` and ``--workers 2`` (local process pool);
-  with ``--ray`` also ``--engine ray --workers 2`` (a local Ray with 2 CPUs).
+  with ``--ray`` also ``--engine ray --workers 2`` (a local Ray with 2 CPUs). Besides the whole run's rate, a
+  batch case reports its start (``start_s``: the wall time not spent in inputs: the workers' start, torch, the
+  model) and its rate once warm (``warm_inputs_per_min``: the workers over the median input's seconds, each
+  worker's first input, which carries its warm-up, left out): the rate a long batch approaches.
 
 Every case writes into a fresh folder, so none skips inputs. Per input: each loop process's wall time, and each
 batch input's seconds from ``batch_report.json`` (the first inputs of each worker carry its warm-up).
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -63,8 +67,12 @@ def batch(folder: Path, out: Path, workers: int, engine: str = "local") -> dict:
     if res.returncode != 0:
         raise SystemExit(f"smplik batch failed: {res.stderr[-2000:]}")
     report = json.loads((out / "batch_report.json").read_text())
-    return {"wall_s": wall, "inputs_per_min": 60 * len(report["inputs"]) / wall,
-            "per_input_s": {r["name"]: r["seconds"] for r in report["inputs"]}}
+    per_input = {r["name"]: r["seconds"] for r in report["inputs"]}
+    warm = sorted(per_input.values())[:-workers] or sorted(per_input.values())  # each worker's first: its warm-up
+    warm_median = statistics.median(warm)
+    return {"wall_s": wall, "inputs_per_min": 60 * len(report["inputs"]) / wall, "workers": workers,
+            "start_s": wall - sum(per_input.values()) / workers, "warm_median_s": warm_median,
+            "warm_inputs_per_min": 60 * workers / warm_median, "per_input_s": per_input}
 
 
 def main() -> None:
@@ -93,9 +101,10 @@ def main() -> None:
     base = cases["loop"]["inputs_per_min"]
     for case in cases.values():
         case["speedup_vs_loop"] = case["inputs_per_min"] / base
-    print(f"{'case':22s} {'wall s':>8s} {'inputs/min':>11s} {'x loop':>7s}")
+    print(f"{'case':22s} {'wall s':>8s} {'inputs/min':>11s} {'x loop':>7s} {'start s':>8s} {'warm inputs/min':>16s}")
     for name, case in cases.items():
-        print(f"{name:22s} {case['wall_s']:8.1f} {case['inputs_per_min']:11.1f} {case['speedup_vs_loop']:7.2f}")
+        warm = f"{case['start_s']:8.1f} {case['warm_inputs_per_min']:16.1f}" if "start_s" in case else ""
+        print(f"{name:22s} {case['wall_s']:8.1f} {case['inputs_per_min']:11.1f} {case['speedup_vs_loop']:7.2f} {warm}")
     path = save("batch", {"job": "scene from-estimate " + " ".join(JOB_OPTIONS), "inputs": args.inputs,
                           "input": "the demo's ROMP file (2 people), one copy per input",
                           "batch_outputs_equal_loop_outputs": same, "load_average_before": load_before,

@@ -154,6 +154,7 @@ def run_batch(tasks: list, out: Path, *, engine: str = "local", workers: int | N
             elif to_run:
                 run_local(to_run, workers, on_result)
         finally:
+            tidy_leftovers(out, [t.name for t in to_run])  # what stopped workers left half-written
             write_report(final=True)
     counts = {s: sum(r.status == s for r in rows.values()) for s in ("done", "skipped", "failed")}
     elapsed = time.perf_counter() - start

@@ -66,9 +66,14 @@ def one_thread() -> None:
     torch.set_num_threads(1)
 
 
-def init_worker(job: str, params: dict[str, Any]) -> None:
+def init_worker(job: str, params: dict[str, Any], *, ignore_interrupt: bool = False) -> None:
     """A worker's start: one thread; the job's model for the batch's common options loaded (an error is kept
-    and reported with the first input, which stops the batch)."""
+    and reported with the first input, which stops the batch). ``ignore_interrupt``: Ctrl-C is the driver's
+    (a pool's workers share the terminal's process group; the driver stops them)."""
+    if ignore_interrupt:
+        import signal
+
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     one_thread()
     from workflows.batch.jobs import model_key
 
@@ -202,7 +207,7 @@ def run_local(tasks: Sequence[BatchTask], workers: int, on_result: OnResult) -> 
     context = multiprocessing.get_context("spawn")
     while queue:
         pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=context,
-                                   initializer=init_worker, initargs=warm_params(tasks))
+                                   initializer=_init_pool_worker, initargs=warm_params(tasks))
         in_flight: dict[Any, BatchTask] = {}
         broken = False
         try:
@@ -223,8 +228,24 @@ def run_local(tasks: Sequence[BatchTask], workers: int, on_result: OnResult) -> 
                         on_result(died(task, "process pool broken"))
                     in_flight.clear()
                     break
+        except BaseException:  # Ctrl-C, or the batch stopped (a model that cannot load): stop the workers now
+            _stop_workers(pool)
+            raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _init_pool_worker(job: str, params: dict[str, Any]) -> None:
+    init_worker(job, params, ignore_interrupt=True)
+
+
+def _stop_workers(pool: Any) -> None:
+    """Terminate a process pool's workers (their half-written ``.partial`` folders are removed by the driver)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=10)
 
 
 # --------------------------------------------------------------------------------------------- Ray engine
