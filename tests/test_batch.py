@@ -356,3 +356,18 @@ def test_every_job_runs_through_its_entry_point(tmp_path, shipped_solver):
                          ["--format", "bvh"])
     result = run_task(task)
     assert result.status == "done" and set(result.outputs) == {"person_0.bvh", "batch_done.json"}, result
+
+
+def test_ray_engine_without_ray_names_the_extra(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+    from workflows.batch import engines
+
+    monkeypatch.setattr(engines, "ray_available", lambda: False)  # as in an install without the [ray] extra
+    good = write_clip(tmp_path / "a.npz", seed=0)
+    res = CliRunner().invoke(app, ["batch", "from-estimate", str(good), "--out", str(tmp_path / "out"),
+                                   "--engine", "ray"])
+    assert res.exit_code == 1
+    assert res.output.strip() == "error: --engine ray needs Ray: pip install 'smplik[ray]'."
+    assert not (tmp_path / "out").exists()

@@ -270,14 +270,15 @@ def ray_available() -> bool:
 def run_ray(tasks: Sequence[BatchTask], workers: int | None, on_result: OnResult, *,
             address: str | None = None) -> int:
     """Run ``tasks`` on Ray actors (:class:`BatchWorker`, one CPU each, spread over the nodes): connect to
-    the cluster at ``address``, or use the Ray already started in this process, or start a local one with
-    ``workers`` CPUs. ``workers`` actors (default: the cluster's CPUs). An actor that dies fails its input and is
-    replaced. Returns the number of actors."""
+    the cluster at ``address`` (or ``$RAY_ADDRESS``), or use the Ray already started in this process, or start a
+    local one with ``workers`` CPUs. ``workers`` actors (default: the cluster's CPUs). An actor that dies fails
+    its input and is replaced. Returns the number of actors."""
     import ray
 
     started = not ray.is_initialized()
     if started:
-        ray.init(address=address, num_cpus=None if address else workers, include_dashboard=False,
+        joining = address is not None or bool(os.environ.get("RAY_ADDRESS"))  # Ray reads RAY_ADDRESS itself
+        ray.init(address=address, num_cpus=None if joining else workers, include_dashboard=False,
                  log_to_driver=False, logging_level="ERROR",
                  runtime_env={"env_vars": dict.fromkeys(THREAD_VARIABLES, "1")})
     try:
