@@ -371,3 +371,18 @@ def test_ray_engine_without_ray_names_the_extra(tmp_path, monkeypatch):
     assert res.exit_code == 1
     assert res.output.strip() == "error: --engine ray needs Ray: pip install 'smplik[ray]'."
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_a_model_that_cannot_load_stops_the_batch_with_one_line(tmp_path):
+    good = write_clip(tmp_path / "a.npz", seed=0)
+    bad_model = tmp_path / "model.pt"
+    bad_model.write_text("not a model")
+    res = smplik("batch", "from-estimate", str(good), "--out", str(tmp_path / "out"), "--workers", "1",
+                 "--", "--checkpoint", str(bad_model))
+    assert res.returncode == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {bad_model}: "), res.stderr
+    assert "batch stopped" in lines[0] and "Traceback" not in res.stderr
+    assert report(tmp_path / "out")["counts"] == {"done": 0, "skipped": 0, "failed": 0, "pending": 1}
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["batch_report.json"]

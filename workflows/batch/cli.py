@@ -136,6 +136,8 @@ def run_batch(tasks: list, out: Path, *, engine: str = "local", workers: int | N
         progress = bar.add_task(f"batch {tasks[0].job} ({engine})", total=len(to_run))
 
         def on_result(result: InputResult) -> None:
+            if result.fatal:  # no input's fault: the batch stops, its inputs stay pending
+                raise BatchError(f"{result.error} (the job's model could not be loaded; batch stopped)")
             rows[result.name] = result
             finished[0] += 1
             bar.update(progress, advance=1)
@@ -145,8 +147,6 @@ def run_batch(tasks: list, out: Path, *, engine: str = "local", workers: int | N
                 say(f"[{finished[0]}/{len(to_run)}] {result.name}: done in {result.seconds:.1f} s")
             if time.monotonic() - last_write[0] > REPORT_EVERY_S:
                 write_report()
-            if result.fatal:
-                raise BatchError(f"{result.error} (the job's model could not be loaded; batch stopped)")
 
         try:
             if to_run and engine == "ray":
