@@ -42,6 +42,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "benchmark": ("workflows.benchmark_cli:app",
                   "Randomized-effector IK benchmark: make files, run methods, calibrate."),
     "track": ("workflows.tracking.cli:track_cmd", "Full body from VR trackers (head, wrists, pelvis) -> animation."),
+    "batch": ("workflows.batch.cli:app", "One job over many inputs (folder, glob, manifest): local pool or Ray."),
 }
 """Every top-level command, in the order ``smplik --help`` lists them."""
 
