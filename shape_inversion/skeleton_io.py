@@ -230,9 +230,30 @@ def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_M
                     up=None if up in (None, "auto") else up)
 
 
+def read_fbx_skeleton(path: str | Path, rest: RestSource = "auto", *, take: str | int | None = None,
+                      max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
+    """Read an FBX skeleton (:mod:`smplik.data.fbx`: ufbx, metres, y up) in its bind pose.
+
+    The file becomes a BVH motion whose OFFSETs are the bind pose (else the nodes' rest) and whose frames
+    are one animation take, so every command treats it as it treats a BVH file (export to BVH of its own
+    skeleton, its frames as training data). ``rest="frame0"``: the take's first frame instead of the bind pose.
+    """
+    from smplik.data.fbx import FbxError, read_fbx_info
+
+    if rest not in ("auto", "frame0", "offsets"):
+        raise SkeletonError(f"Unknown rest source {rest!r}; expected 'auto', 'frame0' or 'offsets'.")
+    try:
+        motion, info = read_fbx_info(path, take=take, max_joints=max_joints)
+    except FbxError as exc:
+        raise SkeletonError(str(exc)) from None
+    skeleton = bvh_skeleton(motion, "frame0" if rest == "frame0" else "offsets")
+    return dataclasses.replace(skeleton, format="fbx", units=1.0, up="y",
+                               rest=info.summary(rest="frame 0 of the take" if rest == "frame0" else None))
+
+
 def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind",
                   positions: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
-    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``/``.vrm``, ``.json``.
+    """Read a skeleton file by extension: ``.bvh``, ``.fbx``, ``.glb``/``.gltf``/``.vrm``, ``.json``.
 
     BVH ``rest="auto"`` reads frame 0 (the OFFSETs when the file has no frame); :func:`read_character`
     then decides between frame 0 and the OFFSETs.
@@ -244,7 +265,9 @@ def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSo
         return read_gltf(path, bind=bind)
     if suffix == ".json":
         return read_joint_json(path, max_joints=max_joints)
-    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf, .vrm or .json.")
+    if suffix == ".fbx":
+        return read_fbx_skeleton(path, rest=rest, max_joints=max_joints)
+    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .fbx, .glb, .gltf, .vrm or .json.")
 
 
 def read_character(path: str | Path, options: CharacterOptions | None = None) -> Character:
@@ -401,7 +424,7 @@ class Character:
         root = f", hierarchy of root joint {self.rig.root!r}" if self.rig.root else ""
         pairs = ", ".join(f"{s}={n}" for s, n in self.joint_map.items())
         lines = [f"rig {self.rig.name} ({how}{root}): {pairs}"] + [f"warning: {w}" for w in self.rig.warnings]
-        if self.skeleton.format == "bvh" and self.skeleton.rest:
+        if self.skeleton.format in ("bvh", "fbx") and self.skeleton.rest:
             lines.append(f"rest pose: {self.skeleton.rest}")
         return lines
 
