@@ -121,15 +121,16 @@ def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
     if not root.is_dir():
         raise FileNotFoundError(f"Source folder not found: {root}")
     suffix = _SUFFIX[kind]
+    suffixes = (".bvh", ".fbx") if kind == "bvh" else (suffix,)  # FBX clips are read as BVH (smplik.data.fbx)
     out = []
-    for path in sorted(root.rglob(f"*{suffix}")):
+    for path in sorted(p for p in root.rglob("*") if p.suffix.lower() in suffixes):
         if not path.is_file() or (kind == "amass" and path.name in _AMASS_METADATA_FILES):
             continue
         rel = path.relative_to(root)
         subject = rel.parent.name if len(rel.parts) > 1 else path.stem.split("_")[0]
         out.append(ClipSource(path=path, kind=kind, name=rel.as_posix(), subject=subject))
     if not out:
-        raise ValueError(f"No {suffix} files under {root}.")
+        raise ValueError(f"No {' or '.join(suffixes)} files under {root}.")
     return out
 
 
