@@ -128,8 +128,13 @@ def glb_notes(scene: Scene, formats: Sequence[str]) -> list[str]:
     or joints JSON has no mesh): what a user is told next to the ``wrote`` lines of an export."""
     if "glb" not in [str(f).strip().lower() for f in formats]:
         return []
-    return [f"{c.name}: {Path(c.skeleton.path).name} has no mesh; its GLB is the SMPL body of its SMPL-SI shape "
-            f"and scale, posed the same"
+    def why(path: str) -> str:
+        name = Path(path).name
+        return (f"the mesh of {name} is not exported (FBX meshes are not converted)" if path.lower().endswith(".fbx")
+                else f"{name} has no mesh")
+
+    return [f"{c.name}: {why(c.skeleton.path)}; its GLB is the SMPL body of its SMPL-SI shape and scale, posed "
+            f"the same"
             for c in scene.characters
             if c.skeleton is not None and Path(c.skeleton.path).suffix.lower() not in GLTF_SUFFIXES]
 
