@@ -610,7 +610,9 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     if height <= 0:
         raise SkeletonError(f"Skeleton {skeleton.source}: the head is not above the ankles along up = "
                             f"{_axis_name(up_vec)}; pass the right --up.")
-    if str(units).lower() == "auto":
+    if str(units).lower() == "auto" and skeleton.format == "fbx":  # the file states its unit (UnitScaleFactor)
+        units_m, units_source = float(skeleton.units or 1.0), "file"
+    elif str(units).lower() == "auto":
         units_m, units_source = _detect_units(height, [skeleton.units, rig_map.units])
     else:
         units_m, units_source = parse_units(units), "given"
