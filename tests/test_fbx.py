@@ -1,0 +1,220 @@
+"""FBX characters and animations (:mod:`smplik.data.fbx`, ufbx) through every command that takes a character or a BVH.
+
+The files are real (``tests/data/fbx``, see its README): a Maya HumanIK skeleton saved as ASCII and as binary
+FBX 7.4 (centimetres, a 5 s take, no bind pose) and a Kenney game character saved by Maya as binary FBX 7.7
+(skinned, IK control bones, about 3 m tall in its own units). The files are written by Autodesk's FBX SDK
+(``Creator: "FBX SDK/FBX Plugins version 2020.x"``), the producer of nearly every FBX in circulation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ufbx", reason="the FBX reader needs ufbx (pip install -e '.[fbx]')")
+
+FBX = Path(__file__).resolve().parent / "data" / "fbx"
+HUMAN_IK_ASCII = FBX / "maya_human_ik_7400_ascii.fbx"
+HUMAN_IK_BINARY = FBX / "maya_human_ik_7400_binary.fbx"
+KENNEY = FBX / "maya_kenney_character_7700_binary.fbx"
+
+
+def test_ascii_and_binary_fbx_give_the_same_skeleton_and_take_in_metres_y_up():
+    from smplik.data.fbx import read_fbx_info
+
+    a, info_a = read_fbx_info(HUMAN_IK_ASCII)
+    b, info_b = read_fbx_info(HUMAN_IK_BINARY)
+    assert info_a.ascii and not info_b.ascii and info_a.version == 7400
+    assert info_a.unit_m == pytest.approx(0.01) and info_a.up == "y" and info_a.take == "Take 001"
+    assert a.joint_names == b.joint_names and a.parents == b.parents
+    assert a.num_frames == b.num_frames == 120 and a.fps == pytest.approx(24.0)  # 5 s at 24 fps
+    np.testing.assert_allclose(a.positions, b.positions, atol=1e-6)
+    hips, head = a.joint_names.index("Character1_Hips"), a.joint_names.index("Character1_Head")
+    _, rest = a.rest_pose()
+    assert 1.2 < rest[head, 1] - rest[:, 1].min() < 2.0  # a human in metres, y up (the file is in cm)
+    assert rest[head, 1] > rest[hips, 1]
+
+
+def test_motion_from_world_reproduces_every_joint_position_and_rests_on_the_bind_pose():
+    """The BVH an FBX becomes: its FK gives back the file's joint positions, its OFFSET pose is the rest."""
+    from scipy.spatial.transform import Rotation
+
+    from smplik.data.fbx import motion_from_world
+
+    rng = np.random.default_rng(0)
+    parents = (-1, 0, 1, 1, 3)
+    J, T = len(parents), 7
+    local = np.broadcast_to(np.eye(4), (T + 1, J, 4, 4)).copy()
+    local[..., :3, :3] = Rotation.from_rotvec(rng.normal(0, 0.6, (T + 1, J, 3)).reshape(-1, 3)).as_matrix().reshape(
+        T + 1, J, 3, 3) * 0.01  # a uniform 0.01 scale, as a centimetre file's root adds
+    local[..., :3, 3] = rng.normal(0, 20, (J, 3))
+    local[1:, 4, :3, 3] += rng.normal(0, 5, (T, 3))  # an animated translation on a non-root joint
+    world = np.empty_like(local)
+    for j, p in enumerate(parents):
+        world[:, j] = local[:, j] if p < 0 else world[:, p] @ local[:, j]
+    motion = motion_from_world("x.fbx", [f"j{k}" for k in range(J)], parents, world[0], world[1:], 1 / 30)
+    np.testing.assert_allclose(motion.positions, world[1:, :, :3, 3], atol=1e-7)
+    _, rest = motion.rest_pose()
+    np.testing.assert_allclose(rest, world[0, :, :3, 3], atol=1e-12)
+    assert motion.channels[4][:3] == ("Xposition", "Yposition", "Zposition") and len(motion.channels[2]) == 3
+
+
+def test_an_fbx_character_reads_with_no_options_like_a_bvh():
+    from shape_inversion.skeleton_io import read_character
+
+    char = read_character(HUMAN_IK_ASCII)
+    assert char.skeleton.format == "fbx" and char.units_m == 1.0 and char.units_source == "file" and char.up == "y"
+    m = char.joint_map
+    assert m["pelvis"] == "Character1_Hips" and m["left_knee"] == "Character1_LeftLeg"
+    assert m["right_elbow"] == "Character1_RightForeArm" and m["head"] == "Character1_Head" and len(m) >= 22
+    assert 1.5 < char.head_ankle_height_m / 0.84 < 2.1
+    assert "FBX 7400 ASCII" in char.skeleton.rest and "no bind pose" in char.skeleton.rest
+
+
+def test_a_skinned_game_character_with_ik_controls_is_read_at_its_own_size(capsys):
+    """The Kenney character's bind pose comes from its skin clusters; its controls take no SMPL role; at about
+    3 m it is read at its own size (scale has no bank range), said in one warning."""
+    from shape_inversion.skeleton_io import _neutral_estimator, read_character
+
+    char = read_character(KENNEY)
+    m = char.joint_map
+    assert m["pelvis"] == "Hips" and m["left_ankle"] == "LeftFoot" and m["right_wrist"] == "RightHand"
+    assert not any("Ctrl" in n or "Roll" in n or n.endswith("IK") for n in m.values())
+    assert "bind pose (skin clusters" in char.skeleton.rest
+    stature = char.head_ankle_height_m / 0.84
+    assert stature > 2.6
+    with pytest.warns(UserWarning, match="read at its own size"):
+        est = _neutral_estimator().estimate(char.features, char.mapped_rest())
+    assert est.scale > 2.0  # beyond the bank's 0.2-2
+    assert est.max_feature_residual_m < 0.1 * stature
+
+
+@pytest.mark.parametrize("factor", [0.1, 12.0])
+def test_a_figurine_or_a_giant_gets_the_shape_of_the_same_character_at_human_size(factor):
+    from shape_inversion.skeleton_io import _neutral_estimator, read_character
+
+    char = read_character(HUMAN_IK_ASCII)
+    est = _neutral_estimator()
+    human = est.estimate(char.features, char.mapped_rest())
+    rest = char.mapped_rest()
+    with pytest.warns(UserWarning, match="read at its own size"):
+        scaled = est.estimate(char.features * factor, dataclasses.replace(rest, positions=rest.positions * factor))
+    assert scaled.scale == pytest.approx(human.scale * factor, rel=0.03)
+    np.testing.assert_allclose(scaled.betas, human.betas, atol=0.3)
+
+
+def test_a_posed_fbx_character_lands_near_its_smpl_pose():
+    from shape_inversion.skeleton_io import _neutral_estimator, read_character
+    from workflows.character import build_character, retarget_error_m
+    from workflows.examples_gen import example_poses
+
+    char = read_character(HUMAN_IK_BINARY)
+    estimator = _neutral_estimator()
+    cc = build_character(char.skeleton, estimator.estimate(char.features, char.mapped_rest()), rig=char.rig)
+    stature = char.head_ankle_height_m / 0.84
+    for person in example_poses():
+        pose = dataclasses.replace(person.pose, betas=cc.betas, gender=cc.gender)
+        assert 100 * retarget_error_m(pose, cc).mean() / stature <= 3.0
+
+
+def test_invert_shape_scene_and_export_take_an_fbx_character(tmp_path):
+    import sys
+
+    from typer.testing import CliRunner
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from estimator_fixtures import framing, people, write_romp
+    from smplik.cli.main import app
+    from smplik.data.bvh import read_bvh
+
+    runner = CliRunner()
+    res = runner.invoke(app, ["invert-shape", str(HUMAN_IK_ASCII), "--out", str(tmp_path / "shape.json")])
+    assert res.exit_code == 0, res.output
+    shape = json.loads((tmp_path / "shape.json").read_text())
+    assert shape["character"]["joint_map"]["pelvis"] == "Character1_Hips"
+    aa, transl, betas = people(seed=3, n=1, **framing("romp"))
+    w = write_romp(tmp_path, aa, transl, betas)
+    res = runner.invoke(app, ["scene", "from-estimate", str(w.path), "--out", str(tmp_path / "scene"), "--character",
+                              str(HUMAN_IK_ASCII), "--no-previews", "--max-effectors", "2"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["scene", "export", str(tmp_path / "scene" / "scene.json"), "--out",
+                              str(tmp_path / "exp")])
+    assert res.exit_code == 0, res.output
+    assert "FBX meshes are not converted" in res.output
+    bvh = read_bvh(tmp_path / "exp" / "person_0.bvh")  # the FBX character's own skeleton, re-read as BVH
+    assert "Character1_LeftUpLeg" in bvh.joint_names and bvh.num_frames >= 1
+
+
+def test_data_build_turns_a_folder_of_fbx_clips_into_training_data(tmp_path):
+    import typer
+    from typer.testing import CliRunner
+
+    from shape_inversion.data_build_cli import build
+    from smplik.data.dataset import load_cache
+    from smplik.data.retarget import bone_direction_errors, read_motion, retarget_bvh
+
+    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
+
+    clip = retarget_bvh(read_motion(HUMAN_IK_ASCII), preset="auto", fps=24)
+    errors = bone_direction_errors(clip, frames=slice(0, None, 10))
+    assert errors.mean() < 1.0, errors.group_means()
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    (folder / "a.fbx").symlink_to(HUMAN_IK_ASCII)
+    (folder / "b.fbx").symlink_to(HUMAN_IK_BINARY)
+    app = typer.Typer()
+    app.command()(build)
+    out = tmp_path / "fbx.npz"
+    result = CliRunner().invoke(app, ["--bvh", str(folder), "--out", str(out), "--fps", "12"])
+    assert result.exit_code == 0, result.output
+    cache = load_cache(out)
+    assert cache.clip_names == ("a.fbx", "b.fbx") and abs(len(cache) - 2 * 60) <= 4  # 120 frames at 24 -> 12 fps
+    assert np.isfinite(cache.pose.numpy()).all() and float(cache.pose.abs().max()) > 0.1
+
+
+def test_a_bvh_without_toe_joints_builds_with_the_preset_it_nearly_fits(tmp_path):
+    """A Perception-Neuron-like Mixamo-named BVH without toes: ``data build`` once refused it (``preset 'mixamo'
+    names source joints the file does not have: left_foot -> mixamorig:LeftToeBase``)."""
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto"
+    from smplik.data.retarget import read_motion, retarget_bvh
+    from workflows.examples_gen import write_mixamo_character
+
+    text = write_mixamo_character(tmp_path / "m.bvh").read_text()
+    head, motion_part = text.split("MOTION")
+    out, depth, skipping = [], 0, False
+    for line in head.splitlines():  # drop the toe joints (and their End Sites) from the hierarchy
+        if "ToeBase" in line:
+            skipping, depth = True, 0
+        if skipping:
+            depth += line.count("{") - line.count("}")
+            if depth == 0 and "}" in line:
+                skipping = False
+            continue
+        out.append(line)
+    hierarchy = "\n".join(out)
+    channels = sum(int(n) for n in __import__("re").findall(r"CHANNELS\s+(\d+)", hierarchy))
+    frames = [ln for ln in motion_part.splitlines() if ln.strip()][:2]  # "Frames: 1", "Frame Time: ..."
+    (tmp_path / "notoes.bvh").write_text(hierarchy + "\nMOTION\n" + "\n".join(frames) + "\n"
+                                         + " ".join(["0"] * channels) + "\n")
+    motion = read_motion(tmp_path / "notoes.bvh")
+    assert not any("Toe" in n for n in motion.joint_names)
+    clip = retarget_bvh(motion, preset="auto")
+    assert clip.num_frames == motion.num_frames and np.isfinite(clip.body_pose).all()
+
+
+def test_a_file_that_is_not_fbx_is_refused_in_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+
+    bad = tmp_path / "broken.fbx"
+    bad.write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + b"\xff" * 64)
+    res = CliRunner().invoke(app, ["invert-shape", str(bad), "--out", str(tmp_path / "s.json")])
+    assert res.exit_code == 1
+    assert "Traceback" not in res.output and "broken.fbx" in res.output
+    assert res.output.strip().splitlines()[-1].startswith("error:")
+    assert not (tmp_path / "s.json").exists()
