@@ -12,8 +12,14 @@ import dataclasses
 from shape_inversion.rigs import RigError
 from shape_inversion.skeleton_io import Skeleton, SkeletonError, prepare_character
 from smplik.data.bvh import BVHMotion
-from smplik.data.retarget import (RetargetError, RetargetPreset, load_preset, preset_names, register_rig_mapper,
-                                  resolve_joint_names)
+from smplik.data.retarget import (
+    RetargetError,
+    RetargetPreset,
+    load_preset,
+    preset_names,
+    register_rig_mapper,
+    resolve_joint_names,
+)
 
 __all__ = ["auto_preset"]
 

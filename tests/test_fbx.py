@@ -128,6 +128,7 @@ def test_invert_shape_scene_and_export_take_an_fbx_character(tmp_path):
 
     sys.path.insert(0, str(Path(__file__).parent))
     from estimator_fixtures import framing, people, write_romp
+
     from smplik.cli.main import app
     from smplik.data.bvh import read_bvh
 
@@ -153,11 +154,10 @@ def test_data_build_turns_a_folder_of_fbx_clips_into_training_data(tmp_path):
     import typer
     from typer.testing import CliRunner
 
+    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
     from shape_inversion.data_build_cli import build
     from smplik.data.dataset import load_cache
     from smplik.data.retarget import bone_direction_errors, read_motion, retarget_bvh
-
-    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
 
     clip = retarget_bvh(read_motion(HUMAN_IK_ASCII), preset="auto", fps=24)
     errors = bone_direction_errors(clip, frames=slice(0, None, 10))
