@@ -122,6 +122,10 @@ HUMAN_SIZE_SCALE = (0.5, 1.5)
 """Mean-body scales fitted as they are; a skeleton outside is fitted at the bank's middle scale and scaled back
 (:meth:`ShapeEstimator._size_factor`): scale has no bank range."""
 
+ANY_SIZE_SCALE = (0.04, 16.0)
+"""Mean-body scales read at their own size (about 7 cm to 27 m tall: a figurine to a giant); beyond, a skeleton
+is a unit error (a human in centimetres read as metres) and refused as one ("its units look wrong ... --units")."""
+
 
 @dataclass(frozen=True, eq=False)
 class ShapeEstimate:
@@ -402,8 +406,8 @@ class ShapeEstimator:
         lo, hi = self.bank.config.scale_range
         unit = float(self.features_of(np.zeros(NUM_BETAS), 1.0)[2])  # head-ankle of the mean body at scale 1
         approx = query[2] / unit  # the scale a mean body of this head-ankle height would have
-        if HUMAN_SIZE_SCALE[0] <= approx <= HUMAN_SIZE_SCALE[1]:
-            return 1.0
+        if HUMAN_SIZE_SCALE[0] <= approx <= HUMAN_SIZE_SCALE[1] or not ANY_SIZE_SCALE[0] <= approx <= ANY_SIZE_SCALE[1]:
+            return 1.0  # human size, or so far beyond any character's that the units are wrong (said as such)
         return float(approx / (0.5 * (lo + hi)))
 
     def _edge_check(self, betas: np.ndarray, scale: float, query: np.ndarray) -> tuple[str, ...]:
