@@ -474,10 +474,36 @@ def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
                                    T_world_joint_bind=gltf.T_world_joint_bind[keep])
     names = tuple(skeleton.names[j] for j in keep)
     humanoid = None if skeleton.humanoid is None else {s: n for s, n in skeleton.humanoid.items() if n in names}
+    bvh, t_rest = skeleton.bvh, take(skeleton.rest_translations)
+    if bvh is not None and (list(keep) != list(range(bvh.num_joints)) or tuple(parents) != tuple(bvh.parents)):
+        # the motion follows the new hierarchy (its joints, End Sites and frames indexed as the skeleton's)
+        bvh = sub_motion(bvh, keep, parents)
+        if skeleton.rest_rotations is not None:
+            R0, P = skeleton.rest_rotations[keep], skeleton.positions[keep]
+            t_rest = np.array([P[k] if p < 0 else R0[p].T @ (P[k] - P[p]) for k, p in enumerate(parents)])
     return Skeleton(names, parents, skeleton.positions[keep], skeleton.source, skeleton.format,
-                    skeleton.units, skeleton.up, None if skeleton.bvh is None or len(keep) == len(skeleton.names)
-                    else skeleton.bvh, take(skeleton.rest_rotations), take(skeleton.rest_translations), gltf, humanoid,
+                    skeleton.units, skeleton.up, bvh, take(skeleton.rest_rotations), t_rest, gltf, humanoid,
                     skeleton.rest)
+
+
+def sub_motion(motion: BVHMotion, keep: Sequence[int], parents: Sequence[int]) -> BVHMotion:
+    """The joints ``keep`` of a BVH motion under new ``parents`` (indices into ``keep``, parents first).
+
+    World rotations and positions of every frame are kept; local ones are recomputed for the new hierarchy,
+    joints whose distance to their new parent changes (a removed joint between them bent) get position
+    channels; the zero-rotation pose is still the OFFSET pose (:func:`smplik.data.fbx.motion_from_world`).
+    """
+    from smplik.data.fbx import motion_from_world
+
+    keep = list(keep)
+    _, p_off = motion.rest_pose()
+    T_rest = np.broadcast_to(np.eye(4), (len(keep), 4, 4)).copy()
+    T_rest[:, :3, 3] = p_off[keep]
+    T_world = np.broadcast_to(np.eye(4), (motion.num_frames, len(keep), 4, 4)).copy()
+    T_world[..., :3, :3] = motion.global_rotations[:, keep]
+    T_world[..., :3, 3] = motion.positions[:, keep]
+    return motion_from_world(motion.name, [motion.joint_names[j] for j in keep], tuple(parents), T_rest, T_world,
+                             motion.frame_time)
 
 
 def reparent_skeleton(skeleton: Skeleton, parents: Sequence[int], keep: Sequence[int] | None = None) -> Skeleton:

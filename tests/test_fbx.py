@@ -218,3 +218,57 @@ def test_a_file_that_is_not_fbx_is_refused_in_one_line(tmp_path):
     assert "Traceback" not in res.output and "broken.fbx" in res.output
     assert res.output.strip().splitlines()[-1].startswith("error:")
     assert not (tmp_path / "s.json").exists()
+
+
+def _rigify_control_bvh(path: Path) -> Path:
+    """A Blender Rigify control rig exported as BVH (Blender's ``export_anim_bvh``: every bone, ``DEF-`` deform
+    bones beside ``MCH-`` mechanism bones), the deform bones on the example Mixamo body, three frames."""
+    from smplik.conventions import JOINT_NAMES, PARENTS
+    from smplik.data.bvh import format_bvh
+    from workflows.examples_gen import MIXAMO_NAMES, mixamo_rest_joints
+
+    J = mixamo_rest_joints() * 100.0
+    names = ["DEF-" + MIXAMO_NAMES[n] for n in JOINT_NAMES]
+    parents, pos = list(PARENTS), [J[j] for j in range(24)]
+    for j in range(24):  # a mechanism bone on every deform bone: the End Sites hang on them
+        names.append(f"MCH-{MIXAMO_NAMES[JOINT_NAMES[j]]}_ik")
+        parents.append(j)
+        pos.append(J[j] + np.array([0.0, 0.0, 5.0]))
+    offsets = np.array([pos[k] if parents[k] < 0 else pos[k] - pos[parents[k]] for k in range(len(names))])
+    channels = [("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation") if p < 0
+                else ("Zrotation", "Yrotation", "Xrotation") for p in parents]
+    values = np.zeros((3, sum(len(c) for c in channels)))
+    values[1:, 3:] = np.random.default_rng(1).normal(0, 15, (2, values.shape[1] - 3))
+    path.write_text(format_bvh(names, parents, offsets, channels, values, 1 / 30))
+    return path
+
+
+def test_a_rigify_control_rig_goes_through_from_estimate_and_exports_its_deform_bones(tmp_path):
+    """Regression: ``scene from-estimate --character`` on a Rigify control rig ended in ``IndexError: index 128 is
+    out of bounds for axis 0 with size 35`` (the deform-bone skeleton kept the whole rig's BVH motion, whose End
+    Sites index the whole rig)."""
+    import sys
+
+    from typer.testing import CliRunner
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from estimator_fixtures import framing, people, write_romp
+    from smplik.cli.main import app
+    from smplik.data.bvh import read_bvh
+
+    rig = _rigify_control_bvh(tmp_path / "rigify.bvh")
+    aa, transl, betas = people(seed=3, n=1, **framing("romp"))
+    w = write_romp(tmp_path, aa, transl, betas)
+    runner = CliRunner()
+    res = runner.invoke(app, ["scene", "from-estimate", str(w.path), "--out", str(tmp_path / "scene"), "--character",
+                              str(rig), "--no-previews", "--max-effectors", "2"])
+    assert res.exit_code == 0 and "Traceback" not in res.output, res.output
+    res = runner.invoke(app, ["scene", "export", str(tmp_path / "scene" / "scene.json"), "--out", str(tmp_path / "x")])
+    assert res.exit_code == 0, res.output
+    out = read_bvh(tmp_path / "x" / "person_0.bvh")
+    assert len(out.joint_names) == 24 and all(n.startswith("DEF-") for n in out.joint_names)
+    assert out.num_frames == 1 + 3  # the pose, then the rig's own three frames
+    src = read_bvh(rig)
+    idx = [src.joint_names.index(n) for n in out.joint_names]
+    rel = lambda p: p - p[:, :1]  # noqa: E731 - the source frames keep every deform joint where the rig had it
+    np.testing.assert_allclose(rel(out.positions[1:]), rel(src.positions[:, idx]) / 100.0 * 1.0, atol=0.02)

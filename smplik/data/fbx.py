@@ -228,7 +228,8 @@ def motion_from_world(name: str, joint_names: list[str], parents: tuple[int, ...
     t_local[:, ~has_parent] = p[:, ~has_parent]
     delta = np.einsum("tjba,tjb->tja", G[:, P[has_parent]], p[:, has_parent] - p[:, P[has_parent]])
     scale = max(float(np.ptp(p_rest, axis=0).max()), 1e-9)
-    moved = np.abs(delta - offsets[has_parent]).max(axis=0).max(axis=-1) > 1e-7 * scale
+    moved = (np.abs(delta - offsets[has_parent]).max(axis=0).max(axis=-1) > 1e-7 * scale if T
+             else np.zeros(int(has_parent.sum()), bool))
     translated = ~has_parent
     translated[np.flatnonzero(has_parent)[moved]] = True
     t_local[:, has_parent] = np.where(moved[None, :, None], delta, offsets[has_parent])
