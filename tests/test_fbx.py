@@ -272,3 +272,26 @@ def test_a_rigify_control_rig_goes_through_from_estimate_and_exports_its_deform_
     idx = [src.joint_names.index(n) for n in out.joint_names]
     rel = lambda p: p - p[:, :1]  # noqa: E731 - the source frames keep every deform joint where the rig had it
     np.testing.assert_allclose(rel(out.positions[1:]), rel(src.positions[:, idx]) / 100.0 * 1.0, atol=0.02)
+
+
+def test_a_glb_skin_read_in_part_poses_its_mesh_with_the_joints_it_kept():
+    """Regression: ``scene from-estimate --character`` on a UE4 mannequin re-exported by Blender ended in
+    ``IndexError: index 221 is out of bounds for axis 0 with size 93``: the skin's joint indices (``JOINTS_0``,
+    221 joints with the ``ik_*`` hierarchies) were remapped through an array of the 93 joints kept."""
+    from shape_inversion.skeleton_io import read_skeleton, subset_skeleton
+    from workflows.character_mesh import pose_mesh, skinned_mesh
+
+    sk = read_skeleton(Path(__file__).parent / "data" / "rigs" / "threejs_Soldier.glb")
+    leaves = {j for j in range(len(sk.names)) if j not in set(sk.parents)}
+    keep = [j for j in range(len(sk.names)) if j not in leaves]  # parents first, a whole hierarchy
+    sub = subset_skeleton(sk, keep)
+    full_mesh, mesh = skinned_mesh(sk.gltf), skinned_mesh(sub.gltf)
+    assert mesh is not None and mesh.joints.max() < len(keep)
+    for k, j in enumerate(keep):  # a vertex of a kept joint keeps it; one of a dropped leaf takes its parent
+        assert np.all(mesh.joints[full_mesh.joints == j] == k)
+    for j in leaves:
+        on = full_mesh.joints == j
+        assert np.all(mesh.joints[on] == keep.index(sk.parents[j]))
+    R = np.broadcast_to(np.eye(3), (len(keep), 3, 3))
+    posed = pose_mesh(mesh, sub.gltf, R, sub.gltf.T_world_joint_bind[:, :3, 3])
+    np.testing.assert_allclose(posed, mesh.vertices_world, atol=1e-9)  # the bind pose gives the bind mesh
