@@ -253,6 +253,7 @@ def test_a_rigify_control_rig_goes_through_from_estimate_and_exports_its_deform_
 
     sys.path.insert(0, str(Path(__file__).parent))
     from estimator_fixtures import framing, people, write_romp
+
     from smplik.cli.main import app
     from smplik.data.bvh import read_bvh
 
@@ -295,3 +296,45 @@ def test_a_glb_skin_read_in_part_poses_its_mesh_with_the_joints_it_kept():
     R = np.broadcast_to(np.eye(3), (len(keep), 3, 3))
     posed = pose_mesh(mesh, sub.gltf, R, sub.gltf.T_world_joint_bind[:, :3, 3])
     np.testing.assert_allclose(posed, mesh.vertices_world, atol=1e-9)  # the bind pose gives the bind mesh
+
+
+def _with_required_extension(src: Path, out: Path, name: str, fallback_buffer: bool) -> Path:
+    """``src`` (a GLB) re-saved as glTF-Transform / gltfpack write a compressed file: the extension in
+    ``extensionsUsed`` and ``extensionsRequired`` and, for meshopt, a fallback buffer without a uri
+    (``{"byteLength": n, "extensions": {"EXT_meshopt_compression": {"fallback": true}}}``, glTF-Transform's
+    ``EXTMeshoptCompression`` writer)."""
+    import pygltflib
+
+    doc = pygltflib.GLTF2.load_binary(src)
+    doc.extensionsUsed = sorted(set(doc.extensionsUsed or []) | {name})
+    doc.extensionsRequired = sorted(set(doc.extensionsRequired or []) | {name})
+    if fallback_buffer:
+        doc.buffers.append(pygltflib.Buffer(byteLength=1024, extensions={name: {"fallback": True}}))
+    doc.save_binary(str(out))
+    return out
+
+
+@pytest.mark.parametrize("ext", ["EXT_meshopt_compression", "KHR_meshopt_compression", "EXT_unknown_future"])
+def test_a_gltf_requiring_an_extension_it_cannot_decode_is_refused_in_one_line_naming_it(tmp_path, ext):
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+
+    src = Path(__file__).parent / "data" / "rigs" / "RiggedFigure.glb"
+    f = _with_required_extension(src, tmp_path / "packed.glb", ext, fallback_buffer="meshopt" in ext)
+    res = CliRunner().invoke(app, ["invert-shape", str(f), "--out", str(tmp_path / "s.json")])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    line = res.output.strip().splitlines()[-1]
+    assert line.startswith("error:") and ext in line and "has no uri" not in line
+
+
+def test_a_gltf_requiring_ktx_textures_or_quantization_still_reads(tmp_path):
+    from shape_inversion.skeleton_io import read_character
+
+    src = Path(__file__).parent / "data" / "rigs" / "RiggedFigure.glb"
+    plain = read_character(src)
+    for ext in ("KHR_texture_basisu", "KHR_mesh_quantization"):
+        f = _with_required_extension(src, tmp_path / f"{ext}.glb", ext, fallback_buffer=False)
+        char = read_character(f)
+        assert char.joint_map == plain.joint_map
+        np.testing.assert_allclose(char.positions, plain.positions)
