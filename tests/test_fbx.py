@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -338,3 +339,29 @@ def test_a_gltf_requiring_ktx_textures_or_quantization_still_reads(tmp_path):
         char = read_character(f)
         assert char.joint_map == plain.joint_map
         np.testing.assert_allclose(char.positions, plain.positions)
+
+
+def test_an_fbx_animation_pack_becomes_one_clip_per_animated_take(tmp_path, monkeypatch):
+    """A Unity / Blender export of several actions in one FBX (``Armature|Idle``, ``Armature|Walk``): each animated
+    take is a clip (``pack.fbx#Armature|Walk``); a Mixamo file's empty ``Take 001`` is no clip."""
+    import smplik.data.fbx as fbx
+    from smplik.data.dataset import find_sources, read_source
+    from smplik.data.fbx import FbxTake, read_fbx, read_fbx_takes
+
+    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
+
+    assert [t.name for t in read_fbx_takes(HUMAN_IK_ASCII)] == ["Take 001"]
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    (folder / "pack.fbx").symlink_to(HUMAN_IK_ASCII)
+    (folder / "single.fbx").symlink_to(HUMAN_IK_BINARY)
+    pack = [FbxTake("Take 001", 0.0, 5.0, 242), FbxTake("empty", 0.0, 1.0, 0), FbxTake("Armature|Walk", 0.0, 2.0, 9)]
+    real = fbx.read_fbx_takes
+    monkeypatch.setattr(fbx, "read_fbx_takes", lambda p: pack if Path(p).name == "pack.fbx" else real(p))
+    sources = find_sources(folder, "bvh")
+    assert [(s.name, s.take) for s in sources] == [("pack.fbx#Take 001", "Take 001"),
+                                                  ("pack.fbx#Armature|Walk", "Armature|Walk"), ("single.fbx", None)]
+    seq = read_source(sources[0])  # the named take is read
+    assert seq.num_frames == read_fbx(HUMAN_IK_ASCII, take="Take 001").num_frames
+    with pytest.raises(ValueError, match=re.escape("no take 'Armature|Walk'; takes: 'Take 001'")):
+        read_source(sources[1])  # (this file has one take: the error names the take and the file's takes)
