@@ -344,11 +344,10 @@ def test_a_gltf_requiring_ktx_textures_or_quantization_still_reads(tmp_path):
 def test_an_fbx_animation_pack_becomes_one_clip_per_animated_take(tmp_path, monkeypatch):
     """A Unity / Blender export of several actions in one FBX (``Armature|Idle``, ``Armature|Walk``): each animated
     take is a clip (``pack.fbx#Armature|Walk``); a Mixamo file's empty ``Take 001`` is no clip."""
+    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
     import smplik.data.fbx as fbx
     from smplik.data.dataset import find_sources, read_source
     from smplik.data.fbx import FbxTake, read_fbx, read_fbx_takes
-
-    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
 
     assert [t.name for t in read_fbx_takes(HUMAN_IK_ASCII)] == ["Take 001"]
     folder = tmp_path / "clips"
