@@ -61,7 +61,8 @@ def measure(path: Path) -> dict:
             row["character"] = {"refused": str(exc)}
             return row
     row["character"] = {"mapped_joints": len(char.joint_map), "units_m": char.units_m, "stature_m": round(stature, 3),
-                        "scale": round(est.scale, 3), "max_feature_residual_mm": round(1000 * est.max_feature_residual_m, 1),
+                        "scale": round(est.scale, 3),
+                        "max_feature_residual_mm": round(1000 * est.max_feature_residual_m, 1),
                         "own_size": any("read at its own size" in str(w.message) for w in caught)}
     cc = build_character(char.skeleton, est, rig=char.rig)
     posed = {p.name: round(100 * float(retarget_error_m(dataclasses.replace(p.pose, betas=cc.betas, gender=cc.gender),
@@ -72,7 +73,8 @@ def measure(path: Path) -> dict:
         clip = retarget_bvh(motion, preset="auto")
         cpu = time.process_time() - t0
         errors = bone_direction_errors(clip, frames=slice(0, None, 5))
-        row["data_build"] = {"frames": clip.num_frames, "frames_per_cpu_second": round(clip.num_frames / max(cpu, 1e-9)),
+        row["data_build"] = {"frames": clip.num_frames,
+                             "frames_per_cpu_second": round(clip.num_frames / max(cpu, 1e-9)),
                              "bone_direction_error_deg_mean": round(float(np.mean(errors.mean())), 2)}
     return row
 
