@@ -364,3 +364,27 @@ def test_an_fbx_animation_pack_becomes_one_clip_per_animated_take(tmp_path, monk
     assert seq.num_frames == read_fbx(HUMAN_IK_ASCII, take="Take 001").num_frames
     with pytest.raises(ValueError, match=re.escape("no take 'Armature|Walk'; takes: 'Take 001'")):
         read_source(sources[1])  # (this file has one take: the error names the take and the file's takes)
+
+
+def test_scene_animate_takes_an_fbx_character_and_writes_its_own_skeleton(tmp_path, monkeypatch, best_solver):
+    """``scene animate --character`` reads the FBX with the same reader as ``invert-shape`` (one rig reader)."""
+    import sys
+
+    from typer.testing import CliRunner
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from animation_fixtures import video_motion
+    from estimator_fixtures import write_aist
+    from smplik.data.bvh import read_bvh
+    from workflows.cli import scene_app
+
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: best_solver)
+    aa, tr = video_motion(8, seed=6, fmt="gvhmr")
+    aist = write_aist(tmp_path, aa, tr)
+    res = CliRunner().invoke(scene_app, ["animate", str(aist), "--out", str(tmp_path / "a"), "--character",
+                                         str(HUMAN_IK_BINARY), "--max-effectors", "2"])
+    assert res.exit_code == 0, res.output
+    bvh = read_bvh(tmp_path / "a" / "person_0.bvh")
+    assert bvh.num_frames == 8 and "Character1_Hips" in bvh.joint_names
+    stature = float(np.ptp(bvh.positions[0][:, 1]))
+    assert 1.2 < stature < 2.2  # the scene's world frame: metres
