@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import re
 from pathlib import Path
 
@@ -388,3 +389,21 @@ def test_scene_animate_takes_an_fbx_character_and_writes_its_own_skeleton(tmp_pa
     assert bvh.num_frames == 8 and "Character1_Hips" in bvh.joint_names
     stature = float(np.ptp(bvh.positions[0][:, 1]))
     assert 1.2 < stature < 2.2  # the scene's world frame: metres
+
+
+def test_a_truncated_fbx_and_a_missing_reader_are_one_line_each(tmp_path, monkeypatch):
+    import smplik.data.fbx as fbx
+    from smplik.data.fbx import FbxError, read_fbx
+
+    cut = tmp_path / "cut.fbx"
+    cut.write_bytes(KENNEY.read_bytes()[:300_000])  # a download cut short
+    with pytest.raises(FbxError, match=r"cut\.fbx: not a readable FBX file") as err:
+        read_fbx(cut)
+    assert "\n" not in str(err.value)
+    shadow = tmp_path / "shadow"  # an environment without ufbx: an import of it fails in the child process
+    shadow.mkdir()
+    (shadow / "ufbx.py").write_text("raise ImportError('no ufbx here')\n")
+    env = fbx._worker_env()
+    monkeypatch.setattr(fbx, "_worker_env", lambda: {**env, "PYTHONPATH": f"{shadow}{os.pathsep}{env['PYTHONPATH']}"})
+    with pytest.raises(FbxError, match=r"pip install 'smplik\[fbx\]'"):
+        read_fbx(HUMAN_IK_ASCII)

@@ -64,10 +64,13 @@ class FbxTake:
 
 
 def _worker_env() -> dict[str, str]:
+    """The child's environment: the caller's, with this smplik first on its path (an uninstalled checkout too)."""
     import os
 
     env = dict(os.environ)
     env.setdefault("OMP_NUM_THREADS", "1")
+    root = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = os.pathsep.join([root, *(p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p)])
     return env
 
 
