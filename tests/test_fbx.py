@@ -376,6 +376,7 @@ def test_scene_animate_takes_an_fbx_character_and_writes_its_own_skeleton(tmp_pa
     sys.path.insert(0, str(Path(__file__).parent))
     from animation_fixtures import video_motion
     from estimator_fixtures import write_aist
+
     from smplik.data.bvh import read_bvh
     from workflows.cli import scene_app
 
