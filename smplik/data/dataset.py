@@ -137,7 +137,7 @@ def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
         else:
             out.append(ClipSource(path=path, kind=kind, name=rel.as_posix(), subject=subject))
     if not out:
-        raise ValueError(f"No {' or '.join(suffixes)} files under {root}.")
+        raise ValueError(f"No {suffix} files{' (nor .fbx)' if kind == 'bvh' else ''} under {root}.")
     return out
 
 
