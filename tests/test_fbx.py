@@ -408,3 +408,28 @@ def test_a_truncated_fbx_and_a_missing_reader_are_one_line_each(tmp_path, monkey
     monkeypatch.setattr(fbx, "_worker_env", lambda: {**env, "PYTHONPATH": f"{shadow}{os.pathsep}{env['PYTHONPATH']}"})
     with pytest.raises(FbxError, match=r"pip install 'smplik\[fbx\]'"):
         read_fbx(HUMAN_IK_ASCII)
+
+
+def test_sketchfab_names_with_ik_helpers_and_numeric_tags_match_by_name():
+    """Sketchfab's converter tags every name (``leg_upper.L_6``), adds ``GLTF_created_0_rootJoint`` above the
+    skeleton, and rigs carry IK helpers named like the joints (``hips_IK_28`` beside ``hips_2``): the name matcher
+    (the rig mapper's fallback) reads the reversed compounds and ranks a helper after the joint of its name."""
+    from shape_inversion.rig_names import match_humanoid
+    from shape_inversion.skeleton_io import read_skeleton
+
+    sk = read_skeleton(Path(__file__).parent / "data" / "rigs" / "VRMC_materials_mtoon_UV_Animation_Test.vrm")
+    words = {"upper_leg": "leg_upper", "lower_leg": "leg_lower", "upper_arm": "arm_upper", "lower_arm": "arm_lower"}
+    renamed = []
+    for k, n in enumerate(sk.names):
+        base, dot, side = n.rpartition(".")
+        renamed.append(f"{words.get(base, base)}.{side}_{k}" if dot else f"{n}_{k}")
+    names = ["GLTF_created_0_rootJoint", *renamed]
+    parents = [-1, *(p + 1 if p >= 0 else 0 for p in sk.parents)]
+    hips = names.index(next(n for n in names if n.startswith("hips_")))
+    names.append(f"hips_IK_{len(names)}")  # an IK control of the hips, a leaf on the root
+    parents.append(0)
+    found = {s: names[j] for s, j in match_humanoid(names, parents).items()}
+    expected = {s: renamed[sk.names.index(n)] for s, n in sk.humanoid.items()}
+    assert found["pelvis"] == names[hips] and found["left_hip"] == expected["left_hip"]
+    for s in ("left_knee", "right_hip", "left_elbow", "right_shoulder", "head", "left_ankle"):
+        assert found[s] == expected[s], s
