@@ -57,7 +57,7 @@ class NameMatchError(ValueError):
     """The joint names do not match an ordinary humanoid, or the match contradicts the topology."""
 
 
-_EXPORTER_SUFFIX = re.compile(r"(?:[._](?:\d+|end))+$", re.IGNORECASE)
+_EXPORTER_SUFFIX = re.compile(r"(?:[._]\d+)+$")
 _COMPOUNDS = {"legupper": "upperleg", "leglower": "lowerleg", "armupper": "upperarm", "armlower": "lowerarm",
               "legup": "upleg", "armup": "uparm", "leglow": "lowleg", "armlow": "lowarm"}
 """Reversed compounds of some exporters (Sketchfab's ``leg_upper.L_6``) in the usual order."""
