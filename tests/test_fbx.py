@@ -433,3 +433,22 @@ def test_sketchfab_names_with_ik_helpers_and_numeric_tags_match_by_name():
     assert found["pelvis"] == names[hips] and found["left_hip"] == expected["left_hip"]
     for s in ("left_knee", "right_hip", "left_elbow", "right_shoulder", "head", "left_ankle"):
         assert found[s] == expected[s], s
+
+
+def test_data_preview_draws_an_fbx_clip(tmp_path):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from helpers import can_render
+
+    if not can_render():
+        pytest.skip("no offscreen rendering (EGL/OSMesa) here")
+    from typer.testing import CliRunner
+
+    from smplik.cli.main import app
+
+    out = tmp_path / "strip.png"
+    res = CliRunner().invoke(app, ["data", "preview", str(HUMAN_IK_BINARY), "--out", str(out), "--frames", "3",
+                                   "--panel", "120"])
+    assert res.exit_code == 0, res.output
+    assert out.is_file() and "of 120" in res.output and "rest pose offsets" in res.output
