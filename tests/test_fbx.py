@@ -147,7 +147,7 @@ def test_invert_shape_scene_and_export_take_an_fbx_character(tmp_path):
     res = runner.invoke(app, ["scene", "export", str(tmp_path / "scene" / "scene.json"), "--out",
                               str(tmp_path / "exp")])
     assert res.exit_code == 0, res.output
-    assert "FBX meshes are not converted" in res.output
+    assert "maya_human_ik_7400_ascii.fbx has no skinned mesh; its GLB is the SMPL body" in res.output
     bvh = read_bvh(tmp_path / "exp" / "person_0.bvh")  # the FBX character's own skeleton, re-read as BVH
     assert "Character1_LeftUpLeg" in bvh.joint_names and bvh.num_frames >= 1
 
@@ -452,3 +452,71 @@ def test_data_preview_draws_an_fbx_clip(tmp_path):
                                    "--panel", "120"])
     assert res.exit_code == 0, res.output
     assert out.is_file() and "of 120" in res.output and "rest pose offsets" in res.output
+
+
+def test_a_skinned_fbx_character_exports_its_own_mesh_posed_with_its_take_kept(tmp_path):
+    """``scene export`` of the Kenney FBX: the GLB is the file's own skinned mesh (not the SMPL body), its joints
+    named as in the file, posed like the exported BVH (the same joints at the same world positions), with the
+    file's take as a clip beside ``pose``; a vertex bound to one joint keeps its distance to it."""
+    import sys
+
+    import pygltflib
+    from scipy.spatial.transform import Rotation
+    from typer.testing import CliRunner
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from estimator_fixtures import framing, people, write_romp
+
+    from smplik.cli.main import app
+    from smplik.data.bvh import read_bvh
+
+    aa, transl, betas = people(seed=3, n=1, **framing("romp"))
+    w = write_romp(tmp_path, aa, transl, betas)
+    runner = CliRunner()
+    res = runner.invoke(app, ["scene", "from-estimate", str(w.path), "--out", str(tmp_path / "s"), "--character",
+                              str(KENNEY), "--no-previews", "--max-effectors", "2"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["scene", "export", str(tmp_path / "s" / "scene.json"), "--out", str(tmp_path / "x")])
+    assert res.exit_code == 0, res.output
+    assert "SMPL body" not in res.output  # no note: the GLB is the character's own mesh
+    g = pygltflib.GLTF2.load(str(tmp_path / "x" / "person_0.glb"))
+    assert [a.name for a in g.animations] == ["maya_kenney_character_7700_binary take", "pose"]
+    bvh = read_bvh(tmp_path / "x" / "person_0.bvh")
+
+    def acc(i):
+        a, v = g.accessors[i], g.bufferViews[g.accessors[i].bufferView]
+        n = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[a.type]
+        dt = {5126: np.float32, 5123: np.uint16, 5125: np.uint32}[a.componentType]
+        raw = g.binary_blob()[(v.byteOffset or 0) + (a.byteOffset or 0):]
+        return np.frombuffer(raw, dtype=dt, count=a.count * n).reshape(a.count, n).astype(np.float64)
+
+    skin = g.skins[0]
+    J = len(skin.joints)
+    local = np.broadcast_to(np.eye(4), (len(g.nodes), 4, 4)).copy()
+    for k, node in enumerate(g.nodes):
+        if node.rotation is not None:
+            local[k, :3, :3] = Rotation.from_quat(node.rotation).as_matrix()
+        if node.translation is not None:
+            local[k, :3, 3] = node.translation
+    parent = {c: k for k, node in enumerate(g.nodes) for c in (node.children or [])}
+    world = local.copy()
+    for k in range(len(g.nodes)):  # the joint nodes are written parents first
+        if k in parent:
+            world[k] = world[parent[k]] @ local[k]
+    names = [g.nodes[j].name for j in skin.joints]
+    glb_joints = world[skin.joints, :3, 3]
+    assert sorted(names) == sorted(bvh.joint_names)
+    order = [bvh.joint_names.index(n) for n in names]
+    np.testing.assert_allclose(glb_joints, bvh.positions[0][order], atol=1e-3)  # posed like the BVH, frame 0
+    ibm = acc(skin.inverseBindMatrices).reshape(J, 4, 4).transpose(0, 2, 1)
+    prim = g.meshes[0].primitives[0]
+    V, Jv, Wv = acc(prim.attributes.POSITION), acc(prim.attributes.JOINTS_0).astype(int), acc(prim.attributes.WEIGHTS_0)
+    assert len(V) == 804
+    rigid = Wv[:, 0] > 0.999
+    k = Jv[rigid, 0]
+    M = world[np.asarray(skin.joints)[k]] @ ibm[k]
+    posed = np.einsum("vab,vb->va", M[:, :3, :3], V[rigid]) + M[:, :3, 3]
+    bind_joint = -ibm[k][:, :3, 3]  # bind rotations are identity: the IBM is a translation
+    np.testing.assert_allclose(np.linalg.norm(posed - glb_joints[k], axis=1),
+                               np.linalg.norm(V[rigid] - bind_joint, axis=1), atol=1e-4)
+    assert np.abs(posed - V[rigid]).max() > 0.05  # and the mesh did move with the pose

@@ -75,7 +75,7 @@ def _worker_env() -> dict[str, str]:
 
 
 def _run_worker(path: Path, take: str | int | None, max_joints: int, max_frames: int | None,
-                frames: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
+                frames: bool = True, mesh: bool = False) -> tuple[dict, dict[str, np.ndarray]]:
     """Run :mod:`smplik.data.fbx_worker` on ``path`` in a child process; returns its JSON header and arrays.
 
     ufbx is a C parser with Python bindings whose object wrappers (0.0.5) do not own their references:
@@ -97,7 +97,7 @@ def _run_worker(path: Path, take: str | int | None, max_joints: int, max_frames:
     with tempfile.TemporaryDirectory(prefix="smplik-fbx-") as tmp:
         out = Path(tmp) / "out.npz"
         request = json.dumps({"path": str(path), "take": take, "max_joints": int(max_joints),
-                              "max_frames": None if max_frames is None else int(max_frames), "frames": frames,
+                              "max_frames": None if max_frames is None else int(max_frames), "frames": frames, "mesh": mesh,
                               "max_fbx_bytes": MAX_FBX_BYTES, "out": str(out)})
         try:
             done = subprocess.run([sys.executable, "-m", "smplik.data.fbx_worker"], input=request.encode(),
@@ -179,6 +179,40 @@ def read_fbx_info(path: str | Path, *, take: str | int | None = None, max_joints
             or not np.isfinite(rest).all() or not np.isfinite(world).all():
         raise FbxError(f"{path}: the FBX reader returned no usable transforms")
     return motion_from_world(str(path), names, parents, rest, world, 1.0 / float(header["fps"])), info
+
+
+@dataclass(frozen=True, eq=False)
+class FbxMesh:
+    """An FBX file's skinned meshes in the bind pose (V vertices, F triangles), metres, y up.
+
+    Attributes:
+        vertices: (V, 3) bind-pose positions, world.
+        faces: (F, 3) vertex indices (polygons fanned).
+        joints: (V, 4) indices into ``joint_names`` (the four largest influences).
+        weights: (V, 4) weights summing to 1.
+        joint_names, parents: the file's joints as :func:`read_fbx` lists them.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray
+    weights: np.ndarray
+    joint_names: tuple[str, ...]
+    parents: tuple[int, ...]
+
+
+def read_fbx_mesh(path: str | Path, *, max_joints: int = DEFAULT_MAX_JOINTS) -> FbxMesh | None:
+    """The skinned meshes of an FBX file in its bind pose, or None when it has none (an animation-only clip)."""
+    header, arrays = _run_worker(Path(path), None, max_joints, 1, frames=False, mesh=True)
+    if "mesh_vertices" not in arrays:
+        return None
+    names = tuple(str(n) for n in header["names"])
+    joints = arrays["mesh_joints"].astype(np.int64)
+    V, F = arrays["mesh_vertices"], arrays["mesh_faces"].astype(np.int64)
+    if joints.min(initial=0) < 0 or joints.max(initial=0) >= len(names) or F.min(initial=0) < 0 \
+            or F.max(initial=0) >= len(V) or not np.isfinite(V).all():
+        raise FbxError(f"{path}: the FBX reader returned an inconsistent skinned mesh")
+    return FbxMesh(V, F, joints, arrays["mesh_weights"], names, tuple(int(p) for p in header["parents"]))
 
 
 def read_fbx(path: str | Path, *, take: str | int | None = None, max_joints: int = DEFAULT_MAX_JOINTS,

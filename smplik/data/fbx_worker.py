@@ -76,7 +76,8 @@ def run(request: dict) -> dict:
         data = fh.read(int(request["max_fbx_bytes"]) + 1)
     try:
         scene = ufbx.load_memory(data, target_axes=ufbx.axes_right_handed_y_up, target_unit_meters=1.0,
-                                 ignore_geometry=True, ignore_embedded=True, load_external_files=False,
+                                 ignore_geometry=not request.get("mesh"), ignore_embedded=True,
+                                 load_external_files=False,
                                  inherit_mode_handling=ufbx.InheritModeHandling.COMPENSATE, filename=path)
     except ufbx.UfbxError as exc:
         text = " ".join(str(exc).split())[:160]
@@ -190,7 +191,10 @@ def run(request: dict) -> dict:
                 [ufbx.evaluate_transform(anim, nodes[k], time) for k in need])
         local = _trs(trans, quats, scales)
         world = _compose(local, sub_parent)[:, [need.index(k) for k in order]]
-    np.savez(request["out"], rest=rest, world=world)
+    arrays = {"rest": rest, "world": world}
+    if request.get("mesh"):
+        arrays.update(_skinned_mesh(nodes, index, jindex))
+    np.savez(request["out"], **arrays)
     axes = settings.axes
     up = _AXES.get(int(settings.original_axis_up), "y")
     meta = scene.metadata
@@ -199,6 +203,66 @@ def run(request: dict) -> dict:
             "unit_m": float(settings.original_unit_meters), "up": up, "rest": rest_source,
             "creator": str(meta.creator), "version": int(meta.version), "ascii": bool(meta.ascii),
             "axes": [int(axes.right), int(axes.up), int(axes.front)]}
+
+
+MAX_MESH_VERTICES = 2_000_000
+
+
+def _skinned_mesh(nodes: list, index: dict, jindex: dict) -> dict[str, np.ndarray]:
+    """Every skinned mesh as world bind-pose triangles: ``mesh_vertices`` (V, 3) metres y up, ``mesh_faces``
+    (F, 3), ``mesh_joints`` (V, 4) joint indices, ``mesh_weights`` (V, 4) (the four largest, summing to 1).
+    Polygons are fanned into triangles; a mesh's bind space is its most-weighted cluster's geometry-to-world."""
+    verts, faces, joints, weights = [], [], [], []
+    count = 0
+    for node in nodes:
+        mesh = _own(node.mesh)
+        if mesh is None:
+            continue
+        skins = [_own(k) for k in mesh.skin_deformers]
+        if not skins:
+            continue
+        skin = skins[0]
+        clusters = [_own(c) for c in skin.clusters]
+        if not clusters:
+            continue
+        V = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+        count += len(V)
+        if count > MAX_MESH_VERTICES:
+            break
+        bind = _matrix(max(clusters, key=lambda c: c.num_weights).geometry_to_world)
+        VI = np.asarray(mesh.vertex_indices, dtype=np.int64)
+        tris = []
+        for begin, n in (tuple(f) for f in mesh.faces):
+            for k in range(1, n - 1):
+                tris.append((begin, begin + k, begin + k + 1))
+        if not tris:
+            continue
+        F = VI[np.asarray(tris, dtype=np.int64)]
+        cl_joint = []
+        for c in clusters:
+            bone = _own(c.bone_node)
+            cl_joint.append(jindex.get(index.get(bone.typed_id, -1), -1) if bone is not None else -1)
+        sv = [tuple(x) for x in skin.vertices]
+        sw = np.asarray([tuple(x) for x in skin.weights], dtype=np.float64).reshape(-1, 2)
+        J4 = np.zeros((len(V), 4), np.int64)
+        W4 = np.zeros((len(V), 4))
+        for v, (begin, num, _) in enumerate(sv[:len(V)]):
+            rows = sw[int(begin):int(begin) + int(num)]
+            rows = rows[np.argsort(-rows[:, 1])][:4]
+            for k, (c, w) in enumerate(rows):
+                j = cl_joint[int(c)] if 0 <= int(c) < len(cl_joint) else -1
+                if j >= 0:
+                    J4[v, k], W4[v, k] = j, w
+        total = W4.sum(axis=1, keepdims=True)
+        W4 = np.where(total > 0, W4 / np.maximum(total, 1e-12), np.array([1.0, 0, 0, 0]))
+        faces.append(F + sum(len(x) for x in verts))
+        verts.append(V @ bind[:3, :3].T + bind[:3, 3])
+        joints.append(J4)
+        weights.append(W4)
+    if not verts:
+        return {}
+    return {"mesh_vertices": np.concatenate(verts), "mesh_faces": np.concatenate(faces),
+            "mesh_joints": np.concatenate(joints), "mesh_weights": np.concatenate(weights)}
 
 
 def _ancestors(k: int, parent: list[int]) -> list[int]:
