@@ -97,7 +97,8 @@ def _run_worker(path: Path, take: str | int | None, max_joints: int, max_frames:
     with tempfile.TemporaryDirectory(prefix="smplik-fbx-") as tmp:
         out = Path(tmp) / "out.npz"
         request = json.dumps({"path": str(path), "take": take, "max_joints": int(max_joints),
-                              "max_frames": None if max_frames is None else int(max_frames), "frames": frames, "mesh": mesh,
+                              "max_frames": None if max_frames is None else int(max_frames), "frames": frames,
+                              "mesh": mesh,
                               "max_fbx_bytes": MAX_FBX_BYTES, "out": str(out)})
         try:
             done = subprocess.run([sys.executable, "-m", "smplik.data.fbx_worker"], input=request.encode(),

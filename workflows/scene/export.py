@@ -329,7 +329,7 @@ def fbx_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], frame_
         return None
     index = {n: k for k, n in enumerate(char.names)}
     to_char = np.zeros(len(mesh.joint_names), dtype=np.int64)  # a joint the character left out: its kept ancestor
-    for j, name in enumerate(mesh.joint_names):
+    for j in range(len(mesh.joint_names)):
         a = j
         while a >= 0 and mesh.joint_names[a] not in index:
             a = mesh.parents[a]
