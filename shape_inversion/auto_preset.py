@@ -7,10 +7,19 @@ itself. The ``smplik data`` commands (:mod:`shape_inversion.data_cli`) and the e
 
 from __future__ import annotations
 
-from shape_inversion.rigs import RigError, detect_rig
+import dataclasses
+
+from shape_inversion.rigs import RigError
 from shape_inversion.skeleton_io import Skeleton, SkeletonError, prepare_character
 from smplik.data.bvh import BVHMotion
-from smplik.data.retarget import RetargetError, RetargetPreset, load_preset, preset_names, register_rig_mapper
+from smplik.data.retarget import (
+    RetargetError,
+    RetargetPreset,
+    load_preset,
+    preset_names,
+    register_rig_mapper,
+    resolve_joint_names,
+)
 
 __all__ = ["auto_preset"]
 
@@ -18,20 +27,32 @@ __all__ = ["auto_preset"]
 def auto_preset(motion: BVHMotion) -> RetargetPreset:
     """The preset of a BVH clip found by the rig mapper (``preset="auto"``; no hand-written map).
 
-    The skeleton is mapped by :func:`shape_inversion.rigs.detect_rig` (topology, geometry and names;
-    a built-in preset when it is as complete) on the zero-rotation OFFSET pose; a built-in preset is
-    used as is; otherwise units and up come from :func:`shape_inversion.skeleton_io.prepare_character`
-    (stature-based detection), the rest pose is chosen per clip (``rest="auto"``) and no frame is
-    dropped (``motion_start`` 0). Raises :class:`RetargetError` naming the clip when it is not a humanoid.
+    The clip's zero-rotation OFFSET pose is read by :func:`shape_inversion.skeleton_io.prepare_character`, the
+    reader of ``invert-shape`` and ``--character`` (one rig reader for every command: Rigify deform bones,
+    several roots, chains hanging apart, IK feet), so the map is the one ``invert-shape`` prints. A built-in
+    preset found complete is used as is (its rest frame and units); a built-in preset whose optional joints
+    (toes, a spine joint, the neck, collars, hands) the file lacks keeps its rest and units and maps only the
+    joints the file has, each missing SMPL joint taking its parent's rotation (a Perception Neuron BVH without
+    toes, a MediaPipe-to-BVH file without some spine joints). Otherwise units and up come from the mapped
+    character (stature-based detection; an FBX clip is in metres, y up), the rest pose is chosen per clip
+    (``rest="auto"``) and no frame is dropped. Raises :class:`RetargetError` naming the clip when it is not a
+    humanoid.
     """
     _, positions = motion.rest_pose()
+    fbx = motion.name.lower().endswith(".fbx")
+    skeleton = Skeleton(motion.joint_names, motion.parents, positions, motion.name, "fbx" if fbx else "bvh",
+                        units=1.0 if fbx else None, up="y" if fbx else None)
     try:
-        rig = detect_rig(motion.joint_names, motion.parents, positions)
-        if rig.name in preset_names():
-            return load_preset(rig.name)
-        char = prepare_character(Skeleton(motion.joint_names, motion.parents, positions, motion.name, "bvh"), rig=rig)
+        char = prepare_character(skeleton)
     except (RigError, SkeletonError) as exc:
         raise RetargetError(f"{motion.name}: no rig map found ({exc})") from None
+    if char.rig.name in preset_names() and not fbx:
+        preset = load_preset(char.rig.name)
+        resolved = resolve_joint_names(preset.joints, motion.joint_names)
+        if len(resolved) == len(preset.joints):
+            return preset
+        return dataclasses.replace(preset, name=f"{preset.name} (the joints {motion.name} has)",
+                                   joints={k: v for k, v in preset.joints.items() if k in resolved})
     if char.up not in ("y", "z"):
         raise RetargetError(f"{motion.name}: up axis {char.up} is not supported for training data (y or z)")
     return RetargetPreset(name=f"auto ({motion.name})", joints=char.joint_map, units=char.units_m,

@@ -27,7 +27,7 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
     out["character"] = {
         "source": character.skeleton.source,
         "format": character.skeleton.format,
-        "rest": (character.skeleton.rest or rest) if character.skeleton.format == "bvh" else None,
+        "rest": (character.skeleton.rest or rest) if character.skeleton.format in ("bvh", "fbx") else None,
         "rig": character.rig.name,
         "units_m": character.units_m,
         "units_source": character.units_source,

@@ -36,7 +36,7 @@ SplitOpt = Annotated[Path | None, typer.Option("--split", help="Split file (CMU 
 SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar="SEED", min=0, help="Instead of a "
                                                   "split file: a seeded random split of the subjects (10 % "
                                                   "validation, 10 % test).")]
-BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH files (searched recursively).")]
+BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH and FBX files (searched recursively).")]
 AmassOpt = Annotated[Path | None, typer.Option("--amass", help="Folder of AMASS .npz files (searched recursively).")]
 FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source).")]
 PresetOpt = Annotated[str, typer.Option("--preset", help="BVH rig preset for retargeting: auto (each clip mapped "

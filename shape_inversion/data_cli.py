@@ -37,7 +37,7 @@ _VIEWS = {"front": (0.0, 0.15, 1.0), "side": (1.0, 0.15, 0.0), "three-quarter": 
 
 @app.command("preview")
 def preview(
-    clip: Annotated[str, typer.Argument(help="BVH file, or a CMU clip name such as 07_01.")],
+    clip: Annotated[str, typer.Argument(help="BVH or FBX file, or a CMU clip name such as 07_01.")],
     out: Annotated[Path, typer.Option("--out", help="Output PNG.")],
     frames: Annotated[int, typer.Option("--frames", min=1, max=24, help="Number of frames in the strip.")] = 5,
     gender: Annotated[Gender, typer.Option("--gender", case_sensitive=False, help="Body model.")] = Gender.NEUTRAL,
@@ -53,15 +53,15 @@ def preview(
 
     import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
     from smplik.body_model import load_body_model
-    from smplik.data.bvh import BVHError, read_bvh
-    from smplik.data.retarget import RetargetError, retarget_bvh
+    from smplik.data.bvh import BVHError
+    from smplik.data.retarget import RetargetError, read_motion, retarget_bvh
     from smplik.render import MeshItem, RenderError, Segment, View, hstack_images, render, save_png
 
     if view not in _VIEWS:
         raise typer.BadParameter(f"--view must be one of {', '.join(_VIEWS)}, got {view!r}.")
     path = resolve_clip(clip)
     try:
-        motion = read_bvh(path)
+        motion = read_motion(path)
         rc = retarget_bvh(motion, preset, gender=gender, model_dir=model_dir)
     except (BVHError, RetargetError) as exc:
         fail(exc)

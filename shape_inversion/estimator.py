@@ -118,6 +118,15 @@ class EstimatorConfig:
     """Cap on the joint fit's least-squares iterations."""
 
 
+HUMAN_SIZE_SCALE = (0.5, 1.5)
+"""Mean-body scales fitted as they are; a skeleton outside is fitted at the bank's middle scale and scaled back
+(:meth:`ShapeEstimator._size_factor`): scale has no bank range."""
+
+ANY_SIZE_SCALE = (0.04, 16.0)
+"""Mean-body scales read at their own size (about 7 cm to 27 m tall: a figurine to a giant); beyond, a skeleton
+is a unit error (a human in centimetres read as metres) and refused as one ("its units look wrong ... --units")."""
+
+
 @dataclass(frozen=True, eq=False)
 class ShapeEstimate:
     """Result of :meth:`ShapeEstimator.estimate`.
@@ -308,6 +317,24 @@ class ShapeEstimator:
         if not np.all(np.isfinite(query)) or np.any(query <= 0):
             bad = [FEATURE_NAMES[k] for k in range(NUM_FEATURES) if not (np.isfinite(query[k]) and query[k] > 0)]
             raise ShapeInversionError(f"Degenerate skeleton: zero or invalid bone features {', '.join(bad)}.")
+        size = self._size_factor(query)
+        if size != 1.0:  # any size: fit the shape at human size, then scale the body by the same factor
+            import dataclasses
+            import warnings
+
+            normal = self.estimate(query / size, None if rest is None else
+                                   dataclasses.replace(rest, positions=np.asarray(rest.positions) / size))
+            note = (f"read at its own size: about {query[2] / 0.84:.2f} m tall, {size:.3g} x a human of the sample "
+                    f"bank's middle scale; its shape is fitted at human size and the SMPL body scaled by {size:.3g}")
+            warnings.warn(note, stacklevel=2)
+            return dataclasses.replace(
+                normal, scale=normal.scale * size, scale_std=normal.scale_std * size,
+                nearest_distance_m=normal.nearest_distance_m * size, query_features_m=query,
+                feature_residual_m=normal.feature_residual_m * size,
+                max_feature_residual_m=normal.max_feature_residual_m * size,
+                kernel_scale=normal.kernel_scale * size, warnings=(note, *normal.warnings),
+                rest_joint_residual_m=normal.rest_joint_residual_m * size,
+                first_stage_rest_joint_residual_m=normal.first_stage_rest_joint_residual_m * size)
         cfg = self.config
         k = min(cfg.max_neighbours, len(self.bank))
         dist, idx = self.tree.query(query[None], k=k)
@@ -368,6 +395,20 @@ class ShapeEstimator:
             kernel_scale=float(kernel_mean[NUM_BETAS]), refined=cfg.refine, warnings=notes, joint_fit=fitted,
             rest_joint_residual_m=rest_residual, first_stage_rest_joint_residual_m=first_residual,
         )
+
+    def _size_factor(self, query: np.ndarray) -> float:
+        """1, or the factor taking a skeleton outside human size to the middle of the bank's scale range.
+
+        Scale is one global factor: a 0.2 m figurine or a 20 m giant is fitted at human size (``query / factor``,
+        whose head-ankle height is the bank's middle scale's) and its scale multiplied back. Human size: a
+        mean-body scale within :data:`HUMAN_SIZE_SCALE` (children to very tall adults, inside the bank's range).
+        """
+        lo, hi = self.bank.config.scale_range
+        unit = float(self.features_of(np.zeros(NUM_BETAS), 1.0)[2])  # head-ankle of the mean body at scale 1
+        approx = query[2] / unit  # the scale a mean body of this head-ankle height would have
+        if HUMAN_SIZE_SCALE[0] <= approx <= HUMAN_SIZE_SCALE[1] or not ANY_SIZE_SCALE[0] <= approx <= ANY_SIZE_SCALE[1]:
+            return 1.0  # human size, or so far beyond any character's that the units are wrong (said as such)
+        return float(approx / (0.5 * (lo + hi)))
 
     def _edge_check(self, betas: np.ndarray, scale: float, query: np.ndarray) -> tuple[str, ...]:
         """Refuse a scale at the edge of the bank's range; warn (and return the notes) for betas there."""

@@ -89,6 +89,12 @@ def _buffer_bytes(path: Path, gltf, index: int) -> bytes:
     uri = buf.uri
     where = f"{path}: buffers[{index}]"
     if uri in (None, ""):
+        ext = getattr(buf, "extensions", None) or {}
+        fallback = any(isinstance(ext.get(k), dict) and ext[k].get("fallback") for k in
+                       ("EXT_meshopt_compression", "KHR_meshopt_compression"))
+        if fallback and isinstance(buf.byteLength, int) and 0 <= buf.byteLength <= MAX_GLTF_BYTES:
+            return bytes(buf.byteLength)  # a meshopt fallback buffer: its views are not read (the extension is
+            # optional in this file, and only bufferViews without it are)
         if index != 0:
             raise GltfError(f"{where}: has no uri (only buffer 0 may be the GLB binary chunk)")
         data = gltf.binary_blob()
@@ -210,6 +216,40 @@ def _check_buffer_views(path: Path, gltf, buffers: tuple[bytes, ...]) -> None:
             raise GltfError(f"{where}: 'byteStride' must be an integer in [4, 252], got {view.byteStride!r:.40}")
 
 
+READ_EXTENSIONS = frozenset({
+    "KHR_draco_mesh_compression",  # decoded with DracoPy (draco_primitive)
+    "KHR_mesh_quantization",  # integer / normalized accessors: read_accessor
+    "KHR_texture_basisu", "EXT_texture_webp", "EXT_texture_avif", "KHR_texture_transform",  # textures: not read
+    "KHR_materials_unlit", "KHR_materials_emissive_strength", "KHR_materials_clearcoat", "KHR_materials_ior",
+    "KHR_materials_specular", "KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_sheen",
+    "KHR_materials_iridescence", "KHR_materials_anisotropy", "KHR_materials_dispersion",
+    "KHR_materials_pbrSpecularGlossiness", "KHR_materials_variants", "KHR_lights_punctual", "KHR_xmp_json_ld",
+    "KHR_animation_pointer", "EXT_mesh_gpu_instancing", "VRM", "VRMC_vrm", "VRMC_springBone",
+    "VRMC_materials_mtoon", "VRMC_node_constraint",
+})
+"""glTF extensions a file may *require* (``extensionsRequired``) and still be read: geometry ones decoded here,
+material, texture and light ones because no material, texture or light is read."""
+
+_HOW_TO_DECOMPRESS = {
+    "EXT_meshopt_compression": "decompress it first, e.g. `gltf-transform copy in.glb out.glb` (glTF-Transform "
+                               "decodes meshopt) or `gltfpack -i in.glb -o out.glb -noq` without -c",
+    "KHR_meshopt_compression": "decompress it first, e.g. `gltf-transform copy in.glb out.glb`",
+}
+
+
+def _check_required_extensions(path: Path, gltf) -> None:
+    """Refuse, in one line naming it, a file that requires an extension smplik cannot read (glTF 2.0 §3.12:
+    a loader must not load a file whose ``extensionsRequired`` it does not support)."""
+    required = gltf.extensionsRequired or []
+    if not isinstance(required, list):
+        raise GltfError(f"{path}: 'extensionsRequired' must be a list of extension names")
+    for name in required:
+        if name not in READ_EXTENSIONS:
+            how = _HOW_TO_DECOMPRESS.get(str(name), "export the file without it")
+            raise GltfError(f"{path}: requires the glTF extension {str(name)[:60]}, which smplik cannot read; "
+                            f"{how}")
+
+
 def load_gltf(path: str | Path) -> GltfFile:
     """Load a ``.gltf`` (JSON, external or data-URI buffers) or ``.glb`` file; raises :class:`GltfError`."""
     import pygltflib
@@ -233,6 +273,7 @@ def load_gltf(path: str | Path) -> GltfFile:
         raise GltfError(f"Cannot read glTF file {path}: {type(exc).__name__}: {str(exc)[:120]}") from None
     if gltf is None:
         raise GltfError(f"Cannot read glTF file {path}: not a glTF document")
+    _check_required_extensions(path, gltf)
     buffers = tuple(_buffer_bytes(path, gltf, i) for i in range(len(gltf.buffers or [])))
     _check_buffer_views(path, gltf, buffers)
     try:

@@ -57,24 +57,44 @@ class NameMatchError(ValueError):
     """The joint names do not match an ordinary humanoid, or the match contradicts the topology."""
 
 
+_EXPORTER_SUFFIX = re.compile(r"(?:[._]\d+)+$")
+_COMPOUNDS = {"legupper": "upperleg", "leglower": "lowerleg", "armupper": "upperarm", "armlower": "lowerarm",
+              "legup": "upleg", "armup": "uparm", "leglow": "lowleg", "armlow": "lowarm"}
+"""Reversed compounds of some exporters (Sketchfab's ``leg_upper.L_6``) in the usual order."""
+_HELPER = ("ik", "pole", "target", "ctrl", "control", "helper")
+"""Words of IK and control helpers: such a joint takes a role only when no other joint has the same name."""
+
+
 def name_words(name: str) -> list[str]:
-    """Lower-case words of a joint name, prefix dropped: ``"mixamorig:LeftUpLeg"`` -> ``["left", "up", "leg"]``."""
+    """Lower-case words of a joint name, prefix and exporter suffix dropped: ``"mixamorig:LeftUpLeg"`` ->
+    ``["left", "up", "leg"]``, Sketchfab's ``"leg_upper.L_6"`` -> ``["leg", "upper", "l"]``."""
     base = name.rsplit("|", 1)[-1].rsplit(":", 1)[-1]
+    base = _EXPORTER_SUFFIX.sub("", base) or base
     return [w.lower() for w in _WORD.findall(base)]
 
 
 def _side_and_part(name: str) -> tuple[str | None, str]:
+    side, part, _ = _side_part_helper(name)
+    return side, part
+
+
+def _side_part_helper(name: str) -> tuple[str | None, str, bool]:
+    """(side, body-part word, whether the name marks an IK or control helper)."""
     words = name_words(name)
     side = None
     rest = []
+    helper = False
     for w in words:
         if w in ("left", "l") and side is None:
             side = "left"
         elif w in ("right", "r") and side is None:
             side = "right"
+        elif w in _HELPER:
+            helper = True
         elif not w.isdigit() and w not in _IGNORED:
             rest.append(w)
-    return side, "".join(rest)
+    part = "".join(rest)
+    return side, _COMPOUNDS.get(part, part), helper
 
 
 def _classify(part: str, side: str | None) -> tuple[str, int] | None:
@@ -122,10 +142,10 @@ def match_humanoid(names: Sequence[str], parents: Sequence[int],
     depth = _depths(parents)
     ranked: dict[tuple[str | None, str], list[tuple[int, int, int]]] = {}
     for j, n in enumerate(names):
-        side, part = _side_and_part(n)
+        side, part, helper = _side_part_helper(n)
         hit = _classify(part, side)
-        if hit is not None:
-            ranked.setdefault((side, hit[0]), []).append((hit[1], depth[j], j))
+        if hit is not None:  # an IK / control helper ranks after every plain joint of its name
+            ranked.setdefault((side, hit[0]), []).append((hit[1] + (100 if helper else 0), depth[j], j))
     # per label: the preferred word first (CMU's LeftUpLeg before LHipJoint), then nearest the root
     cands = {key: [j for _, _, j in sorted(v)] for key, v in ranked.items()}
     found: dict[str, int] = {}

@@ -230,9 +230,30 @@ def read_joint_json(source: str | Path | Mapping, *, max_joints: int = DEFAULT_M
                     up=None if up in (None, "auto") else up)
 
 
+def read_fbx_skeleton(path: str | Path, rest: RestSource = "auto", *, take: str | int | None = None,
+                      max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
+    """Read an FBX skeleton (:mod:`smplik.data.fbx`: ufbx, metres, y up) in its bind pose.
+
+    The file becomes a BVH motion whose OFFSETs are the bind pose (else the nodes' rest) and whose frames
+    are one animation take, so every command treats it as it treats a BVH file (export to BVH of its own
+    skeleton, its frames as training data). ``rest="frame0"``: the take's first frame instead of the bind pose.
+    """
+    from smplik.data.fbx import FbxError, read_fbx_info
+
+    if rest not in ("auto", "frame0", "offsets"):
+        raise SkeletonError(f"Unknown rest source {rest!r}; expected 'auto', 'frame0' or 'offsets'.")
+    try:
+        motion, info = read_fbx_info(path, take=take, max_joints=max_joints)
+    except FbxError as exc:
+        raise SkeletonError(str(exc)) from None
+    skeleton = bvh_skeleton(motion, "frame0" if rest == "frame0" else "offsets")
+    return dataclasses.replace(skeleton, format="fbx", units=1.0, up="y",
+                               rest=info.summary(rest="frame 0 of the take" if rest == "frame0" else None))
+
+
 def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSource = "inverse_bind",
                   positions: PositionMode = "auto", max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
-    """Read a skeleton file by extension: ``.bvh``, ``.glb``/``.gltf``/``.vrm``, ``.json``.
+    """Read a skeleton file by extension: ``.bvh``, ``.fbx``, ``.glb``/``.gltf``/``.vrm``, ``.json``.
 
     BVH ``rest="auto"`` reads frame 0 (the OFFSETs when the file has no frame); :func:`read_character`
     then decides between frame 0 and the OFFSETs.
@@ -244,7 +265,9 @@ def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSo
         return read_gltf(path, bind=bind)
     if suffix == ".json":
         return read_joint_json(path, max_joints=max_joints)
-    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .glb, .gltf, .vrm or .json.")
+    if suffix == ".fbx":
+        return read_fbx_skeleton(path, rest=rest, max_joints=max_joints)
+    raise SkeletonError(f"Unsupported skeleton file {path}: expected .bvh, .fbx, .glb, .gltf, .vrm or .json.")
 
 
 def read_character(path: str | Path, options: CharacterOptions | None = None) -> Character:
@@ -401,7 +424,7 @@ class Character:
         root = f", hierarchy of root joint {self.rig.root!r}" if self.rig.root else ""
         pairs = ", ".join(f"{s}={n}" for s, n in self.joint_map.items())
         lines = [f"rig {self.rig.name} ({how}{root}): {pairs}"] + [f"warning: {w}" for w in self.rig.warnings]
-        if self.skeleton.format == "bvh" and self.skeleton.rest:
+        if self.skeleton.format in ("bvh", "fbx") and self.skeleton.rest:
             lines.append(f"rest pose: {self.skeleton.rest}")
         return lines
 
@@ -451,10 +474,36 @@ def subset_skeleton(skeleton: Skeleton, keep: list[int]) -> Skeleton:
                                    T_world_joint_bind=gltf.T_world_joint_bind[keep])
     names = tuple(skeleton.names[j] for j in keep)
     humanoid = None if skeleton.humanoid is None else {s: n for s, n in skeleton.humanoid.items() if n in names}
+    bvh, t_rest = skeleton.bvh, take(skeleton.rest_translations)
+    if bvh is not None and (list(keep) != list(range(bvh.num_joints)) or tuple(parents) != tuple(bvh.parents)):
+        # the motion follows the new hierarchy (its joints, End Sites and frames indexed as the skeleton's)
+        bvh = sub_motion(bvh, keep, parents)
+        if skeleton.rest_rotations is not None:
+            R0, P = skeleton.rest_rotations[keep], skeleton.positions[keep]
+            t_rest = np.array([P[k] if p < 0 else R0[p].T @ (P[k] - P[p]) for k, p in enumerate(parents)])
     return Skeleton(names, parents, skeleton.positions[keep], skeleton.source, skeleton.format,
-                    skeleton.units, skeleton.up, None if skeleton.bvh is None or len(keep) == len(skeleton.names)
-                    else skeleton.bvh, take(skeleton.rest_rotations), take(skeleton.rest_translations), gltf, humanoid,
+                    skeleton.units, skeleton.up, bvh, take(skeleton.rest_rotations), t_rest, gltf, humanoid,
                     skeleton.rest)
+
+
+def sub_motion(motion: BVHMotion, keep: Sequence[int], parents: Sequence[int]) -> BVHMotion:
+    """The joints ``keep`` of a BVH motion under new ``parents`` (indices into ``keep``, parents first).
+
+    World rotations and positions of every frame are kept; local ones are recomputed for the new hierarchy,
+    joints whose distance to their new parent changes (a removed joint between them bent) get position
+    channels; the zero-rotation pose is still the OFFSET pose (:func:`smplik.data.fbx.motion_from_world`).
+    """
+    from smplik.data.fbx import motion_from_world
+
+    keep = list(keep)
+    _, p_off = motion.rest_pose()
+    T_rest = np.broadcast_to(np.eye(4), (len(keep), 4, 4)).copy()
+    T_rest[:, :3, 3] = p_off[keep]
+    T_world = np.broadcast_to(np.eye(4), (motion.num_frames, len(keep), 4, 4)).copy()
+    T_world[..., :3, :3] = motion.global_rotations[:, keep]
+    T_world[..., :3, 3] = motion.positions[:, keep]
+    return motion_from_world(motion.name, [motion.joint_names[j] for j in keep], tuple(parents), T_rest, T_world,
+                             motion.frame_time)
 
 
 def reparent_skeleton(skeleton: Skeleton, parents: Sequence[int], keep: Sequence[int] | None = None) -> Skeleton:
@@ -587,7 +636,9 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
     if height <= 0:
         raise SkeletonError(f"Skeleton {skeleton.source}: the head is not above the ankles along up = "
                             f"{_axis_name(up_vec)}; pass the right --up.")
-    if str(units).lower() == "auto":
+    if str(units).lower() == "auto" and skeleton.format == "fbx":  # the file states its unit (UnitScaleFactor)
+        units_m, units_source = float(skeleton.units or 1.0), "file"
+    elif str(units).lower() == "auto":
         units_m, units_source = _detect_units(height, [skeleton.units, rig_map.units])
     else:
         units_m, units_source = parse_units(units), "given"

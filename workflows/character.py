@@ -218,8 +218,8 @@ def build_character(skeleton: Skeleton, estimate: ShapeEstimate, options: Charac
     for k, par in enumerate(skeleton.parents):
         offsets[k] = P_file[k] if par < 0 else P_file[k] - P_file[par]
     end_sites: dict[int, np.ndarray] = {}
-    if skeleton.bvh is not None and skeleton.rest_rotations is not None:
-        motion, R0 = skeleton.bvh, skeleton.rest_rotations
+    if skeleton.bvh is not None and skeleton.rest_rotations is not None and skeleton.bvh.joint_names == skeleton.names:
+        motion, R0 = skeleton.bvh, skeleton.rest_rotations  # End Sites indexed as the skeleton's joints
         end_sites = {int(j): R0[j] @ o for j, o in zip(motion.end_site_parents, motion.end_site_offsets, strict=True)}
     return CustomCharacter(char, estimate, C, shift, smpl_of, align, root_offset, smpl_rest, offsets, end_sites,
                            options)

@@ -47,8 +47,7 @@ def skinned_mesh(rig: GltfRig) -> SkinnedMesh | None:
     warning says the mesh cannot be shown and None is returned (never a silently empty mesh).
     """
     gltf, doc = rig.doc.gltf, rig.doc
-    remap = np.empty(len(rig.skin_order), dtype=np.int64)
-    remap[list(rig.skin_order)] = np.arange(len(rig.skin_order))  # skin joint index -> rig index
+    remap = skin_to_rig_index(rig)  # skin joint index -> rig index
     verts, faces, joints, weights = [], [], [], []
     count = 0
     for node in gltf.nodes or []:
@@ -98,6 +97,30 @@ def skinned_mesh(rig: GltfRig) -> SkinnedMesh | None:
     W = np.concatenate(weights)
     W = W / np.maximum(W.sum(1, keepdims=True), 1e-12)
     return SkinnedMesh(V_world, np.concatenate(faces), np.concatenate(joints), W)
+
+
+def skin_to_rig_index(rig: GltfRig) -> np.ndarray:
+    """(S,) the rig joint (index into ``rig.joint_nodes``) that moves each of the skin's S joints.
+
+    The rig may hold only some of the skin's joints (a Rigify rig read from its ``DEF-`` bones, the hierarchy
+    holding the body of a UE mannequin with ``ik_*`` roots): a joint left out moves with its nearest kept
+    ancestor node (the root joint when it has none).
+    """
+    gltf, doc = rig.doc.gltf, rig.doc
+    skin_joints = list(gltf.skins[rig.skin].joints or []) if 0 <= rig.skin < len(gltf.skins or []) else []
+    size = max(len(skin_joints), max(rig.skin_order, default=-1) + 1)
+    remap = np.full(size, -1, dtype=np.int64)
+    remap[list(rig.skin_order)] = np.arange(len(rig.skin_order))
+    kept = {int(node): k for k, node in enumerate(rig.joint_nodes)}
+    for s, node in enumerate(skin_joints):
+        if remap[s] >= 0:
+            continue
+        n = int(node) if isinstance(node, int) and 0 <= node < len(doc.parent) else -1
+        while n >= 0 and n not in kept:
+            n = doc.parent[n]
+        remap[s] = kept.get(n, 0)
+    remap[remap < 0] = 0
+    return remap
 
 
 def pose_mesh(mesh: SkinnedMesh, rig: GltfRig, R_world: np.ndarray, p_world: np.ndarray) -> np.ndarray:

@@ -104,6 +104,8 @@ class ClipSource:
     kind: SourceKind
     name: str
     subject: str
+    take: str | None = None
+    """FBX files with several animated takes: the take this clip is (its name ends ``#<take>``)."""
 
 
 def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
@@ -121,16 +123,32 @@ def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
     if not root.is_dir():
         raise FileNotFoundError(f"Source folder not found: {root}")
     suffix = _SUFFIX[kind]
+    suffixes = (".bvh", ".fbx") if kind == "bvh" else (suffix,)  # FBX clips are read as BVH (smplik.data.fbx)
     out = []
-    for path in sorted(root.rglob(f"*{suffix}")):
+    for path in sorted(p for p in root.rglob("*") if p.suffix.lower() in suffixes):
         if not path.is_file() or (kind == "amass" and path.name in _AMASS_METADATA_FILES):
             continue
         rel = path.relative_to(root)
         subject = rel.parent.name if len(rel.parts) > 1 else path.stem.split("_")[0]
-        out.append(ClipSource(path=path, kind=kind, name=rel.as_posix(), subject=subject))
+        takes = _fbx_takes(path) if path.suffix.lower() == ".fbx" else []
+        if len(takes) > 1:  # an animation pack: one clip per take
+            out.extend(ClipSource(path=path, kind=kind, name=f"{rel.as_posix()}#{t}", subject=subject, take=t)
+                       for t in takes)
+        else:
+            out.append(ClipSource(path=path, kind=kind, name=rel.as_posix(), subject=subject))
     if not out:
-        raise ValueError(f"No {suffix} files under {root}.")
+        raise ValueError(f"No {suffix} files{' (nor .fbx)' if kind == 'bvh' else ''} under {root}.")
     return out
+
+
+def _fbx_takes(path: Path) -> list[str]:
+    """Names of the animated takes of an FBX file ([] when it cannot be listed: reading it names the problem)."""
+    from smplik.data.fbx import FbxError, read_fbx_takes
+
+    try:
+        return [t.name for t in read_fbx_takes(path) if t.animated > 0]
+    except FbxError:
+        return []
 
 
 @dataclass(frozen=True)
@@ -291,7 +309,12 @@ def read_source(source: ClipSource, *, preset: str = "auto", body_models: Any = 
     if source.kind == "bvh":
         from smplik.data.retarget import retarget_bvh  # BVH parsing is only needed for BVH sources
 
-        clip = retarget_bvh(source.path, preset=preset)
+        if source.take is not None:
+            from smplik.data.fbx import read_fbx
+
+            clip = retarget_bvh(read_fbx(source.path, take=source.take), preset=preset)
+        else:
+            clip = retarget_bvh(source.path, preset=preset)
         start = int(clip.motion_start)
         if clip.num_frames <= start:
             raise ValueError(f"{source.path}: no motion frames after the {start} rest frame(s).")

@@ -188,6 +188,20 @@ def auto_preset(motion: BVHMotion) -> RetargetPreset:
     return _rig_mapper(motion)
 
 
+MOTION_SUFFIXES = (".bvh", ".fbx")
+"""Motion files read by :func:`read_motion` (and ``smplik data build --bvh`` / ``data preview``)."""
+
+
+def read_motion(path: str | Path) -> BVHMotion:
+    """A BVH file, or an FBX file's skeleton and animation take (:func:`smplik.data.fbx.read_fbx`: metres, y up,
+    its OFFSETs the bind pose), as a :class:`BVHMotion`. Raises :class:`BVHError` (FBX: its subclass)."""
+    if Path(path).suffix.lower() == ".fbx":
+        from smplik.data.fbx import read_fbx
+
+        return read_fbx(path)
+    return read_bvh(path)
+
+
 def load_preset(preset: str | Path | dict[str, Any] | RetargetPreset) -> RetargetPreset:
     """A preset by built-in name (``"cmu"``), JSON file path, dict, or as is."""
     if isinstance(preset, RetargetPreset):
@@ -404,7 +418,7 @@ def retarget_bvh(
     """
     from smplik.body_model import load_body_model
 
-    motion = path_or_motion if isinstance(path_or_motion, BVHMotion) else read_bvh(path_or_motion)
+    motion = path_or_motion if isinstance(path_or_motion, BVHMotion) else read_motion(path_or_motion)
     preset = auto_preset(motion) if isinstance(preset, str) and preset == "auto" else load_preset(preset)
     gender = Gender.parse(gender)
     model = load_body_model(gender, model_dir)

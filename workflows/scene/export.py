@@ -114,7 +114,9 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
             written.append(write_text_atomic(out_dir / f"{stem}.bvh", text))
         if "glb" in formats:  # its own mesh, or (a BVH / joints JSON has none) its SMPL-SI body: glb_notes
             data = (posed_character_glb(char, custom, frame_time) if char.skeleton.gltf is not None
-                    else smpl_glb_bytes(c, frames, frame_time))
+                    else fbx_character_glb(char, custom, frame_time) if char.skeleton.format == "fbx" else None)
+            if data is None:
+                data = smpl_glb_bytes(c, frames, frame_time)
             written.append(write_bytes_atomic(out_dir / f"{stem}.glb", data))
     return written
 
@@ -128,10 +130,20 @@ def glb_notes(scene: Scene, formats: Sequence[str]) -> list[str]:
     or joints JSON has no mesh): what a user is told next to the ``wrote`` lines of an export."""
     if "glb" not in [str(f).strip().lower() for f in formats]:
         return []
-    return [f"{c.name}: {Path(c.skeleton.path).name} has no mesh; its GLB is the SMPL body of its SMPL-SI shape "
-            f"and scale, posed the same"
+    def has_skin(path: str) -> bool:  # an FBX character's GLB is its own skinned mesh when it has one
+        from smplik.data.fbx import FbxError, read_fbx_mesh
+
+        try:
+            return read_fbx_mesh(path) is not None
+        except FbxError:
+            return False
+
+    return [f"{c.name}: {Path(c.skeleton.path).name} has no {'skinned ' if fbx else ''}mesh; its GLB is the SMPL "
+            f"body of its SMPL-SI shape and scale, posed the same"
             for c in scene.characters
-            if c.skeleton is not None and Path(c.skeleton.path).suffix.lower() not in GLTF_SUFFIXES]
+            if c.skeleton is not None and Path(c.skeleton.path).suffix.lower() not in GLTF_SUFFIXES
+            for fbx in [Path(c.skeleton.path).suffix.lower() == ".fbx"]
+            if not (fbx and has_skin(c.skeleton.path))]
 
 
 def _safe_stem(name: str, index: int) -> str:
@@ -237,12 +249,14 @@ def smpl_glb_bytes(c: SceneCharacter, frames: Sequence[Pose], frame_time: float 
 
 def skinned_glb_bytes(vertices: np.ndarray, faces: np.ndarray, joints: np.ndarray, weights: np.ndarray,
                       names: Sequence[str], parents: Sequence[int], rest_positions: np.ndarray,
-                      translations: np.ndarray, rotations: np.ndarray, frame_time: float) -> bytes:
+                      translations: np.ndarray, rotations: np.ndarray, frame_time: float,
+                      clips: Sequence[tuple[str, np.ndarray, np.ndarray, float]] = ()) -> bytes:
     """A GLB with one skinned mesh and its joint nodes, posed by frame 0 and animated over all frames.
 
     vertices (V, 3) bind pose; faces (F, 3); joints/weights (V, 4); rest_positions (J, 3) world bind
     positions (bind rotations identity); translations (T, J, 3) node translations (parent frame);
-    rotations (T, J, 3, 3) node local rotations.
+    rotations (T, J, 3, 3) node local rotations. ``clips``: more animations ``(name, translations,
+    rotations, frame_time)`` kept before the pose clip (a source file's own takes).
     """
     import pygltflib
 
@@ -271,14 +285,73 @@ def skinned_glb_bytes(vertices: np.ndarray, faces: np.ndarray, joints: np.ndarra
             attributes=pygltflib.Attributes(POSITION=pos, JOINTS_0=jnt, WEIGHTS_0=wgt), indices=idx)])],
         skins=[pygltflib.Skin(joints=list(range(J)), inverseBindMatrices=ibm_acc, skeleton=0)],
     )
+    for clip_name, clip_t, clip_R, clip_dt in clips:
+        clip_q = Rotation.from_matrix(clip_R.reshape(-1, 3, 3)).as_quat().reshape(len(clip_R), J, 4)
+        _animate(gltf, add, list(range(J)), clip_t, clip_q, np.ones_like(clip_t), clip_dt, name=clip_name)
     quats = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat().reshape(len(rotations), J, 4)
     scales = np.ones_like(translations)
     _animate(gltf, add, list(range(J)), translations, quats, scales, frame_time)
     return out.glb(gltf)
 
 
+def _world_locals(char: CustomCharacter, R_file: np.ndarray, p_file: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, K, 3, 3) world rotations and (T, K, 3) positions in file axes -> node translations (T, K, 3) and local
+    rotations (T, K, 3, 3) in the scene's world frame (``C R C^T``, ``units * C p - shift``)."""
+    C, s, shift = char.C_canon_file, char.units_m, char.shift
+    G = C @ R_file @ C.T
+    p = s * p_file @ C.T - shift
+    par = np.asarray(char.parents)
+    has = par >= 0
+    local = G.copy()
+    local[:, has] = np.swapaxes(G[:, par[has]], -1, -2) @ G[:, has]
+    t = p.copy()
+    t[:, has] = np.einsum("tkba,tkb->tka", G[:, par[has]], p[:, has] - p[:, par[has]])
+    return t, local
+
+
+def fbx_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], frame_time: float = 1 / 30) -> bytes | None:
+    """An FBX character's own skinned mesh (bind pose from its skin clusters), its joints named as in the file,
+    posed by ``poses`` (the ``pose`` clip) with the file's take kept as a clip, in the scene's world frame.
+
+    None when the file has no skinned mesh (an animation-only clip) or its rest pose is not the bind pose
+    (``--rest frame0``): the caller writes the SMPL-SI body instead.
+    """
+    from smplik.data.fbx import FbxError, read_fbx_mesh
+
+    sk = char.skeleton
+    if sk.rest_rotations is not None and not np.allclose(sk.rest_rotations, np.eye(3), atol=1e-9):
+        return None
+    try:
+        mesh = read_fbx_mesh(sk.source)
+    except FbxError:
+        return None
+    if mesh is None:
+        return None
+    index = {n: k for k, n in enumerate(char.names)}
+    to_char = np.zeros(len(mesh.joint_names), dtype=np.int64)  # a joint the character left out: its kept ancestor
+    for j in range(len(mesh.joint_names)):
+        a = j
+        while a >= 0 and mesh.joint_names[a] not in index:
+            a = mesh.parents[a]
+        to_char[j] = index[mesh.joint_names[a]] if a >= 0 else 0
+    C, s, shift = char.C_canon_file, char.units_m, char.shift
+    vertices = s * mesh.vertices @ C.T - shift
+    rest = s * np.asarray(sk.positions) @ C.T - shift
+    Rp = np.stack([pose.positions(char)[0] for pose in poses])
+    pp = np.stack([pose.positions(char)[1] for pose in poses])
+    t, local = _world_locals(char, Rp, pp)
+    clips = []
+    motion = sk.bvh
+    if motion is not None and motion.num_frames > 1 and motion.joint_names == char.names:
+        take = Path(sk.source).stem + " take"
+        ct, cl = _world_locals(char, motion.global_rotations, motion.positions)
+        clips.append((take, ct, cl, motion.frame_time))
+    return skinned_glb_bytes(vertices, mesh.faces, to_char[mesh.joints], mesh.weights, list(char.names),
+                             list(char.parents), rest, t, local, frame_time, clips)
+
+
 def _animate(gltf, add, node_ids: Sequence[int], translations: np.ndarray, quats: np.ndarray, scales: np.ndarray,
-             frame_time: float) -> None:
+             frame_time: float, name: str = "pose") -> None:
     """Set the nodes' TRS to frame 0 and add one animation over all T frames (LINEAR samplers)."""
     import pygltflib
 
@@ -300,8 +373,9 @@ def _animate(gltf, add, node_ids: Sequence[int], translations: np.ndarray, quats
                 sampler=len(samplers) - 1, target=pygltflib.AnimationChannelTarget(node=n, path=path)))
     kept = list(gltf.animations or [])  # the source's own clips stay; the pose is one more clip
     names = {a.name for a in kept}
-    name = "pose" if "pose" not in names else next(f"pose_{k}" for k in range(1, len(names) + 2)
-                                                   if f"pose_{k}" not in names)
+    base = name
+    name = base if base not in names else next(f"{base}_{k}" for k in range(1, len(names) + 2)
+                                               if f"{base}_{k}" not in names)
     gltf.animations = kept + [pygltflib.Animation(name=name, samplers=samplers, channels=channels)]
 
 

@@ -1,0 +1,102 @@
+"""Real FBX files -> benchmarks/results/fbx_files.json: each read with no option, as every command reads it.
+
+Files: the committed ones (``tests/data/fbx``: ufbx's test data, a Kenney character) and, with ``--dir DIR``,
+every ``.fbx`` below DIR (files whose licence keeps them out of the repository, such as the Mixamo clips of
+three.js's examples). Per file:
+
+* read: FBX version, ASCII/binary, exporting tool, the file's unit and up axis, joints, the take read and its
+  frames and frame rate, where the rest pose came from, and the seconds to read it (the ufbx child process,
+  one take evaluated at the file's frame rate);
+* character (``invert-shape``): the map's size, units, stature, SMPL-SI scale, largest feature residual,
+  whether it was read at its own size;
+* posed error: the example poses retargeted onto the character against its SMPL pose (mapped joints after a
+  rigid alignment, mean over joints, % of the stature; per pose and the largest);
+* training data (``data build``): frames retargeted per CPU second and the mean bone-direction error of the
+  retargeted clip against the file's own skeleton (degrees).
+
+Run: ``python benchmarks/fbx_files.py [--dir DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import machine  # noqa: E402
+from smplik.atomic import write_json_atomic  # noqa: E402
+
+
+def measure(path: Path) -> dict:
+    import numpy as np
+
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto"
+    from shape_inversion.estimator import ShapeInversionError
+    from shape_inversion.skeleton_io import _neutral_estimator, read_character
+    from smplik.data.fbx import read_fbx_info
+    from smplik.data.retarget import bone_direction_errors, retarget_bvh
+    from workflows.character import build_character, retarget_error_m
+    from workflows.examples_gen import example_poses
+
+    row: dict = {"file": path.name}
+    t0 = time.perf_counter()
+    motion, info = read_fbx_info(path)
+    row["read"] = {"seconds": round(time.perf_counter() - t0, 3), "version": info.version, "ascii": info.ascii,
+                   "creator": info.creator, "unit_m": info.unit_m, "up": info.up, "joints": motion.num_joints,
+                   "take": info.take, "takes": [t.name for t in info.takes], "frames": motion.num_frames,
+                   "fps": round(motion.fps, 3), "rest": info.rest}
+    char = read_character(path)
+    stature = char.head_ankle_height_m / 0.84
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            est = _neutral_estimator().estimate(char.features, char.mapped_rest())
+        except ShapeInversionError as exc:
+            row["character"] = {"refused": str(exc)}
+            return row
+    row["character"] = {"mapped_joints": len(char.joint_map), "units_m": char.units_m, "stature_m": round(stature, 3),
+                        "scale": round(est.scale, 3),
+                        "max_feature_residual_mm": round(1000 * est.max_feature_residual_m, 1),
+                        "own_size": any("read at its own size" in str(w.message) for w in caught)}
+    cc = build_character(char.skeleton, est, rig=char.rig)
+    posed = {p.name: round(100 * float(retarget_error_m(dataclasses.replace(p.pose, betas=cc.betas, gender=cc.gender),
+                                                       cc).mean()) / stature, 2) for p in example_poses()}
+    row["posed_error_pct_of_stature"] = {"per_pose": posed, "max": max(posed.values())}
+    if motion.num_frames > 1:
+        t0 = time.process_time()
+        clip = retarget_bvh(motion, preset="auto")
+        cpu = time.process_time() - t0
+        errors = bone_direction_errors(clip, frames=slice(0, None, 5))
+        row["data_build"] = {"frames": clip.num_frames,
+                             "frames_per_cpu_second": round(clip.num_frames / max(cpu, 1e-9)),
+                             "bone_direction_error_deg_mean": round(float(np.mean(errors.mean())), 2)}
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dir", type=Path, default=None, help="Another folder of .fbx files (searched recursively).")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "fbx_files.json")
+    args = parser.parse_args()
+    files = sorted((ROOT / "tests" / "data" / "fbx").glob("*.fbx"))
+    if args.dir is not None:
+        files += sorted(p for p in args.dir.rglob("*") if p.suffix.lower() == ".fbx")
+    rows = []
+    for path in files:
+        try:
+            rows.append(measure(path))
+        except ValueError as exc:
+            rows.append({"file": path.name, "error": str(exc)})
+        print(rows[-1], flush=True)
+    write_json_atomic(args.out, {"machine": machine(), "files": rows})
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
