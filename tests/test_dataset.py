@@ -268,6 +268,7 @@ def test_build_from_cmu_bvh(tmp_path: Path, shared_data) -> None:
     cmu_dir = shared_data.cmu("09_06.bvh").parent
     import shutil
 
+    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto", which build_cache's default uses
     from smplik.data.retarget import retarget_bvh
 
     src_dir = tmp_path / "bvh"
