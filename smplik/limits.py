@@ -34,8 +34,6 @@ limit                       environment variable              default
 :data:`TRACK_FRAMES`        ``SMPLIK_MAX_TRACK_FRAMES``       36,000 frames run through the tracker (10
                                                               minutes at 60 frames/s; ``track`` takes about
                                                               1 ms and 25 KB a frame)
-:data:`MODEL_BYTES`         ``SMPLIK_MAX_MODEL_BYTES``        64 MiB: all tensors of a model file together
-                                                              (IK or tracking), by their logical size
 ==========================  ================================  ============================================
 
 Frame rates read from any file or option (a tracker file's ``fps``, SteamVR timestamps, an animation's
@@ -58,7 +56,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["ALL_LIMITS", "ARRAY_BYTES", "ARRAY_ELEMENTS", "BVH_FRAMES", "IMAGE_PIXELS", "INPUT_BYTES", "JSON_BYTES",
-           "MAX_FPS", "MEMORY_BYTES", "MIN_FPS", "MODEL_BYTES", "OUTPUT_FRAMES", "PICKLE_BYTES", "PICKLE_OBJECTS",
+           "MAX_FPS", "MEMORY_BYTES", "MIN_FPS", "OUTPUT_FRAMES", "PICKLE_BYTES", "PICKLE_OBJECTS",
            "TEXT_BYTES", "TRACK_FRAMES", "CappedReader", "Limit", "LimitError", "check_array", "check_input_file",
            "check_npz", "check_rate", "check_render_size", "check_resampled_frames", "check_tensors",
            "check_torch_zip", "read_bounded"]
@@ -116,9 +114,8 @@ PICKLE_BYTES = Limit("bytes (decompressed pickle stream)", "SMPLIK_MAX_PICKLE_BY
 MEMORY_BYTES = Limit("bytes (estimated memory of the work)", "SMPLIK_MAX_MEMORY_BYTES", 3 << 29)
 OUTPUT_FRAMES = Limit("frames (made by resampling)", "SMPLIK_MAX_OUTPUT_FRAMES", 1_000_000)
 TRACK_FRAMES = Limit("frames (run through the tracker)", "SMPLIK_MAX_TRACK_FRAMES", 36_000)
-MODEL_BYTES = Limit("bytes (all tensors of a model file)", "SMPLIK_MAX_MODEL_BYTES", 64 << 20)
 ALL_LIMITS = (INPUT_BYTES, ARRAY_BYTES, ARRAY_ELEMENTS, JSON_BYTES, TEXT_BYTES, IMAGE_PIXELS, BVH_FRAMES,
-              PICKLE_OBJECTS, PICKLE_BYTES, MEMORY_BYTES, OUTPUT_FRAMES, TRACK_FRAMES, MODEL_BYTES)
+              PICKLE_OBJECTS, PICKLE_BYTES, MEMORY_BYTES, OUTPUT_FRAMES, TRACK_FRAMES)
 """Every limit (the docs' security page lists each with its variable and default; a test keeps them in step)."""
 
 RENDER_BYTES_PER_PIXEL = 64
@@ -142,13 +139,14 @@ def check_rate(value: Any, source: str) -> float:
         # numpy scalars are numbers too; strings, lists and None are not
         if not (hasattr(value, "dtype") and getattr(value, "shape", None) == () and value.dtype.kind in "iuf"):
             text = repr(value)
-            raise LimitError(f"{source}: a frame rate must be a number, got {text[:60]}.")
+            raise LimitError(f"{source}: must be a frame rate (a number) in [{MIN_FPS:g}, {MAX_FPS:g}] frames/s, got "
+                             f"{text[:60]}.")
     try:
         rate = float(value)
     except (OverflowError, ValueError):
         rate = math.inf
     if not (math.isfinite(rate) and MIN_FPS <= rate <= MAX_FPS):
-        raise LimitError(f"{source}: frame rate {rate:g} is outside [{MIN_FPS:g}, {MAX_FPS:g}] frames/s.")
+        raise LimitError(f"{source}: must be a frame rate in [{MIN_FPS:g}, {MAX_FPS:g}] frames/s, got {rate:g}.")
     return rate
 
 
