@@ -276,7 +276,11 @@ def read_bounded(path: str | Path, limit: Limit = TEXT_BYTES) -> bytes:
     check_input_file(path)
     cap = limit.value
     with open(path, "rb") as fh:
-        data = fh.read(cap + 1)
+        # what fstat says plus one byte (a read of cap + 1 would allocate the whole cap for a small file),
+        # then the rest up to the cap only if the file grew meanwhile
+        data = fh.read(min(cap, os.fstat(fh.fileno()).st_size) + 1)
+        if cap >= len(data) > os.fstat(fh.fileno()).st_size:
+            data += fh.read(cap + 1 - len(data))
     if len(data) > cap:
         raise LimitError(f"{path}: more than {cap} {limit.what} (set {limit.env} to raise the limit if the file is "
                          "genuine).")
