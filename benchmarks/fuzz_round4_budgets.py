@@ -248,3 +248,24 @@ def round4_budget_cases(work: Path) -> list[tuple[Case, str]]:
                                         str(d / "p.gif"), "--preview-every", "100000"], "PE --preview-every 100000",
                        keep=clip), "--preview-every"))
     return cases
+
+
+def run_round4_budgets(work: Path, timeout: float, env: dict[str, str], workers: int) -> list[dict[str, Any]]:
+    """Run every case in a subprocess (:func:`fuzz_campaign.run_case`: 2 GB address-space cap, ``timeout``);
+    each result gets ``expected`` (the needle) and ``as_expected``: a clean error whose line holds the needle
+    (or ``accepted`` for an :data:`ACCEPT` case), the input byte-identical."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fuzz_campaign import run_case
+
+    pairs = round4_budget_cases(work)
+
+    def one(pair: tuple[Case, str]) -> dict[str, Any]:
+        case, needle = pair
+        res = run_case(case, timeout, env)
+        ok = (res["outcome"] == "accepted" if needle == ACCEPT
+              else res["outcome"] == "clean_error" and needle in " ".join(res["last_line"].split()))
+        return {**res, "expected": needle, "as_expected": ok}
+
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(one, pairs))
