@@ -224,9 +224,6 @@ def _number(value: Any, where: str, err: JSONPathError, max_abs: float) -> float
     return x
 
 
-_STEAMVR_CLASSES = ("HMD", "Controller", "Tracker", "TrackingReference", "DisplayRedirect", "Invalid")
-
-
 def _steamvr_record(frame: Any, where: str, err: JSONPathError
                     ) -> list[tuple[tuple[str, int], tuple[np.ndarray, np.ndarray]]]:
     """The valid device poses of one log line, each checked for JSON types: ``((class, index), (position (3,),
@@ -247,8 +244,9 @@ def _steamvr_record(frame: Any, where: str, err: JSONPathError
         if not isinstance(dev, dict):
             raise err(at, f"expected a device object, got {short_repr(dev)}.")
         cls, index = dev.get("class"), dev.get("index")
-        if not isinstance(cls, str) or cls not in _STEAMVR_CLASSES:
-            raise err(f"{at}.class", f"expected one of {', '.join(_STEAMVR_CLASSES)}, got {short_repr(cls)}.")
+        if not isinstance(cls, str) or not 0 < len(cls) <= 64:
+            raise err(f"{at}.class", f"expected a device class name (HMD, Controller, Tracker, ...), got "
+                      f"{short_repr(cls)}.")
         if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index <= MAX_DEVICE_INDEX:
             raise err(f"{at}.index", f"expected a device index in 0..{MAX_DEVICE_INDEX}, got {short_repr(index)}.")
         pose = dev.get("pose")
