@@ -32,8 +32,9 @@ limit                       environment variable              default
                                                               will make (duration x rate, counted before
                                                               any array is made)
 :data:`TRACK_FRAMES`        ``SMPLIK_MAX_TRACK_FRAMES``       36,000 frames run through the tracker (10
-                                                              minutes at 60 frames/s; ``track`` takes about
-                                                              1 ms and 25 KB a frame)
+                                                              minutes at 60 frames/s: 91 s and 1.17 GB peak;
+                                                              about 2 ms and 17 KB a frame,
+                                                              benchmarks/results/track_frames.json)
 ==========================  ================================  ============================================
 
 Frame rates read from any file or option (a tracker file's ``fps``, SteamVR timestamps, an animation's
