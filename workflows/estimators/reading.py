@@ -117,8 +117,8 @@ def _load_torch(path: Path) -> Any:
     # the one .pt reader: zip directory checked before torch reads anything, weights_only, and every tensor's
     # logical size (a stride-0 view expands to its full shape; .double() makes every float tensor real) before
     # .numpy(); estimator outputs may hold views, so their layout is not required to be contiguous
-    data = read_torch_file(path, what="tensor file", error=EstimateFormatError,
-                           layout=False, as_itemsize=8)
+    data = read_torch_file(path, what="tensor file", error=EstimateFormatError, layout=False, as_itemsize=8,
+                           hint="torch.load with weights_only=True refused it, so nothing in it ran")
     return _to_numpy(data)
 
 
