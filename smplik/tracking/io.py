@@ -305,6 +305,8 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
             raise err(where, f"not a SteamVR log record ({type(exc).__name__}: {' '.join(str(exc).split())[:120]})."
                       ) from None
         row = len(times)
+        if row >= MAX_FRAMES:
+            raise err(where, f"more than {MAX_FRAMES} records; at most {MAX_FRAMES} are read.")
         for key, (p, q) in _steamvr_record(frame, where, err):
             tracks.setdefault(key, {})[row] = (p, q)
         times.append(_number(frame["timestamp"], f"{where}.timestamp", err, MAX_ABS_TIMESTAMP_S))
