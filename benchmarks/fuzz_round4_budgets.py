@@ -202,7 +202,7 @@ def round4_budget_cases(work: Path) -> list[tuple[Case, str]]:
     d = folder()
     plain = d / "plain.pt"
     torch.save(blob, plain)
-    model_case("MZ deflated 80 MB member", "to 83886080 bytes",
+    model_case("MZ deflated 80 MB member", "is compressed and inflates to 83886080 bytes",
                raw=_deflated_member(plain, d / "bomb.pt", 80 << 20))
 
     # IK model file: a transposed view as a weight (the same reader)

@@ -179,8 +179,8 @@ def read_torch_file(path: str | Path, *, what: str = "smplik model", error: type
         raise FileNotFoundError(f"Model file not found: {path}" if error is CheckpointError
                                 else f"{path}: {what} not found.")
     check_input_file(path, what)
-    _check_archive(path, what, error)
     check_torch_zip(path)  # declared member sizes within the input limits, before torch reads anything
+    _check_archive(path, what, error)  # a zip at all, and no member inflating 16-fold past 64 MiB
     extra = legacy_numpy_globals() if legacy else []
     try:
         with warnings.catch_warnings(), torch.serialization.safe_globals(extra):
