@@ -132,6 +132,8 @@ def round4_budget_cases(work: Path) -> list[tuple[Case, str]]:
     track("r4_trackers", tracker_doc(frames=20_000, fps=1), "20,000 rows at 1 frame/s (1.2 M at 60)",
           "SMPLIK_MAX_OUTPUT_FRAMES")
     track("r4_trackers", tracker_doc(frames=40_000), "40,000 frames at 60 frames/s", "SMPLIK_MAX_TRACK_FRAMES")
+    track("r4_trackers", json.dumps(tracker_doc()).replace('"fps": 60', '"fps": 1' + "0" * 5000), "fps of 5001 digits",
+          "t.json: invalid JSON (Exceeds the limit (4300 digits)")
     track("r4_trackers", tracker_doc(head_position=[["0", "1.6", "0"]] * 60), "position strings",
           "trackers.head.position: must be numbers")
     track("r4_trackers", tracker_doc(pelvis_position=[[0, True, 0]] * 60), "position bool",

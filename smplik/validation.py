@@ -165,3 +165,5 @@ def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: st
         raise error(f"{path}: invalid JSON ({exc}).") from None
     except RecursionError:
         raise error(f"{path}: JSON nested too deeply.") from None
+    except ValueError as exc:  # an integer of more than 4300 digits, refused by Python's int conversion
+        raise error(f"{path}: invalid JSON ({' '.join(str(exc).split(';')[0].split())[:160]}).") from None

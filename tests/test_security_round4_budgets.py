@@ -269,3 +269,12 @@ def test_every_round4_limit_is_on_the_security_page():
         assert needle in page, needle
     data = json.loads((ROOT / "benchmarks" / "results" / "fuzz_round4_budgets.json").read_text())
     assert data["totals"]["runs"] > 0
+
+
+def test_a_json_integer_of_5001_digits_is_named_by_its_file(tmp_path):
+    from smplik.tracking.io import TrackerFileError, read_trackers
+
+    path = tmp_path / "t.json"
+    path.write_text('{"format": "smplik-trackers", "version": 1, "fps": 1' + "0" * 5000 + ', "trackers": {}}')
+    with pytest.raises(TrackerFileError, match=r"t.json: invalid JSON \(Exceeds the limit \(4300 digits\)"):
+        read_trackers(path)
