@@ -4,8 +4,8 @@ Both kinds are one :func:`torch.save` dict of **plain data only**: tensors, ``in
 ``bool``/``str``/``None``, lists/tuples and dicts of those (no numpy objects, no classes). Every
 ``.pt`` smplik opens (these, tracking models, estimator tensor files) goes through :func:`read_torch_file`, the
 library's only ``torch.load(..., weights_only=True)``, which refuses anything else before it can run, after the
-zip directory's sizes are checked and before any tensor is used (logical sizes, dense contiguous layout). :func:`write_model_file`
-checks the same rule before writing (atomically), so what it writes is always loadable.
+zip directory's sizes are checked and before any tensor is used (logical sizes, dense contiguous layout).
+:func:`write_model_file` checks the same rule before writing (atomically), so what it writes is always loadable.
 
 ==================  =============================================  ==================================
 key                 exported model (``format: smplik-model``)       checkpoint (``smplik-checkpoint``)
