@@ -23,7 +23,11 @@ a failed run must leave it, a successful one must write a complete file (else ``
 Then the round-3 cases of issue 36 (``benchmarks/fuzz_round3.py``: config values, pose-cache values, WHAM
 ``frame_ids``, glTF numbers and bufferViews, outputs that are inputs or empty, strict options); an input a
 case names in ``keep`` must come out byte-identical (else ``input_overwritten``). ``--round3-only`` runs
-just those (``benchmarks/results/fuzz_round3.json``).
+just those (``benchmarks/results/fuzz_round3.json``). Then the round-4 budget cases of issue 45
+(``benchmarks/fuzz_round4_budgets.py``: rates and resampled frames, tracker and SteamVR JSON types, tracking and IK
+model files through the one reader, keyframe effectors, previews); each must be a clean error holding its key or
+limit variable (``round4_budgets`` in the report); ``--round4-budgets-only`` runs just those
+(``benchmarks/results/fuzz_round4_budgets.json``).
 
     PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 240 --workers 2
 
@@ -824,9 +828,16 @@ def main() -> None:
     parser.add_argument("--no-crafted", action="store_true", help="Skip the crafted cases and the editor.")
     parser.add_argument("--round3-only", action="store_true", help="Run only the round-3 cases of issue 36 "
                         "(benchmarks/fuzz_round3.py); results default to benchmarks/results/fuzz_round3.json.")
+    # --- round 4, budgets (issue 45): benchmarks/fuzz_round4_budgets.py ---
+    parser.add_argument("--round4-budgets-only", action="store_true", help="Run only the round-4 budget cases of "
+                        "issue 45 (benchmarks/fuzz_round4_budgets.py); results default to "
+                        "benchmarks/results/fuzz_round4_budgets.json.")
     args = parser.parse_args()
     if args.round3_only and args.out == RESULTS:
         args.out = RESULTS.with_name("fuzz_round3.json")
+    if args.round4_budgets_only and args.out == RESULTS:
+        args.out = RESULTS.with_name("fuzz_round4_budgets.json")
+    only = args.round3_only or args.round4_budgets_only
 
     work = Path(tempfile.mkdtemp(prefix="smplik-fuzz-"))
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1",
@@ -852,9 +863,17 @@ def main() -> None:
                 for res in pool.map(lambda c: run_case(c, args.timeout, env), round3_cases(work / "round3")):
                     record(res)
             args.seconds = 0.0
-        valid = make_valid_inputs(work / "valid") if not args.round3_only else {}
-        makers = case_makers(valid, work) if not args.round3_only else {}
-        if not args.no_crafted and not args.round3_only:
+        # --- round 4, budgets (issue 45): each case a clean error holding its key or limit variable ---
+        if args.round4_budgets_only or not (args.no_crafted or args.round3_only):
+            from fuzz_round4_budgets import run_round4_budgets
+
+            for res in run_round4_budgets(work / "round4_budgets", args.timeout, env, args.workers):
+                record(res)
+            if args.round4_budgets_only:
+                args.seconds = 0.0
+        valid = make_valid_inputs(work / "valid") if not only else {}
+        makers = case_makers(valid, work) if not only else {}
+        if not args.no_crafted and not only:
             for res in editor_cases(valid, work, args.timeout, env):
                 record(res)
             crafted = crafted_cases(valid, work)
@@ -907,6 +926,13 @@ def main() -> None:
     report = {"seconds": args.seconds, "timeout_s": args.timeout, "memory_cap_bytes": MEMORY_CAP, "seed": args.seed,
               "wall_s": round(time.monotonic() - start, 1), "totals": totals, "peak_mb": peak,
               "peak_rss_within_2gb": peak <= 2048, "readers": summary}
+    round4 = [r for r in results if "as_expected" in r]  # round 4, budgets (issue 45)
+    if round4:
+        report["round4_budgets"] = {"cases": len(round4), "as_expected": sum(r["as_expected"] for r in round4),
+                                    "max_peak_mb": max(r["peak_mb"] for r in round4),
+                                    "cases_detail": [{k: r[k] for k in ("reader", "note", "outcome", "peak_mb",
+                                                                        "expected", "as_expected", "last_line")}
+                                                     for r in round4]}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")
     print(json.dumps(totals), f"peak RSS {peak:.0f} MB")

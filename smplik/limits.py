@@ -28,7 +28,18 @@ limit                       environment variable              default
                                                               and activations, a render or decoded image, a
                                                               dtype conversion, a parsed motion, a set of
                                                               benchmark samples)
+:data:`OUTPUT_FRAMES`       ``SMPLIK_MAX_OUTPUT_FRAMES``      10**6 frames that a resampling or interpolation
+                                                              will make (duration x rate, counted before
+                                                              any array is made)
+:data:`TRACK_FRAMES`        ``SMPLIK_MAX_TRACK_FRAMES``       36,000 frames run through the tracker (10
+                                                              minutes at 60 frames/s: 91 s and 1.17 GB peak;
+                                                              about 2 ms and 17 KB a frame,
+                                                              benchmarks/results/track_frames.json)
 ==========================  ================================  ============================================
+
+Frame rates read from any file or option (a tracker file's ``fps``, SteamVR timestamps, an animation's
+``fps``, AMASS ``mocap_framerate``, a model file's ``fps``) lie in [:data:`MIN_FPS`, :data:`MAX_FPS`]
+(:func:`check_rate`); a rate outside is a mistake, not a budget, so it has no variable.
 
 Inputs must be regular files (:func:`check_input_file`): a named pipe, a device (``/dev/zero``) or a
 socket, directly or through a symlink, is refused before it is opened, and sizes are read through links.
@@ -46,9 +57,10 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["ALL_LIMITS", "ARRAY_BYTES", "ARRAY_ELEMENTS", "BVH_FRAMES", "IMAGE_PIXELS", "INPUT_BYTES", "JSON_BYTES",
-           "MEMORY_BYTES", "PICKLE_BYTES", "PICKLE_OBJECTS", "TEXT_BYTES", "CappedReader", "Limit", "LimitError",
-           "check_array", "check_input_file", "check_npz", "check_render_size", "check_tensors", "check_torch_zip",
-           "read_bounded"]
+           "MAX_FPS", "MEMORY_BYTES", "MIN_FPS", "OUTPUT_FRAMES", "PICKLE_BYTES", "PICKLE_OBJECTS",
+           "TEXT_BYTES", "TRACK_FRAMES", "CappedReader", "Limit", "LimitError", "check_array", "check_input_file",
+           "check_npz", "check_rate", "check_render_size", "check_resampled_frames", "check_tensors",
+           "check_torch_zip", "read_bounded"]
 
 _SUFFIX = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
@@ -101,14 +113,61 @@ BVH_FRAMES = Limit("frames", "SMPLIK_MAX_BVH_FRAMES", 1_000_000)
 PICKLE_OBJECTS = Limit("objects (shared references counted each time)", "SMPLIK_MAX_PICKLE_OBJECTS", 10_000_000)
 PICKLE_BYTES = Limit("bytes (decompressed pickle stream)", "SMPLIK_MAX_PICKLE_BYTES", 512 << 20)
 MEMORY_BYTES = Limit("bytes (estimated memory of the work)", "SMPLIK_MAX_MEMORY_BYTES", 3 << 29)
+OUTPUT_FRAMES = Limit("frames (made by resampling)", "SMPLIK_MAX_OUTPUT_FRAMES", 1_000_000)
+TRACK_FRAMES = Limit("frames (run through the tracker)", "SMPLIK_MAX_TRACK_FRAMES", 36_000)
 ALL_LIMITS = (INPUT_BYTES, ARRAY_BYTES, ARRAY_ELEMENTS, JSON_BYTES, TEXT_BYTES, IMAGE_PIXELS, BVH_FRAMES,
-              PICKLE_OBJECTS, PICKLE_BYTES, MEMORY_BYTES)
+              PICKLE_OBJECTS, PICKLE_BYTES, MEMORY_BYTES, OUTPUT_FRAMES, TRACK_FRAMES)
 """Every limit (the docs' security page lists each with its variable and default; a test keeps them in step)."""
 
 RENDER_BYTES_PER_PIXEL = 64
 """Memory an offscreen render takes per output pixel (GL colour and depth buffers, their read-back, the float32
 compositing of overlay and marker passes, the PNG written): ``body render --width 8192 --height 8192`` (two
 4096 x 8192 views) peaked at 2.97 GB, i.e. 44 bytes a pixel of the views, plus a margin."""
+
+
+MIN_FPS = 1.0
+"""Lowest frame rate read from a file or option (frames per second)."""
+MAX_FPS = 1000.0
+"""Highest frame rate read from a file or option (frames per second)."""
+
+
+def check_rate(value: Any, source: str) -> float:
+    """``value`` as a frame rate: a number (not a bool or a string), finite, within [:data:`MIN_FPS`,
+    :data:`MAX_FPS`]. Raises :class:`LimitError` naming ``source`` (the file and key, or the option)."""
+    import math
+
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        # numpy scalars are numbers too; strings, lists and None are not
+        if not (hasattr(value, "dtype") and getattr(value, "shape", None) == () and value.dtype.kind in "iuf"):
+            text = repr(value)
+            raise LimitError(f"{source}: must be a frame rate (a number) in [{MIN_FPS:g}, {MAX_FPS:g}] frames/s, got "
+                             f"{text[:60]}.")
+    try:
+        rate = float(value)
+    except (OverflowError, ValueError):
+        rate = math.inf
+    if not (math.isfinite(rate) and MIN_FPS <= rate <= MAX_FPS):
+        raise LimitError(f"{source}: must be a frame rate in [{MIN_FPS:g}, {MAX_FPS:g}] frames/s, got {rate:g}.")
+    return rate
+
+
+def check_resampled_frames(duration_s: float, fps: float, source: str) -> int:
+    """The number of frames a resampling of ``duration_s`` seconds at ``fps`` makes (``floor(duration x fps) +
+    1``), counted in floating point before any array is made and checked against :data:`OUTPUT_FRAMES`.
+
+    Raises:
+        LimitError: naming ``source``, the frame count and ``SMPLIK_MAX_OUTPUT_FRAMES`` (a non-finite or
+            negative duration too).
+    """
+    import math
+
+    frames = float(duration_s) * float(fps)
+    if not math.isfinite(frames) or frames < 0:
+        raise LimitError(f"{source}: a span of {duration_s:g} s at {fps:g} frames/s cannot be resampled.")
+    if frames + 1 > OUTPUT_FRAMES.value:
+        OUTPUT_FRAMES.check(math.floor(min(frames, 1e18)) + 1,
+                            f"{source} (a span of {duration_s:g} s resampled at {fps:g} frames/s)")
+    return int(math.floor(frames + 1e-9)) + 1
 
 
 def check_array(shape: Iterable[Any], itemsize: int, source: str) -> int:
@@ -218,7 +277,11 @@ def read_bounded(path: str | Path, limit: Limit = TEXT_BYTES) -> bytes:
     check_input_file(path)
     cap = limit.value
     with open(path, "rb") as fh:
-        data = fh.read(cap + 1)
+        # what fstat says plus one byte (a read of cap + 1 would allocate the whole cap for a small file),
+        # then the rest up to the cap only if the file grew meanwhile
+        data = fh.read(min(cap, os.fstat(fh.fileno()).st_size) + 1)
+        if cap >= len(data) > os.fstat(fh.fileno()).st_size:
+            data += fh.read(cap + 1 - len(data))
     if len(data) > cap:
         raise LimitError(f"{path}: more than {cap} {limit.what} (set {limit.env} to raise the limit if the file is "
                          "genuine).")

@@ -2,9 +2,10 @@
 
 Both kinds are one :func:`torch.save` dict of **plain data only**: tensors, ``int``/``float``/
 ``bool``/``str``/``None``, lists/tuples and dicts of those (no numpy objects, no classes). Every
-``.pt`` this package opens goes through :func:`read_model_file`, i.e. ``torch.load(...,
-weights_only=True)``, which refuses anything else before it can run. :func:`write_model_file`
-checks the same rule before writing (atomically), so what it writes is always loadable.
+``.pt`` smplik opens (these, tracking models, estimator tensor files) goes through :func:`read_torch_file`, the
+library's only ``torch.load(..., weights_only=True)``, which refuses anything else before it can run, after the
+zip directory's sizes are checked and before any tensor is used (logical sizes, dense contiguous layout).
+:func:`write_model_file` checks the same rule before writing (atomically), so what it writes is always loadable.
 
 ==================  =============================================  ==================================
 key                 exported model (``format: smplik-model``)       checkpoint (``smplik-checkpoint``)
@@ -47,8 +48,9 @@ from smplik.atomic import atomic_path
 from smplik.limits import check_tensors, check_torch_zip
 from smplik.network import NetworkConfig, ProtoResIK
 
-__all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "average_models", "export_model",
-           "load_checkpoint", "load_model", "read_model_file", "write_model_file"]
+__all__ = ["CHECKPOINT_FORMAT", "FORMAT_VERSION", "MODEL_FORMAT", "CheckpointError", "average_models",
+           "check_tensor_layout", "export_model", "load_checkpoint", "load_model", "read_model_file", "read_torch_file",
+           "write_model_file"]
 
 MODEL_FORMAT = "smplik-model"
 CHECKPOINT_FORMAT = "smplik-checkpoint"
@@ -105,20 +107,102 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0][:200] if text else type(exc).__name__
 
 
-def _check_archive(path: Path) -> None:
+def _check_archive(path: Path, what: str, error: type[ValueError]) -> None:
     """A torch.save zip whose members do not inflate: torch.save stores them uncompressed, so a
     large member packed much smaller than it expands to can only be a decompression bomb."""
     if not zipfile.is_zipfile(path):
-        raise CheckpointError(f"{path}: not a readable smplik model (not a torch.save zip file).")
+        raise error(f"{path}: not a readable {what} (not a torch.save zip file).")
     try:
         with zipfile.ZipFile(path) as zf:
             members = zf.infolist()
     except (zipfile.BadZipFile, OSError, ValueError) as exc:
-        raise CheckpointError(f"{path}: not a readable smplik model ({_first_line(exc)}).") from None
+        raise error(f"{path}: not a readable {what} ({_first_line(exc)}).") from None
     for m in members:
         if m.file_size > _MAX_INFLATED_BYTES and m.file_size > _MAX_INFLATION * max(m.compress_size, 1):
-            raise CheckpointError(f"{path}: member {m.filename!r} inflates from {m.compress_size} to {m.file_size} "
-                                  "bytes; torch.save never compresses, so this is not a model file.")
+            raise error(f"{path}: member {m.filename!r} inflates from {m.compress_size} to {m.file_size} "
+                        "bytes; torch.save never compresses, so this is not a model file.")
+
+
+def check_tensor_layout(obj: Any, source: str, error: type[ValueError] = ValueError, *, max_depth: int = 50) -> None:
+    """Every tensor in a loaded structure is a plain dense, contiguous tensor (what ``torch.save`` of a state dict
+    writes): no sparse or quantized layout, no stride-0 or transposed view (a numba kernel or ``.numpy()`` would
+    see the view's strides, not a copy). Raises ``error`` naming ``source`` and the key path."""
+    stack: list[tuple[Any, str, int]] = [(obj, "", 0)]
+    while stack:
+        node, where, depth = stack.pop()
+        if depth > max_depth:
+            raise error(f"{source}: nested deeper than {max_depth} levels.")
+        if isinstance(node, torch.Tensor):
+            name = where or "(root)"
+            if node.layout != torch.strided or node.is_quantized:
+                raise error(f"{source}: tensor {name} has layout {node.layout}; model files hold dense tensors.")
+            if not node.is_contiguous():
+                raise error(f"{source}: tensor {name} is a view with strides {tuple(node.stride())} for shape "
+                            f"{tuple(node.shape)} (stride 0 or not contiguous); model files hold plain tensors.")
+            if node.dtype.is_complex:
+                raise error(f"{source}: tensor {name} is complex ({node.dtype}); model files hold real numbers.")
+        elif isinstance(node, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in node.items())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(node))
+
+
+def read_torch_file(path: str | Path, *, what: str = "smplik model", error: type[ValueError] = CheckpointError,
+                    legacy: bool = False, layout: bool = True, as_itemsize: int | None = None,
+                    hint: str | None = None) -> Any:
+    """THE reader of every ``.pt`` file smplik opens (IK models and checkpoints, tracking models, estimator
+    tensor files): nothing in it runs and nothing it declares is allocated before it is checked.
+
+    1. a regular file (:func:`smplik.limits.check_input_file`: no pipe, no device);
+    2. a ``torch.save`` zip whose directory declares no member inflating past 64 MiB from a smaller packed size
+       and whose storages fit :func:`smplik.limits.check_torch_zip` (no compressed storage over
+       ``TORCH_COMPRESSED_MEMBER_BYTES``, each within ``SMPLIK_MAX_ARRAY_BYTES``, all within
+       ``SMPLIK_MAX_INPUT_BYTES``), from the directory, before anything is inflated;
+    3. ``torch.load(weights_only=True)`` (``legacy`` adds numpy's reconstructors, :func:`legacy_numpy_globals`);
+    4. every tensor's logical size (:func:`smplik.limits.check_tensors`; ``as_itemsize``: the float conversion
+       the caller will make, counted against ``SMPLIK_MAX_MEMORY_BYTES``) and, with ``layout``, its layout
+       (:func:`check_tensor_layout`: dense, contiguous, no stride 0).
+
+    Config values are the caller's: each file kind checks its own keys' types and ranges after this.
+
+    Args:
+        what: the kind of file, for messages ("tracking model"). error: the one-line error class raised.
+        hint: appended to the refusal of a file that holds other Python objects (a conversion command).
+
+    Raises:
+        FileNotFoundError: no such file. LimitError: a declared size over a limit. ``error``: unsafe (never
+        executed), unreadable or badly laid out content; one line naming the file.
+    """
+    from smplik.limits import check_input_file
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"Model file not found: {path}" if error is CheckpointError
+                                else f"{path}: {what} not found.")
+    check_input_file(path, what)
+    check_torch_zip(path)  # declared member sizes within the input limits, before torch reads anything
+    _check_archive(path, what, error)  # a zip at all, and no member inflating 16-fold past 64 MiB
+    extra = legacy_numpy_globals() if legacy else []
+    try:
+        with warnings.catch_warnings(), torch.serialization.safe_globals(extra):
+            warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = _UNSAFE_GLOBAL.search(str(exc))
+        named = f" (it names {found.group(1)})" if found else ""
+        if legacy:
+            raise error(f"{path}: refused even as a legacy file: it holds Python objects other than "
+                        f"tensors, numbers, strings, containers and numpy values{named}, which could "
+                        "run code when loaded; smplik never loads such a file.") from None
+        raise error(f"{path}: refused: the file holds Python objects other than tensors, numbers, "
+                    f"strings, lists and dicts{named}, which could run code when loaded"
+                    f"{'; ' + hint if hint else ''}.") from None
+    except Exception as exc:  # torch raises RuntimeError, EOFError, ... for corrupt files
+        raise error(f"{path}: not a readable {what} ({type(exc).__name__}: {_first_line(exc)}).") from None
+    check_tensors(state, str(path), as_itemsize=as_itemsize)  # a stride-0 view expands to its full shape in any use
+    if layout:
+        check_tensor_layout(state, str(path), error)
+    return state
 
 
 def read_model_file(path: str | Path, kinds: Collection[str] = _KINDS) -> dict[str, Any]:
@@ -235,35 +319,8 @@ def legacy_numpy_globals() -> list[Any]:
 
 
 def _safe_load(path: Path, *, legacy: bool) -> Any:
-    """``torch.load(weights_only=True)`` of a checked archive; ``legacy`` adds :func:`legacy_numpy_globals`.
-
-    Raises FileNotFoundError, or a one-line :class:`CheckpointError` naming the file (and the refused
-    global) for unsafe or unreadable content, which is never executed.
-    """
-    if not path.is_file():
-        raise FileNotFoundError(f"Model file not found: {path}")
-    _check_archive(path)
-    check_torch_zip(path)  # declared member sizes within the input limits, before torch reads anything
-    extra = legacy_numpy_globals() if legacy else []
-    try:
-        with warnings.catch_warnings(), torch.serialization.safe_globals(extra):
-            warnings.simplefilter("ignore")  # the safe unpickler warns about pickle protocols
-            state = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        found = _UNSAFE_GLOBAL.search(str(exc))
-        named = f" (it names {found.group(1)})" if found else ""
-        if legacy:
-            raise CheckpointError(f"{path}: refused even as a legacy file: it holds Python objects other than "
-                                  f"tensors, numbers, strings, containers and numpy values{named}, which could "
-                                  "run code when loaded; smplik never loads such a file.") from None
-        raise CheckpointError(f"{path}: refused: the file holds Python objects other than tensors, numbers, "
-                              f"strings, lists and dicts{named}, which could run code when loaded; "
-                              f"{convert_hint(path)}.") from None
-    except Exception as exc:  # torch raises RuntimeError, EOFError, ... for corrupt files
-        raise CheckpointError(f"{path}: not a readable smplik model ({type(exc).__name__}: "
-                              f"{_first_line(exc)}).") from None
-    check_tensors(state, str(path))  # a stride-0 view expands to its full shape in any use
-    return state
+    """:func:`read_torch_file` of an smplik IK model file (its messages and conversion hint)."""
+    return read_torch_file(path, legacy=legacy, hint=convert_hint(path))
 
 
 def _read_legacy(path: Path) -> dict[str, Any]:

@@ -32,7 +32,7 @@ def finite_array(value: Any, shape: tuple[int, ...], where: str, error: type[Exc
                  max_abs: float | None = None) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` with no NaN/inf (and ``|x| <= max_abs``), else ``error``
     naming ``where``. Booleans and strings are refused (``True`` is not a number here)."""
-    if isinstance(value, (str, bytes, bool, dict)) or value is None or _has_bool(value):
+    if isinstance(value, (str, bytes, bool, dict)) or value is None or not only_numbers(value):
         raise error(f"{where}: must be numbers, got {short_repr(value)}.")
     try:
         arr = np.asarray(value, dtype=np.float64)
@@ -52,6 +52,29 @@ def _has_bool(value: Any) -> bool:
         return True
     if isinstance(value, (list, tuple)):
         return any(_has_bool(v) for v in value)
+    return False
+
+
+_NUMBER_TYPES = (int, float, np.integer, np.floating)
+
+
+def only_numbers(value: Any, max_depth: int = 32) -> bool:
+    """Whether ``value`` (a number, an array or nested lists/tuples) holds only real numbers: no string (``"1.5"``
+    is text, though numpy would convert it), no bool, no None, no object. Checked level by level with C-speed
+    ``map(type, ...)`` over each level, so a 200,000-row tracker file costs a fraction of a second."""
+    from itertools import chain
+
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    level = [value]
+    for _ in range(max_depth):
+        types = set(map(type, level))
+        if not types:
+            return True
+        if types <= {list, tuple}:
+            level = list(chain.from_iterable(level))
+            continue
+        return all(issubclass(t, _NUMBER_TYPES) and not issubclass(t, (bool, np.bool_)) for t in types)
     return False
 
 
@@ -148,3 +171,5 @@ def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: st
         raise error(f"{path}: invalid JSON ({exc}).") from None
     except RecursionError:
         raise error(f"{path}: JSON nested too deeply.") from None
+    except ValueError as exc:  # an integer of more than 4300 digits, refused by Python's int conversion
+        raise error(f"{path}: invalid JSON ({' '.join(str(exc).split(';')[0].split())[:160]}).") from None

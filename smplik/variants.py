@@ -109,16 +109,13 @@ def training_range() -> tuple[np.ndarray, np.ndarray] | None:
     """The 0.1 / 99.9 percentiles (24, 3) of the CMU training set's local axis-angle components, as stored with the
     shipped tracking model (:mod:`smplik.tracking.model_io`); None when that file is absent or unreadable (the range
     check is then skipped). The IK model file keeps no range of its own."""
-    import torch
+    from smplik.tracking.model_io import DEFAULT_CHECKPOINT, read_tracking_file
 
-    from smplik.tracking.model_io import DEFAULT_CHECKPOINT
-
-    try:
-        blob = torch.load(DEFAULT_CHECKPOINT, map_location="cpu", weights_only=True)
-        lo, hi = np.asarray(blob["pose_lo"], np.float64), np.asarray(blob["pose_hi"], np.float64)
-    except (OSError, KeyError, TypeError, RuntimeError, ValueError):
+    try:  # the one model-file reader: checked sizes, layout, shapes and finite values
+        blob = read_tracking_file(DEFAULT_CHECKPOINT)
+    except (OSError, ValueError):
         return None
-    return (lo, hi) if lo.shape == (24, 3) and hi.shape == (24, 3) else None
+    return blob["pose_lo"].double().numpy(), blob["pose_hi"].double().numpy()
 
 
 def implausibility(poses: Sequence[Pose], floor: float | None = None) -> np.ndarray:

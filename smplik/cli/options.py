@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from smplik.conventions import NUM_BETAS, Gender
+from smplik.limits import MAX_FPS, MIN_FPS
 
 if TYPE_CHECKING:
     from smplik.ensemble import EnsembleConfig
@@ -23,7 +24,7 @@ GenderOpt = Annotated[Gender, typer.Option("--gender", case_sensitive=False, hel
 _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 """A plain decimal number: no underscores (``float("1_0")`` is 10), no ``nan``/``inf``, no hex."""
 
-FPS_RANGE = (1.0, 1000.0)
+FPS_RANGE = (MIN_FPS, MAX_FPS)  # smplik.limits: the one frame-rate range, for options and files alike
 """Accepted frame rates (frames per second) of every ``--fps`` option."""
 
 

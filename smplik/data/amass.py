@@ -54,6 +54,16 @@ _NUM_BODY = 21  # SMPL body joints shared with SMPL-H/X (left_hip .. right_wrist
 _FPS_KEYS = ("mocap_framerate", "mocap_frame_rate", "fps")
 
 
+def _rate(value: object, path: object, key: str) -> float:
+    """A frame rate within :data:`smplik.limits.MIN_FPS` .. ``MAX_FPS``, else :func:`_fail` naming the key."""
+    from smplik.limits import LimitError, check_rate
+
+    try:
+        return check_rate(value, f"key '{key}'")
+    except LimitError as exc:
+        raise _fail(path, str(exc)) from None
+
+
 @dataclass(frozen=True)
 class PoseSequence:
     """A clip of SMPL poses in our y-up world (numpy, float32), from any reader.
@@ -232,14 +242,14 @@ def read_amass(path: str | Path, *, rest_pelvis: RestPelvis = None, fps: float |
         for key in _FPS_KEYS:
             if key in keys:
                 value = _array(npz, key, path)
-                if value.size != 1 or not np.isfinite(value).all() or float(value.reshape(-1)[0]) <= 0:
-                    raise _fail(path, f"key '{key}' has value {value!r}; expected one positive number.")
-                rate = float(value.reshape(-1)[0])
+                if value.size != 1 or value.dtype.kind not in "iuf":
+                    raise _fail(path, f"key '{key}' has value {value!r:.60}; expected one number.")
+                rate = _rate(value.reshape(-1)[0].item(), path, key)
                 break
         if rate is None:
             if fps is None:
                 raise _fail(path, f"missing frame rate: none of the keys {', '.join(_FPS_KEYS)} (pass fps=).")
-            rate = float(fps)
+            rate = _rate(fps, path, "fps")
 
     J0 = rest_pelvis(betas, gender) if callable(rest_pelvis) else rest_pelvis
     go, transl = z_up_to_y_up(root, trans, J0)

@@ -446,8 +446,11 @@ def retarget_bvh(
     start = min(max(preset.motion_start, 0), max(motion.num_frames - 1, 0))
     out_fps = motion.fps if fps is None else float(fps)
     if fps is not None:
-        if not fps > 0:
-            raise ValueError(f"fps must be positive, got {fps}.")
+        from smplik.limits import check_rate, check_resampled_frames
+
+        out_fps = check_rate(fps, f"{motion.name}: the resampling rate (fps)")
+        # what the resampling makes, before it is made (a 1000 s Frame Time at 30 frames/s is 30,000 frames a frame)
+        check_resampled_frames(max(motion.num_frames - 1 - start, 0) / motion.fps, out_fps, motion.name)
         G_src, p_src = _resample(G_src, p_src, motion.fps, out_fps, start)
 
     # Source rest pose candidates and the choice.

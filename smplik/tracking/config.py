@@ -41,10 +41,43 @@ class TrackingNetConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> TrackingNetConfig:
-        d = dict(d)
-        d["trackers"] = tuple(d["trackers"])
-        return cls(**d)
+    def from_dict(cls, d: Any) -> TrackingNetConfig:
+        """A config from its dict (a model file's ``info.net``), every value checked for type and range
+        (:data:`TRACKING_NET_RANGES`, trackers SMPL joint names, ``fps`` a frame rate): ``ValueError`` naming the
+        key otherwise, so a file cannot make a 16,000-wide network or divide by a zero frame rate."""
+        from smplik.conventions import JOINT_NAMES
+        from smplik.limits import check_rate
+
+        if not isinstance(d, dict):
+            raise ValueError(f"net: expected an object, got {type(d).__name__}.")
+        names = {f for f in cls.__dataclass_fields__}
+        unknown = sorted(str(k) for k in set(d) - names)
+        if unknown:
+            raise ValueError(f"net.{unknown[0]}: unknown key (expected {', '.join(sorted(names))}).")
+        values = dict(d)
+        for key, (lo, hi) in TRACKING_NET_RANGES.items():
+            if key in values:
+                v = values[key]
+                if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                    raise ValueError(f"net.{key}: expected a whole number in [{lo}, {hi}], got {str(v)[:40]!r}.")
+        if "kind" in values and values["kind"] not in ("cvae", "mlp"):
+            raise ValueError(f"net.kind: expected 'cvae' or 'mlp', got {str(values['kind'])[:40]!r}.")
+        if "fps" in values:
+            values["fps"] = check_rate(values["fps"], "net.fps")
+        if "trackers" in values:
+            trackers = values["trackers"]
+            if (not isinstance(trackers, (list, tuple)) or not 1 <= len(trackers) <= len(JOINT_NAMES)
+                    or not all(isinstance(t, str) and t in JOINT_NAMES for t in trackers)
+                    or len(set(trackers)) != len(trackers)):
+                raise ValueError(f"net.trackers: expected distinct SMPL joint names, got {str(trackers)[:60]}.")
+            values["trackers"] = tuple(trackers)
+        return cls(**values)
+
+
+TRACKING_NET_RANGES: dict[str, tuple[int, int]] = {"hidden": (1, 1024), "decoder": (1, 2048), "latent": (1, 256),
+                                                   "window": (1, 240)}
+"""Accepted ranges of a tracking model's sizes (a model file's ``info.net``; the shipped models use 192, 256, 16,
+20): at the largest, the network's weights stay under 100 MB."""
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,14 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import JOINT_NAMES, unknown_joint
+from smplik.limits import LimitError, check_rate, check_resampled_frames
 from smplik.validation import JSONPathError, finite_array, read_json, read_text, short_repr
 
+MAX_ABS_TIMESTAMP_S = 1e10
+"""Largest |timestamp| of a SteamVR log line (seconds: Unix time until the year 2286; beyond it a double cannot
+resolve a frame)."""
+MAX_DEVICE_INDEX = 63
+"""Largest OpenVR device index (``k_unMaxTrackedDeviceCount`` is 64)."""
 TRACKERS_FORMAT = "smplik-trackers"
 TRACKERS_VERSION = 1
 MAX_FRAMES = 1_000_000
@@ -93,9 +99,10 @@ def signals_from_dict(data: Any, source: str = "trackers") -> TrackerSignals:
         raise err("format", f"is {short_repr(data['format'])}; expected {TRACKERS_FORMAT!r}.")
     if data["version"] != TRACKERS_VERSION or isinstance(data["version"], bool):
         raise err("version", f"is {short_repr(data['version'])}; this smplik reads version {TRACKERS_VERSION}.")
-    fps = data["fps"]
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (0 < fps <= 1000):
-        raise err("fps", f"must be a frame rate in (0, 1000], got {short_repr(fps)}.")
+    try:
+        fps = check_rate(data["fps"], f"{source}: fps")
+    except LimitError as exc:
+        raise TrackerFileError(str(exc)) from None
     trackers = data["trackers"]
     if not isinstance(trackers, dict) or not trackers:
         raise err("trackers", f"must be a non-empty object of SMPL joint names, got {short_repr(trackers)}.")
@@ -124,10 +131,7 @@ def signals_from_dict(data: Any, source: str = "trackers") -> TrackerSignals:
         p = finite_array(rows, (T, 3), f"{source}: {path}.position", TrackerFileError, max_abs=1000.0)
         if "rotation" in entry:
             q = finite_array(entry["rotation"], (T, 4), f"{source}: {path}.rotation", TrackerFileError)
-            norm = np.linalg.norm(q, axis=-1)
-            if (norm < 1e-6).any():
-                raise err(f"{path}.rotation[{int(np.argmax(norm < 1e-6))}]", "is a zero quaternion.")
-            rotations.append(q / norm[:, None])
+            rotations.append(_unit_quaternions(q, err, f"{path}.rotation"))
             has.append(True)
         else:
             rotations.append(np.tile([1.0, 0.0, 0.0, 0.0], (T, 1)))
@@ -136,6 +140,18 @@ def signals_from_dict(data: Any, source: str = "trackers") -> TrackerSignals:
         positions.append(p)
     return TrackerSignals(float(fps), tuple(names), np.stack(positions, 1), np.stack(rotations, 1),
                           np.asarray(has), source)
+
+
+def _unit_quaternions(q: np.ndarray, err: JSONPathError, path: str) -> np.ndarray:
+    """(T, 4) finite quaternions -> unit quaternions, normalised first by their largest component (so that
+    ``[1e300, 0, 0, 0]`` or ``[1e-300, 0, 0, 0]`` is the identity, not an overflow to inf or an underflow to 0),
+    then by their norm (in [1, 2] after the first step). Only an all-zero row is refused, naming its row."""
+    scale = np.abs(q).max(axis=-1, keepdims=True)
+    zero = scale[:, 0] == 0.0
+    if zero.any():
+        raise err(f"{path}[{int(np.argmax(zero))}]", "is a zero quaternion (no rotation).")
+    q = q / scale
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def read_trackers(path: str | Path) -> TrackerSignals:
@@ -179,10 +195,6 @@ HMD_TO_HEAD_M = np.array([0.0, -0.07, 0.09])
 9 cm behind the eyes (an average adult; a calibration would measure it)."""
 
 
-def _quat_xyzw(d: Any) -> np.ndarray:
-    return np.array([d["w"], d["x"], d["y"], d["z"]], dtype=np.float64)
-
-
 def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """(..., 4) (w, x, y, z) -> (..., 3, 3)."""
     from scipy.spatial.transform import Rotation
@@ -198,6 +210,71 @@ def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
     return np.concatenate([xyzw[..., 3:], xyzw[..., :3]], -1)
 
 
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number")
+
+
+def _number(value: Any, where: str, err: JSONPathError, max_abs: float) -> float:
+    """A JSON number (not a bool, not a string such as ``"1.5"``) within ``|x| <= max_abs``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise err(where, f"must be a number, got {short_repr(value)}.")
+    x = float(value) if abs(value) <= max_abs else float("inf")
+    if not np.isfinite(x):
+        raise err(where, f"{short_repr(value)} is outside [-{max_abs:g}, {max_abs:g}].")
+    return x
+
+
+def _steamvr_record(frame: Any, where: str, err: JSONPathError
+                    ) -> list[tuple[tuple[str, int], tuple[np.ndarray, np.ndarray]]]:
+    """The valid device poses of one log line, each checked for JSON types: ``((class, index), (position (3,),
+    unit quaternion (4,) w first))``. Raises ``err`` naming the line and key of the first wrong value."""
+    if not isinstance(frame, dict):
+        raise err(where, f"expected a JSON object, got {short_repr(frame)}.")
+    for key in ("timestamp", "devices"):
+        if key not in frame:
+            raise err(f"{where}.{key}", "missing.")
+    devices = frame["devices"]
+    if not isinstance(devices, list):
+        raise err(f"{where}.devices", f"expected a list of device objects, got {short_repr(devices)}.")
+    if len(devices) > MAX_DEVICE_INDEX + 1:
+        raise err(f"{where}.devices", f"{len(devices)} devices; OpenVR tracks at most {MAX_DEVICE_INDEX + 1}.")
+    out = []
+    for i, dev in enumerate(devices):
+        at = f"{where}.devices[{i}]"
+        if not isinstance(dev, dict):
+            raise err(at, f"expected a device object, got {short_repr(dev)}.")
+        cls, index = dev.get("class"), dev.get("index")
+        if not isinstance(cls, str) or not 0 < len(cls) <= 64:
+            raise err(f"{at}.class", f"expected a device class name (HMD, Controller, Tracker, ...), got "
+                      f"{short_repr(cls)}.")
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index <= MAX_DEVICE_INDEX:
+            raise err(f"{at}.index", f"expected a device index in 0..{MAX_DEVICE_INDEX}, got {short_repr(index)}.")
+        pose = dev.get("pose")
+        if pose is None:
+            continue
+        if not isinstance(pose, dict):
+            raise err(f"{at}.pose", f"expected an object or null, got {short_repr(pose)}.")
+        valid = pose.get("valid", False)
+        if not isinstance(valid, bool):
+            raise err(f"{at}.pose.valid", f"expected true or false, got {short_repr(valid)}.")
+        if not valid:
+            continue
+        vec = {}
+        for key, names in (("position", "xyz"), ("quaternion", "wxyz")):
+            d = pose.get(key)
+            if not isinstance(d, dict):
+                raise err(f"{at}.pose.{key}", f"expected an object with {', '.join(names)}, got {short_repr(d)}.")
+            vec[key] = np.array([_number(d.get(c), f"{at}.pose.{key}.{c}", err, 1e3 if key == "position" else 1e300)
+                                 for c in names])
+        q = vec["quaternion"]
+        scale = np.abs(q).max()
+        if scale == 0.0:
+            continue  # no rotation: this device's frame is treated as invalid
+        q = q / scale
+        out.append(((cls, index), (vec["position"], q / np.linalg.norm(q))))
+    return out
+
+
 def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     """Read a SteamVR JSON-lines log (module docstring) into ``head``, ``left_wrist``, ``right_wrist`` (and
     ``pelvis`` when one generic tracker is present), resampled to ``fps`` by linear interpolation over the
@@ -211,34 +288,37 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     """
     path = Path(path)
     err = JSONPathError(str(path), TrackerFileError)
+    try:
+        fps = check_rate(fps, f"{path}: the resampling rate")
+    except LimitError as exc:
+        raise TrackerFileError(str(exc)) from None
     text = read_text(path, TrackerFileError, what="tracker file")
     times: list[float] = []
     tracks: dict[tuple[str, int], dict[int, tuple[np.ndarray, np.ndarray]]] = {}
     for n, line in enumerate(text.splitlines()):
         if not line.strip():
             continue
+        where = f"line {n + 1}"
         try:
-            frame = json.loads(line)
-            t = float(frame["timestamp"])
-            devices = frame["devices"]
-            row = len(times)
-            for dev in devices:
-                pose = dev.get("pose")
-                if not pose or not pose.get("valid", False):
-                    continue
-                p = np.array([pose["position"][k] for k in "xyz"], dtype=np.float64)
-                q = _quat_xyzw(pose["quaternion"])
-                if not (np.isfinite(p).all() and np.isfinite(q).all()) or np.linalg.norm(q) < 1e-6:
-                    continue
-                tracks.setdefault((str(dev["class"]), int(dev["index"])), {})[row] = (p, q / np.linalg.norm(q))
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise err(f"line {n + 1}", f"not a SteamVR log record ({type(exc).__name__}: {exc}).") from None
-        times.append(t)
+            frame = json.loads(line, parse_constant=_refuse_constant)
+        except (json.JSONDecodeError, ValueError, RecursionError) as exc:
+            raise err(where, f"not a SteamVR log record ({type(exc).__name__}: {' '.join(str(exc).split())[:120]})."
+                      ) from None
+        row = len(times)
+        if row >= MAX_FRAMES:
+            raise err(where, f"more than {MAX_FRAMES} records; at most {MAX_FRAMES} are read.")
+        for key, (p, q) in _steamvr_record(frame, where, err):
+            tracks.setdefault(key, {})[row] = (p, q)
+        times.append(_number(frame["timestamp"], f"{where}.timestamp", err, MAX_ABS_TIMESTAMP_S))
     if len(times) < 2:
         raise err("", "fewer than 2 frames.")
     stamps = np.asarray(times)
     if not (np.diff(stamps) > 0).all():
         raise err("timestamp", "timestamps must increase from line to line.")
+    try:  # what the resampling makes, before it is made: frames = span x rate
+        check_resampled_frames(float(stamps[-1] - stamps[0]), fps, f"{path}: timestamps {stamps[0]:g}..{stamps[-1]:g}")
+    except LimitError as exc:
+        raise TrackerFileError(str(exc)) from None
     hmds = [k for k in tracks if k[0] == "HMD"]
     ctrls = sorted(k for k in tracks if k[0] == "Controller")
     generic = [k for k in tracks if k[0] == "Tracker"]
@@ -246,7 +326,7 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
         raise err("devices", "no HMD with a valid pose.")
     if len(ctrls) != 2:
         raise err("devices", f"expected 2 controllers with valid poses, found {len(ctrls)}.")
-    out_t = np.arange(stamps[0], stamps[-1] + 1e-9, 1.0 / fps)
+    out_t = stamps[0] + np.arange(check_resampled_frames(float(stamps[-1] - stamps[0]), fps, str(path))) / fps
 
     def resample(key: tuple[str, int]) -> tuple[np.ndarray, np.ndarray]:
         rows = sorted(tracks[key])

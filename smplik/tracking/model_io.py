@@ -1,4 +1,5 @@
-"""Tracking model files: a ``torch.save`` dict of tensors and plain values, read with ``weights_only=True``.
+"""Tracking model files: a ``torch.save`` dict of tensors and plain values, read by the one model-file reader
+(:func:`smplik.model_io.read_torch_file`, ``weights_only=True``) and checked key by key (:func:`read_tracking_file`).
 
 Layout: ``{"info": {"format": "smplik-tracking", "version": 1, "net": TrackingNetConfig dict, "train": ...,
 "val_mpjpe_mm": ...}, "state_dict": {...}, "pose_lo": (24, 3), "pose_hi": (24, 3)}`` (the 0.1 and 99.9
@@ -65,29 +66,62 @@ def save_checkpoint(path: str | Path, net: TrackingNet | WindowMLP, info: dict[s
     return path
 
 
-def load_model(path: str | Path | None = None) -> TrackingModel:
-    """Read a model file (default: the shipped one) with ``torch.load(weights_only=True)``.
+def read_tracking_file(path: str | Path | None = None) -> dict[str, Any]:
+    """A tracking model file's contents, read by the one model-file reader (:func:`smplik.model_io.read_torch_file`:
+    zip and size checks, ``weights_only``, tensor sizes and layout) and checked key by key: ``info`` (format,
+    version, ``net`` typed and within :data:`~smplik.tracking.config.TRACKING_NET_RANGES`, its ``fps`` a frame
+    rate), ``state_dict`` names -> tensors, ``pose_lo``/``pose_hi`` finite float (24, 3) tensors with lo <= hi.
 
-    Raises: TrackingModelError (missing file, another format, mismatched weights).
+    Returns: the file's dict with ``info["net"]`` replaced by its :class:`TrackingNetConfig`.
+
+    Raises: TrackingModelError (one line naming the file and key); LimitError (a size over a limit).
     """
+    from smplik.model_io import read_torch_file
+
     path = Path(path) if path is not None else DEFAULT_CHECKPOINT
     if not path.is_file():
         raise TrackingModelError(f"{path}: tracking model not found.")
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for a bad file
-        raise TrackingModelError(f"{path}: not a readable tracking model ({type(exc).__name__}).") from None
+    blob = read_torch_file(path, what="tracking model", error=TrackingModelError)
     if not isinstance(blob, dict) or not isinstance(blob.get("info"), dict):
         raise TrackingModelError(f"{path}: not a tracking model (no 'info').")
     info = blob["info"]
     if info.get("format") != CHECKPOINT_FORMAT or info.get("version") != CHECKPOINT_VERSION:
-        raise TrackingModelError(f"{path}: format {info.get('format')!r} version {info.get('version')!r}; expected "
-                                 f"{CHECKPOINT_FORMAT!r} version {CHECKPOINT_VERSION}.")
+        raise TrackingModelError(f"{path}: format {info.get('format')!r:.40} version {info.get('version')!r:.20}; "
+                                 f"expected {CHECKPOINT_FORMAT!r} version {CHECKPOINT_VERSION}.")
     try:
-        cfg = TrackingNetConfig.from_dict(info["net"])
+        cfg = TrackingNetConfig.from_dict(info.get("net"))
+    except (TypeError, ValueError) as exc:
+        raise TrackingModelError(f"{path}: info.{exc}") from None
+    weights = blob.get("state_dict")
+    if not isinstance(weights, dict) or not all(isinstance(k, str) and isinstance(v, Tensor)
+                                                for k, v in weights.items()):
+        raise TrackingModelError(f"{path}: key 'state_dict' must map names to tensors.")
+    for key in ("pose_lo", "pose_hi"):
+        value = blob.get(key)
+        if (not isinstance(value, Tensor) or tuple(value.shape) != (24, 3) or not value.is_floating_point()
+                or not bool(torch.isfinite(value).all())):
+            raise TrackingModelError(f"{path}: key '{key}' must be a finite float tensor of shape (24, 3), got "
+                                     f"{type(value).__name__}{tuple(getattr(value, 'shape', ()))}.")
+    if bool((blob["pose_lo"] > blob["pose_hi"]).any()):
+        raise TrackingModelError(f"{path}: key 'pose_lo' exceeds 'pose_hi' (the training range is empty).")
+    return {**blob, "info": {**info, "net": cfg}}
+
+
+def load_model(path: str | Path | None = None) -> TrackingModel:
+    """Read a model file (default: the shipped one) with :func:`read_tracking_file` and build its network.
+
+    Raises: TrackingModelError (missing file, another format, bad config values, mismatched weights).
+    """
+    path = Path(path) if path is not None else DEFAULT_CHECKPOINT
+    blob = read_tracking_file(path)
+    cfg = blob["info"]["net"]
+    try:
         net = build_network(cfg)
         net.load_state_dict(blob["state_dict"])
-    except (KeyError, TypeError, RuntimeError) as exc:
-        raise TrackingModelError(f"{path}: weights do not match the config ({str(exc).splitlines()[0]}).") from None
+    except (KeyError, TypeError, RuntimeError, ValueError) as exc:
+        raise TrackingModelError(f"{path}: weights do not match the config ({str(exc).splitlines()[0][:200]})."
+                                 ) from None
     net.eval()
-    return TrackingModel(net=net, cfg=cfg, pose_lo=blob["pose_lo"], pose_hi=blob["pose_hi"], info=info)
+    info = {**blob["info"], "net": cfg.to_dict()}
+    return TrackingModel(net=net, cfg=cfg, pose_lo=blob["pose_lo"].float(), pose_hi=blob["pose_hi"].float(),
+                         info=info)

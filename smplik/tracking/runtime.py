@@ -421,11 +421,18 @@ class TrackResult:
 def resample_signals(signals: TrackerSignals, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Positions (S, K, 3) and quaternions (S, K, 4) at ``fps`` (linear / normalised-linear interpolation), and the
     index (T,) of the resampled frame nearest each input frame."""
+    from smplik.limits import TRACK_FRAMES, check_resampled_frames
+
     T = signals.num_frames
-    if abs(signals.fps - fps) < 1e-6:
+    same = abs(signals.fps - fps) < 1e-6
+    # what will be made, before it is made: the resampled frames (span x rate), and the input frames mapped back
+    S = T if same else check_resampled_frames((T - 1) / signals.fps, fps, signals.source or "tracker recording")
+    TRACK_FRAMES.check(max(S, T), f"{signals.source or 'tracker recording'} ({T} frames at {signals.fps:g} "
+                       f"frames/s; {S} at the model's {fps:g} frames/s)")
+    if same:
         return signals.positions, signals.rotations, np.arange(T)
     t_in = np.arange(T) / signals.fps
-    t_out = np.arange(0.0, t_in[-1] + 1e-9, 1.0 / fps)
+    t_out = np.arange(S) / fps
     q = signals.rotations.copy()
     for i in range(1, T):
         q[i] *= np.where((q[i] * q[i - 1]).sum(-1) < 0, -1.0, 1.0)[:, None]

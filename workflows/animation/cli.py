@@ -56,8 +56,8 @@ def animate_cmd(
                                                "preview's background (camera-frame animations).")] = None,
     max_frames: Annotated[int, typer.Option("--max-frames", min=1, help="Refuse to read more frames than "
                                             "this.")] = 100_000,
-    preview_every: Annotated[int, typer.Option("--preview-every", min=1, help="Preview every N-th frame (more "
-                                               "than 1000 frames get a larger step, printed).")] = 1,
+    preview_every: Annotated[int, typer.Option("--preview-every", min=1, max=1000, help="Preview every N-th frame, "
+                                               "1..1000 (more than 1000 frames get a larger step, printed).")] = 1,
     trust_pickle: Annotated[bool, typer.Option("--trust-pickle", help="Load pickles with plain joblib/pickle "
                                                "(runs code from the file; only for trusted files).")] = False,
     checkpoint: Annotated[Path | None, typer.Option("--checkpoint", help="Model file (default: shipped).")] = None,

@@ -259,13 +259,22 @@ def frames_present(data: Any, fmt: str) -> list[int] | None:
     return sorted(ids)
 
 
-def stored_fps(data: Any, fmt: str) -> float | None:
-    """The frame rate a file states or its format fixes (AMASS ``mocap_framerate``, AIST++ 60), else None."""
+def stored_fps(data: Any, fmt: str, source: str = "clip") -> float | None:
+    """The frame rate a file states or its format fixes (AMASS ``mocap_framerate``, AIST++ 60), else None; a stated
+    rate outside [``MIN_FPS``, ``MAX_FPS``] (:mod:`smplik.limits`) is refused naming ``source`` and the key."""
     if fmt == "amass":
+        from smplik.limits import LimitError, check_rate
+
         for key in ("mocap_framerate", "mocap_frame_rate"):
             if isinstance(data, dict) and key in data:
-                value = float(np.asarray(data[key]).reshape(-1)[0])
-                return value if np.isfinite(value) and value > 0 else None
+                values = np.asarray(data[key]).reshape(-1)
+                if values.size != 1 or values.dtype.kind not in "iuf":
+                    raise AnimationError(f"{source}: {key}: must be one number (frames per second), got "
+                                         f"{values.size} values of {values.dtype}.")
+                try:
+                    return check_rate(float(values[0]), f"{source}: {key}")
+                except LimitError as exc:
+                    raise AnimationError(str(exc)) from None
     return KNOWN_FPS.get(fmt)
 
 
@@ -363,6 +372,7 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
         raise EstimateFormatError(f"Estimator output not found: {path}")
     data = _load_raw(path, trust_pickle, MAX_BYTES if max_bytes is None else max_bytes)
     fmt = detect_format(data) if format == "auto" else format
+    fps = stored_fps(data, fmt, str(path))  # checked before any frame is read
     if fmt in ("wham", "gvhmr"):
         if space is None:  # an animation follows the world trajectory when the estimator gives one
             space = "world" if has_world_trajectory(data, fmt) else "camera"
@@ -390,7 +400,7 @@ def read_clip(path: str | Path, *, format: str = "auto", trust_pickle: bool = Fa
         tracks = _read_frames(data, path, fmt, wanted, max_people, space, solver, progress, every, notes)
     if not tracks:
         raise AnimationError(f"{path}: no people in frames {start}..{stop - 1}.")
-    return Clip(str(path), fmt, length, tracks, stored_fps(data, fmt), "world" if is_world else "camera",
+    return Clip(str(path), fmt, length, tracks, fps, "world" if is_world else "camera",
                 tuple(notes))
 
 
@@ -713,8 +723,12 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
     if rate is None:
         raise AnimationError(f"{clip.source}: the {clip.format} output does not store its frame rate; pass --fps "
                              "(the source video's frames per second).")
-    if not (np.isfinite(rate) and 0 < rate <= 1000):
-        raise AnimationError(f"--fps must be a frame rate in (0, 1000] frames/s, got {rate}.")
+    from smplik.limits import LimitError, check_rate
+
+    try:
+        rate = check_rate(rate, "--fps" if fps is not None else f"{clip.source}: its frame rate")
+    except LimitError as exc:
+        raise AnimationError(str(exc)) from None
     ids = list(clip.tracks)
     if track is not None:
         if str(track) not in clip.tracks:

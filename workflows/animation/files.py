@@ -41,7 +41,9 @@ from typing import Any
 import numpy as np
 
 from smplik.atomic import write_json_atomic
+from smplik.effector_schema import MAX_EFFECTORS
 from smplik.effectors import parse_effector_dict
+from smplik.limits import LimitError, check_rate
 from smplik.validation import JSONPathError, read_json, short_repr
 from workflows.animation.clean import CleanConfig
 from workflows.animation.clips import Animation, AnimationTrack, Keyframe
@@ -137,6 +139,9 @@ def _keyframe(data: Any, path: str, frames: range) -> Keyframe:
     if error < 0:
         raise AnimationFileError(f"{path}.error_m: must be >= 0, got {error}.")
     effs = _expect(data.get("effectors", []), list, f"{path}.effectors", "a list")
+    if len(effs) > MAX_EFFECTORS:  # counted before any is parsed: the scenes' cap, per keyframe
+        raise AnimationFileError(f"{path}.effectors: {len(effs)} effectors; at most {MAX_EFFECTORS} per keyframe are "
+                                 "accepted (as in a scene).")
     err = JSONPathError("", AnimationFileError)
     return Keyframe(frame, tuple(parse_effector_dict(e, f"{path}.effectors[{i}]", err) for i, e in enumerate(effs)),
                     error)
@@ -205,9 +210,10 @@ def _animation(data: Any) -> Animation:
     if version != ANIMATION_VERSION or isinstance(version, bool):
         raise AnimationFileError(f"version: this smplik reads version {ANIMATION_VERSION}, got {short_repr(version)}.")
     _check_keys(data, _ROOT_KEYS, "(root)")
-    fps = float(_numbers(data.get("fps"), (), "fps"))
-    if not 0 < fps <= 1000:
-        raise AnimationFileError(f"fps: must be a frame rate in (0, 1000], got {fps}.")
+    try:
+        fps = check_rate(data.get("fps"), "fps")
+    except LimitError as exc:
+        raise AnimationFileError(str(exc)) from None
     space = data.get("space", "camera")
     if space not in ("camera", "world"):
         raise AnimationFileError(f"space: expected 'camera' or 'world', got {short_repr(space)}.")

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from smplik.atomic import atomic_path
+from smplik.limits import MIN_FPS
 from workflows.animation.clips import Animation, AnimationError
 
 if TYPE_CHECKING:
@@ -102,13 +103,18 @@ def check_preview_path(path: str | Path) -> None:
                                  ) from None
 
 
+MAX_PREVIEW_EVERY = 1000
+"""Largest ``--preview-every`` step (a preview always shows at most :attr:`PreviewConfig.max_frames` frames; its
+playback rate is at least :data:`smplik.limits.MIN_FPS`)."""
+
+
 def shown_frames(animation: Animation, every: int = 1, max_frames: int = 1000, max_fps: float | None = None
                  ) -> tuple[list[int], int]:
     """The source frames a preview shows and their step: every ``every``-th of the clip's first..last frame, the
     step raised (to the smallest multiple of ``every`` that fits) when that is more than ``max_frames`` frames or
     (``max_fps``) more than ``max_fps`` frames per second of the clip."""
-    if every < 1:
-        raise AnimationError(f"--preview-every must be >= 1, got {every}.")
+    if isinstance(every, bool) or not isinstance(every, int) or not 1 <= every <= MAX_PREVIEW_EVERY:
+        raise AnimationError(f"--preview-every must be a whole number in 1..{MAX_PREVIEW_EVERY}, got {every!r:.40}.")
     first = min(t.first_frame for t in animation.tracks)
     last = max(t.first_frame + t.num_frames - 1 for t in animation.tracks)
     span = last - first + 1
@@ -340,7 +346,9 @@ def write_preview(animation: Animation, path: str | Path, *, video: str | Path |
     check_preview_path(path)
     gif = path.suffix.lower() == ".gif"
     frames, step = shown_frames(animation, every, config.max_frames, config.gif_max_fps if gif else None)
-    fps = animation.fps / step
+    # a sparse preview plays at least MIN_FPS (each frame held at most 1 s): a GIF frame's duration is a 16-bit
+    # count of centiseconds, and a 1-frames/s clip shown every 1000th frame would hold each frame 17 minutes
+    fps = max(animation.fps / step, MIN_FPS)
     with atomic_path(path) as tmp:
         if path.suffix.lower() == ".mp4":
             import imageio.v2 as imageio

@@ -12,8 +12,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from workflows.animation.clips import (
     MAX_FRAMES,
     AnimateConfig,
@@ -64,8 +62,13 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     bad = [f for f in formats if f not in FORMATS]
     if bad:
         raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
+    if fps is not None:
+        from smplik.limits import LimitError, check_rate
+
+        try:
+            fps = check_rate(fps, "--fps")
+        except LimitError as exc:
+            raise AnimationError(str(exc)) from None
     span = parse_frames(frames)
     character = skeleton = None
     if character_path is not None:

@@ -120,22 +120,13 @@ def _to_numpy(value: Any, depth: int = 0) -> Any:
 
 
 def _load_torch(path: Path) -> Any:
-    import torch
+    from smplik.model_io import read_torch_file
 
-    from smplik.limits import check_torch_zip
-
-    check_torch_zip(path)  # declared sizes and no compressed storage, before torch reads anything
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError, TypeError, AttributeError,
-            zipfile.BadZipFile) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise EstimateFormatError(f"{path}: not a readable tensor file (torch.load with weights_only=True: "
-                                  f"{first[:200]}).") from None
-    from smplik.limits import check_tensors
-
-    # before .numpy(): a stride-0 view expands to its full shape, and .double() makes every float tensor real
-    check_tensors(data, str(path), as_itemsize=8)
+    # the one .pt reader: zip directory checked before torch reads anything, weights_only, and every tensor's
+    # logical size (a stride-0 view expands to its full shape; .double() makes every float tensor real) before
+    # .numpy(); estimator outputs may hold views, so their layout is not required to be contiguous
+    data = read_torch_file(path, what="tensor file", error=EstimateFormatError, layout=False, as_itemsize=8,
+                           hint="torch.load with weights_only=True refused it, so nothing in it ran")
     return _to_numpy(data)
 
 
