@@ -66,6 +66,7 @@ from smplik.contacts import contact_threshold as contact_threshold
 from smplik.contacts import floor_plane as floor_plane
 from smplik.contacts import ground_velocity as ground_velocity
 from smplik.contacts import height_above_floor as height_above_floor
+from smplik.contacts import stance_noise as stance_noise
 from smplik.conventions import JOINT_INDEX, PARENTS
 from smplik.limb_ik import two_bone_ik
 
@@ -132,6 +133,18 @@ class CleanConfig:
     """Per axis, the speed threshold is at least this many times the clip's foot noise speed on that axis
     (:func:`foot_noise`): a still foot of a noisy estimate (PHALP's depth from the box scale) still counts as
     slow; a clean estimate (noise far below ``contact_speed_mps``) keeps ``contact_speed_mps``."""
+    stance_noise_ratio: float | None = 3.5
+    """Adaptive, world frames: per axis, the speed threshold is at least this many times what a planted foot of the
+    smoothed motion still moves (:func:`smplik.contacts.stance_noise`: the smoothing keeps part of a noisy
+    estimate's noise, most of it where the noise drifts over frames), and the lift release (``release_m``) grows
+    ``release_noise_gain`` times as much as the threshold; a clean estimate keeps ``contact_speed_mps`` and
+    ``release_m``. None: ``contact_speed_mps`` alone (the earlier rule). Chosen on the known-truth validation split
+    (``benchmarks/animation_truth.py --split validation``)."""
+    stance_share: float = 0.25
+    """The share of the low foot-frames taken as planted to measure that noise
+    (:func:`smplik.contacts.stance_noise`)."""
+    release_noise_gain: float = 2.0
+    """How much more than the speed threshold the lift release grows on a noisy estimate (above)."""
     contact_release_ratio: float = 1.5
     """Hysteresis: a contact run, once found, extends over neighbouring low frames up to this many times the
     speed threshold (a landing or stance whose slowest frames alone are too short)."""
@@ -153,7 +166,7 @@ class CleanConfig:
     root_from_locks: bool = True
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
-    root_lock_smoothness: float = 10.0
+    root_lock_smoothness: float = 1.0
     """Smoothness (frames^2 weight of the squared acceleration) of that root shift, at 30 frames/s (scaled by
     ``(fps / 30) ** 4`` at other rates, so it spans the same time)."""
     release_m: float = 0.03
@@ -189,7 +202,7 @@ class CleanConfig:
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
                      "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
                      "glitch_rotation_sigmas",
-                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness"):
+                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness", "release_noise_gain"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
@@ -213,6 +226,11 @@ class CleanConfig:
             raise CleanError(f"contact_release_ratio must be >= 1, got {self.contact_release_ratio}.")
         if self.contact_min_frames < 1 or self.blend_frames < 0:
             raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
+        if self.stance_noise_ratio is not None and not (np.isfinite(self.stance_noise_ratio)
+                                                        and self.stance_noise_ratio > 0):
+            raise CleanError(f"stance_noise_ratio must be a positive number or None, got {self.stance_noise_ratio}.")
+        if not 0 < self.stance_share <= 1:
+            raise CleanError(f"stance_share must be in (0, 1], got {self.stance_share}.")
         if self.hold_frames not in (0, 1):
             raise CleanError(f"hold_frames must be 0 or 1, got {self.hold_frames}.")
 

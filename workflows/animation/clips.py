@@ -42,6 +42,7 @@ from smplik.pose import Pose
 from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
+    contact_threshold,
     foot_contacts,
     foot_noise,
     glitch_frames,
@@ -53,6 +54,7 @@ from workflows.animation.clean import (
     sequence_clean,
     smooth_motion,
     split_on_lift,
+    stance_noise,
 )
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
 from workflows.scene import SkeletonSource
@@ -658,14 +660,21 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     p_s = joints_of(R_s, t_s, J_rest)
     noise = foot_noise(raw, p_s * scale, fps)
     ground = ground_of(p_s, fps, cfg, scale, noise)
+    release = cfg.release_m
     if cfg.smoothing == "adaptive" and not cfg.ground_moves:  # its paths keep little of the raw noise: contacts
         noise = None  # on their own speed (in a camera frame the depth's slow wobble stays: the noise still counts)
+        if cfg.stance_noise_ratio is not None:  # ... but what they keep moves a planted foot: the threshold and the
+            # lift release grow with it (a clean estimate's planted feet barely move: 0.35 m/s and 3 cm stay)
+            noise = (stance_noise(p_s * scale, fps, cfg.contact_height_m, cfg.stance_share)
+                     * (cfg.stance_noise_ratio / cfg.contact_noise_ratio))
+            raised = float(np.max(contact_threshold(cfg, noise) / cfg.contact_speed_mps))
+            release = cfg.release_m * max(1.0, cfg.release_noise_gain * raised) if raised > 1.0 else release
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
         drift = ground_drift(ground, len(poses))[:, None]
-        contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
+        contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, release,
                                  cfg.contact_min_frames, both_ways=True)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
         ease = cfg.blend_ease and cfg.smoothing == "adaptive"
