@@ -145,6 +145,10 @@ class CleanConfig:
     (:func:`smplik.contacts.stance_noise`)."""
     release_noise_gain: float = 2.0
     """How much more than the speed threshold the lift release grows on a noisy estimate (above)."""
+    slide_speed_mps: float = 0.7
+    """With a threshold raised by ``stance_noise_ratio``: a contact run whose foot moves faster than this on average
+    (first to last frame, m/s; :func:`drop_sliding_runs`) is no contact (a sliding or walking foot, where noise
+    averages out over a planted one)."""
     contact_release_ratio: float = 1.5
     """Hysteresis: a contact run, once found, extends over neighbouring low frames up to this many times the
     speed threshold (a landing or stance whose slowest frames alone are too short)."""
@@ -202,7 +206,8 @@ class CleanConfig:
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
                      "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
                      "glitch_rotation_sigmas",
-                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness", "release_noise_gain"):
+                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness", "release_noise_gain",
+                     "slide_speed_mps"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
@@ -795,6 +800,19 @@ def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_fra
                 if stop - start >= min_frames:
                     out[start:stop, side] = True
                 start = stop + 1  # the frame that left the lock is free: the next run is a run of its own
+    return out
+
+
+def drop_sliding_runs(feet: np.ndarray, contact: np.ndarray, max_speed: float) -> np.ndarray:
+    """Contacts (T, 2) without the runs whose foot moves on average faster than ``max_speed`` (units per frame):
+    the displacement from the run's first frame to its last over its length. Noise makes a planted foot's
+    frame-to-frame speed large but averages out over the run; a sliding or walking foot keeps its velocity.
+    feet (T, 2, 3) positions (ground frame, smoothed), contact (T, 2) bool."""
+    out = contact.copy()
+    for side in range(2):
+        for s, e in _runs(contact[:, side]):
+            if e - s >= 2 and np.linalg.norm(feet[e - 1, side] - feet[s, side]) > max_speed * (e - 1 - s):
+                out[s:e, side] = False
     return out
 
 

@@ -43,6 +43,7 @@ from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
     contact_threshold,
+    drop_sliding_runs,
     foot_contacts,
     foot_noise,
     glitch_frames,
@@ -676,6 +677,9 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         drift = ground_drift(ground, len(poses))[:, None]
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, release,
                                  cfg.contact_min_frames, both_ways=True)
+        if release > cfg.release_m:  # a raised threshold admits noisy planted feet: runs must be still on average
+            contacts = drop_sliding_runs((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts,
+                                         cfg.slide_speed_mps / fps)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
         ease = cfg.blend_ease and cfg.smoothing == "adaptive"
         within = cfg.hold_within_m / scale if cfg.hold_within_m is not None else None
