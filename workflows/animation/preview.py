@@ -378,5 +378,24 @@ def _write_gif(animation: Animation, frames: list[int], tmp: Path, fps: float, *
         indexed[f] = to_palette(img)
     for f, img in stream:
         indexed[f] = to_palette(img)
-    images = [indexed[f] for f in frames]
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0)
+    save_gif([indexed[f] for f in frames], tmp, fps)
+
+
+GIF_TICK_MS = 10
+"""A GIF frame's delay is stored in hundredths of a second."""
+
+
+def gif_durations(n: int, fps: float) -> list[int]:
+    """Per-frame delays (ms, multiples of :data:`GIF_TICK_MS`) of ``n`` frames shown at ``fps``: frame k ends at the
+    tick nearest ``(k + 1) * 1000 / fps``, so the delays alternate (66.7 ms frames: 70, 60, 70, ...) and the whole
+    clip plays in its own time to within half a tick (one delay of ``round(1000 / fps, -1)`` ms would play a 15
+    frames/s clip 11 % fast or slow)."""
+    ends = np.rint(np.arange(n + 1) * (1000.0 / fps) / GIF_TICK_MS).astype(int) * GIF_TICK_MS
+    return [max(GIF_TICK_MS, int(d)) for d in np.diff(ends)]
+
+
+def save_gif(images: list, path: str | Path, fps: float) -> None:
+    """Write PIL ``images`` as a looping GIF played at ``fps`` (:func:`gif_durations`)."""
+    images[0].save(path, format="GIF", save_all=True, append_images=images[1:], duration=gif_durations(len(images),
+                                                                                                         fps),
+                   loop=0)
