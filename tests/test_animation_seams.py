@@ -37,3 +37,28 @@ def test_a_written_gif_of_66ms_frames_is_not_played_11_percent_fast(tmp_path):
     assert len(stored) == n
     assert abs(sum(stored) - 2000.0) <= 5.0  # 30 frames at 15 frames/s: two seconds
     assert set(stored) == {60, 70}
+
+
+@pytest.mark.parametrize("args, said", [
+    (["--frames", "abc"], "--frames must be 'all' or 'A:B'"),
+    (["--frames", "5:2"], "--frames 5:2: need 0 <= A < B"),
+    (["--export", "fbx"], "unknown export format"),
+    (["--smoothing", "wiener"], "smoothing must be"),
+    (["--fps", "0"], "--fps"),
+    (["--preview", "x.png"], "x.png"),
+])
+def test_animate_refuses_bad_options_before_loading_the_model(tmp_path, monkeypatch, args, said):
+    from typer.testing import CliRunner
+
+    import workflows.cli_shared
+    from workflows.cli import scene_app
+
+    loaded = []
+    monkeypatch.setattr(workflows.cli_shared, "_solver", lambda checkpoint: loaded.append(checkpoint))
+    source = tmp_path / "missing.npz"  # not even read: the options are refused first
+    res = CliRunner().invoke(scene_app, ["animate", str(source), "--out", str(tmp_path / "o"), *args])
+    assert res.exit_code == 1, res.output
+    assert said in res.output
+    assert len(res.output.strip().splitlines()) == 1 and "Traceback" not in res.output
+    assert loaded == []  # the model never loaded
+    assert not (tmp_path / "o").exists()

@@ -67,26 +67,26 @@ def animate_cmd(
     from smplik.cli.errors import console
     from workflows.animation.clean import CleanConfig
     from workflows.animation.clips import AnimateConfig
-    from workflows.animation.run import animate_file
+    from workflows.animation.run import animate_file, check_animate_options
     from workflows.cli_shared import _solver
     from workflows.scene.recovery import RecoveryConfig
 
-    with user_errors():  # one line also when the command runs outside smplik's top level
-        check_fps(fps)
-    options = character_cli()
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
-    if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
-        from workflows.animation.preview import check_preview_path
-
-        with user_errors():
-            check_preview_path(preview)
-    solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
+    with user_errors():  # every option is checked before the model and the file load (one line each)
+        check_fps(fps)
+        check_animate_options(frames=frames, fps=fps, formats=formats)
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
                                            foot_lock=foot_lock, pose_budget_mm=pose_budget or None),
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
+        if preview is not None:  # a preview that cannot be written fails now, not after the work
+            from workflows.animation.preview import check_preview_path
+
+            check_preview_path(preview)
+    options = character_cli()
+    solver = _solver(checkpoint)
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("reading", total=None)
         shown: list[tuple[str, int]] = []
 

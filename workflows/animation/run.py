@@ -43,6 +43,20 @@ class AnimateOutputs:
         return (self.animation_file, *self.exported)
 
 
+def check_animate_options(*, frames: str = "all", fps: float | None = None, formats: Sequence[str] = ("bvh",)
+                          ) -> tuple[int, int] | None:
+    """Refuse bad ``scene animate`` options (one :class:`AnimationError` line) before anything heavy loads (the model,
+    the file); returns the frame range (:func:`workflows.animation.clips.parse_frames`)."""
+    from workflows.scene.export import FORMATS
+
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
+    return parse_frames(frames)
+
+
 def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSolver, *, format: str = "auto",
                  frames: str = "all", fps: float | None = None, track: str | None = None,
                  character_path: str | Path | None = None, character_options: Any = None,
@@ -52,14 +66,7 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     """Estimator output -> ``out_dir/animation.json`` (+ per track, animated at the source frame rate, the
     ``formats`` of :func:`workflows.scene.export.export_scene`: ``"bvh"``, ``"glb"`` (SMPL bodies and glTF
     characters))."""
-    from workflows.scene.export import FORMATS
-
-    bad = [f for f in formats if f not in FORMATS]
-    if bad:
-        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
-    span = parse_frames(frames)
+    span = check_animate_options(frames=frames, fps=fps, formats=formats)
     character = skeleton = None
     if character_path is not None:
         from shape_inversion.options import CharacterOptions
