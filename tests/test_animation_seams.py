@@ -62,3 +62,130 @@ def test_animate_refuses_bad_options_before_loading_the_model(tmp_path, monkeypa
     assert len(res.output.strip().splitlines()) == 1 and "Traceback" not in res.output
     assert loaded == []  # the model never loaded
     assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------- cleaning never worse, feet planted
+
+
+def _estimate(aa: np.ndarray, transl: np.ndarray, seed: int, rho: float = 0.0):
+    """A synthetic video estimate as ``benchmarks/animation_truth.py`` makes it: 4 degrees rms on every local
+    rotation, root sigma 1.5 / 1.5 / 7 cm (x / y / depth), independent or AR(1) over frames (rho)."""
+    from scipy.spatial.transform import Rotation
+
+    from smplik.pose import Pose
+
+    rng = np.random.default_rng(seed)
+    T = aa.shape[0]
+    rot = rng.normal(0, np.deg2rad(4.0) / np.sqrt(3), (T, 24, 3))
+    root = rng.normal(0, 1.0, (T, 3)) * [0.015, 0.015, 0.07]
+    for t in range(1, T) if rho else ():
+        rot[t] = rho * rot[t - 1] + np.sqrt(1 - rho ** 2) * rot[t]
+        root[t] = rho * root[t - 1] + np.sqrt(1 - rho ** 2) * root[t]
+    noisy = (Rotation.from_rotvec(aa.reshape(-1, 3)) * Rotation.from_rotvec(rot.reshape(-1, 3))).as_rotvec()
+    noisy = noisy.reshape(T, 24, 3)
+    return [Pose(noisy[t, 0], noisy[t, 1:], transl[t] + root[t], np.zeros(10)) for t in range(T)]
+
+
+def _truth(aa: np.ndarray, transl: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    from smplik.conventions import Gender
+    from workflows.animation.clips import joints_of, rest_joints
+
+    R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(aa.shape[0], 24, 3, 3)
+    return joints_of(R, transl, rest_joints(np.zeros(10), Gender.NEUTRAL))
+
+
+def _errors(p: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """PA-MPJPE (m, per frame similarity-aligned) and acceleration error (m/frame^2), as the benchmark."""
+    import torch
+
+    from smplik.metrics import pa_mpjpe
+
+    acc = (p[2:] - 2 * p[1:-1] + p[:-2]) - (truth[2:] - 2 * truth[1:-1] + truth[:-2])
+    return (float(pa_mpjpe(torch.as_tensor(p), torch.as_tensor(truth)).mean()),
+            float(np.linalg.norm(acc, axis=-1).mean()))
+
+
+def _fast_swing(T: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """A fast synthetic motion at 30 frames/s: legs and arms swinging at 2 Hz by +-0.9 rad (a sprint's cadence),
+    the body travelling 5 m/s and bouncing 8 cm: axis-angle (T, 24, 3), transl (T, 3)."""
+    phase = 2 * np.pi * 2.0 * np.arange(T) / 30.0
+    aa = np.zeros((T, 24, 3))
+    aa[:, 1, 0], aa[:, 2, 0] = 0.9 * np.sin(phase), -0.9 * np.sin(phase)  # hips
+    aa[:, 4, 0], aa[:, 5, 0] = 0.8 * (1 + np.sin(phase)), 0.8 * (1 - np.sin(phase))  # knees
+    aa[:, 16, 0], aa[:, 17, 0] = -0.9 * np.sin(phase), 0.9 * np.sin(phase)  # shoulders
+    aa[:, 18, 1], aa[:, 19, 1] = -1.2 + 0.4 * np.sin(phase), 1.2 - 0.4 * np.sin(phase)  # elbows
+    transl = np.stack([np.zeros(T), 0.9 + 0.04 * np.sin(2 * phase), 5.0 * np.arange(T) / 30.0], -1)
+    return aa, transl
+
+
+def _standing(T: int = 150) -> tuple[np.ndarray, np.ndarray]:
+    """Standing with both feet planted (legs and pelvis still), the arms punching and waving: truth feet still."""
+    phase = 2 * np.pi * np.arange(T) / 30.0
+    aa = np.zeros((T, 24, 3))
+    aa[:, 16, 2], aa[:, 17, 2] = -1.0 + 0.5 * np.sin(phase), 1.0 + 0.5 * np.sin(1.3 * phase)
+    aa[:, 18, 1], aa[:, 19, 1] = -0.8 + 0.6 * np.sin(2 * phase), 0.8 - 0.6 * np.sin(2 * phase)
+    aa[:, 3, 1] = 0.2 * np.sin(0.5 * phase)  # the spine turns; the legs stay
+    return aa, np.tile([0.0, 0.93, 0.0], (T, 1))
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.8])
+def test_cleaning_a_fast_clip_is_never_worse_than_its_raw_input(rho):
+    from workflows.animation.clean import CleanConfig
+    from workflows.animation.clips import clean_track
+
+    aa, transl = _fast_swing()
+    truth = _truth(aa, transl)
+    for seed in range(3):
+        poses = _estimate(aa, transl, seed, rho)
+        raw = _errors(clean_track(poses, 30.0, CleanConfig(smoothing="none", foot_lock=False,
+                                                             repair_glitches=False), 1.0)[4], truth)
+        ours = _errors(clean_track(poses, 30.0, CleanConfig(), 1.0)[4], truth)
+        assert ours[0] <= raw[0] and ours[1] <= raw[1], (seed, ours, raw)  # PA-MPJPE, acceleration error
+
+
+@pytest.mark.parametrize("rho", [0.0, pytest.param(0.8, marks=pytest.mark.xfail(
+    strict=True, reason="issue 44, not met yet: under AR(1) noise the planted feet skate about 1.1 mm/frame on one "
+    "seed (the lock's gaps where the drifting foot leaves the speed threshold); see docs/animation.md"))])
+def test_planted_feet_of_a_noisy_estimate_stay_within_the_skating_bound(rho):
+    from workflows.animation.clean import CleanConfig, foot_contacts, foot_skating
+    from workflows.animation.clips import clean_track
+
+    aa, transl = _standing()
+    truth = _truth(aa, transl)
+    contacts = foot_contacts(truth, 30.0, CleanConfig())
+    assert contacts.all()  # the truth's feet are planted throughout
+    for seed in range(2):
+        poses = _estimate(aa, transl, seed, rho)
+        out = clean_track(poses, 30.0, CleanConfig(), 1.0)
+        raw_skating = foot_skating(out[3], contacts)
+        skating = foot_skating(out[4], contacts)
+        assert raw_skating > 0.02  # the estimate's feet move several cm per frame
+        assert skating <= foot_skating(truth, contacts) + 0.001, (seed, skating)  # the issue's bound: truth + 1 mm
+
+
+def test_stance_noise_is_zero_on_still_feet_and_grows_with_the_noise():
+    from smplik.contacts import stance_noise
+
+    aa, transl = _standing(90)
+    truth = _truth(aa, transl)
+    assert np.allclose(stance_noise(truth, 30.0, 0.08), 0.0)
+    rng = np.random.default_rng(0)
+    small = truth + rng.normal(0, 0.002, truth.shape)
+    large = truth + rng.normal(0, 0.01, truth.shape)
+    assert (stance_noise(large, 30.0, 0.08) > 3 * stance_noise(small, 30.0, 0.08)).all()
+    flying = truth + [0.0, 1.0, 0.0]  # no foot near the floor it fits: still defined, from the feet alone
+    assert np.isfinite(stance_noise(flying, 30.0, 0.08)).all()
+
+
+def test_a_sliding_run_is_no_contact_a_noisy_planted_one_is():
+    from workflows.animation.clean import drop_sliding_runs
+
+    T = 20
+    rng = np.random.default_rng(1)
+    feet = np.zeros((T, 2, 3))
+    feet[:, 0] = rng.normal(0, 0.01, (T, 3))  # planted, 1 cm noise: fast frame to frame, still on average
+    feet[:, 1, 2] = 0.04 * np.arange(T)  # sliding 4 cm per frame (1.2 m/s)
+    kept = drop_sliding_runs(feet, np.ones((T, 2), dtype=bool), 0.7 / 30.0)
+    assert kept[:, 0].all() and not kept[:, 1].any()

@@ -143,7 +143,7 @@ class CleanConfig:
     stance_share: float = 0.25
     """The share of the low foot-frames taken as planted to measure that noise
     (:func:`smplik.contacts.stance_noise`)."""
-    release_noise_gain: float = 2.0
+    release_noise_gain: float = 4.0
     """How much more than the speed threshold the lift release grows on a noisy estimate (above)."""
     slide_speed_mps: float = 0.7
     """With a threshold raised by ``stance_noise_ratio``: a contact run whose foot moves faster than this on average
@@ -800,6 +800,24 @@ def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_fra
                 if stop - start >= min_frames:
                     out[start:stop, side] = True
                 start = stop + 1  # the frame that left the lock is free: the next run is a run of its own
+    return out
+
+
+def bridge_short_gaps(feet: np.ndarray, contact: np.ndarray, max_gap: int, max_move: float,
+                      low: np.ndarray | None = None) -> np.ndarray:
+    """Contacts (T, 2) with each gap of at most ``max_gap`` frames between two runs of one foot filled where the two
+    runs' mean positions are within ``max_move`` (units) of each other and (with ``low`` (T, 2) bool) the foot stays
+    low throughout the gap: the foot never left (a noisy estimate's planted foot wobbles out of the speed threshold
+    for a few frames); a step or a stride lifts it or moves it further.
+    feet (T, 2, 3) positions (ground frame, smoothed), contact (T, 2) bool."""
+    out = contact.copy()
+    for side in range(2):
+        runs = _runs(contact[:, side])
+        for (s0, e0), (s1, e1) in zip(runs[:-1], runs[1:], strict=True):
+            if s1 - e0 > max_gap or (low is not None and not low[e0:s1, side].all()):
+                continue
+            if np.linalg.norm(feet[s1:e1, side].mean(0) - feet[s0:e0, side].mean(0)) <= max_move:
+                out[e0:s1, side] = True
     return out
 
 

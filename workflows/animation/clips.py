@@ -42,13 +42,15 @@ from smplik.pose import Pose
 from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
-    contact_threshold,
+    bridge_short_gaps,
     drop_sliding_runs,
+    floor_plane,
     foot_contacts,
     foot_noise,
     glitch_frames,
     ground_drift,
     ground_of,
+    height_above_floor,
     lock_feet,
     lock_plan,
     root_shift_from_locks,
@@ -668,8 +670,8 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
             # lift release grow with it (a clean estimate's planted feet barely move: 0.35 m/s and 3 cm stay)
             noise = (stance_noise(p_s * scale, fps, cfg.contact_height_m, cfg.stance_share)
                      * (cfg.stance_noise_ratio / cfg.contact_noise_ratio))
-            raised = float(np.max(contact_threshold(cfg, noise) / cfg.contact_speed_mps))
-            release = cfg.release_m * max(1.0, cfg.release_noise_gain * raised) if raised > 1.0 else release
+            share = float(np.max(cfg.contact_noise_ratio * noise / cfg.contact_speed_mps))
+            release = cfg.release_m * max(1.0, cfg.release_noise_gain * share)
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
@@ -678,6 +680,9 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
         contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, release,
                                  cfg.contact_min_frames, both_ways=True)
         if release > cfg.release_m:  # a raised threshold admits noisy planted feet: runs must be still on average
+            low = height_above_floor(p_s[:, list(FOOT_JOINTS)] * scale, floor_plane(p_s * scale)) < cfg.contact_height_m
+            contacts = bridge_short_gaps((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, 3 * cfg.blend_frames,
+                                         release, low)
             contacts = drop_sliding_runs((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts,
                                          cfg.slide_speed_mps / fps)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
