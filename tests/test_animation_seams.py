@@ -189,3 +189,18 @@ def test_a_sliding_run_is_no_contact_a_noisy_planted_one_is():
     feet[:, 1, 2] = 0.04 * np.arange(T)  # sliding 4 cm per frame (1.2 m/s)
     kept = drop_sliding_runs(feet, np.ones((T, 2), dtype=bool), 0.7 / 30.0)
     assert kept[:, 0].all() and not kept[:, 1].any()
+
+
+@pytest.mark.parametrize("T, window, order", [(7, 7, 3), (50, 7, 3), (40, 9, 2), (9, 9, 2), (100, 5, 1)])
+def test_savgol_smooth_equals_scipys_filter(T, window, order):
+    # the animation's smoothing no longer imports scipy.signal (seconds of CPU per run): same numbers
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    from smplik.smoothing import savgol_coefficients, savgol_smooth
+
+    y = np.random.default_rng(T).normal(size=(T, 4, 3))
+    np.testing.assert_allclose(savgol_smooth(y, window, order),
+                               savgol_filter(y, window, order, axis=0, mode="interp"), atol=1e-12)
+    np.testing.assert_allclose(savgol_coefficients(window, order), savgol_coeffs(window, order), atol=1e-12)
+    with pytest.raises(ValueError):
+        savgol_smooth(y[:3], window, order)

@@ -17,7 +17,7 @@ first, made sign-continuous over time, renormalised after filtering) and the roo
   cutoff rises with the signal's speed, ``fc = min_cutoff + beta * |dx/dt|``: slow parts (where
   jitter shows) are smoothed hard, fast real motion passes with little lag. Run forward then
   backward (``zero_phase``) so the result has no lag at all.
-* ``"savgol"``: a plain Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`), the baseline.
+* ``"savgol"``: a plain Savitzky-Golay filter (:func:`smplik.smoothing.savgol_smooth`, as ``scipy.signal.savgol_filter``), the baseline.
 
 Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
 foot) touches the floor where it is low (within ``height_m`` of the clip's floor, :func:`floor_plane`: a
@@ -47,7 +47,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
 from smplik.contacts import (  # the detector moved to smplik (the tracker's labels use it); its names stay here
@@ -69,6 +68,7 @@ from smplik.contacts import height_above_floor as height_above_floor
 from smplik.contacts import stance_noise as stance_noise
 from smplik.conventions import JOINT_INDEX, PARENTS
 from smplik.limb_ik import two_bone_ik
+from smplik.smoothing import savgol_smooth
 
 LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"]),
               (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"]))
@@ -302,8 +302,8 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
         window = min(cfg.savgol_window, q.shape[0] - (1 - q.shape[0] % 2))
         if window <= cfg.savgol_order:
             return R_parent_joint.copy(), transl.copy()
-        q_s = savgol_filter(q, window, cfg.savgol_order, axis=0, mode="interp")
-        t_s = savgol_filter(transl, window, cfg.savgol_order, axis=0, mode="interp")
+        q_s = savgol_smooth(q, window, cfg.savgol_order)
+        t_s = savgol_smooth(transl, window, cfg.savgol_order)
     else:
         kw = {"min_cutoff_hz": cfg.min_cutoff_hz, "beta": cfg.beta, "d_cutoff_hz": cfg.d_cutoff_hz}
         q_s = one_euro(q, fps, **kw)
