@@ -264,3 +264,32 @@ def test_the_3d_preview_keeps_the_walker_in_the_middle_of_the_picture(tmp_path):
         ys, xs = np.nonzero(body)
         assert xs.size > 0.03 * body.size  # the body is drawn large ...
         assert abs(xs.mean() - 80) < 25  # ... and in the middle, at the start and at the end of the walk
+
+
+@pytest.mark.parametrize("args, said", [
+    (["--frame", "3", "--export", "fbx"], "unknown export format"),
+    (["--frame", "999"], "frame 999 is outside track person_0's frames 0..9"),
+    (["--frame", "3", "--track", "nobody"], "no track 'nobody'"),
+])
+def test_edit_keyframe_refuses_bad_options_before_loading_the_model_or_writing(tmp_path, monkeypatch, args, said):
+    import json
+
+    from typer.testing import CliRunner
+
+    import workflows.cli_shared
+    from workflows.animation.files import save_animation
+    from workflows.cli import scene_app
+
+    path = save_animation(_walking_animation(10, 0.5), tmp_path / "animation.json")
+    before = path.read_bytes()
+    effectors = tmp_path / "wave.json"
+    effectors.write_text(json.dumps({"format": "smplik-effectors", "version": 1, "effectors": [
+        {"joint": "right_wrist", "type": "position", "value": [0.3, 1.5, 0.1]}]}))
+    loaded = []
+    monkeypatch.setattr(workflows.cli_shared, "_solver", lambda checkpoint: loaded.append(checkpoint))
+    res = CliRunner().invoke(scene_app, ["edit-keyframe", str(path), "--effectors", str(effectors), *args])
+    assert res.exit_code == 1, res.output
+    assert said in res.output and len(res.output.strip().splitlines()) == 1
+    assert loaded == []  # the model never loaded
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["animation.json",
+                                                                                          "wave.json"]

@@ -17,7 +17,8 @@ first, made sign-continuous over time, renormalised after filtering) and the roo
   cutoff rises with the signal's speed, ``fc = min_cutoff + beta * |dx/dt|``: slow parts (where
   jitter shows) are smoothed hard, fast real motion passes with little lag. Run forward then
   backward (``zero_phase``) so the result has no lag at all.
-* ``"savgol"``: a plain Savitzky-Golay filter (:func:`smplik.smoothing.savgol_smooth`, as ``scipy.signal.savgol_filter``), the baseline.
+* ``"savgol"``: a plain Savitzky-Golay filter (:func:`smplik.smoothing.savgol_smooth`, as
+  ``scipy.signal.savgol_filter``), the baseline.
 
 Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
 foot) touches the floor where it is low (within ``height_m`` of the clip's floor, :func:`floor_plane`: a

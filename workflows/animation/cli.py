@@ -161,11 +161,13 @@ def edit_keyframe_cmd(
     from smplik.effector_schema import load_effector_file
     from workflows.animation.clips import AnimationError
     from workflows.animation.files import load_animation, save_animation
-    from workflows.animation.keyframe_edit import keyframe_edit
-    from workflows.animation.run import export_animation
+    from workflows.animation.keyframe_edit import check_keyframe_edit, keyframe_edit
+    from workflows.animation.run import check_animate_options, export_animation
     from workflows.cli_shared import _solver
 
-    with user_errors():
+    formats = [f.strip().lower() for f in export.split(",") if f.strip()]
+    with user_errors():  # every input checked before the model loads and before anything is written
+        check_animate_options(formats=formats)
         anim = load_animation(animation)
         if track is None:
             if len(anim.tracks) != 1:
@@ -173,9 +175,9 @@ def edit_keyframe_cmd(
                                      f"({', '.join(t.name for t in anim.tracks)}).")
             track = anim.tracks[0].name
         effs = load_effector_file(effectors).effectors
+        check_keyframe_edit(anim, track, frame, effs, window=window)
         edit = keyframe_edit(anim, track, frame, effs, _solver(checkpoint), window=window, exact=exact)
         path = save_animation(edit.animation, out or animation)
-        formats = [f.strip().lower() for f in export.split(",") if f.strip()]
         files = export_animation(edit.animation, path.parent, formats, base_dir=path.parent) if formats else []
     say(edit.line())
     for written in (path, *files):
