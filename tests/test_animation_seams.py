@@ -46,6 +46,8 @@ def test_a_written_gif_of_66ms_frames_is_not_played_11_percent_fast(tmp_path):
     (["--smoothing", "wiener"], "smoothing must be"),
     (["--fps", "0"], "--fps"),
     (["--preview", "x.png"], "x.png"),
+    (["--format", "fbx"], "--format must be one of"),
+    (["--space", "screen"], "--space must be 'camera' or 'world'"),
 ])
 def test_animate_refuses_bad_options_before_loading_the_model(tmp_path, monkeypatch, args, said):
     from typer.testing import CliRunner

@@ -66,13 +66,18 @@ def animate_cmd(
 
     from smplik.cli.errors import console
     from workflows.animation.clean import CleanConfig
-    from workflows.animation.clips import AnimateConfig
+    from workflows.animation.clips import AnimateConfig, AnimationError
     from workflows.animation.run import animate_file, check_animate_options
     from workflows.cli_shared import _solver
+    from workflows.estimators import FORMATS as READERS
     from workflows.scene.recovery import RecoveryConfig
 
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     with user_errors():  # every option is checked before the model and the file load (one line each)
+        if format not in ("auto", *READERS):
+            raise AnimationError(f"--format must be one of auto, {', '.join(READERS)}, got {format!r}.")
+        if space not in (None, "camera", "world"):
+            raise AnimationError(f"--space must be 'camera' or 'world', got {space!r}.")
         check_fps(fps)
         check_animate_options(frames=frames, fps=fps, formats=formats)
         config = AnimateConfig(CleanConfig(smoothing=smoothing, smoothness=smoothness,  # type: ignore[arg-type]
