@@ -250,6 +250,25 @@ def foot_noise(p_raw: np.ndarray, p_smooth: np.ndarray, fps: float) -> np.ndarra
     return np.sqrt(np.median(v ** 2, axis=(0, 1)))
 
 
+def stance_noise(p_world: np.ndarray, fps: float, height: float, share: float = 0.25) -> np.ndarray:
+    """The speed per axis (3,) (units/s) that a planted foot of the smoothed joints p_world (T, 24, 3) still
+    shows: the rms velocity, per axis, of the slowest ``share`` of the foot-frames within ``height`` of the floor
+    (:func:`floor_plane`; both feet). Zeros when no foot is that low.
+
+    A smoothing keeps part of an estimate's noise (most of it where the noise drifts slowly over frames), so on a
+    noisy estimate a planted foot moves by this much; on a clean one it is near zero. Standing, walking or landing,
+    a quarter of the low foot-frames are planted ones."""
+    feet = p_world[:, list(FOOT_JOINTS)]
+    if feet.shape[0] < 3:
+        return np.zeros(3)
+    low = height_above_floor(feet, floor_plane(p_world)) < height
+    v = np.gradient(feet, axis=0)[low] * fps  # (N, 3)
+    if v.shape[0] < 3:
+        return np.zeros(3)
+    slow = v[np.argsort(np.linalg.norm(v, axis=-1))[:max(3, int(share * v.shape[0]))]]
+    return np.sqrt((slow ** 2).mean(0))
+
+
 def foot_contacts(p_world: np.ndarray, fps: float, cfg: ContactSettings, ground: np.ndarray | None = None,
                   noise: np.ndarray | None = None) -> np.ndarray:
     """Foot contacts (T, 2) bool (left, right) of joint positions p_world (T, 24, 3) in metres, y up: feet low

@@ -21,7 +21,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 import torch
-from numba.typed import List as TypedList
 from torch import Tensor
 
 from smplik.conventions import NUM_BETAS, PARENTS, EffectorType
@@ -229,7 +228,8 @@ class NumbaNetwork:
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}.")
         self.model, self.threads = model, threads
-        Ws, bs = TypedList(), TypedList()
+        Ws: list[np.ndarray] = []  # a homogeneous tuple in the kernel: no typed list to compile per process
+        bs: list[np.ndarray] = []
 
         def add(lin: torch.nn.Linear) -> int:
             Ws.append(np.ascontiguousarray(lin.weight.detach().float().numpy().T))
@@ -247,7 +247,7 @@ class NumbaNetwork:
         self._enc = program(list(model.encoder))
         self._gpd = program(list(model.gpd.blocks) if isinstance(model.gpd, FCRDecoder) else [])
         self._ikd = program(list(model.ikd.blocks))
-        self._Ws, self._bs = Ws, bs
+        self._Ws, self._bs = tuple(Ws), tuple(bs)
 
         def f32(t: Tensor) -> np.ndarray:
             return np.ascontiguousarray(t.detach().float().numpy())

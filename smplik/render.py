@@ -131,6 +131,16 @@ def _fit(points: np.ndarray, view: View, aspect: float) -> tuple[np.ndarray, flo
     return center, dist, radius
 
 
+def fit_distance(points: np.ndarray, direction: Sequence[float], center: Sequence[float], *, size: tuple[int, int],
+                 yfov: float = np.pi / 5, margin: float = 1.15) -> float:
+    """The camera distance at which a :class:`View` from ``direction`` looking at ``center`` shows every point of
+    ``points`` (P, 3) in an image of ``size = (width, height)`` (with ``margin``)."""
+    points = np.asarray(points, float).reshape(-1, 3)
+    if len(points) == 0 or size[0] < 1 or size[1] < 1:
+        raise RenderError(f"Cannot fit a view of {len(points)} points in an image of size {size}.")
+    return _fit(points, View(tuple(direction), yfov, margin, tuple(center)), size[0] / size[1])[1]
+
+
 def fit_views(points: np.ndarray, directions: Sequence[Sequence[float]], *, size: tuple[int, int],
               yfov: float = np.pi / 5, margin: float = 1.15) -> list[View]:
     """Views from ``directions`` that all show ``points`` (P, 3) at one common scale (same centre and

@@ -12,7 +12,42 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solveh_banded
 
-__all__ = ["penalty_bands", "whittaker"]
+__all__ = ["penalty_bands", "savgol_coefficients", "savgol_smooth", "whittaker"]
+
+
+def _fit_matrix(window: int, order: int) -> np.ndarray:
+    """(order + 1, window) least-squares map from ``window`` samples at offsets ``-(window // 2)..window // 2`` to the
+    coefficients of their polynomial of ``order`` (increasing powers of the offset)."""
+    offsets = np.arange(window, dtype=np.float64) - window // 2
+    return np.linalg.pinv(np.vander(offsets, order + 1, increasing=True))
+
+
+def savgol_coefficients(window: int, order: int) -> np.ndarray:
+    """(window,) Savitzky-Golay smoothing weights: the value at the window's centre of the least-squares polynomial
+    of ``order`` through ``window`` samples (odd); equal to ``scipy.signal.savgol_coeffs(window, order)`` (whose
+    import costs seconds of CPU on every run)."""
+    return _fit_matrix(window, order)[0]
+
+
+def savgol_smooth(y: np.ndarray, window: int, order: int) -> np.ndarray:
+    """Savitzky-Golay smoothing of y (T, ...) along time (axis 0), as ``scipy.signal.savgol_filter(y, window, order,
+    axis=0, mode="interp")``: the centre value of the local polynomial inside, and the first and last
+    ``window // 2`` samples from the polynomial fitted to the first and last ``window`` samples. T >= window."""
+    y = np.asarray(y, dtype=np.float64)
+    T, half = y.shape[0], window // 2
+    if window % 2 == 0 or order >= window or T < window:
+        raise ValueError(f"savgol_smooth needs an odd window > order and at most T samples; got window {window}, "
+                         f"order {order}, T {T}.")
+    flat = y.reshape(T, -1)
+    fit = _fit_matrix(window, order)  # (order + 1, window)
+    windows = np.lib.stride_tricks.sliding_window_view(flat, window, axis=0)  # (T - window + 1, C, window)
+    out = np.empty_like(flat)
+    out[half:T - half] = windows @ fit[0]
+    offsets = np.arange(window, dtype=np.float64) - half
+    powers = np.vander(offsets, order + 1, increasing=True)  # (window, order + 1)
+    out[:half] = (powers @ (fit @ flat[:window]))[:half]  # the first window's polynomial at its first samples
+    out[T - half:] = (powers @ (fit @ flat[T - window:]))[window - half:]
+    return out.reshape(y.shape)
 
 
 def penalty_bands(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -17,7 +17,8 @@ first, made sign-continuous over time, renormalised after filtering) and the roo
   cutoff rises with the signal's speed, ``fc = min_cutoff + beta * |dx/dt|``: slow parts (where
   jitter shows) are smoothed hard, fast real motion passes with little lag. Run forward then
   backward (``zero_phase``) so the result has no lag at all.
-* ``"savgol"``: a plain Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`), the baseline.
+* ``"savgol"``: a plain Savitzky-Golay filter (:func:`smplik.smoothing.savgol_smooth`, as
+  ``scipy.signal.savgol_filter``), the baseline.
 
 Foot contacts (:func:`foot_contacts`): a foot (SMPL's ``left_foot``/``right_foot``, the ball of the
 foot) touches the floor where it is low (within ``height_m`` of the clip's floor, :func:`floor_plane`: a
@@ -47,7 +48,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
 from smplik.contacts import (  # the detector moved to smplik (the tracker's labels use it); its names stay here
@@ -66,8 +66,10 @@ from smplik.contacts import contact_threshold as contact_threshold
 from smplik.contacts import floor_plane as floor_plane
 from smplik.contacts import ground_velocity as ground_velocity
 from smplik.contacts import height_above_floor as height_above_floor
+from smplik.contacts import stance_noise as stance_noise
 from smplik.conventions import JOINT_INDEX, PARENTS
 from smplik.limb_ik import two_bone_ik
+from smplik.smoothing import savgol_smooth
 
 LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"]),
               (JOINT_INDEX["right_hip"], JOINT_INDEX["right_knee"], JOINT_INDEX["right_ankle"]))
@@ -132,6 +134,22 @@ class CleanConfig:
     """Per axis, the speed threshold is at least this many times the clip's foot noise speed on that axis
     (:func:`foot_noise`): a still foot of a noisy estimate (PHALP's depth from the box scale) still counts as
     slow; a clean estimate (noise far below ``contact_speed_mps``) keeps ``contact_speed_mps``."""
+    stance_noise_ratio: float | None = 3.5
+    """Adaptive, world frames: per axis, the speed threshold is at least this many times what a planted foot of the
+    smoothed motion still moves (:func:`smplik.contacts.stance_noise`: the smoothing keeps part of a noisy
+    estimate's noise, most of it where the noise drifts over frames), and the lift release (``release_m``) grows
+    ``release_noise_gain`` times as much as the threshold; a clean estimate keeps ``contact_speed_mps`` and
+    ``release_m``. None: ``contact_speed_mps`` alone (the earlier rule). Chosen on the known-truth validation split
+    (``benchmarks/animation_truth.py --split validation``)."""
+    stance_share: float = 0.25
+    """The share of the low foot-frames taken as planted to measure that noise
+    (:func:`smplik.contacts.stance_noise`)."""
+    release_noise_gain: float = 4.0
+    """How much more than the speed threshold the lift release grows on a noisy estimate (above)."""
+    slide_speed_mps: float = 0.7
+    """With a threshold raised by ``stance_noise_ratio``: a contact run whose foot moves faster than this on average
+    (first to last frame, m/s; :func:`drop_sliding_runs`) is no contact (a sliding or walking foot, where noise
+    averages out over a planted one)."""
     contact_release_ratio: float = 1.5
     """Hysteresis: a contact run, once found, extends over neighbouring low frames up to this many times the
     speed threshold (a landing or stance whose slowest frames alone are too short)."""
@@ -153,7 +171,7 @@ class CleanConfig:
     root_from_locks: bool = True
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
-    root_lock_smoothness: float = 10.0
+    root_lock_smoothness: float = 1.0
     """Smoothness (frames^2 weight of the squared acceleration) of that root shift, at 30 frames/s (scaled by
     ``(fps / 30) ** 4`` at other rates, so it spans the same time)."""
     release_m: float = 0.03
@@ -189,7 +207,8 @@ class CleanConfig:
         for name in ("smoothness", "lock_weight", "min_cutoff_hz", "d_cutoff_hz", "contact_height_m",
                      "contact_speed_mps", "contact_noise_ratio", "glitch_min_m", "glitch_ratio", "glitch_sigmas",
                      "glitch_rotation_sigmas",
-                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness"):
+                     "noise_gain", "blend_max_m", "release_m", "root_lock_smoothness", "release_noise_gain",
+                     "slide_speed_mps"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise CleanError(f"{name} must be a positive number, got {value}.")
@@ -213,6 +232,11 @@ class CleanConfig:
             raise CleanError(f"contact_release_ratio must be >= 1, got {self.contact_release_ratio}.")
         if self.contact_min_frames < 1 or self.blend_frames < 0:
             raise CleanError("contact_min_frames must be >= 1 and blend_frames >= 0.")
+        if self.stance_noise_ratio is not None and not (np.isfinite(self.stance_noise_ratio)
+                                                        and self.stance_noise_ratio > 0):
+            raise CleanError(f"stance_noise_ratio must be a positive number or None, got {self.stance_noise_ratio}.")
+        if not 0 < self.stance_share <= 1:
+            raise CleanError(f"stance_share must be in (0, 1], got {self.stance_share}.")
         if self.hold_frames not in (0, 1):
             raise CleanError(f"hold_frames must be 0 or 1, got {self.hold_frames}.")
 
@@ -279,8 +303,8 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
         window = min(cfg.savgol_window, q.shape[0] - (1 - q.shape[0] % 2))
         if window <= cfg.savgol_order:
             return R_parent_joint.copy(), transl.copy()
-        q_s = savgol_filter(q, window, cfg.savgol_order, axis=0, mode="interp")
-        t_s = savgol_filter(transl, window, cfg.savgol_order, axis=0, mode="interp")
+        q_s = savgol_smooth(q, window, cfg.savgol_order)
+        t_s = savgol_smooth(transl, window, cfg.savgol_order)
     else:
         kw = {"min_cutoff_hz": cfg.min_cutoff_hz, "beta": cfg.beta, "d_cutoff_hz": cfg.d_cutoff_hz}
         q_s = one_euro(q, fps, **kw)
@@ -777,6 +801,37 @@ def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_fra
                 if stop - start >= min_frames:
                     out[start:stop, side] = True
                 start = stop + 1  # the frame that left the lock is free: the next run is a run of its own
+    return out
+
+
+def bridge_short_gaps(feet: np.ndarray, contact: np.ndarray, max_gap: int, max_move: float,
+                      low: np.ndarray | None = None) -> np.ndarray:
+    """Contacts (T, 2) with each gap of at most ``max_gap`` frames between two runs of one foot filled where the two
+    runs' mean positions are within ``max_move`` (units) of each other and (with ``low`` (T, 2) bool) the foot stays
+    low throughout the gap: the foot never left (a noisy estimate's planted foot wobbles out of the speed threshold
+    for a few frames); a step or a stride lifts it or moves it further.
+    feet (T, 2, 3) positions (ground frame, smoothed), contact (T, 2) bool."""
+    out = contact.copy()
+    for side in range(2):
+        runs = _runs(contact[:, side])
+        for (s0, e0), (s1, e1) in zip(runs[:-1], runs[1:], strict=True):
+            if s1 - e0 > max_gap or (low is not None and not low[e0:s1, side].all()):
+                continue
+            if np.linalg.norm(feet[s1:e1, side].mean(0) - feet[s0:e0, side].mean(0)) <= max_move:
+                out[e0:s1, side] = True
+    return out
+
+
+def drop_sliding_runs(feet: np.ndarray, contact: np.ndarray, max_speed: float) -> np.ndarray:
+    """Contacts (T, 2) without the runs whose foot moves on average faster than ``max_speed`` (units per frame):
+    the displacement from the run's first frame to its last over its length. Noise makes a planted foot's
+    frame-to-frame speed large but averages out over the run; a sliding or walking foot keeps its velocity.
+    feet (T, 2, 3) positions (ground frame, smoothed), contact (T, 2) bool."""
+    out = contact.copy()
+    for side in range(2):
+        for s, e in _runs(contact[:, side]):
+            if e - s >= 2 and np.linalg.norm(feet[e - 1, side] - feet[s, side]) > max_speed * (e - 1 - s):
+                out[s:e, side] = False
     return out
 
 

@@ -72,22 +72,20 @@ def animate_cmd(
 
     from smplik.cli.errors import console
     from workflows.animation.clean import CleanConfig
-    from workflows.animation.clips import AnimateConfig
-    from workflows.animation.run import animate_file
+    from workflows.animation.clips import AnimateConfig, AnimationError
+    from workflows.animation.run import animate_file, check_animate_options
     from workflows.cli_shared import _solver
+    from workflows.estimators import FORMATS as READERS
     from workflows.scene.recovery import RecoveryConfig
 
-    with user_errors():  # one line also when the command runs outside smplik's top level
-        check_fps(fps)
-    options = character_cli()
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
-    if preview is not None:  # before the work: a preview that cannot be written fails now, not after it
-        from workflows.animation.preview import check_preview_path
-
-        with user_errors():
-            check_preview_path(preview)
-    solver = _solver(checkpoint)
-    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
+    with user_errors():  # every option is checked before the model and the file load (one line each)
+        if format not in ("auto", *READERS):
+            raise AnimationError(f"--format must be one of auto, {', '.join(READERS)}, got {format!r}.")
+        if space not in (None, "camera", "world"):
+            raise AnimationError(f"--space must be 'camera' or 'world', got {space!r}.")
+        check_fps(fps)
+        check_animate_options(frames=frames, fps=fps, formats=formats)
         config = AnimateConfig(CleanConfig(smoothing="adaptive" if smoothing == "auto" else smoothing,  # type: ignore[arg-type]
                                            smoothness=smoothness, foot_lock=foot_lock,
                                            pose_budget_mm=pose_budget or None),
@@ -95,6 +93,13 @@ def animate_cmd(
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
+        if preview is not None:  # a preview that cannot be written fails now, not after the work
+            from workflows.animation.preview import check_preview_path
+
+            check_preview_path(preview)
+    options = character_cli()
+    solver = _solver(checkpoint)
+    with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("reading", total=None)
         shown: list[tuple[str, int]] = []
 
@@ -168,11 +173,13 @@ def edit_keyframe_cmd(
     from smplik.effector_schema import load_effector_file
     from workflows.animation.clips import AnimationError
     from workflows.animation.files import load_animation, save_animation
-    from workflows.animation.keyframe_edit import keyframe_edit
-    from workflows.animation.run import export_animation
+    from workflows.animation.keyframe_edit import check_keyframe_edit, keyframe_edit
+    from workflows.animation.run import check_animate_options, export_animation
     from workflows.cli_shared import _solver
 
-    with user_errors():
+    formats = [f.strip().lower() for f in export.split(",") if f.strip()]
+    with user_errors():  # every input checked before the model loads and before anything is written
+        check_animate_options(formats=formats)
         anim = load_animation(animation)
         if track is None:
             if len(anim.tracks) != 1:
@@ -180,9 +187,9 @@ def edit_keyframe_cmd(
                                      f"({', '.join(t.name for t in anim.tracks)}).")
             track = anim.tracks[0].name
         effs = load_effector_file(effectors).effectors
+        check_keyframe_edit(anim, track, frame, effs, window=window)
         edit = keyframe_edit(anim, track, frame, effs, _solver(checkpoint), window=window, exact=exact)
         path = save_animation(edit.animation, out or animation)
-        formats = [f.strip().lower() for f in export.split(",") if f.strip()]
         files = export_animation(edit.animation, path.parent, formats, base_dir=path.parent) if formats else []
     say(edit.line())
     for written in (path, *files):

@@ -42,17 +42,22 @@ from smplik.pose import Pose
 from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
+    bridge_short_gaps,
+    drop_sliding_runs,
+    floor_plane,
     foot_contacts,
     foot_noise,
     glitch_frames,
     ground_drift,
     ground_of,
+    height_above_floor,
     lock_feet,
     lock_plan,
     root_shift_from_locks,
     sequence_clean,
     smooth_motion,
     split_on_lift,
+    stance_noise,
 )
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
 from workflows.scene import SkeletonSource
@@ -677,15 +682,28 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
     p_s = joints_of(R_s, t_s, J_rest)
     noise = foot_noise(raw, p_s * scale, fps)
     ground = ground_of(p_s, fps, cfg, scale, noise)
+    release = cfg.release_m
     if cfg.smoothing == "adaptive" and not cfg.ground_moves:  # its paths keep little of the raw noise: contacts
         noise = None  # on their own speed (in a camera frame the depth's slow wobble stays: the noise still counts)
+        if cfg.stance_noise_ratio is not None:  # ... but what they keep moves a planted foot: the threshold and the
+            # lift release grow with it (a clean estimate's planted feet barely move: 0.35 m/s and 3 cm stay)
+            noise = (stance_noise(p_s * scale, fps, cfg.contact_height_m, cfg.stance_share)
+                     * (cfg.stance_noise_ratio / cfg.contact_noise_ratio))
+            share = float(np.max(cfg.contact_noise_ratio * noise / cfg.contact_speed_mps))
+            release = cfg.release_m * max(1.0, cfg.release_noise_gain * share)
     contacts = (foot_contacts(p_s * scale, fps, cfg, ground * scale, noise)
                 if cfg.foot_lock
                 else np.zeros((len(poses), 2), dtype=bool))
     if cfg.foot_lock and contacts.any():
         drift = ground_drift(ground, len(poses))[:, None]
-        contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.release_m,
+        contacts = split_on_lift((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, release,
                                  cfg.contact_min_frames, both_ways=True)
+        if release > cfg.release_m:  # a raised threshold admits noisy planted feet: runs must be still on average
+            low = height_above_floor(p_s[:, list(FOOT_JOINTS)] * scale, floor_plane(p_s * scale)) < cfg.contact_height_m
+            contacts = bridge_short_gaps((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, 3 * cfg.blend_frames,
+                                         release, low)
+            contacts = drop_sliding_runs((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts,
+                                         cfg.slide_speed_mps / fps)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
         ease = cfg.blend_ease and cfg.smoothing == "adaptive"
         within = cfg.hold_within_m / scale if cfg.hold_within_m is not None else None

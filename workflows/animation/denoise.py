@@ -23,16 +23,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
-from smplik.smoothing import whittaker
+from smplik.smoothing import savgol_coefficients, savgol_smooth, whittaker
 
 NOISE_WINDOW = 7
 """Frames of the local cubic fit whose residual measures the noise."""
 NOISE_ORDER = 3
-_RESIDUAL_GAIN = float(np.sqrt(1.0 - savgol_coeffs(NOISE_WINDOW, NOISE_ORDER)[NOISE_WINDOW // 2]))
+_RESIDUAL_GAIN = float(np.sqrt(1.0 - savgol_coefficients(NOISE_WINDOW, NOISE_ORDER)[NOISE_WINDOW // 2]))
 """Standard deviation of the fit's residual for unit independent noise (sqrt(1 - h0))."""
-_E = -savgol_coeffs(NOISE_WINDOW, NOISE_ORDER)
+_E = -savgol_coefficients(NOISE_WINDOW, NOISE_ORDER)
 _E[NOISE_WINDOW // 2] += 1.0
 WHITE_LAG1 = float((_E[1:] * _E[:-1]).sum() / (_E * _E).sum())
 """Lag-1 autocorrelation of the fit's residual for independent noise (the residual filter's own)."""
@@ -64,7 +63,7 @@ def estimate_noise(y: np.ndarray) -> ChannelNoise:
     T, C = y.shape
     if T < NOISE_WINDOW:
         return ChannelNoise(np.zeros(C), np.full(C, WHITE_LAG1))
-    r = y - savgol_filter(y, NOISE_WINDOW, NOISE_ORDER, axis=0, mode="interp")
+    r = y - savgol_smooth(y, NOISE_WINDOW, NOISE_ORDER)
     r = r[NOISE_WINDOW // 2:T - NOISE_WINDOW // 2]
     mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0)
     inside = np.abs(r) <= 3.0 * 1.4826 * mad  # glitches and outliers left out ...

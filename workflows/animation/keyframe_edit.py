@@ -93,6 +93,26 @@ def edit_keyframe(animation: Animation, track: str, frame: int, effectors: Seque
                          merge=merge).animation
 
 
+def check_keyframe_edit(animation: Animation, track: str, frame: int, effectors: Sequence[Effector], *,
+                        window: int) -> int:
+    """The index of ``track`` in ``animation``, after refusing (one :class:`AnimationError` line) an unknown track,
+    a frame outside it, a negative window or no effector: what :func:`keyframe_edit` checks, callable before the
+    model loads."""
+    matches = [i for i, t in enumerate(animation.tracks) if track in (t.name, t.track_id)]
+    if not matches:
+        names = ", ".join(t.name for t in animation.tracks)
+        raise AnimationError(f"no track {track!r} in the animation (tracks: {names}).")
+    t = animation.tracks[matches[0]]
+    if frame not in t.frames:
+        raise AnimationError(f"frame {frame} is outside track {t.name}'s frames {t.first_frame}.."
+                             f"{t.first_frame + t.num_frames - 1}.")
+    if window < 0:
+        raise AnimationError(f"--window must be >= 0 frames, got {window}.")
+    if not effectors:
+        raise AnimationError("a keyframe edit needs at least one effector.")
+    return matches[0]
+
+
 def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Sequence[Effector], solver: Any, *,
                   window: int, exact: bool = False, merge: bool = True) -> KeyframeEdit:
     """:func:`edit_keyframe` and what it did (module docstring: merge, drags, blend).
@@ -102,19 +122,8 @@ def keyframe_edit(animation: Animation, track: str, frame: int, effectors: Seque
     """
     from workflows.scene.edits import solve_scripted
 
-    matches = [i for i, t in enumerate(animation.tracks) if track in (t.name, t.track_id)]
-    if not matches:
-        names = ", ".join(t.name for t in animation.tracks)
-        raise AnimationError(f"no track {track!r} in the animation (tracks: {names}).")
-    n = matches[0]
+    n = check_keyframe_edit(animation, track, frame, effectors, window=window)
     t = animation.tracks[n]
-    if frame not in t.frames:
-        raise AnimationError(f"frame {frame} is outside track {t.name}'s frames {t.first_frame}.."
-                             f"{t.first_frame + t.num_frames - 1}.")
-    if window < 0:
-        raise AnimationError(f"--window must be >= 0 frames, got {window}.")
-    if not effectors:
-        raise AnimationError("a keyframe edit needs at least one effector.")
     row = frame - t.first_frame
     old = next((k.effectors for k in t.keyframes if k.frame == frame), ()) if merge else ()
     merged, given, replaced = merge_effectors(old, effectors)

@@ -205,38 +205,87 @@ def floor_meshes(height: float, lo: np.ndarray, hi: np.ndarray, tile: float) -> 
 
 @dataclass(frozen=True)
 class WorldView:
-    """The 3D view of a clip: one camera (:class:`smplik.render.View`) and the floor (its height and meshes)."""
+    """The 3D view of a clip: a camera per shown frame (:class:`smplik.render.View`) that follows the bodies, and the
+    floor (its height and meshes)."""
 
-    view: View
-    """Looks at the clip from :attr:`facing`, slightly above."""
+    views: dict[int, View]
+    """Per shown source frame: looks from :attr:`facing`, slightly above, at the bodies' smoothed path
+    (:func:`follow_centers`), from one distance for the whole clip (the closest that frames every shown frame)."""
     floor_y: float
     """Height of the floor (the clip's lowest mesh vertex), character space."""
     floor: tuple[MeshItem, ...]
     facing: np.ndarray
     """(3,) unit horizontal direction the bodies face (:func:`facing_direction`); the camera sits on that side."""
 
+    @property
+    def view(self) -> View:
+        """The first shown frame's view."""
+        return next(iter(self.views.values()))
+
+
+FOLLOW_SECONDS = 1.0
+"""The camera's follow keeps the bodies' horizontal motion slower than one period of this many seconds (a walk's
+travel) and drops faster sway (each step's)."""
+
+
+def follow_centers(paths: np.ndarray, present: np.ndarray, fps: float, height: float) -> np.ndarray:
+    """Where the camera looks at each frame (T, 3): the mean horizontal position of the bodies present (``paths``
+    (K, T, 3) pelvises of K tracks, ``present`` (K, T) bool), smoothed over time (Whittaker-Henderson, zero-phase,
+    cut-off period :data:`FOLLOW_SECONDS`: a walk is followed without the camera swaying with each step), at a fixed
+    ``height`` (the camera does not bounce with a jump). Frames without a body hold the nearest followed position."""
+    from smplik.smoothing import whittaker
+
+    T = paths.shape[1]
+    count = present.sum(0)  # (T,)
+    mean = np.where(count[:, None] > 0, (paths * present[..., None]).sum(0) / np.maximum(count, 1)[:, None], 0.0)
+    rows = np.nonzero(count > 0)[0]
+    if rows.size == 0:
+        return np.tile([0.0, height, 0.0], (T, 1))
+    mean = np.stack([np.interp(np.arange(T), rows, mean[rows, k]) for k in range(3)], -1)  # bridge the gaps
+    period = FOLLOW_SECONDS * fps  # frames; the smoother's gain is 1/2 at lam = (period / (2 pi))^4
+    smoothed = whittaker(mean, np.ones_like(mean), np.full(3, (period / (2 * np.pi)) ** 4))
+    smoothed[:, 1] = height
+    return smoothed
+
 
 def world_view(animation: Animation, frames: list[int], config: PreviewConfig = PreviewConfig()) -> WorldView:
-    """The camera (on the side the bodies face, framing every shown frame's joints) and floor of a clip."""
-    from smplik.render import fit_views
+    """The cameras (on the side the bodies face, following them: :func:`follow_centers`; one distance that frames
+    every shown frame's bodies around its followed centre, so the bodies fill the picture) and the floor."""
+    from smplik.render import View, fit_distance
 
     joints = [_track_joints(t) for t in animation.tracks]
     floor_y = floor_height(animation, joints)
-    shown = set(frames)
-    points = np.concatenate([p[[r for r, f in enumerate(t.frames) if f in shown] or [0]].reshape(-1, 3)
-                             for t, p in zip(animation.tracks, joints, strict=True)])
+    first = min(t.first_frame for t in animation.tracks)
+    T = max(t.first_frame + t.num_frames for t in animation.tracks) - first
+    paths = np.zeros((len(joints), T, 3))
+    present = np.zeros((len(joints), T), dtype=bool)
+    for k, (t, p) in enumerate(zip(animation.tracks, joints, strict=True)):
+        paths[k, t.first_frame - first:t.first_frame - first + t.num_frames] = p[:, 0]
+        present[k, t.first_frame - first:t.first_frame - first + t.num_frames] = True
     scale = max(t.scale for t in animation.tracks)
-    lo, hi = points.min(0) - 0.2 * scale, points.max(0) + 0.2 * scale
-    lo[1] = floor_y
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    top = max(float(p[..., 1].max()) for p in joints) + 0.15 * scale  # the head's top above its joint
+    centers = follow_centers(paths, present, animation.fps, 0.5 * (floor_y + top))
     facing = facing_direction(animation)
     direction = facing + np.array([0.0, math.tan(0.25), 0.0])
-    (view,) = fit_views(corners, [tuple(direction)], size=config.size)
+    distance = 0.0
+    for f in frames:
+        points = [p[f - t.first_frame] for t, p in zip(animation.tracks, joints, strict=True)
+                  if 0 <= f - t.first_frame < t.num_frames]
+        if not points:
+            continue
+        pts = np.concatenate(points)
+        pad = 0.15 * scale  # the mesh around the joints (head top, hands, feet)
+        lo, hi = pts.min(0) - pad, pts.max(0) + pad
+        lo[1] = floor_y
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        distance = max(distance, fit_distance(corners, direction, centers[f - first], size=config.size))
+    views = {f: View(tuple(direction), center=tuple(centers[f - first]), distance=distance) for f in frames}
     tile = config.tile_m * scale
-    margin = 1.5 * tile
-    floor = floor_meshes(floor_y - 0.002 * scale, np.array([lo[0] - margin, lo[2] - margin]),
-                         np.array([hi[0] + margin, hi[2] + margin]), tile)
-    return WorldView(view, floor_y, tuple(floor), facing)
+    margin = 1.5 * tile + distance  # the floor reaches the picture's edges wherever the camera goes
+    path = centers[[f - first for f in frames]]
+    floor = floor_meshes(floor_y - 0.002 * scale, np.array([path[:, 0].min() - margin, path[:, 2].min() - margin]),
+                         np.array([path[:, 0].max() + margin, path[:, 2].max() + margin]), tile)
+    return WorldView(views, floor_y, tuple(floor), facing)
 
 
 # ----------------------------------------------------------------------------- frames
@@ -311,9 +360,6 @@ def iter_preview_frames(animation: Animation, frames: list[int], *, video: str |
         world = world_view(animation, frames, config)
         size = (config.size[0] - config.size[0] % 2, config.size[1] - config.size[1] % 2)
     with Renderer(size) as renderer:
-        if world is not None:  # the floor never hides a body above it: drawn once, the bodies over that image
-            floor_image = render(list(world.floor), size=size, view=world.view, background=(1.0, 1.0, 1.0, 1.0),
-                                 renderer=renderer)
         for f in frames if order is None else order:
             scene = scene_of(animation, f)
             meshes, spheres, segments = scene_items(scene)
@@ -326,9 +372,9 @@ def iter_preview_frames(animation: Animation, frames: list[int], *, video: str |
                 bg = _resize(img, *size)
                 out = render(meshes, spheres, segments, size=size, view=cam, background=bg,
                              renderer=renderer) if (meshes or spheres or segments) else bg
-            else:
-                out = render(meshes, spheres, segments, size=size, view=world.view, background=floor_image,
-                             renderer=renderer) if (meshes or spheres or segments) else floor_image
+            else:  # the floor lies under the clip's lowest vertex: it hides no body
+                out = render([*world.floor, *meshes], spheres, segments, size=size, view=world.views[f],
+                             background=(1.0, 1.0, 1.0, 1.0), renderer=renderer)
             yield f, _stamp(out, f)
 
 
@@ -386,5 +432,24 @@ def _write_gif(animation: Animation, frames: list[int], tmp: Path, fps: float, *
         indexed[f] = to_palette(img)
     for f, img in stream:
         indexed[f] = to_palette(img)
-    images = [indexed[f] for f in frames]
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0)
+    save_gif([indexed[f] for f in frames], tmp, fps)
+
+
+GIF_TICK_MS = 10
+"""A GIF frame's delay is stored in hundredths of a second."""
+
+
+def gif_durations(n: int, fps: float) -> list[int]:
+    """Per-frame delays (ms, multiples of :data:`GIF_TICK_MS`) of ``n`` frames shown at ``fps``: frame k ends at the
+    tick nearest ``(k + 1) * 1000 / fps``, so the delays alternate (66.7 ms frames: 70, 60, 70, ...) and the whole
+    clip plays in its own time to within half a tick (one delay of ``round(1000 / fps, -1)`` ms would play a 15
+    frames/s clip 11 % fast or slow)."""
+    ends = np.rint(np.arange(n + 1) * (1000.0 / fps) / GIF_TICK_MS).astype(int) * GIF_TICK_MS
+    return [max(GIF_TICK_MS, int(d)) for d in np.diff(ends)]
+
+
+def save_gif(images: list, path: str | Path, fps: float) -> None:
+    """Write PIL ``images`` as a looping GIF played at ``fps`` (:func:`gif_durations`)."""
+    images[0].save(path, format="GIF", save_all=True, append_images=images[1:], duration=gif_durations(len(images),
+                                                                                                         fps),
+                   loop=0)

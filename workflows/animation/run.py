@@ -43,6 +43,25 @@ class AnimateOutputs:
         return (self.animation_file, *self.exported)
 
 
+def check_animate_options(*, frames: str = "all", fps: float | None = None, formats: Sequence[str] = ("bvh",)
+                          ) -> tuple[int, int] | None:
+    """Refuse bad ``scene animate`` options (one :class:`AnimationError` line) before anything heavy loads (the model,
+    the file); returns the frame range (:func:`workflows.animation.clips.parse_frames`)."""
+    from workflows.scene.export import FORMATS
+
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
+    if fps is not None:
+        from smplik.limits import LimitError, check_rate
+
+        try:
+            check_rate(fps, "--fps")
+        except LimitError as exc:
+            raise AnimationError(str(exc)) from None
+    return parse_frames(frames)
+
+
 def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSolver, *, format: str = "auto",
                  frames: str = "all", fps: float | None = None, track: str | None = None,
                  character_path: str | Path | None = None, character_options: Any = None,
@@ -57,19 +76,8 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     Joint-position motion (HumanML3D joints or features, MDM's ``results.npy``, a BVH:
     :mod:`workflows.animation.joint_motion`) is fitted first: SMPL-SI's body for its bone lengths, the SMPL-IK
     solver per frame; ``mean``/``std``: HumanML3D's Mean.npy/Std.npy for normalised features."""
-    from workflows.scene.export import FORMATS
-
-    bad = [f for f in formats if f not in FORMATS]
-    if bad:
-        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
-    if fps is not None:
-        from smplik.limits import LimitError, check_rate
-
-        try:
-            fps = check_rate(fps, "--fps")
-        except LimitError as exc:
-            raise AnimationError(str(exc)) from None
-    span = parse_frames(frames)
+    span = check_animate_options(frames=frames, fps=fps, formats=formats)
+    fps = None if fps is None else float(fps)
     character = skeleton = None
     if character_path is not None:
         from shape_inversion.options import CharacterOptions
