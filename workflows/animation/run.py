@@ -60,6 +60,10 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise AnimationError(f"--fps must be a positive frame rate, got {fps}.")
     span = parse_frames(frames)
+    from smplik.output_files import check_writes, staged_folder
+
+    reads = [results_path, character_path, getattr(character_options, "map", None)]
+    check_writes([Path(out_dir) / "animation.json"], reads)  # before any work (the exports' names: after reading)
     character = skeleton = None
     if character_path is not None:
         from shape_inversion.options import CharacterOptions
@@ -74,11 +78,18 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     animation, motions = animation_from_clip(clip, solver, fps=fps, track=track, frames=span, character=character,
                                              skeleton=skeleton, config=config, camera=first.camera,
                                              progress=progress)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = save_animation(animation, out / "animation.json")
-    written = export_animation(animation, out, formats) if formats else []
-    return AnimateOutputs(path, tuple(written), animation, tuple(motions))
+    with staged_folder(out_dir, reads=reads) as stage:  # all files or none; none of them an input
+        stage.check(animation_export_names(animation, formats))
+        path = save_animation(animation, stage.dir / "animation.json")
+        written = export_animation(animation, stage.dir, formats) if formats else []
+    return AnimateOutputs(stage.final(path), tuple(stage.final(w) for w in written), animation, tuple(motions))
+
+
+def animation_export_names(animation: Animation, formats: Sequence[str]) -> list[str]:
+    """The file names :func:`export_animation` writes (one per track and format)."""
+    from workflows.scene.export import export_names
+
+    return export_names(scene_of(animation), formats, posed=[t.name for t in animation.tracks])
 
 
 def export_animation(animation: Animation, out_dir: str | Path, formats: Sequence[str] = ("bvh",),
