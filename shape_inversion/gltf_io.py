@@ -501,13 +501,90 @@ class DracoUnavailableError(GltfError):
     """A primitive is Draco-compressed and no Draco decoder (DracoPy) is installed."""
 
 
-def draco_primitive(doc: GltfFile, prim) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
+class _Reader:
+    """Little-endian reads from a Draco buffer; running past its end raises :class:`GltfError`."""
+
+    def __init__(self, data: bytes, where: str) -> None:
+        self.data, self.pos, self.where = data, 0, where
+
+    def take(self, n: int) -> bytes:
+        if self.pos + n > len(self.data):
+            raise GltfError(f"{self.where}: the Draco header is cut short")
+        out = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+    def u8(self) -> int:
+        return self.take(1)[0]
+
+    def varint(self) -> int:
+        value = 0
+        for shift in range(0, 35, 7):  # a varUI32: at most 5 bytes
+            byte = self.u8()
+            value |= (byte & 0x7F) << shift
+            if not byte & 0x80:
+                return value
+        raise GltfError(f"{self.where}: invalid variable-length number in the Draco header")
+
+
+def _skip_draco_metadata(r: _Reader, depth: int = 0) -> None:
+    """Skip one Draco metadata element (entries, then nested elements)."""
+    if depth > 32:
+        raise GltfError(f"{r.where}: Draco metadata nested too deeply")
+    for _ in range(r.varint()):
+        r.take(r.u8())  # name
+        r.take(r.u8())  # value
+    for _ in range(r.varint()):
+        r.take(r.u8())  # sub-element name
+        _skip_draco_metadata(r, depth + 1)
+
+
+def draco_declared_counts(data: bytes, where: str) -> tuple[int, int]:
+    """``(points, faces)`` a Draco buffer declares, read from its header before anything is decoded (faces 0 for a
+    point cloud).
+
+    Layout (google/draco ``docs/spec``: ``ParseHeader``, ``DecodeMetadata``, and the connectivity header of the
+    sequential, edgebreaker and point-cloud decoders): ``"DRACO"``, major and minor version, encoder type
+    (0 point cloud, 1 triangle mesh), method (0 sequential, 1 edgebreaker / kd-tree), flags (UI16; 0x8000:
+    metadata follows); a point cloud then stores its point count as an int32; a mesh (bitstream 2.2) its
+    ``num_faces, num_points`` (sequential) or (UI8 traversal type, then) ``num_encoded_vertices, num_faces`` (edgebreaker) as varUI32.
+    Older mesh bitstreams (before 2.2) are refused (no glTF exporter writes them)."""
+    r = _Reader(data, where)
+    if r.take(5) != b"DRACO":
+        raise GltfError(f"{where}: not a Draco buffer (no 'DRACO' header)")
+    major, minor, kind, method = r.u8(), r.u8(), r.u8(), r.u8()
+    flags = int.from_bytes(r.take(2), "little")
+    if flags & 0x8000:
+        for _ in range(r.varint()):  # attribute metadata: id, element
+            r.varint()
+            _skip_draco_metadata(r)
+        _skip_draco_metadata(r)  # the file's metadata
+    if kind == 0:
+        points = int.from_bytes(r.take(4), "little", signed=True)
+        if points < 0:
+            raise GltfError(f"{where}: the Draco point cloud declares {points} points")
+        return points, 0
+    if kind != 1 or (major, minor) < (2, 2) or major > 2:
+        raise GltfError(f"{where}: unsupported Draco bitstream (version {major}.{minor}, encoder type {kind})")
+    if method == 0:
+        faces, points = r.varint(), r.varint()
+    else:
+        r.u8()  # traversal type
+        points, faces = r.varint(), r.varint()
+    return points, faces
+
+
+def draco_primitive(doc: GltfFile, prim, *, max_vertices: int = 2_000_000) -> tuple[dict[str, np.ndarray],
+                                                                                     np.ndarray] | None:
     """The decoded vertex attributes and triangles (F, 3) of a Draco-compressed primitive, else None.
 
     ``KHR_draco_mesh_compression`` (the Khronos extension): the primitive's ``extensions`` name a bufferView
     holding one Draco mesh and the Draco unique id of each attribute (``POSITION``, ``JOINTS_0``,
     ``WEIGHTS_0``...); the accessors keep only counts and types. Decoded with DracoPy
     (``pip install 'smplik[draco]'``); attributes are float64 (normalized integers as in glTF) or int64.
+
+    The vertex and triangle counts the buffer declares are checked against ``max_vertices`` before it is
+    decoded (:func:`draco_declared_counts`).
 
     Raises: DracoUnavailableError without DracoPy; GltfError on a malformed extension or Draco buffer.
     """
@@ -535,8 +612,13 @@ def draco_primitive(doc: GltfFile, prim) -> tuple[dict[str, np.ndarray], np.ndar
     data = doc.buffers[view.buffer]
     if start < 0 or length <= 0 or start + length > len(data):
         raise GltfError(f"{where}: bufferView {index} reads past the end of its buffer")
+    buffer = bytes(data[start:start + length])
+    points, faces = draco_declared_counts(buffer, where)
+    if points > max_vertices or faces > 3 * max_vertices:  # before the decoder allocates them
+        raise GltfError(f"{where}: the Draco buffer declares {points} vertices and {faces} triangles; at most "
+                        f"{max_vertices} vertices (and {3 * max_vertices} triangles) are read")
     try:
-        mesh = DracoPy.decode(bytes(data[start:start + length]))
+        mesh = DracoPy.decode(buffer)
     except Exception as exc:  # DracoPy raises its own error types for corrupt buffers
         raise GltfError(f"{where}: cannot decode the Draco buffer ({type(exc).__name__})") from None
     by_id = {a["unique_id"]: np.asarray(a["data"]) for a in getattr(mesh, "attributes", []) or []}
