@@ -142,3 +142,5 @@ def read_json(path: str | Path, error: type[Exception] = ValueError, *, what: st
         raise error(f"{path}: invalid JSON ({exc}).") from None
     except RecursionError:
         raise error(f"{path}: JSON nested too deeply.") from None
+    except ValueError as exc:  # an integer of more than 4300 digits (Python's int conversion limit), ...
+        raise error(f"{path}: invalid JSON number ({' '.join(str(exc).split())[:160]}).") from None

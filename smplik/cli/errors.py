@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import os
 import zipfile
 from collections.abc import Iterator
 from typing import NoReturn
@@ -99,8 +100,39 @@ def user_errors() -> Iterator[None]:
         raise
     except Exception as exc:
         if isinstance(exc, ValueError) or is_user_error(exc):
-            fail(exc)
+            fail(_with_inputs(error_message(exc)) if _is_foreign(exc) else exc)
         raise
+
+
+def _is_foreign(exc: BaseException) -> bool:
+    """A ``ValueError`` raised by a library (numpy's "SVD did not converge" or "Maximum allowed size exceeded",
+    scipy's "Found zero norm quaternions", the OS's "embedded null byte", Python's 4300-digit integer limit):
+    its message names no file."""
+    return isinstance(exc, ValueError) and not isinstance(exc, OSError) \
+        and type(exc).__module__.split(".")[0] not in PROJECT_PACKAGES
+
+
+def _with_inputs(message: str) -> str:
+    """``message`` prefixed with the running command's input files (its path arguments and options that name
+    existing files, outputs excluded) when it names none of them, so a library's error says which input it was
+    reading."""
+    from smplik.cli.outputs import OUTPUT_PARAMS, current_params
+
+    inputs = []
+    for name, value in current_params().items():
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if name not in OUTPUT_PARAMS and isinstance(v, os.PathLike) and _is_file(v):
+                inputs.append(str(v))
+    if not inputs or any(i in message for i in inputs):
+        return message
+    return f"{', '.join(inputs)}: {message}"
+
+
+def _is_file(path: os.PathLike) -> bool:
+    try:
+        return os.path.isfile(path)
+    except (OSError, ValueError):
+        return False
 
 
 def run_guarded(app: typer.Typer, args: list[str] | None = None) -> None:

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import contextvars
 import os
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,15 @@ IN_PLACE = {"scene solve": "scene", "scene edit-keyframe": "animation"}
 
 class OutputPathError(ValueError):
     """An output path that would overwrite one of the command's inputs."""
+
+
+_PARAMS: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar("smplik_command_params",
+                                                                               default=None)
+
+
+def current_params() -> dict[str, Any]:
+    """The parsed parameters of the command running now (empty outside one): error messages name its inputs."""
+    return _PARAMS.get() or {}
 
 
 def _refuse_empty(param: Any) -> None:
@@ -97,7 +107,11 @@ def guard_outputs(command: Any) -> Any:
         def guarded_invoke(ctx: Any) -> Any:
             path = ctx.command_path.split(" ", 1)[1] if " " in ctx.command_path else ctx.command_path
             check_outputs(path, ctx.params)
-            return invoke(ctx)
+            token = _PARAMS.set(dict(ctx.params))
+            try:
+                return invoke(ctx)
+            finally:
+                _PARAMS.reset(token)
 
         command.invoke = guarded_invoke
     return command
