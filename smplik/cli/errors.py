@@ -94,8 +94,10 @@ def user_errors() -> Iterator[None]:
     except typer.BadParameter as exc:  # raised by a command body: one line too
         fail(exc.format_message())
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's status for SIGINT; writes are atomic
-        print_error("interrupted (Ctrl-C): stopped; no file was left half-written.")
-        raise typer.Exit(130) from None
+        from smplik.cli import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE
+
+        print_error(INTERRUPTED_MESSAGE)
+        raise typer.Exit(INTERRUPTED_EXIT) from None
     except (typer.Exit, typer.Abort, SystemExit, _CLICK_EXCEPTION):
         raise
     except Exception as exc:
