@@ -14,9 +14,13 @@ Two helpers every writing command shares:
   - a run that fails (an error, Ctrl-C) removes the temporary folder and every folder it created, so nothing
     is written and no empty ``OUT`` is left;
   - when ``OUT`` did not exist, the temporary folder is renamed to ``OUT`` (one atomic rename);
-  - when it exists, the old files about to be replaced are first hard-linked into the temporary folder, a
-    commit journal is written, then the new files are renamed in one by one; an exception in between puts
-    the old files back. A process killed (SIGKILL) during those renames leaves the journal: the next
+  - when it exists, every other file of ``OUT`` is hard-linked into the temporary folder, which then trades
+    places with ``OUT`` in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``): a process killed at any
+    moment leaves ``OUT`` all-old or all-new;
+  - where that swap is not possible (another system or file system, ``OUT`` a symlink or over
+    :data:`MAX_SWAP_ENTRIES` entries), the old files about to be replaced are hard-linked into the temporary
+    folder, a commit journal is written, then the new files are renamed in one by one; an exception in between
+    puts the old files back. A process killed (SIGKILL) during those renames leaves the journal: the next
     staged write to ``OUT`` (any command writing there) finishes the move first (roll forward: every new
     file is complete before the journal is written), so the folder ends all-new; one killed before the
     journal leaves ``OUT`` all-old and its temporary folder is removed by the next write.
@@ -39,8 +43,9 @@ JOURNAL = ".smplik-commit.json"
 _BACKUP = ".smplik-old"
 _STAGE_NAME = re.compile(r"^\.(?P<name>.+)\.smplik-(?P<pid>\d+)-[A-Za-z0-9_]{8}\.tmp$")
 _TEST_HOOK = "_SMPLIK_TEST_COMMIT_HOOK"
-"""Tests only: a path; after the first file of a commit is moved, this file is created and the process waits
-for it to be removed (so a test can SIGKILL it mid-commit at a deterministic point)."""
+"""Tests only: ``POINT:PATH``; at the commit point ``POINT`` (``swap``: the mirror made, before the folder swap;
+``swapped``: after it; ``moved``: the journaled commit's first file moved) the file ``PATH`` is created and the
+process waits for it to be removed, so a test can SIGKILL it there (a deterministic point)."""
 
 
 class OutputPathError(ValueError):
@@ -215,6 +220,57 @@ class _NothingWritten(Exception):
     """A staged block that wrote no file (nothing to commit)."""
 
 
+MAX_SWAP_ENTRIES = 10_000
+"""Most entries of an existing ``OUT`` (files and folders, recursively) mirrored for an atomic folder swap; a
+larger folder (``--out .`` in a home folder) gets the journaled file-by-file commit."""
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the folders ``a`` and ``b`` in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``); False where
+    the system or the file system cannot."""
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd = -100
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    return renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE) == 0
+
+
+def _mirror_others(stage: Path, out: Path, names: list[str]) -> bool:
+    """Hard-link every file of ``out`` that the command does not replace into ``stage`` (folders recreated), so
+    that ``stage`` is the whole new ``out``; False when that is not possible (too many entries, a link that cannot
+    be made, a special file)."""
+    new = set(names)
+    count = 0
+    for dirpath, dirnames, filenames in os.walk(out):
+        rel_dir = Path(dirpath).relative_to(out)
+        for d in dirnames:
+            count += 1
+            if Path(dirpath, d).is_symlink():
+                return False
+            (stage / rel_dir / d).mkdir(exist_ok=True)
+        for f in filenames:
+            count += 1
+            if count > MAX_SWAP_ENTRIES:
+                return False
+            rel = str(rel_dir / f) if str(rel_dir) != "." else f
+            if rel in new:
+                continue
+            try:
+                os.link(Path(dirpath, f), stage / rel, follow_symlinks=False)
+            except OSError:
+                return False
+    return True
+
+
 def _commit(stage: Path, out: Path, names: list[str]) -> None:
     if not out.exists():
         try:
@@ -222,6 +278,17 @@ def _commit(stage: Path, out: Path, names: list[str]) -> None:
             return
         except OSError:
             out.mkdir(parents=True, exist_ok=True)
+    if stage.parent == out.parent and not out.is_symlink() and _mirror_others(stage, out, names):
+        with contextlib.suppress(OSError):
+            shutil.copystat(out, stage)  # OUT keeps its mode
+        _test_pause("swap")
+        if _exchange(stage, out):  # one atomic step: OUT is all-new (its other files kept, as links)
+            _test_pause("swapped")
+            shutil.rmtree(stage, ignore_errors=True)  # now the old folder
+            return
+        for name in _files_under(stage):  # the mirror is not used: drop the links again
+            if str(name) not in names:
+                (stage / name).unlink(missing_ok=True)
     backup = stage / _BACKUP
     old = [n for n in names if (out / n).is_file()]
     for n in old:  # the files about to be replaced, kept until every new file is in
@@ -240,8 +307,8 @@ def _commit(stage: Path, out: Path, names: list[str]) -> None:
             (out / n).parent.mkdir(parents=True, exist_ok=True)
             os.replace(stage / n, out / n)
             moved.append(n)
-            if i == 0 and os.environ.get(_TEST_HOOK):
-                _test_pause(Path(os.environ[_TEST_HOOK]))
+            if i == 0:
+                _test_pause("moved")
     except BaseException:
         journal.unlink(missing_ok=True)
         for n in moved:  # put the old files back (new files that replaced nothing are removed)
@@ -253,9 +320,13 @@ def _commit(stage: Path, out: Path, names: list[str]) -> None:
     shutil.rmtree(stage, ignore_errors=True)
 
 
-def _test_pause(flag: Path) -> None:
+def _test_pause(point: str) -> None:
+    hook = os.environ.get(_TEST_HOOK, "")
+    if not hook.startswith(point + ":"):
+        return
     import time
 
+    flag = Path(hook[len(point) + 1:])
     flag.write_text(str(os.getpid()))
     while flag.exists():  # the test kills us here
         time.sleep(0.01)

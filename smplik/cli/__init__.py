@@ -24,13 +24,19 @@ def _unraisable(info: object) -> None:
     sys.__unraisablehook__(info)  # type: ignore[arg-type]
 
 
+_reported: list[bool] = []
+
+
 def interrupted() -> int:
-    """Print the one Ctrl-C line (plainly: rich may be the module being imported) and return the exit status."""
-    try:
-        sys.stderr.write(f"error: {INTERRUPTED_MESSAGE}\n")
-        sys.stderr.flush()
-    except (OSError, ValueError):
-        pass
+    """Print the one Ctrl-C line (plainly: rich may be the module being imported; once per run, whichever layer
+    sees the interrupt first) and return the exit status."""
+    if not _reported:
+        _reported.append(True)
+        try:
+            sys.stderr.write(f"error: {INTERRUPTED_MESSAGE}\n")
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
     return INTERRUPTED_EXIT
 
 
@@ -42,5 +48,21 @@ def main() -> None:
         from smplik.cli.main import main as _main
 
         _main()
+        code: object = 0
     except KeyboardInterrupt:
-        raise SystemExit(interrupted()) from None
+        code = interrupted()
+    except SystemExit as exc:
+        code = exc.code
+    if code == INTERRUPTED_EXIT and _reported:
+        # CPython marks a Ctrl-C that hit code run by exec() (a dataclass being built during an import) as
+        # unhandled even once caught, and then kills itself with SIGINT at exit: leave with 130 directly (every
+        # file was already closed or removed by the commands' context managers).
+        import os
+
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError, AttributeError):
+                pass
+        os._exit(INTERRUPTED_EXIT)
+    raise SystemExit(code)

@@ -94,10 +94,9 @@ def user_errors() -> Iterator[None]:
     except typer.BadParameter as exc:  # raised by a command body: one line too
         fail(exc.format_message())
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's status for SIGINT; writes are atomic
-        from smplik.cli import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE
+        from smplik.cli import interrupted
 
-        print_error(INTERRUPTED_MESSAGE)
-        raise typer.Exit(INTERRUPTED_EXIT) from None
+        raise typer.Exit(interrupted()) from None
     except (typer.Exit, typer.Abort, SystemExit, _CLICK_EXCEPTION):
         raise
     except Exception as exc:

@@ -147,7 +147,7 @@ class _Interrupted(Exception):
 def run_command_tree(main: Any, **kwargs: Any) -> int:
     """Run a click ``main`` in non-standalone mode; return the exit status. A user error (including a click
     usage error) prints one ``error:`` line and gives 1; Ctrl-C one line and 130; a bug keeps its traceback."""
-    from smplik.cli import interrupted
+    from smplik.cli import INTERRUPTED_EXIT, interrupted
 
     try:
         result = main(standalone_mode=False, **kwargs)
@@ -173,6 +173,8 @@ def run_command_tree(main: Any, **kwargs: Any) -> int:
             print_error(error_message(exc))
             return 1
         raise
+    if result == INTERRUPTED_EXIT:  # typer turns a Ctrl-C while parsing into a silent exit 130: say it
+        return interrupted()
     return result if isinstance(result, int) else 0
 
 
