@@ -23,7 +23,8 @@ a failed run must leave it, a successful one must write a complete file (else ``
 Then the round-3 cases of issue 36 (``benchmarks/fuzz_round3.py``: config values, pose-cache values, WHAM
 ``frame_ids``, glTF numbers and bufferViews, outputs that are inputs or empty, strict options); an input a
 case names in ``keep`` must come out byte-identical (else ``input_overwritten``). ``--round3-only`` runs
-just those (``benchmarks/results/fuzz_round3.json``).
+just those (``benchmarks/results/fuzz_round3.json``). Then the round-4 output and reader cases of issue 45
+(``benchmarks/fuzz_round4_outputs.py``: outputs inside ``--out`` that are inputs, glTF/VRM limits, budgets).
 
     PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 240 --workers 2
 
@@ -861,6 +862,11 @@ def main() -> None:
             from fuzz_round3 import round3_cases  # issue 36: each case must be a clean error
 
             crafted += round3_cases(work / "round3")
+            # --- issue 45, outputs and glTF/VRM readers (benchmarks/fuzz_round4_outputs.py) ---
+            from fuzz_round4_outputs import round4_output_cases
+
+            crafted += round4_output_cases(work / "round4_outputs")
+            # --- end of issue 45, outputs ---
             with ThreadPoolExecutor(args.workers) as pool:
                 for res in pool.map(lambda c: run_case(c, args.timeout, env), crafted):
                     record(res)
