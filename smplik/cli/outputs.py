@@ -9,6 +9,10 @@
   path parameter naming an existing file, through symlinks and hard links: :func:`os.path.samefile`) is
   refused with one ``error:`` line, so ``smplik invert-shape X.bvh --out X.bvh`` leaves ``X.bvh`` as it was.
   Commands that edit a file in place by design (:data:`IN_PLACE`) may write back to that one input.
+
+The files a command writes *inside* an output folder, and the inputs it discovers while working (a scene's
+skeletons), are compared by the command itself with :mod:`smplik.output_files` (``check_writes``,
+``staged_folder``), which also makes its multi-file outputs all-new or all-old.
 """
 
 from __future__ import annotations
@@ -20,14 +24,15 @@ from typing import Any
 
 import typer
 
+from smplik.output_files import OutputPathError  # one error class for both checks
+
 OUTPUT_PARAMS = frozenset({"out", "render", "render_png", "preview", "onnx", "markdown", "results"})
 """Parameter names (click's, i.e. the function arguments) of the options that name a file or folder to write."""
 
 IN_PLACE = {"scene solve": "scene", "scene edit-keyframe": "animation"}
 """Commands whose output defaults to overwriting one input (``--out`` omitted): that input may be the output."""
 
-class OutputPathError(ValueError):
-    """An output path that would overwrite one of the command's inputs."""
+__all__ = ["IN_PLACE", "OUTPUT_PARAMS", "OutputPathError", "check_outputs", "current_params", "guard_outputs"]
 
 
 _PARAMS: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar("smplik_command_params",
