@@ -118,10 +118,16 @@ class SmplikGroup(TyperGroup):
     def list_commands(self, ctx: Any) -> list[str]:
         return list(COMMANDS)
 
+    def make_context(self, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return super().make_context(*args, **kwargs)
+        except KeyboardInterrupt:  # before typer turns it into a silent exit 130 (click: Abort, an empty line)
+            raise _Interrupted from None
+
     def invoke(self, ctx: Any) -> Any:
         try:
             return super().invoke(ctx)
-        except KeyboardInterrupt:  # before click turns it into Abort (and prints an empty line)
+        except KeyboardInterrupt:  # the same while a command's module is imported or its arguments parsed
             raise _Interrupted from None
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
@@ -147,7 +153,7 @@ class _Interrupted(Exception):
 def run_command_tree(main: Any, **kwargs: Any) -> int:
     """Run a click ``main`` in non-standalone mode; return the exit status. A user error (including a click
     usage error) prints one ``error:`` line and gives 1; Ctrl-C one line and 130; a bug keeps its traceback."""
-    from smplik.cli import INTERRUPTED_EXIT, interrupted
+    from smplik.cli import interrupted
 
     try:
         result = main(standalone_mode=False, **kwargs)
@@ -173,8 +179,6 @@ def run_command_tree(main: Any, **kwargs: Any) -> int:
             print_error(error_message(exc))
             return 1
         raise
-    if result == INTERRUPTED_EXIT:  # typer turns a Ctrl-C while parsing into a silent exit 130: say it
-        return interrupted()
     return result if isinstance(result, int) else 0
 
 
