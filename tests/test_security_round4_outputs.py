@@ -166,6 +166,21 @@ def test_a_refused_estimate_leaves_no_output_folder(tmp_path):
     assert not (tmp_path / "new").exists() and not leftovers(tmp_path)
 
 
+def test_data_build_refuses_to_write_over_a_clip_it_reads(tmp_path):
+    src = tmp_path / "amass"
+    src.mkdir()
+    frames = 20
+    poses = np.zeros((frames, 72))
+    poses[:, 0] = np.pi / 2
+    for name in ("clip0", "clip1"):  # AMASS's layout (poses, trans, betas, gender, mocap_framerate)
+        np.savez(src / f"{name}_poses.npz", poses=poses, trans=np.zeros((frames, 3)), betas=np.zeros(10),
+                 gender="neutral", mocap_framerate=30.0)
+    before = digest(src)
+    assert_refused(["data", "build", "--amass", src, "--out", src / "clip1_poses.npz"], "clip1_poses.npz",
+                   "would overwrite the input")
+    assert digest(src) == before
+
+
 def test_a_preview_naming_a_folder_is_refused_before_the_work(tmp_path):
     folder = tmp_path / "p.gif"
     folder.mkdir()
