@@ -140,6 +140,22 @@ def test_O4_export_refuses_to_overwrite_the_scenes_skeleton(material, tmp_path):
     assert digest(out) == before and not leftovers(tmp_path)
 
 
+def test_edit_keyframe_refuses_to_export_over_the_tracks_skeleton(material, tmp_path):
+    out, first = tmp_path / "OUT", tmp_path / "first"
+    out.mkdir()
+    character = out / "person_0.bvh"
+    character.write_bytes(material["bvh"].read_bytes())
+    rc, lines = run_cli("track", material["trackers"], "--character", character, "--out", first, "--export", "")
+    assert rc == 0, lines
+    effectors = tmp_path / "e.json"
+    effectors.write_text(json.dumps({"format": "smplik-effectors", "version": 1, "effectors": [
+        {"joint": "left_wrist", "type": "position", "value": [0.3, 1.2, 0.2]}]}))
+    before, anim = digest(out), (first / "animation.json").read_bytes()
+    assert_refused(["scene", "edit-keyframe", first / "animation.json", "--frame", "0", "--effectors", effectors,
+                    "--out", out / "edited.json", "--export", "bvh"], "person_0.bvh", "would overwrite the input")
+    assert digest(out) == before and (first / "animation.json").read_bytes() == anim and not leftovers(tmp_path)
+
+
 def test_render_refuses_a_scene_image_that_is_a_device_and_its_own_image_as_output(material, tmp_path):
     import dataclasses
 
