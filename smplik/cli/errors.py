@@ -94,7 +94,7 @@ def user_errors() -> Iterator[None]:
     except typer.BadParameter as exc:  # raised by a command body: one line too
         fail(exc.format_message())
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's status for SIGINT; writes are atomic
-        from smplik.cli import interrupted
+        from smplik.cli.interrupt import interrupted
 
         raise typer.Exit(interrupted()) from None
     except (typer.Exit, typer.Abort, SystemExit, _CLICK_EXCEPTION):

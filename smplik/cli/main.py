@@ -153,7 +153,7 @@ class _Interrupted(Exception):
 def run_command_tree(main: Any, **kwargs: Any) -> int:
     """Run a click ``main`` in non-standalone mode; return the exit status. A user error (including a click
     usage error) prints one ``error:`` line and gives 1; Ctrl-C one line and 130; a bug keeps its traceback."""
-    from smplik.cli import interrupted
+    from smplik.cli.interrupt import interrupted
 
     try:
         result = main(standalone_mode=False, **kwargs)
