@@ -547,8 +547,8 @@ def draco_declared_counts(data: bytes, where: str) -> tuple[int, int]:
     sequential, edgebreaker and point-cloud decoders): ``"DRACO"``, major and minor version, encoder type
     (0 point cloud, 1 triangle mesh), method (0 sequential, 1 edgebreaker / kd-tree), flags (UI16; 0x8000:
     metadata follows); a point cloud then stores its point count as an int32; a mesh (bitstream 2.2) its
-    ``num_faces, num_points`` (sequential) or (UI8 traversal type, then) ``num_encoded_vertices, num_faces`` (edgebreaker) as varUI32.
-    Older mesh bitstreams (before 2.2) are refused (no glTF exporter writes them)."""
+    ``num_faces, num_points`` (sequential) or, after a UI8 traversal type, ``num_encoded_vertices, num_faces``
+    (edgebreaker) as varUI32. Older mesh bitstreams (before 2.2) are refused (no glTF exporter writes them)."""
     r = _Reader(data, where)
     if r.take(5) != b"DRACO":
         raise GltfError(f"{where}: not a Draco buffer (no 'DRACO' header)")
