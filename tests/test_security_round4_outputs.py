@@ -363,6 +363,25 @@ def test_ctrl_c_during_imports_and_mid_run_gives_one_line_and_130(material, tmp_
         assert not out.exists() and not leftovers(tmp_path)
 
 
+def test_a_ctrl_c_swallowed_by_a_finalizer_stops_the_run(monkeypatch, capsys):
+    """Python reports a KeyboardInterrupt raised in ``__del__`` as "Exception ignored in ..." (4 lines) and carries
+    on; smplik's hook raises it again in the main thread instead, silently."""
+    from smplik.cli.interrupt import unraisable_hook
+
+    class Finalizer:
+        def __del__(self) -> None:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(sys, "unraisablehook", unraisable_hook)
+    steps = [0]
+    with pytest.raises(KeyboardInterrupt):
+        Finalizer()  # collected at once: its __del__'s Ctrl-C is "unraisable"
+        while steps[0] < 10**9:  # the run would go on (minutes); the re-raised interrupt stops it here
+            steps[0] += 1
+    assert steps[0] < 10**9
+    assert "Exception ignored" not in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- glTF / VRM / Draco
 
 
