@@ -27,7 +27,8 @@ just those (``benchmarks/results/fuzz_round3.json``). Then the round-4 budget ca
 (``benchmarks/fuzz_round4_budgets.py``: rates and resampled frames, tracker and SteamVR JSON types, tracking and IK
 model files through the one reader, keyframe effectors, previews); each must be a clean error holding its key or
 limit variable (``round4_budgets`` in the report); ``--round4-budgets-only`` runs just those
-(``benchmarks/results/fuzz_round4_budgets.json``).
+(``benchmarks/results/fuzz_round4_budgets.json``). Then the round-4 output and reader cases of issue 45
+(``benchmarks/fuzz_round4_outputs.py``: outputs inside ``--out`` that are inputs, glTF/VRM limits, budgets).
 
     PYTHONPATH=. python benchmarks/fuzz_campaign.py --seconds 240 --workers 2
 
@@ -880,6 +881,11 @@ def main() -> None:
             from fuzz_round3 import round3_cases  # issue 36: each case must be a clean error
 
             crafted += round3_cases(work / "round3")
+            # --- issue 45, outputs and glTF/VRM readers (benchmarks/fuzz_round4_outputs.py) ---
+            from fuzz_round4_outputs import round4_output_cases
+
+            crafted += round4_output_cases(work / "round4_outputs")
+            # --- end of issue 45, outputs ---
             with ThreadPoolExecutor(args.workers) as pool:
                 for res in pool.map(lambda c: run_case(c, args.timeout, env), crafted):
                     record(res)

@@ -75,6 +75,14 @@ def build(
         sources = dataset.find_sources(root, kind)  # type: ignore[arg-type]
     except (FileNotFoundError, ValueError) as exc:
         raise typer.BadParameter(str(exc), param_hint=option) from None
+    from smplik.output_files import OutputPathError, check_writes
+
+    model_files = [p for p in Path(model_dir).iterdir() if p.is_file()] if model_dir and Path(model_dir).is_dir() \
+        else []
+    try:  # the cache never replaces a clip it reads (an AMASS .npz) or a body model file
+        check_writes([out], [s.path for s in sources] + model_files)
+    except OutputPathError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--out") from None
     if split is not None and split_by_subject is not None:
         raise typer.BadParameter("give --split FILE or --split-by-subject SEED, not both.")
     if split is not None:

@@ -28,10 +28,13 @@ from urllib.parse import unquote
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from smplik.limits import LimitError, check_array, check_input_file
+from smplik.limits import DEFAULT_MAX_JOINTS, Limit, LimitError, check_array, check_input_file
 
 MAX_GLTF_BYTES = 512 * 1024 * 1024
 """Largest glTF/GLB file or external buffer read (bytes)."""
+GLTF_NODES = Limit("nodes (glTF file)", "SMPLIK_MAX_GLTF_NODES", 100_000)
+"""Most nodes of one glTF/GLB/VRM file, counted in its JSON before pygltflib parses it or any node is traversed
+(real characters have a few hundred; a file of 200,000 extra nodes is refused at once)."""
 
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _TYPE_SIZE = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -153,14 +156,24 @@ def _world_matrices(path: Path, gltf) -> tuple[np.ndarray, tuple[int, ...]]:
     roots = [i for i in range(n) if parent[i] < 0]
     stack = list(roots)
     done = 0
-    while stack:  # iterative: deep node chains need no recursion
-        i = stack.pop()
-        world[i] = local[i] if parent[i] < 0 else world[parent[i]] @ local[i]
-        done += 1
-        stack.extend(nodes[i].children or [])
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below, naming the node
+        while stack:  # iterative: deep node chains need no recursion
+            i = stack.pop()
+            world[i] = local[i] if parent[i] < 0 else world[parent[i]] @ local[i]
+            done += 1
+            stack.extend(nodes[i].children or [])
     if done != n:
         raise GltfError(f"{path}: the node graph has a cycle")
+    bad = np.flatnonzero(~np.isfinite(world).all(axis=(1, 2)) | (np.abs(world) > MAX_TRANSFORM).any(axis=(1, 2)))
+    if len(bad):  # finite factors can compose to inf (a root matrix 1e200 times a scale 1e200)
+        k = int(bad[0])
+        raise GltfError(f"{path}: node {k} ({nodes[k].name or 'unnamed'!r}): its world transform (the product of "
+                        f"its ancestors' transforms) is not finite or beyond {MAX_TRANSFORM:g}")
     return world, tuple(parent)
+
+
+MAX_TRANSFORM = 1e12
+"""Largest magnitude of a composed node world matrix entry (metres or scale factors; larger is not a character)."""
 
 
 def _nonfinite_key(node: object, where: str = "") -> str | None:
@@ -175,9 +188,11 @@ def _nonfinite_key(node: object, where: str = "") -> str | None:
     return None
 
 
-def _check_json_numbers(path: Path, binary: bool) -> None:
+def _check_json_numbers(path: Path, binary: bool, max_joints: int = DEFAULT_MAX_JOINTS) -> None:
     """Refuse a glTF whose JSON holds ``Infinity``, ``NaN`` or a number beyond float range (not JSON; Python's
-    parser and pygltflib take them and fail later with an ``OverflowError``), naming the key."""
+    parser and pygltflib take them and fail later with an ``OverflowError``), naming the key; and one with more
+    nodes than :data:`GLTF_NODES` or a skin of more than ``max_joints`` joints, before anything is parsed or
+    traversed."""
     data = path.read_bytes()
     if binary:
         if len(data) < 20 or data[16:20] != b"JSON":
@@ -187,6 +202,19 @@ def _check_json_numbers(path: Path, binary: bool) -> None:
         doc = json.loads(data)
     except (ValueError, RecursionError):
         return  # pygltflib names the problem
+    if not isinstance(doc, dict):
+        return  # pygltflib names the problem
+    nodes, skins = doc.get("nodes"), doc.get("skins")
+    if isinstance(nodes, list):
+        try:
+            GLTF_NODES.check(len(nodes), f"{path}: nodes")
+        except LimitError as exc:
+            raise GltfError(str(exc)) from None
+    for i, skin in enumerate(skins if isinstance(skins, list) else []):
+        joints = skin.get("joints") if isinstance(skin, dict) else None
+        if isinstance(joints, list) and len(joints) > max_joints:
+            raise GltfError(f"{path}: skins[{i}] has {len(joints)} joints, more than the limit {max_joints} (raise "
+                            "it with --max-joints if this file is legitimate)")
     key = _nonfinite_key(doc)
     if key is not None:
         raise GltfError(f"{path}: '{key}' holds a non-finite number (Infinity, NaN or beyond float range)")
@@ -250,8 +278,11 @@ def _check_required_extensions(path: Path, gltf) -> None:
                             f"{how}")
 
 
-def load_gltf(path: str | Path) -> GltfFile:
-    """Load a ``.gltf`` (JSON, external or data-URI buffers) or ``.glb`` file; raises :class:`GltfError`."""
+def load_gltf(path: str | Path, *, max_joints: int = DEFAULT_MAX_JOINTS) -> GltfFile:
+    """Load a ``.gltf`` (JSON, external or data-URI buffers) or ``.glb`` file; raises :class:`GltfError`.
+
+    Its node count (:data:`GLTF_NODES`) and every skin's joint count (``max_joints``) are checked in the JSON
+    before pygltflib parses it."""
     import pygltflib
 
     path = Path(path)
@@ -265,7 +296,7 @@ def load_gltf(path: str | Path) -> GltfFile:
         raise GltfError(f"Cannot read glTF file {path}: {exc.strerror or exc}") from None
     if size > MAX_GLTF_BYTES:
         raise GltfError(f"{path}: {size} bytes exceeds the glTF size limit {MAX_GLTF_BYTES}")
-    _check_json_numbers(path, magic == b"glTF")
+    _check_json_numbers(path, magic == b"glTF", max_joints)
     try:
         gltf = pygltflib.GLTF2.load_binary(path) if magic == b"glTF" else pygltflib.GLTF2.load_json(path)
     except (ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError, struct.error,
@@ -360,6 +391,11 @@ class GltfRig:
     T_world_joint_bind: np.ndarray = field(repr=False)
 
 
+MAX_BIND_CANDIDATES = 64
+"""Most ancestor frames of the root joint tried as the bind space (:func:`read_rig`); a chain of 100,000 nodes
+above the skeleton costs no more than 64."""
+
+
 def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRig:
     """The skin's joints and bind pose.
 
@@ -389,12 +425,7 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
     else:
         ibm = np.broadcast_to(np.eye(4), (J, 4, 4)).copy()
     index = {n: k for k, n in enumerate(joints)}
-    depth = []
-    for n in joints:  # parents first: sort by the number of joint ancestors (stable)
-        d, k = 0, _joint_parent(doc, n, index)
-        while k >= 0:
-            d, k = d + 1, _joint_parent(doc, joints[k], index)
-        depth.append(d)
+    depth = _depths(doc.parent, joints, index)  # parents first: sort by the number of joint ancestors (stable)
     order = tuple(sorted(range(J), key=lambda k: depth[k]))
     joints, ibm = tuple(joints[k] for k in order), ibm[list(order)]
     root = 0
@@ -418,7 +449,7 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
         meshes = [doc.world[i] for i, node in enumerate(gltf.nodes or []) if node.skin == skin]
         candidates = [np.eye(4), *meshes[:1], parent_world]
         a = doc.parent[joints[root]]
-        while a >= 0:
+        while a >= 0 and len(candidates) < MAX_BIND_CANDIDATES:  # the nearest ancestors (real files: a few)
             candidates.append(doc.world[a])
             a = doc.parent[a]
         # an ancestor scaled after binding (an armature scaled 0.01 whose bones were then written in cm, the
@@ -448,11 +479,29 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
 
 
-def read_node_rig(doc: GltfFile, node: int) -> GltfRig:
+def _depths(parent: tuple[int, ...], members: tuple[int, ...] | list[int], index: dict[int, int]) -> list[int]:
+    """The number of strict ancestors of each of ``members`` (node indices) that are members too (``index``: the
+    members as keys); linear time (each node's count is computed once), so a deep chain costs O(n), not O(n^2)."""
+    memo: dict[int, int] = {}
+    out = []
+    for n in members:
+        chain, x = [], n
+        while x >= 0 and x not in memo:
+            chain.append(x)
+            x = parent[x]
+        for q in reversed(chain):
+            p = parent[q]
+            memo[q] = 0 if p < 0 else memo[p] + (1 if p in index else 0)
+        out.append(memo[n])
+    return out
+
+
+def read_node_rig(doc: GltfFile, node: int, *, max_joints: int = DEFAULT_MAX_JOINTS) -> GltfRig:
     """A skeleton of plain nodes (no skin): the whole hierarchy holding ``node``, in its default pose.
 
     For a humanoid defined on nodes only (a VRM whose humanoid table names unskinned nodes).
-    ``skin`` is -1; the bind pose is the nodes' world transforms.
+    ``skin`` is -1; the bind pose is the nodes' world transforms. More than ``max_joints`` nodes are refused
+    as soon as they are counted.
     """
     top = node
     while doc.parent[top] >= 0:
@@ -461,14 +510,12 @@ def read_node_rig(doc: GltfFile, node: int) -> GltfRig:
     while stack:
         n = stack.pop()
         members.append(n)
+        if len(members) > max_joints:
+            raise GltfError(f"{doc.path}: the node hierarchy of node {node} has more than {max_joints} nodes (the "
+                            "joint limit; raise it with --max-joints if this file is legitimate)")
         stack.extend(doc.gltf.nodes[n].children or [])
-    index = set(members)
-    depth = {}
-    for n in members:
-        d, p = 0, doc.parent[n]
-        while p >= 0 and p in index:
-            d, p = d + 1, doc.parent[p]
-        depth[n] = d
+    index = {n: k for k, n in enumerate(members)}
+    depth = dict(zip(members, _depths(doc.parent, members, index), strict=True))
     joints = tuple(sorted(members, key=lambda n: (depth[n], n)))
     world = doc.world[list(joints)].copy()
     return GltfRig(doc, -1, joints, tuple(range(len(joints))), np.linalg.inv(world), np.eye(4), world)
@@ -495,13 +542,90 @@ class DracoUnavailableError(GltfError):
     """A primitive is Draco-compressed and no Draco decoder (DracoPy) is installed."""
 
 
-def draco_primitive(doc: GltfFile, prim) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
+class _Reader:
+    """Little-endian reads from a Draco buffer; running past its end raises :class:`GltfError`."""
+
+    def __init__(self, data: bytes, where: str) -> None:
+        self.data, self.pos, self.where = data, 0, where
+
+    def take(self, n: int) -> bytes:
+        if self.pos + n > len(self.data):
+            raise GltfError(f"{self.where}: the Draco header is cut short")
+        out = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+    def u8(self) -> int:
+        return self.take(1)[0]
+
+    def varint(self) -> int:
+        value = 0
+        for shift in range(0, 35, 7):  # a varUI32: at most 5 bytes
+            byte = self.u8()
+            value |= (byte & 0x7F) << shift
+            if not byte & 0x80:
+                return value
+        raise GltfError(f"{self.where}: invalid variable-length number in the Draco header")
+
+
+def _skip_draco_metadata(r: _Reader, depth: int = 0) -> None:
+    """Skip one Draco metadata element (entries, then nested elements)."""
+    if depth > 32:
+        raise GltfError(f"{r.where}: Draco metadata nested too deeply")
+    for _ in range(r.varint()):
+        r.take(r.u8())  # name
+        r.take(r.u8())  # value
+    for _ in range(r.varint()):
+        r.take(r.u8())  # sub-element name
+        _skip_draco_metadata(r, depth + 1)
+
+
+def draco_declared_counts(data: bytes, where: str) -> tuple[int, int]:
+    """``(points, faces)`` a Draco buffer declares, read from its header before anything is decoded (faces 0 for a
+    point cloud).
+
+    Layout (google/draco ``docs/spec``: ``ParseHeader``, ``DecodeMetadata``, and the connectivity header of the
+    sequential, edgebreaker and point-cloud decoders): ``"DRACO"``, major and minor version, encoder type
+    (0 point cloud, 1 triangle mesh), method (0 sequential, 1 edgebreaker / kd-tree), flags (UI16; 0x8000:
+    metadata follows); a point cloud then stores its point count as an int32; a mesh (bitstream 2.2) its
+    ``num_faces, num_points`` (sequential) or, after a UI8 traversal type, ``num_encoded_vertices, num_faces``
+    (edgebreaker) as varUI32. Older mesh bitstreams (before 2.2) are refused (no glTF exporter writes them)."""
+    r = _Reader(data, where)
+    if r.take(5) != b"DRACO":
+        raise GltfError(f"{where}: not a Draco buffer (no 'DRACO' header)")
+    major, minor, kind, method = r.u8(), r.u8(), r.u8(), r.u8()
+    flags = int.from_bytes(r.take(2), "little")
+    if flags & 0x8000:
+        for _ in range(r.varint()):  # attribute metadata: id, element
+            r.varint()
+            _skip_draco_metadata(r)
+        _skip_draco_metadata(r)  # the file's metadata
+    if kind == 0:
+        points = int.from_bytes(r.take(4), "little", signed=True)
+        if points < 0:
+            raise GltfError(f"{where}: the Draco point cloud declares {points} points")
+        return points, 0
+    if kind != 1 or (major, minor) < (2, 2) or major > 2:
+        raise GltfError(f"{where}: unsupported Draco bitstream (version {major}.{minor}, encoder type {kind})")
+    if method == 0:
+        faces, points = r.varint(), r.varint()
+    else:
+        r.u8()  # traversal type
+        points, faces = r.varint(), r.varint()
+    return points, faces
+
+
+def draco_primitive(doc: GltfFile, prim, *, max_vertices: int = 2_000_000) -> tuple[dict[str, np.ndarray],
+                                                                                     np.ndarray] | None:
     """The decoded vertex attributes and triangles (F, 3) of a Draco-compressed primitive, else None.
 
     ``KHR_draco_mesh_compression`` (the Khronos extension): the primitive's ``extensions`` name a bufferView
     holding one Draco mesh and the Draco unique id of each attribute (``POSITION``, ``JOINTS_0``,
     ``WEIGHTS_0``...); the accessors keep only counts and types. Decoded with DracoPy
     (``pip install 'smplik[draco]'``); attributes are float64 (normalized integers as in glTF) or int64.
+
+    The vertex and triangle counts the buffer declares are checked against ``max_vertices`` before it is
+    decoded (:func:`draco_declared_counts`).
 
     Raises: DracoUnavailableError without DracoPy; GltfError on a malformed extension or Draco buffer.
     """
@@ -529,8 +653,13 @@ def draco_primitive(doc: GltfFile, prim) -> tuple[dict[str, np.ndarray], np.ndar
     data = doc.buffers[view.buffer]
     if start < 0 or length <= 0 or start + length > len(data):
         raise GltfError(f"{where}: bufferView {index} reads past the end of its buffer")
+    buffer = bytes(data[start:start + length])
+    points, faces = draco_declared_counts(buffer, where)
+    if points > max_vertices or faces > 3 * max_vertices:  # before the decoder allocates them
+        raise GltfError(f"{where}: the Draco buffer declares {points} vertices and {faces} triangles; at most "
+                        f"{max_vertices} vertices (and {3 * max_vertices} triangles) are read")
     try:
-        mesh = DracoPy.decode(bytes(data[start:start + length]))
+        mesh = DracoPy.decode(buffer)
     except Exception as exc:  # DracoPy raises its own error types for corrupt buffers
         raise GltfError(f"{where}: cannot decode the Draco buffer ({type(exc).__name__})") from None
     by_id = {a["unique_id"]: np.asarray(a["data"]) for a in getattr(mesh, "attributes", []) or []}

@@ -660,23 +660,28 @@ def _reattach_detached_feet(tree: _Tree, names: Sequence[str], roots: list[int])
     """
     P, parents = tree.P, list(tree.parents)
     moved: dict[int, int] = {}
+    excluded = set(roots)
+    min_cos = np.cos(np.radians(25))
     for leaf in (j for j in range(len(parents)) if not tree.children[j] and parents[j] >= 0):
         thigh = P[leaf] - P[parents[leaf]]
         length = float(np.linalg.norm(thigh))
         if length <= 0:
             continue
         line = tree.path_to_root(leaf)
-        best, best_cos = None, np.cos(np.radians(25))
-        for f in range(len(parents)):
-            if f in line or f in moved or parents[f] < 0 or parents[f] not in line[2:] or f in roots:
-                continue
-            shin = P[f] - P[leaf]
-            n = float(np.linalg.norm(shin))
-            cos = float(shin @ thigh) / max(n * length, 1e-12)
-            if 0.6 * length <= n <= 1.6 * length and cos >= best_cos:
-                best, best_cos = f, cos
-        if best is not None:
-            moved[best] = leaf
+        on_line = set(line)
+        # the candidate feet: children of the leg's ancestors (from the thigh's parent up), off the leg; only
+        # those are looked at, so a star of 10,000 leaves costs each leaf its ancestors' children, not every joint
+        cand = np.array(sorted({c for a in line[2:] for c in tree.children[a]
+                                if c not in on_line and c not in moved and c not in excluded}), dtype=np.int64)
+        if not len(cand):
+            continue
+        shin = P[cand] - P[leaf]  # (K, 3)
+        n = np.linalg.norm(shin, axis=-1)
+        cos = (shin @ thigh) / np.maximum(n * length, 1e-12)
+        ok = (0.6 * length <= n) & (n <= 1.6 * length) & (cos >= min_cos)
+        if ok.any():  # the straightest; on a tie the last (as the scan this replaces kept it)
+            best = cand[ok][np.flatnonzero(cos[ok] == cos[ok].max())[-1]]
+            moved[int(best)] = leaf
     if len(moved) != 2:
         return None
     notes = []

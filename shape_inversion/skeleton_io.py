@@ -142,7 +142,8 @@ def bvh_skeleton(motion: BVHMotion, rest: str) -> Skeleton:
 # ----------------------------------------------------------------------------- glTF
 
 
-def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0) -> Skeleton:
+def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0, *,
+              max_joints: int = DEFAULT_MAX_JOINTS) -> Skeleton:
     """Read the joints of a glTF/GLB skin in its bind pose, in world space (:mod:`shape_inversion.gltf_io`).
 
     Args:
@@ -151,6 +152,8 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
         bind: ``"inverse_bind"``: the inverse bind matrices placed in the world by the root joint's
             node chain; ``"nodes"``: the joint nodes' world transforms in the default pose.
         skin: which skin.
+        max_joints: most joints of the skin (or node hierarchy), checked before any traversal; the file's node
+            count is capped by :data:`shape_inversion.gltf_io.GLTF_NODES`.
 
     Joints are listed parents first. Raises: SkeletonError (no skin, bad accessor, unsafe or unreadable file).
     """
@@ -159,13 +162,13 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
     from shape_inversion.vrm import humanoid_nodes, humanoid_to_smpl
 
     try:
-        doc = load_gltf(path)
+        doc = load_gltf(path, max_joints=max_joints)
         table = humanoid_nodes(doc)
         if not doc.gltf.skins and table:  # a humanoid on plain nodes: its hierarchy is the skeleton
-            rig = read_node_rig(doc, table["hips"])
+            rig = read_node_rig(doc, table["hips"], max_joints=max_joints)
         elif not doc.gltf.skins and doc.gltf.nodes:  # no skin (an animation-only file): the largest node tree
-            sizes = np.bincount([_top(doc.parent, n) for n in range(len(doc.parent))], minlength=len(doc.parent))
-            rig = read_node_rig(doc, int(np.argmax(sizes)))
+            sizes = np.bincount(_tops(doc.parent), minlength=len(doc.parent))
+            rig = read_node_rig(doc, int(np.argmax(sizes)), max_joints=max_joints)
         else:
             rig = read_rig(doc, skin=skin, bind=bind)
     except GltfError as exc:
@@ -184,10 +187,18 @@ def read_gltf(path: str | Path, bind: BindSource = "inverse_bind", skin: int = 0
                     humanoid=humanoid)
 
 
-def _top(parent: tuple[int, ...], n: int) -> int:
-    while parent[n] >= 0:
-        n = parent[n]
-    return n
+def _tops(parent: tuple[int, ...]) -> list[int]:
+    """The root of every node (linear: each node's root is found once)."""
+    top: dict[int, int] = {}
+    for n in range(len(parent)):
+        chain, x = [], n
+        while x not in top and parent[x] >= 0:
+            chain.append(x)
+            x = parent[x]
+        root = top.get(x, x)
+        for q in (*chain, x):
+            top[q] = root
+    return [top[n] for n in range(len(parent))]
 
 
 # ----------------------------------------------------------------------------- JSON
@@ -262,7 +273,7 @@ def read_skeleton(path: str | Path, *, rest: RestSource = "frame0", bind: BindSo
     if suffix == ".bvh":
         return read_bvh(Path(path), rest=rest, position_mode=positions, max_joints=max_joints)
     if suffix in (".glb", ".gltf", ".vrm"):  # a VRM file is a GLB with a humanoid table
-        return read_gltf(path, bind=bind)
+        return read_gltf(path, bind=bind, max_joints=max_joints)
     if suffix == ".json":
         return read_joint_json(path, max_joints=max_joints)
     if suffix == ".fbx":

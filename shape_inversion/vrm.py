@@ -40,6 +40,13 @@ def humanoid_nodes(doc: GltfFile) -> dict[str, int]:
     table: dict[str, int] = {}
     v1 = ext.get("VRMC_vrm")
     v0 = ext.get("VRM")
+    for key, value in (("VRMC_vrm", v1), ("VRM", v0)):
+        if value is not None and not isinstance(value, Mapping):
+            raise GltfError(f"{doc.path}: extensions.{key} must be an object, got {type(value).__name__}")
+        humanoid = value.get("humanoid") if isinstance(value, Mapping) else None
+        if humanoid is not None and not isinstance(humanoid, Mapping):
+            raise GltfError(f"{doc.path}: extensions.{key}.humanoid must be an object, got "
+                            f"{type(humanoid).__name__}")
     if isinstance(v1, Mapping):
         bones = (v1.get("humanoid") or {}).get("humanBones") or {}
         if not isinstance(bones, Mapping):

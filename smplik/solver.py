@@ -177,6 +177,11 @@ def effector_residuals(pose: Pose, effectors: Sequence[Effector], bodies: BodyMo
     return out
 
 
+VARIANT_CHUNK = 128
+"""Most variant candidates solved in one batch (:meth:`IKSolver.sample_variants`): bounds the memory of
+``scene variants --candidates 1024`` (benchmarks/fuzz_campaign.py measures it)."""
+
+
 @dataclass(frozen=True)
 class IKSolver:
     """A loaded model and the body models it poses.
@@ -395,11 +400,11 @@ class IKSolver:
         rng = np.random.default_rng(seed)
         drawn = [guide_effectors(base, free, rng) for _ in range(candidates)]
         rows_b, rows_g = np.repeat(b[None], candidates, 0), [g] * candidates
-        poses = self._solve_rows([list(user + d) for d in drawn], rows_b, rows_g)
+        poses = self._solve_rows_chunked([list(user + d) for d in drawn], rows_b, rows_g)
         # pass 2: each guide moved to where pass 1 put its joint, so the stored guides describe the variant's pose
         guides = [tuple(Effector.position(e.joint, p.joints[e.joint], e.tolerance) for e in d)
                   for d, p in zip(drawn, poses, strict=True)]
-        poses = self._solve_rows([list(user + gs) for gs in guides], rows_b, rows_g)
+        poses = self._solve_rows_chunked([list(user + gs) for gs in guides], rows_b, rows_g)
         base_res = [r.value for r in effector_residuals(base, user, self.bodies)]
         plausible = implausibility(poses, floor) <= ANOMALY_MAX
         keep = [m for m in range(candidates) if plausible[m] and meets_effectors(
@@ -408,6 +413,13 @@ class IKSolver:
             variants += [Variant(poses[m], guides[m], user + guides[m], d)
                          for m, d in pick_variants(base, poses, keep, k)]
         return variants
+
+    def _solve_rows_chunked(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
+        """:meth:`_solve_rows` in batches of at most :data:`VARIANT_CHUNK` rows: the network's and refinement's
+        activations grow with the batch, so 1024 variant candidates cost one chunk's memory, not 1024 rows'."""
+        return [pose for start in range(0, len(rows), VARIANT_CHUNK)
+                for pose in self._solve_rows(rows[start:start + VARIANT_CHUNK], betas[start:start + VARIANT_CHUNK],
+                                             genders[start:start + VARIANT_CHUNK])]
 
     def _solve_rows(self, rows: list[list[Effector]], betas: np.ndarray, genders: list[Gender]) -> list[Pose]:
         if self.network is not None and self.ensemble.size == 1 and (self.refine.iterations == 0

@@ -28,7 +28,7 @@ The sampling itself is :meth:`smplik.solver.IKSolver.sample_variants`; this modu
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -137,18 +137,20 @@ def implausibility(poses: Sequence[Pose], floor: float | None = None) -> np.ndar
     return np.where(finite, score, np.inf)
 
 
-def farthest_points(distance: np.ndarray, k: int, min_distance: float) -> list[int]:
+def farthest_points(distance: np.ndarray | Callable[[int], np.ndarray], k: int, min_distance: float) -> list[int]:
     """Farthest-point selection: indices of up to ``k`` rows of a (N, N) distance matrix, starting with row 0 and
     each time adding the row farthest from those picked (the lowest index on ties); stops early when the
-    farthest is closer than ``min_distance``."""
+    farthest is closer than ``min_distance``. ``distance`` may be a function of a row index returning that row
+    (N,): only the picked rows are then computed (k N instead of N^2)."""
+    row = distance if callable(distance) else distance.__getitem__
     picked = [0]
-    nearest = distance[0].copy()
+    nearest = np.array(row(0), dtype=np.float64, copy=True)
     while len(picked) < k:
         j = int(np.argmax(nearest))
         if not nearest[j] >= min_distance:
             break
         picked.append(j)
-        nearest = np.minimum(nearest, distance[j])
+        nearest = np.minimum(nearest, row(j))
     return picked
 
 
@@ -192,5 +194,9 @@ def pick_variants(base: Pose, poses: Sequence[Pose], keep: Sequence[int], k: int
     """Farthest-point selection of up to ``k - 1`` of ``poses[keep]`` around ``base``: (index into ``poses``, mean
     joint distance to ``base`` in metres) in picking order."""
     joints = np.stack([base.joints] + [poses[m].joints for m in keep])  # (1 + kept, 24, 3)
-    distance = np.linalg.norm(joints[:, None] - joints[None], axis=-1).mean(-1)  # (1 + kept, 1 + kept)
-    return [(keep[i - 1], float(distance[0, i])) for i in farthest_points(distance, k, MIN_DISTANCE_M)[1:]]
+
+    def distance(i: int) -> np.ndarray:  # row i of the (1 + kept, 1 + kept) mean joint distances, on demand
+        return np.linalg.norm(joints[i][None] - joints, axis=-1).mean(-1)
+
+    first = distance(0)
+    return [(keep[i - 1], float(first[i])) for i in farthest_points(distance, k, MIN_DISTANCE_M)[1:]]

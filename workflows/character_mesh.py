@@ -59,7 +59,7 @@ def skinned_mesh(rig: GltfRig) -> SkinnedMesh | None:
                     or attrs.WEIGHTS_0 is None:
                 continue  # only skinned triangle lists
             try:
-                draco = draco_primitive(doc, prim)
+                draco = draco_primitive(doc, prim, max_vertices=MAX_MESH_VERTICES - count)
             except DracoUnavailableError as exc:
                 warnings.warn(f"{exc}: the character's own mesh cannot be shown", stacklevel=2)
                 return None

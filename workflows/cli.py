@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated
 
@@ -138,15 +139,21 @@ def variants_cmd(
 ) -> None:
     """K alternative poses of one character for its effectors: OUT/variant_I.json, each the scene with that
     character's effectors + the variant's guide effectors and the variant's pose (variant 0: the plain solve)."""
+    from smplik.output_files import staged_folder
+    from workflows.scene.export import scene_reads
     from workflows.scene.variants import scene_variants, write_variants
 
     with user_errors():
         from workflows.scene import load_scene
 
         loaded = load_scene(scene)
-        solver = cli_shared._solver(checkpoint)
-        scenes, name = scene_variants(loaded, solver, k=k, character=character, seed=seed, candidates=candidates)
-        paths = write_variants(scenes, out)
+        reads = [scene, checkpoint, *scene_reads(loaded, scene.resolve().parent)]
+        with staged_folder(out, reads=reads) as stage:  # every variant or none; none of them an input
+            stage.check([f"variant_{i}.json" for i in range(k)])  # before any work
+            solver = cli_shared._solver(checkpoint)
+            scenes, name = scene_variants(loaded, solver, k=k, character=character, seed=seed,
+                                          candidates=candidates)
+            paths = [stage.final(p) for p in write_variants(scenes, stage.dir)]
     if len(paths) < k:
         say(f"notice: {name}'s effectors leave room for only {len(paths)} distinct plausible variant(s) of {k}.")
     for i, (path, (_, guides, dist)) in enumerate(zip(paths, scenes, strict=True)):
@@ -171,6 +178,15 @@ def render_cmd(
         if src is not None and not src.is_absolute() and image is None:
             src = scene.parent / src
         check_image(image)
+        if src is not None and image is None and loaded.camera is not None:
+            if os.path.lexists(src):  # the scene's own image: refused as --image is (a device, a folder, ...)
+                check_image(src, option=f"{scene}: \"image\"")
+            else:
+                say(f"notice: the scene's image {src} is not there; rendering without it.")
+        from smplik.output_files import check_writes
+        from workflows.scene.export import scene_reads
+
+        check_writes([out], [scene, image, src, *scene_reads(loaded, scene.resolve().parent)])
         background = None
         if image is not None and loaded.camera is None:
             say(f"notice: the scene holds no camera, so --image {image} is not drawn under the characters.")
@@ -197,13 +213,18 @@ def export_cmd(
                                            "and axes.")] = "world",
 ) -> None:
     """Per character: a posed BVH of its own skeleton and a posed GLB (its mesh, or the SMPL mesh)."""
+    from smplik.output_files import staged_folder
     from workflows.scene import load_scene
-    from workflows.scene.export import export_scene, glb_notes
+    from workflows.scene.export import export_names, export_scene, glb_notes, scene_reads
 
     formats = [f for f in format.split(",") if f.strip()]
     with user_errors():
         loaded = load_scene(scene)
-        paths = export_scene(loaded, out, formats=formats, base_dir=scene.resolve().parent, bvh_frame=bvh_frame)
+        base = scene.resolve().parent
+        with staged_folder(out, reads=[scene, *scene_reads(loaded, base)]) as stage:  # all files or none
+            stage.check(export_names(loaded, formats))  # before any work: no export replaces an input
+            paths = [stage.final(p) for p in export_scene(loaded, stage.dir, formats=formats, base_dir=base,
+                                                          bvh_frame=bvh_frame)]
     for note in glb_notes(loaded, formats) if paths else []:
         say(note)
     for path in paths:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import os
 import zipfile
 from collections.abc import Iterator
 from typing import NoReturn
@@ -93,14 +94,46 @@ def user_errors() -> Iterator[None]:
     except typer.BadParameter as exc:  # raised by a command body: one line too
         fail(exc.format_message())
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's status for SIGINT; writes are atomic
-        print_error("interrupted (Ctrl-C): stopped; no file was left half-written.")
-        raise typer.Exit(130) from None
+        from smplik.cli.interrupt import interrupted
+
+        raise typer.Exit(interrupted()) from None
     except (typer.Exit, typer.Abort, SystemExit, _CLICK_EXCEPTION):
         raise
     except Exception as exc:
         if isinstance(exc, ValueError) or is_user_error(exc):
-            fail(exc)
+            fail(_with_inputs(error_message(exc)) if _is_foreign(exc) else exc)
         raise
+
+
+def _is_foreign(exc: BaseException) -> bool:
+    """A ``ValueError`` raised by a library (numpy's "SVD did not converge" or "Maximum allowed size exceeded",
+    scipy's "Found zero norm quaternions", the OS's "embedded null byte", Python's 4300-digit integer limit):
+    its message names no file."""
+    return isinstance(exc, ValueError) and not isinstance(exc, OSError) \
+        and type(exc).__module__.split(".")[0] not in PROJECT_PACKAGES
+
+
+def _with_inputs(message: str) -> str:
+    """``message`` prefixed with the running command's input files (its path arguments and options that name
+    existing files, outputs excluded) when it names none of them, so a library's error says which input it was
+    reading."""
+    from smplik.cli.outputs import OUTPUT_PARAMS, current_params
+
+    inputs = []
+    for name, value in current_params().items():
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if name not in OUTPUT_PARAMS and isinstance(v, os.PathLike) and _is_file(v):
+                inputs.append(str(v))
+    if not inputs or any(i in message for i in inputs):
+        return message
+    return f"{', '.join(inputs)}: {message}"
+
+
+def _is_file(path: os.PathLike) -> bool:
+    try:
+        return os.path.isfile(path)
+    except (OSError, ValueError):
+        return False
 
 
 def run_guarded(app: typer.Typer, args: list[str] | None = None) -> None:

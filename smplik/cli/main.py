@@ -119,6 +119,18 @@ class SmplikGroup(TyperGroup):
     def list_commands(self, ctx: Any) -> list[str]:
         return list(COMMANDS)
 
+    def make_context(self, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return super().make_context(*args, **kwargs)
+        except KeyboardInterrupt:  # before typer turns it into a silent exit 130 (click: Abort, an empty line)
+            raise _Interrupted from None
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:  # the same while a command's module is imported or its arguments parsed
+            raise _Interrupted from None
+
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
         return load_command(cmd_name) if cmd_name in COMMANDS else None
 
@@ -135,11 +147,19 @@ class SmplikGroup(TyperGroup):
         return code
 
 
+class _Interrupted(Exception):
+    """Ctrl-C outside a command's own handling (while its module is imported, its arguments parsed)."""
+
+
 def run_command_tree(main: Any, **kwargs: Any) -> int:
     """Run a click ``main`` in non-standalone mode; return the exit status. A user error (including a click
-    usage error) prints one ``error:`` line and gives 1; a bug keeps its traceback."""
+    usage error) prints one ``error:`` line and gives 1; Ctrl-C one line and 130; a bug keeps its traceback."""
+    from smplik.cli.interrupt import interrupted
+
     try:
         result = main(standalone_mode=False, **kwargs)
+    except (_Interrupted, KeyboardInterrupt):
+        return interrupted()
     except NoArgsIsHelpError as exc:  # a group named without a command: its help
         print(exc.ctx.get_help())
         return 0
@@ -150,7 +170,9 @@ def run_command_tree(main: Any, **kwargs: Any) -> int:
     except ClickException as exc:
         print_error(exc.format_message())
         return 1
-    except Abort:
+    except Abort as exc:
+        if isinstance(exc.__context__, KeyboardInterrupt):
+            return interrupted()
         print_error("aborted")
         return 1
     except Exception as exc:

@@ -9,15 +9,22 @@
   path parameter naming an existing file, through symlinks and hard links: :func:`os.path.samefile`) is
   refused with one ``error:`` line, so ``smplik invert-shape X.bvh --out X.bvh`` leaves ``X.bvh`` as it was.
   Commands that edit a file in place by design (:data:`IN_PLACE`) may write back to that one input.
+
+The files a command writes *inside* an output folder, and the inputs it discovers while working (a scene's
+skeletons), are compared by the command itself with :mod:`smplik.output_files` (``check_writes``,
+``staged_folder``), which also makes its multi-file outputs all-new or all-old.
 """
 
 from __future__ import annotations
 
+import contextvars
 import os
 from pathlib import Path
 from typing import Any
 
 import typer
+
+from smplik.output_files import OutputPathError  # one error class for both checks
 
 OUTPUT_PARAMS = frozenset({"out", "render", "render_png", "preview", "onnx", "markdown", "results"})
 """Parameter names (click's, i.e. the function arguments) of the options that name a file or folder to write."""
@@ -25,8 +32,16 @@ OUTPUT_PARAMS = frozenset({"out", "render", "render_png", "preview", "onnx", "ma
 IN_PLACE = {"scene solve": "scene", "scene edit-keyframe": "animation"}
 """Commands whose output defaults to overwriting one input (``--out`` omitted): that input may be the output."""
 
-class OutputPathError(ValueError):
-    """An output path that would overwrite one of the command's inputs."""
+__all__ = ["IN_PLACE", "OUTPUT_PARAMS", "OutputPathError", "check_outputs", "current_params", "guard_outputs"]
+
+
+_PARAMS: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar("smplik_command_params",
+                                                                               default=None)
+
+
+def current_params() -> dict[str, Any]:
+    """The parsed parameters of the command running now (empty outside one): error messages name its inputs."""
+    return _PARAMS.get() or {}
 
 
 def _refuse_empty(param: Any) -> None:
@@ -97,7 +112,11 @@ def guard_outputs(command: Any) -> Any:
         def guarded_invoke(ctx: Any) -> Any:
             path = ctx.command_path.split(" ", 1)[1] if " " in ctx.command_path else ctx.command_path
             check_outputs(path, ctx.params)
-            return invoke(ctx)
+            token = _PARAMS.set(dict(ctx.params))
+            try:
+                return invoke(ctx)
+            finally:
+                _PARAMS.reset(token)
 
         command.invoke = guarded_invoke
     return command

@@ -171,11 +171,13 @@ def edit_keyframe_cmd(
     """Move or add a keyframe's effectors (merged into its recovered ones), re-pose the frame as the editor's drag
     does (the moved limbs only) and blend the change into the neighbouring frames."""
     from smplik.effector_schema import load_effector_file
+    from smplik.output_files import staged_folder
     from workflows.animation.clips import AnimationError
-    from workflows.animation.files import load_animation, save_animation
+    from workflows.animation.files import load_animation, save_animation, scene_of
     from workflows.animation.keyframe_edit import check_keyframe_edit, keyframe_edit
-    from workflows.animation.run import check_animate_options, export_animation
+    from workflows.animation.run import animation_export_names, check_animate_options, export_animation
     from workflows.cli_shared import _solver
+    from workflows.scene.export import scene_reads
 
     formats = [f.strip().lower() for f in export.split(",") if f.strip()]
     with user_errors():  # every input checked before the model loads and before anything is written
@@ -186,11 +188,17 @@ def edit_keyframe_cmd(
                 raise AnimationError(f"{animation}: {len(anim.tracks)} tracks; choose one with --track "
                                      f"({', '.join(t.name for t in anim.tracks)}).")
             track = anim.tracks[0].name
-        effs = load_effector_file(effectors).effectors
-        check_keyframe_edit(anim, track, frame, effs, window=window)
-        edit = keyframe_edit(anim, track, frame, effs, _solver(checkpoint), window=window, exact=exact)
-        path = save_animation(edit.animation, out or animation)
-        files = export_animation(edit.animation, path.parent, formats, base_dir=path.parent) if formats else []
+        target = out or animation
+        reads = [animation, effectors, checkpoint, *scene_reads(scene_of(anim), animation.resolve().parent)]
+        # every file or none; none of them an input (the animation itself only when edited in place)
+        with staged_folder(target.parent, reads=reads, allow=[animation] if out is None else []) as stage:
+            stage.check([target.name, *animation_export_names(anim, formats)])  # before any work
+            effs = load_effector_file(effectors).effectors
+            check_keyframe_edit(anim, track, frame, effs, window=window)
+            edit = keyframe_edit(anim, track, frame, effs, _solver(checkpoint), window=window, exact=exact)
+            path = stage.final(save_animation(edit.animation, stage.dir / target.name))
+            files = [stage.final(f) for f in export_animation(edit.animation, stage.dir, formats,
+                                                              base_dir=target.parent)] if formats else []
     say(edit.line())
     for written in (path, *files):
         say(f"wrote {written}")

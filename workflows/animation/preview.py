@@ -92,6 +92,15 @@ def check_preview_path(path: str | Path) -> None:
     suffix = path.suffix.lower()
     if suffix not in PREVIEW_SUFFIXES:
         raise AnimationError(f"--preview {path}: a preview is a .gif or .mp4 file.")
+    if path.is_dir():
+        raise AnimationError(f"--preview {path}: is a folder; give a .gif or .mp4 file path.")
+    if path.exists() and not path.is_file():
+        raise AnimationError(f"--preview {path}: is not a regular file (a device, pipe or socket).")
+    for parent in path.parents:  # the nearest existing folder above it must be a folder
+        if parent.exists():
+            if not parent.is_dir():
+                raise AnimationError(f"--preview {path}: {parent} is a file, not a folder.")
+            break
     if suffix == ".mp4":
         try:
             import imageio_ffmpeg

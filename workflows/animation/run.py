@@ -78,6 +78,10 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
     solver per frame; ``mean``/``std``: HumanML3D's Mean.npy/Std.npy for normalised features."""
     span = check_animate_options(frames=frames, fps=fps, formats=formats)
     fps = None if fps is None else float(fps)
+    from smplik.output_files import check_writes, staged_folder
+
+    reads = [results_path, character_path, getattr(character_options, "map", None), mean, std]
+    check_writes([Path(out_dir) / "animation.json"], reads)  # before any work (the exports' names: after reading)
     character = skeleton = None
     if character_path is not None:
         from shape_inversion.options import CharacterOptions
@@ -100,11 +104,18 @@ def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSo
         animation, motions = animation_from_clip(clip, solver, fps=fps, track=track, frames=span,
                                                  character=character, skeleton=skeleton, config=config,
                                                  camera=first.camera, progress=progress)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = save_animation(animation, out / "animation.json")
-    written = export_animation(animation, out, formats) if formats else []
-    return AnimateOutputs(path, tuple(written), animation, tuple(motions))
+    with staged_folder(out_dir, reads=reads) as stage:  # all files or none; none of them an input
+        stage.check(animation_export_names(animation, formats))
+        path = save_animation(animation, stage.dir / "animation.json")
+        written = export_animation(animation, stage.dir, formats) if formats else []
+    return AnimateOutputs(stage.final(path), tuple(stage.final(w) for w in written), animation, tuple(motions))
+
+
+def animation_export_names(animation: Animation, formats: Sequence[str]) -> list[str]:
+    """The file names :func:`export_animation` writes (one per track and format)."""
+    from workflows.scene.export import export_names
+
+    return export_names(scene_of(animation), formats, posed=[t.name for t in animation.tracks])
 
 
 def read_joint_motion_file(path: str | Path, *, format: str = "auto", trust_pickle: bool = False,

@@ -69,6 +69,15 @@ class AccessGuard:
 
     token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
 
+    def malformed(self, headers: Any) -> str | None:
+        """Why the request's headers are malformed (answered 400, never a server error), or None: a header
+        that must appear once (``Host``, ``Origin``, ``Upgrade``) given several times."""
+        for name in ("Host", "Origin", "Upgrade"):
+            values = headers.get_all(name) if hasattr(headers, "get_all") else [headers.get(name)]
+            if len(values) > 1:
+                return f"{len(values)} {name} headers (at most one is allowed)"
+        return None
+
     def refusal(self, path: str, headers: Any, port: int) -> str | None:
         """Why the request (``path`` with query, its ``headers``) to the editor on ``port`` is refused, or None."""
         host = str(headers.get("Host") or "")
@@ -108,7 +117,17 @@ class AccessGuard:
 
         def process_request(connection: Any, request: Any) -> Any:
             port = int(connection.local_address[1])
-            reason = self.refusal(request.path, request.headers, port)
+            try:
+                bad = self.malformed(request.headers)
+                reason = None if bad else self.refusal(request.path, request.headers, port)
+            except (LookupError, ValueError, TypeError, UnicodeError) as exc:  # a header websockets cannot give once
+                bad, reason = f"malformed request headers ({type(exc).__name__})", None
+            if bad is not None:
+                log.warning("smplik editor: refused a malformed request for %s: %s",
+                            str(request.path).split("?")[0][:80], bad)
+                refused = connection.respond(http.HTTPStatus.BAD_REQUEST, f"smplik editor: {bad}.\n")
+                refused.headers["Referrer-Policy"] = REFERRER_POLICY
+                return refused
             if reason is not None:
                 log.warning("smplik editor: refused a request for %s: %s", request.path.split("?")[0][:80], reason)
                 refused = connection.respond(http.HTTPStatus.FORBIDDEN, f"smplik editor: {reason}.\n")

@@ -555,11 +555,17 @@ class EditorState(UndoStacks):
 
     def export(self, out_dir: str | Path) -> list[Path]:
         """Write the posed characters with the scene exporter (:func:`workflows.scene.export.export_scene`, as
-        ``smplik scene export``): a BVH of each character's own skeleton and a posed GLB."""
-        from workflows.scene.export import export_scene
+        ``smplik scene export``): a BVH of each character's own skeleton and a posed GLB; all of them or none,
+        and none over the scene's own files (its skeletons, image, the scene file)."""
+        from smplik.output_files import staged_folder
+        from workflows.scene.export import export_names, export_scene, scene_reads
 
-        return list(export_scene(self._posed_scene(), Path(out_dir), formats=("bvh", "glb"),
-                                 base_dir=self._loaded_from))
+        scene = self._posed_scene()
+        reads = [self.path, *scene_reads(scene, self._loaded_from)]
+        with staged_folder(Path(out_dir), reads=reads) as stage:
+            stage.check(export_names(scene, ("bvh", "glb")))
+            written = export_scene(scene, stage.dir, formats=("bvh", "glb"), base_dir=self._loaded_from)
+        return [stage.final(p) for p in written]
 
     def _custom(self, index: int | None) -> tuple[Any, Any] | None:
         """(CustomCharacter, its posed CustomPose) of a character with a custom skeleton, else None.

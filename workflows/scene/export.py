@@ -121,6 +121,28 @@ def export_scene(scene: Scene, out_dir: str | Path, *, formats: Sequence[str] = 
     return written
 
 
+def export_names(scene: Scene, formats: Sequence[str], *, posed: Sequence[str] | None = None) -> list[str]:
+    """The file names :func:`export_scene` writes for ``scene`` (``posed``: the names of the characters with
+    frames; default those with a pose), for comparing with the command's inputs before any work."""
+    formats = [f for f in dict.fromkeys(str(f).strip().lower() for f in formats) if f in FORMATS]
+    names = []
+    for i, c in enumerate(scene.characters):
+        if (c.name in posed) if posed is not None else c.pose is not None:
+            names += [f"{_safe_stem(c.name, i)}.{f}" for f in formats]
+    return names
+
+
+def scene_reads(scene: Scene, base_dir: str | Path | None) -> list[Path]:
+    """The files a scene refers to and a command reads (its characters' skeleton files, its rig maps, its
+    image), resolved against ``base_dir`` (the scene file's folder) as :func:`export_scene` resolves them."""
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    paths = [Path(c.skeleton.path) for c in scene.characters if c.skeleton is not None]
+    paths += [Path(c.skeleton.map) for c in scene.characters if c.skeleton is not None and c.skeleton.map]
+    if getattr(scene, "image", None):
+        paths.append(Path(scene.image))
+    return [p if p.is_absolute() else base / p for p in paths]
+
+
 GLTF_SUFFIXES = (".glb", ".gltf", ".vrm")
 """Character files that carry their own mesh (read as glTF by :func:`shape_inversion.skeleton_io.read_character`)."""
 

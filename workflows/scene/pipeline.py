@@ -20,6 +20,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -184,12 +185,34 @@ def from_estimate(
     files, GVHMR or WHAM in world space). Without one, such a file's ``image_path`` is recorded in the
     scene but no overlay is drawn, and ``notes`` says so.
     """
+    from smplik.output_files import staged_folder
+
+    reads = [results_path, character_path, image_path, getattr(character_options, "map", None)]
+    with staged_folder(out_dir, reads=reads) as stage:  # every file or none (no empty folder); none an input
+        stage.check(["scene.json", "scene.png"])  # before any work (the per-person names: after reading)
+        outputs = _from_estimate_into(
+            results_path, stage, solver, format=format, character_path=character_path, rig=rig,
+            character_options=character_options, config=config, trust_pickle=trust_pickle, image_path=image_path,
+            frame=frame, previews=previews, max_people=max_people, max_bytes=max_bytes, ground=ground, space=space,
+            focal=focal, progress=progress)
+    return dataclasses.replace(outputs, scene=stage.final(outputs.scene),
+                               previews=tuple(stage.final(p) for p in outputs.previews),
+                               plots=tuple(stage.final(p) for p in outputs.plots),
+                               bvh=tuple(stage.final(p) for p in outputs.bvh))
+
+
+def _from_estimate_into(results_path: str | Path, stage: Any, solver: TensorSolver, *, format: str,
+                        character_path: str | Path | None, rig: str | None,
+                        character_options: CharacterOptions | None, config: RecoveryConfig | None,
+                        trust_pickle: bool, image_path: str | Path | None, frame: int, previews: bool,
+                        max_people: int | None, max_bytes: int | None, ground: bool, space: str | None,
+                        focal: float | None, progress: Progress | None) -> EstimateOutputs:
+    """:func:`from_estimate`'s work, its files written into ``stage.dir`` (a :class:`smplik.output_files.Stage`)."""
     from workflows.character import export_bvh, load_character
     from workflows.estimators import read_estimate
     from workflows.scene.document import save_scene
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = stage.dir
     config = RecoveryConfig() if config is None else config
     from workflows.estimators import MAX_BYTES, MAX_PEOPLE
     from workflows.estimators.pose_array import EstimateNote
@@ -224,6 +247,9 @@ def from_estimate(
     scene, person_results = scene_from_people(people, solver, config=config, character=character, skeleton=skeleton,
                                               source=str(Path(results_path).resolve()), image=image_ref,
                                               ground=ground, progress=progress)
+    names = [f"{r.name}{tail}" for r in person_results
+             for tail in (".bvh", *(("_recovery.png", "_character.png") if previews else ()))]
+    stage.check(names)  # before the files are made: none of them an input
     scene_path = save_scene(scene, out_dir / "scene.json")
     preview_paths: list[Path] = []
     plot_paths: list[Path] = []

@@ -19,7 +19,7 @@ import numpy as np
 
 from smplik.conventions import Gender
 from workflows.animation.clips import Animation, AnimationError, AnimationTrack
-from workflows.animation.run import export_animation
+from workflows.animation.run import animation_export_names, export_animation
 
 
 @dataclass(frozen=True)
@@ -45,12 +45,9 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
                seed: int = 0, fit_trackers: bool = False, foot_locks: str = "offline") -> TrackOutputs:
     """Tracker recording -> ``out_dir/animation.json`` (+ ``formats``: bvh, glb). ``foot_locks``: ``offline`` (the
     whole recording known), ``streaming`` (causal, as ``smplik track --live``) or ``off``. Raises the project's
-    one-line errors (tracker file, model file, character, export)."""
-    from smplik.tracking.config import TrackerRuntimeConfig
-    from smplik.tracking.io import read_trackers
-    from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, track_sequence
-    from workflows.animation.files import save_animation
-    from workflows.scene import SkeletonSource
+    one-line errors (tracker file, model file, character, export). Every file is written or none
+    (:func:`smplik.output_files.staged_folder`), and none of them is an input."""
+    from smplik.output_files import staged_folder
     from workflows.scene.export import FORMATS
 
     bad = [f for f in formats if f not in FORMATS]
@@ -60,6 +57,25 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
         raise AnimationError(f"foot_locks must be offline, streaming or off, got {foot_locks!r}.")
     if samples < 1 or samples > 1024:
         raise AnimationError(f"--samples must be in 1..1024, got {samples}.")
+
+    out = Path(out_dir)
+    reads = [path, character_path, checkpoint, getattr(character_options, "map", None)]
+    with staged_folder(out, reads=reads) as stage:  # all files or none; none of them an input
+        stage.check(["animation.json", *(f"person_0.{f}" for f in formats)])  # before any work
+        return _track_into(stage, path, samples=samples, betas=betas, gender=gender, character_path=character_path,
+                           character_options=character_options, formats=formats, checkpoint=checkpoint, seed=seed,
+                           fit_trackers=fit_trackers, foot_locks=foot_locks)
+
+
+def _track_into(stage: Any, path: str | Path, *, samples: int, betas: Sequence[float] | None, gender: Gender | str,
+                character_path: str | Path | None, character_options: Any, formats: Sequence[str],
+                checkpoint: str | Path | None, seed: int, fit_trackers: bool, foot_locks: str) -> TrackOutputs:
+    from smplik.tracking.config import TrackerRuntimeConfig
+    from smplik.tracking.io import read_trackers
+    from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, track_sequence
+    from workflows.animation.files import save_animation
+    from workflows.scene import SkeletonSource
+
     signals = read_trackers(path)
     scale, skeleton = 1.0, None
     body_betas = np.zeros(10) if betas is None else np.asarray(betas, dtype=np.float64)
@@ -87,9 +103,9 @@ def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas
     track = AnimationTrack("person_0", "0", body_gender, body_betas, scale, skeleton, 0, aa[:, 0], aa[:, 1:],
                            result.transl, (), result.contacts.astype(bool))
     animation = Animation((track,), float(signals.fps), str(path), "smplik-trackers", "world", None, None)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    file = save_animation(animation, out / "animation.json")
-    written = export_animation(animation, out, formats) if formats else []
+    stage.check(animation_export_names(animation, formats))
+    file = save_animation(animation, stage.dir / "animation.json")
+    written = export_animation(animation, stage.dir, formats) if formats else []
     switches = int((np.diff(result.sample) != 0).sum())
-    return TrackOutputs(file, tuple(written), animation, float((result.anomaly > ANOMALY_THRESHOLD).mean()), switches)
+    return TrackOutputs(stage.final(file), tuple(stage.final(w) for w in written), animation,
+                        float((result.anomaly > ANOMALY_THRESHOLD).mean()), switches)
