@@ -146,7 +146,8 @@ def unknown_joint(name: object) -> str:
     text = str(name)
     close = difflib.get_close_matches(text.lower(), JOINT_NAMES, n=1, cutoff=0.6)
     hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return f"unknown joint {text[:60]!r}{hint}; valid names: {', '.join(JOINT_NAMES)}."
+    shown = repr(text[:60]) if isinstance(name, str) else text[:60]  # a number stays a number: unknown joint 15
+    return f"unknown joint {shown}{hint}; valid names: {', '.join(JOINT_NAMES)}."
 
 
 def joint_index(joint: str | int) -> int:

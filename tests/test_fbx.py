@@ -454,7 +454,7 @@ def test_data_preview_draws_an_fbx_clip(tmp_path):
     assert out.is_file() and "of 120" in res.output and "rest pose offsets" in res.output
 
 
-def test_a_skinned_fbx_character_exports_its_own_mesh_posed_with_its_take_kept(tmp_path):
+def test_a_skinned_fbx_character_exports_its_own_mesh_posed_with_its_take_kept(tmp_path, monkeypatch):
     """``scene export`` of the Kenney FBX: the GLB is the file's own skinned mesh (not the SMPL body), its joints
     named as in the file, posed like the exported BVH (the same joints at the same world positions), with the
     file's take as a clip beside ``pose``; a vertex bound to one joint keeps its distance to it."""
@@ -476,6 +476,8 @@ def test_a_skinned_fbx_character_exports_its_own_mesh_posed_with_its_take_kept(t
     res = runner.invoke(app, ["scene", "from-estimate", str(w.path), "--out", str(tmp_path / "s"), "--character",
                               str(KENNEY), "--no-previews", "--max-effectors", "2"])
     assert res.exit_code == 0, res.output
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")  # the scene's relative skeleton path resolves against the scene file
     res = runner.invoke(app, ["scene", "export", str(tmp_path / "s" / "scene.json"), "--out", str(tmp_path / "x")])
     assert res.exit_code == 0, res.output
     assert "SMPL body" not in res.output  # no note: the GLB is the character's own mesh

@@ -225,7 +225,7 @@ def export_cmd(
             stage.check(export_names(loaded, formats))  # before any work: no export replaces an input
             paths = [stage.final(p) for p in export_scene(loaded, stage.dir, formats=formats, base_dir=base,
                                                           bvh_frame=bvh_frame)]
-    for note in glb_notes(loaded, formats) if paths else []:
+    for note in glb_notes(loaded, formats, base) if paths else []:
         say(note)
     for path in paths:
         say(f"wrote {path}")

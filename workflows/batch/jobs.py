@@ -257,7 +257,7 @@ def _export(_: Any, source: Path, out: Path, p: Mapping[str, Any]) -> JobResult:
     scene = load_scene(source)
     formats = _formats(p["format"])
     paths = export_scene(scene, out, formats=formats, base_dir=source.parent, bvh_frame=p["bvh_frame"])
-    return JobResult(tuple(glb_notes(scene, formats)) if paths else ("no posed character to export",))
+    return JobResult(tuple(glb_notes(scene, formats, source.parent)) if paths else ("no posed character to export",))
 
 
 _RUNNERS = {"animate": _animate, "from-estimate": _from_estimate, "track": _track, "invert-shape": _invert_shape,

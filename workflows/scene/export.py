@@ -147,16 +147,20 @@ GLTF_SUFFIXES = (".glb", ".gltf", ".vrm")
 """Character files that carry their own mesh (read as glTF by :func:`shape_inversion.skeleton_io.read_character`)."""
 
 
-def glb_notes(scene: Scene, formats: Sequence[str]) -> list[str]:
+def glb_notes(scene: Scene, formats: Sequence[str], base_dir: str | Path | None = None) -> list[str]:
     """One line per custom character whose exported GLB is its SMPL-SI body rather than its own mesh (a BVH
-    or joints JSON has no mesh): what a user is told next to the ``wrote`` lines of an export."""
+    or joints JSON has no mesh): what a user is told next to the ``wrote`` lines of an export. ``base_dir``: the
+    scene file's folder, against which relative skeleton paths are resolved (as :func:`export_scene` does)."""
     if "glb" not in [str(f).strip().lower() for f in formats]:
         return []
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+
     def has_skin(path: str) -> bool:  # an FBX character's GLB is its own skinned mesh when it has one
         from smplik.data.fbx import FbxError, read_fbx_mesh
 
+        file = Path(path) if Path(path).is_absolute() else base / path
         try:
-            return read_fbx_mesh(path) is not None
+            return read_fbx_mesh(file) is not None
         except FbxError:
             return False
 
