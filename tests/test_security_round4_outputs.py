@@ -500,6 +500,26 @@ def test_DB_a_draco_buffer_declaring_3e8_points_is_refused_before_decoding(tmp_p
     g.save_binary(str(tmp_path / "bomb.glb"))
     with pytest.raises(GltfError, match=r"bomb.glb.*declares 300000000 vertices"):
         skinned_mesh(read_skeleton(tmp_path / "bomb.glb").gltf)
+    # through the real command: a scene whose character is bomb.glb (a path relative to the scene's folder, the
+    # command run from another folder: the own mesh was silently skipped there before), under a 3 GiB cap
+    from workflows.character import CharacterOptions
+    from workflows.examples_gen import example_poses
+    from workflows.scene import Scene, SceneCharacter, SkeletonSource
+    from workflows.scene.document import save_scene
+
+    pose = example_poses()[0].pose
+    save_scene(Scene((SceneCharacter("hero", pose.gender, pose.betas, 1.0,
+                                     SkeletonSource.from_options("bomb.glb", CharacterOptions()), (), pose),)),
+               tmp_path / "scene.json")
+    assert json.loads((tmp_path / "scene.json").read_text())["characters"][0]["skeleton"]["path"] == "bomb.glb"
+    proc = subprocess.run(["bash", "-c", 'ulimit -v 3145728 && exec "$@"', "-", sys.executable, "-m", "smplik.cli",
+                           "scene", "render", str(tmp_path / "scene.json"), "--out", str(tmp_path / "r.png")],
+                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          timeout=900)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert "bomb.glb" in lines[0] and "declares 300000000 vertices" in lines[0] and "2000000" in lines[0], lines
+    assert not (tmp_path / "r.png").exists()
 
 
 # ----------------------------------------------------------------------------- errors name the file
