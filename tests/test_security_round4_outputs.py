@@ -532,6 +532,34 @@ def test_a_4300_digit_number_names_the_file(tmp_path):
     assert "9999999999" not in line
 
 
+def test_a_gltf_zero_quaternion_names_the_file_and_node(tmp_path):
+    """A node ``rotation`` [0, 0, 0, 0] (scipy's "Found zero norm quaternions" if it reached Rotation.from_quat)."""
+    src = _gltf(tmp_path / "q0.gltf", [{"name": "Hips", "rotation": [0, 0, 0, 0], "children": [1]},
+                                       {"name": "Spine", "translation": [0, 1, 0]}], [{"joints": [0, 1]}])
+    for bind in ("inverse_bind", "nodes"):
+        line = assert_refused(["invert-shape", src, "--out", tmp_path / "s.json", "--bind", bind], "q0.gltf",
+                              "nodes[0]", "rotation", "zero quaternion")
+        assert "Found zero norm" not in line
+
+
+@pytest.mark.parametrize("key", ["skeleton.path", "skeleton.map", "image", "source"])
+def test_a_nul_character_in_a_scene_path_names_the_file_and_key(material, tmp_path, key):
+    """"a\u0000b.glb" as a scene's skeleton, rig map, image or source: the OS would say "embedded null byte"
+    (or, for ``scene render``, the file was silently skipped)."""
+    data = json.loads(material["scene"].read_text())
+    if key.startswith("skeleton"):
+        data["characters"][0]["skeleton"] = {"path": "hero.bvh", key.split(".")[1]: "a\u0000b.glb"}
+    else:
+        data[key] = "a\u0000b.png"
+    src = tmp_path / "scene.json"
+    src.write_text(json.dumps(data))
+    where = f"characters[0].{key}" if key.startswith("skeleton") else key
+    for command in ("render", "export"):
+        out = tmp_path / ("r.png" if command == "render" else "OUT")
+        line = assert_refused(["scene", command, src, "--out", out], "scene.json", where, "NUL character")
+        assert "embedded null byte" not in line and not out.exists()
+
+
 def test_a_library_error_without_a_file_gets_the_commands_inputs(capsys, tmp_path):
     """numpy's "SVD did not converge" (a LinAlgError) from deep inside a command: the line names its input."""
     import typer
