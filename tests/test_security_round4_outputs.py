@@ -560,6 +560,30 @@ def test_a_nul_character_in_a_scene_path_names_the_file_and_key(material, tmp_pa
         assert "embedded null byte" not in line and not out.exists()
 
 
+@pytest.mark.parametrize("camera,body,needle", [(0.0, None, "singular values"), (1e200, None, "an entry of 1e+200"),
+                                                 (None, 0.0, "singular values")])
+def test_degenerate_estimator_rotation_matrices_name_the_file_and_key(tmp_path, camera, body, needle):
+    """TRAM's SLAM camera rotations (``camera.npy`` ``pred_cam_R``) or body rotations (``pred_rotmat``) that are
+    zero or huge: projected by an SVD (numpy's "SVD did not converge" on huge entries) into an invented pose before;
+    now one line naming the file and key. The fixture writes TRAM's own layout (tests/estimator_fixtures.py)."""
+    from estimator_fixtures import people, write_tram
+
+    aa, transl, betas = people()[:3]
+    _, paths = write_tram(tmp_path, aa, transl, betas, cam_R=None if camera is None else np.full((4, 3, 3), camera))
+    key = "pred_cam_R[0]" if camera is not None else "pred_rotmat"
+    if body is not None:
+        import torch
+
+        data = np.load(paths[0], allow_pickle=True).item()
+        data["pred_rotmat"] = torch.full_like(data["pred_rotmat"], body)
+        np.save(paths[0], data)
+    where = "camera.npy" if camera is not None else "hps_track_0.npy"
+    out = tmp_path / "OUT"
+    assert_refused(["scene", "animate", paths[0], "--fps", "30", "--space", "world", "--out", out], where,
+                   f"'{key}'", "not a rotation", needle)
+    assert not out.exists()
+
+
 def test_a_library_error_without_a_file_gets_the_commands_inputs(capsys, tmp_path):
     """numpy's "SVD did not converge" (a LinAlgError) from deep inside a command: the line names its input."""
     import typer
