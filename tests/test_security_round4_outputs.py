@@ -363,6 +363,19 @@ def test_ctrl_c_during_imports_and_mid_run_gives_one_line_and_130(material, tmp_
         assert not out.exists() and not leftovers(tmp_path)
 
 
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc to see what the child has loaded")
+@pytest.mark.parametrize("library", ["_multiarray_umath", "libtorch", "scipy"])
+def test_ctrl_c_during_scene_animates_imports_gives_one_line_and_130(gvhmr_file, tmp_path, library):
+    """``scene animate`` imports numpy, scipy and torch inside the command (``--help`` imports none): a SIGINT
+    once the child has mapped numpy's core (the first heavy import), torch or scipy (found by polling
+    /proc/PID/maps) is one line and exit 130, with no output folder left."""
+    out = tmp_path / "OUT"
+    rc, lines = _sigint_when(["scene", "animate", gvhmr_file, "--out", out], lambda pid: _mapped(pid, library))
+    assert rc == 130, lines
+    assert lines == ["error: interrupted (Ctrl-C): stopped; no file was left half-written."], lines
+    assert not out.exists() and not leftovers(tmp_path)
+
+
 def test_a_ctrl_c_swallowed_by_a_finalizer_stops_the_run(monkeypatch, capsys):
     """Python reports a KeyboardInterrupt raised in ``__del__`` as "Exception ignored in ..." (4 lines) and carries
     on; smplik's hook raises it again in the main thread instead, silently."""

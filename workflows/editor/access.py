@@ -33,6 +33,7 @@ import hmac
 import http
 import ipaddress
 import logging
+import re
 import secrets
 import threading
 from collections.abc import Callable, Iterator
@@ -166,6 +167,7 @@ def answer_unparsed_requests(base: type) -> type:
                 if protocol.state is CONNECTING and isinstance(exc, InvalidMessage) and not protocol.writes \
                         and not isinstance(exc.__cause__, EOFError):  # a request it could not parse, no answer
                     reason = str(exc.__cause__ or exc).encode("ascii", "backslashreplace").decode()[:200]
+                    reason = re.sub(rf"{TOKEN_PARAM}=[^&\s]*", f"{TOKEN_PARAM}=...", reason)  # never log the token
                     refused = protocol.reject(http.HTTPStatus.BAD_REQUEST,
                                               f"smplik editor: malformed HTTP request ({reason}).\n")
                     refused.headers["Referrer-Policy"] = REFERRER_POLICY
