@@ -13,7 +13,8 @@ runs with the crafted cases; every one must end as ``clean_error`` (exit 1, one 
   3-joint skin plus 200,000 nodes; ``--max-joints 10``; ``VRMC_vrm.humanoid = ["x"]``; ``VRM.humanoid = "abc"``;
 * ``r4_draco`` (DB): ``scene render`` of a scene whose character is a skinned GLB whose Draco primitive (64 bytes)
   declares 3e8 points (the skeleton path relative to the scene's folder);
-* ``r4_errors``: a JSON number of 5000 digits (the message must name the file);
+* ``r4_errors``: a JSON number of 5000 digits, a glTF node ``rotation`` [0, 0, 0, 0], a NUL in a scene's
+  ``image`` path (each message must name the file);
 * ``r4_budget``: ``scene variants --k 64 --candidates 1024`` (peak memory), a BVH star of 9,990 children
   (wall time; refused as not a human).
 
@@ -205,6 +206,15 @@ def round4_output_cases(work: Path) -> list[Case]:
     big.write_text('{"format": "smplik-effectors", "effectors": [{"joint": ' + "9" * 5000 + "}]}")
     cases.append(Case("r4_errors", ["solve", str(big), "--out", str(d / "o.json")], "a 5000-digit JSON integer",
                       keep=big))
+    q0 = _gltf(d / "q0.gltf", [{"name": "Hips", "rotation": [0, 0, 0, 0], "children": [1]},
+                               {"name": "Spine", "translation": [0, 1, 0]}], [{"joints": [0, 1]}])
+    cases.append(Case("r4_errors", ["invert-shape", str(q0), "--out", str(d / "s.json")],
+                      "glTF node rotation [0, 0, 0, 0]", keep=q0))
+    nul = json.loads(scene_file.read_text())
+    nul["image"] = "a\u0000b.png"
+    (d / "nul.json").write_text(json.dumps(nul))
+    cases.append(Case("r4_errors", ["scene", "render", str(d / "nul.json"), "--out", str(d / "r.png")],
+                      "a NUL in a scene's image path", keep=d / "nul.json"))
 
     # budgets: accepted (variants) or refused (star), measured
     d = folder()
