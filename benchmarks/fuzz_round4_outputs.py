@@ -11,7 +11,10 @@ runs with the crafted cases; every one must end as ``clean_error`` (exit 1, one 
   "/dev/zero"`` in ``scene render``; a ``--preview`` that is a folder;
 * ``r4_gltf`` (GW, GJ, VR): a root ``matrix`` 1e200 times a hips ``scale`` 1e200; a 100,000-joint chain; a
   3-joint skin plus 200,000 nodes; ``--max-joints 10``; ``VRMC_vrm.humanoid = ["x"]``; ``VRM.humanoid = "abc"``;
-* ``r4_errors``: a JSON number of 5000 digits (the message must name the file);
+* ``r4_draco`` (DB): ``scene render`` of a scene whose character is a skinned GLB whose Draco primitive (64 bytes)
+  declares 3e8 points (the skeleton path relative to the scene's folder);
+* ``r4_errors``: a JSON number of 5000 digits, a glTF node ``rotation`` [0, 0, 0, 0], a NUL in a scene's
+  ``image`` path (each message must name the file);
 * ``r4_budget``: ``scene variants --k 64 --candidates 1024`` (peak memory), a BVH star of 9,990 children
   (wall time; refused as not a human).
 
@@ -62,6 +65,38 @@ def _star_bvh(path: Path, children: int = 9990) -> Path:
     lines += ["}", "MOTION", "Frames: 1", "Frame Time: 0.033333", " ".join(["0"] * (6 + 3 * children))]
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def _draco_bomb_scene(folder: Path) -> Path:
+    """``folder/bomb.glb``: the Mixamo GLB whose skinned primitive is a 64-byte Draco point cloud (google/draco
+    bitstream 2.3, as DracoPy encodes it) declaring 3e8 points; ``folder/scene.json`` poses it (relative path)."""
+    import DracoPy
+    import numpy as np
+    import pygltflib
+
+    from workflows.character import CharacterOptions
+    from workflows.examples_gen import example_poses
+    from workflows.layout_examples import smpl_rest, write_mixamo_gltf
+    from workflows.scene import Scene, SceneCharacter, SkeletonSource, save_scene
+
+    bomb = bytearray(DracoPy.encode(np.random.default_rng(0).random((10, 3)).astype(np.float32)))
+    bomb[11:15] = (300_000_000).to_bytes(4, "little")  # the point count of the point-cloud header
+    bomb = bytes(bomb[:64].ljust(64, b"\0"))
+    J, V, F, W = smpl_rest()
+    g = pygltflib.GLTF2().load(str(write_mixamo_gltf(folder / "plain.glb", J, (V, F, W))))
+    blob = bytearray(g.binary_blob())
+    blob.extend(b"\0" * (-len(blob) % 4))
+    g.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(bomb)))
+    blob.extend(bomb)
+    g.meshes[0].primitives[0].extensions = {"KHR_draco_mesh_compression": {
+        "bufferView": len(g.bufferViews) - 1, "attributes": {"POSITION": 0, "JOINTS_0": 1, "WEIGHTS_0": 2}}}
+    g.buffers[0].byteLength = len(blob)
+    g.set_binary_blob(bytes(blob))
+    g.save_binary(str(folder / "bomb.glb"))
+    pose = example_poses()[0].pose
+    character = SceneCharacter("hero", pose.gender, pose.betas, 1.0,
+                               SkeletonSource.from_options("bomb.glb", CharacterOptions()), (), pose)
+    return save_scene(Scene((character,)), folder / "scene.json")
 
 
 def round4_output_cases(work: Path) -> list[Case]:
@@ -154,12 +189,32 @@ def round4_output_cases(work: Path) -> list[Case]:
                    None, ext)
         cases.append(Case("r4_gltf", ["invert-shape", str(vr), "--out", str(d / "s.json")], f"VR {ext}", keep=vr))
 
+    # DB: a Draco point cloud declaring 3e8 points on the skinned mesh, through scene render
+    try:
+        import DracoPy  # noqa: F401
+    except ImportError:
+        pass  # no Draco decoder: such a mesh is never decoded (one warning)
+    else:
+        d = folder()
+        _draco_bomb_scene(d)
+        cases.append(Case("r4_draco", ["scene", "render", str(d / "scene.json"), "--out", str(d / "r.png")],
+                          "DB Draco buffer declaring 3e8 points", keep=d / "bomb.glb"))
+
     # errors that must name the file
     d = folder()
     big = d / "effectors.json"
     big.write_text('{"format": "smplik-effectors", "effectors": [{"joint": ' + "9" * 5000 + "}]}")
     cases.append(Case("r4_errors", ["solve", str(big), "--out", str(d / "o.json")], "a 5000-digit JSON integer",
                       keep=big))
+    q0 = _gltf(d / "q0.gltf", [{"name": "Hips", "rotation": [0, 0, 0, 0], "children": [1]},
+                               {"name": "Spine", "translation": [0, 1, 0]}], [{"joints": [0, 1]}])
+    cases.append(Case("r4_errors", ["invert-shape", str(q0), "--out", str(d / "s.json")],
+                      "glTF node rotation [0, 0, 0, 0]", keep=q0))
+    nul = json.loads(scene_file.read_text())
+    nul["image"] = "a\u0000b.png"
+    (d / "nul.json").write_text(json.dumps(nul))
+    cases.append(Case("r4_errors", ["scene", "render", str(d / "nul.json"), "--out", str(d / "r.png")],
+                      "a NUL in a scene's image path", keep=d / "nul.json"))
 
     # budgets: accepted (variants) or refused (star), measured
     d = folder()

@@ -67,12 +67,15 @@ class GltfFile:
         return read_accessor(self, index)
 
 
-def node_local_matrix(node) -> np.ndarray:
-    """``T_parent_node`` (4, 4) of a pygltflib node (``matrix`` if given, else T @ R @ S)."""
+def node_local_matrix(node, where: str = "node") -> np.ndarray:
+    """``T_parent_node`` (4, 4) of a pygltflib node (``matrix`` if given, else T @ R @ S).
+
+    ``where`` starts each error line (the file and node, ``"scene.glb: nodes[3]"``)."""
+    where = f"{where} ({node.name!r})" if node.name is not None else where
     if node.matrix is not None:
         m = np.asarray(node.matrix, dtype=np.float64)
         if m.shape != (16,):
-            raise GltfError(f"node {node.name!r}: 'matrix' must have 16 numbers")
+            raise GltfError(f"{where}: 'matrix' must have 16 numbers")
         return m.reshape(4, 4).T  # glTF stores column-major
     T = np.eye(4)
     if node.translation is not None:
@@ -80,7 +83,7 @@ def node_local_matrix(node) -> np.ndarray:
     if node.rotation is not None:
         q = np.asarray(node.rotation, dtype=np.float64).reshape(4)
         if not np.linalg.norm(q) > 1e-12:
-            raise GltfError(f"node {node.name!r}: zero rotation quaternion")
+            raise GltfError(f"{where}.rotation: is a zero quaternion")
         T[:3, :3] = Rotation.from_quat(q).as_matrix()  # glTF quaternions are (x, y, z, w)
     if node.scale is not None:
         T[:3, :3] = T[:3, :3] * np.asarray(node.scale, dtype=np.float64).reshape(3)[None, :]
@@ -149,7 +152,8 @@ def _world_matrices(path: Path, gltf) -> tuple[np.ndarray, tuple[int, ...]]:
             if parent[c] != -1 or c == p:
                 raise GltfError(f"{path}: node {c} has several parents (the node graph must be a tree)")
             parent[c] = p
-    local = np.stack([node_local_matrix(node) for node in nodes]) if n else np.zeros((0, 4, 4))
+    local = np.stack([node_local_matrix(node, f"{path}: nodes[{i}]") for i, node in enumerate(nodes)]) if n \
+        else np.zeros((0, 4, 4))
     if not np.isfinite(local).all():
         raise GltfError(f"{path}: a node transform holds a non-finite value")
     world = np.full((n, 4, 4), np.nan)

@@ -363,6 +363,19 @@ def test_ctrl_c_during_imports_and_mid_run_gives_one_line_and_130(material, tmp_
         assert not out.exists() and not leftovers(tmp_path)
 
 
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc to see what the child has loaded")
+@pytest.mark.parametrize("library", ["_multiarray_umath", "libtorch", "scipy"])
+def test_ctrl_c_during_scene_animates_imports_gives_one_line_and_130(gvhmr_file, tmp_path, library):
+    """``scene animate`` imports numpy, scipy and torch inside the command (``--help`` imports none): a SIGINT
+    once the child has mapped numpy's core (the first heavy import), torch or scipy (found by polling
+    /proc/PID/maps) is one line and exit 130, with no output folder left."""
+    out = tmp_path / "OUT"
+    rc, lines = _sigint_when(["scene", "animate", gvhmr_file, "--out", out], lambda pid: _mapped(pid, library))
+    assert rc == 130, lines
+    assert lines == ["error: interrupted (Ctrl-C): stopped; no file was left half-written."], lines
+    assert not out.exists() and not leftovers(tmp_path)
+
+
 def test_a_ctrl_c_swallowed_by_a_finalizer_stops_the_run(monkeypatch, capsys):
     """Python reports a KeyboardInterrupt raised in ``__del__`` as "Exception ignored in ..." (4 lines) and carries
     on; smplik's hook raises it again in the main thread instead, silently."""
@@ -500,6 +513,26 @@ def test_DB_a_draco_buffer_declaring_3e8_points_is_refused_before_decoding(tmp_p
     g.save_binary(str(tmp_path / "bomb.glb"))
     with pytest.raises(GltfError, match=r"bomb.glb.*declares 300000000 vertices"):
         skinned_mesh(read_skeleton(tmp_path / "bomb.glb").gltf)
+    # through the real command: a scene whose character is bomb.glb (a path relative to the scene's folder, the
+    # command run from another folder: the own mesh was silently skipped there before), under a 3 GiB cap
+    from workflows.character import CharacterOptions
+    from workflows.examples_gen import example_poses
+    from workflows.scene import Scene, SceneCharacter, SkeletonSource
+    from workflows.scene.document import save_scene
+
+    pose = example_poses()[0].pose
+    save_scene(Scene((SceneCharacter("hero", pose.gender, pose.betas, 1.0,
+                                     SkeletonSource.from_options("bomb.glb", CharacterOptions()), (), pose),)),
+               tmp_path / "scene.json")
+    assert json.loads((tmp_path / "scene.json").read_text())["characters"][0]["skeleton"]["path"] == "bomb.glb"
+    proc = subprocess.run(["bash", "-c", 'ulimit -v 3145728 && exec "$@"', "-", sys.executable, "-m", "smplik.cli",
+                           "scene", "render", str(tmp_path / "scene.json"), "--out", str(tmp_path / "r.png")],
+                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          timeout=900)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert "bomb.glb" in lines[0] and "declares 300000000 vertices" in lines[0] and "2000000" in lines[0], lines
+    assert not (tmp_path / "r.png").exists()
 
 
 # ----------------------------------------------------------------------------- errors name the file
@@ -510,6 +543,58 @@ def test_a_4300_digit_number_names_the_file(tmp_path):
     src.write_text('{"format": "smplik-effectors", "effectors": [{"joint": ' + "9" * 5000 + "}]}")
     line = assert_refused(["solve", src, "--out", tmp_path / "o.json"], "effectors.json")
     assert "9999999999" not in line
+
+
+def test_a_gltf_zero_quaternion_names_the_file_and_node(tmp_path):
+    """A node ``rotation`` [0, 0, 0, 0] (scipy's "Found zero norm quaternions" if it reached Rotation.from_quat)."""
+    src = _gltf(tmp_path / "q0.gltf", [{"name": "Hips", "rotation": [0, 0, 0, 0], "children": [1]},
+                                       {"name": "Spine", "translation": [0, 1, 0]}], [{"joints": [0, 1]}])
+    for bind in ("inverse_bind", "nodes"):
+        line = assert_refused(["invert-shape", src, "--out", tmp_path / "s.json", "--bind", bind], "q0.gltf",
+                              "nodes[0]", "rotation", "zero quaternion")
+        assert "Found zero norm" not in line
+
+
+@pytest.mark.parametrize("key", ["skeleton.path", "skeleton.map", "image", "source"])
+def test_a_nul_character_in_a_scene_path_names_the_file_and_key(material, tmp_path, key):
+    """"a\u0000b.glb" as a scene's skeleton, rig map, image or source: the OS would say "embedded null byte"
+    (or, for ``scene render``, the file was silently skipped)."""
+    data = json.loads(material["scene"].read_text())
+    if key.startswith("skeleton"):
+        data["characters"][0]["skeleton"] = {"path": "hero.bvh", key.split(".")[1]: "a\u0000b.glb"}
+    else:
+        data[key] = "a\u0000b.png"
+    src = tmp_path / "scene.json"
+    src.write_text(json.dumps(data))
+    where = f"characters[0].{key}" if key.startswith("skeleton") else key
+    for command in ("render", "export"):
+        out = tmp_path / ("r.png" if command == "render" else "OUT")
+        line = assert_refused(["scene", command, src, "--out", out], "scene.json", where, "NUL character")
+        assert "embedded null byte" not in line and not out.exists()
+
+
+@pytest.mark.parametrize("camera,body,needle", [(0.0, None, "singular values"), (1e200, None, "an entry of 1e+200"),
+                                                 (None, 0.0, "singular values")])
+def test_degenerate_estimator_rotation_matrices_name_the_file_and_key(tmp_path, camera, body, needle):
+    """TRAM's SLAM camera rotations (``camera.npy`` ``pred_cam_R``) or body rotations (``pred_rotmat``) that are
+    zero or huge: projected by an SVD (numpy's "SVD did not converge" on huge entries) into an invented pose before;
+    now one line naming the file and key. The fixture writes TRAM's own layout (tests/estimator_fixtures.py)."""
+    from estimator_fixtures import people, write_tram
+
+    aa, transl, betas = people()[:3]
+    _, paths = write_tram(tmp_path, aa, transl, betas, cam_R=None if camera is None else np.full((4, 3, 3), camera))
+    key = "pred_cam_R[0]" if camera is not None else "pred_rotmat"
+    if body is not None:
+        import torch
+
+        data = np.load(paths[0], allow_pickle=True).item()
+        data["pred_rotmat"] = torch.full_like(data["pred_rotmat"], body)
+        np.save(paths[0], data)
+    where = "camera.npy" if camera is not None else "hps_track_0.npy"
+    out = tmp_path / "OUT"
+    assert_refused(["scene", "animate", paths[0], "--fps", "30", "--space", "world", "--out", out], where,
+                   f"'{key}'", "not a rotation", needle)
+    assert not out.exists()
 
 
 def test_a_library_error_without_a_file_gets_the_commands_inputs(capsys, tmp_path):
@@ -551,7 +636,7 @@ def _raw_status(port: int, request: bytes) -> int:
     with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
         s.sendall(request)
         head = s.recv(4096).decode("latin-1")
-    return int(head.split()[1])
+    return int(head.split()[1]) if head else 0  # 0: closed without an answer
 
 
 def test_editor_answers_repeated_host_and_origin_headers_with_400(tmp_path):
@@ -573,5 +658,52 @@ def test_editor_answers_repeated_host_and_origin_headers_with_400(tmp_path):
         for extra in (f"Host: {own}\r\nHost: {own}\r\n", f"Host: {own}\r\nHost: evil.example.com:{port}\r\n",
                       f"Host: {own}\r\nOrigin: http://{own}\r\nOrigin: http://{own}\r\n"):
             assert _raw_status(port, f"{base}{extra}\r\n".encode()) == 400, extra
+    finally:
+        editor.stop()
+
+
+def test_editor_answers_malformed_http_with_4xx_and_stays_up(tmp_path):
+    """Requests websockets' HTTP parser refuses (it closed them without an answer) get 400; bad Host, token,
+    path or WebSocket handshakes get 4xx; never a 5xx, and the editor still serves its page afterwards."""
+    pytest.importorskip("viser")
+    import torch
+
+    from smplik.solver import IKSolver
+    from workflows.editor.app import EditorApp
+    from workflows.editor.state import EditorState, fresh_scene
+
+    torch.set_num_threads(1)
+    editor = EditorApp(EditorState(fresh_scene(), IKSolver.load(), path=tmp_path / "scene.json"), host="127.0.0.1",
+                       port=0)
+    try:
+        port, token = editor.port, editor.access.token
+        own = f"127.0.0.1:{port}"
+        q = f"/?token={token}"
+        base = f"GET {q} HTTP/1.1\r\n"
+        ws = f"Origin: http://{own}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        cases = {  # request -> expected status
+            f"FOO {q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,  # a bad method
+            f"POST {q} HTTP/1.1\r\nHost: {own}\r\nContent-Length: 3\r\n\r\nabc": 400,
+            "GARBAGE\r\n\r\n": 400,
+            f"GET {q} HTTP/1.0\r\nHost: {own}\r\n\r\n": 400,
+            f"{base}Host: {own}\r\nX-A: {'a' * 20000}\r\n\r\n": 400,  # an over-long header
+            f"{base}Host: {own}\r\n" + "".join(f"X-{i}: a\r\n" for i in range(300)) + "\r\n": 400,
+            f"{base}Host: {own}\r\nNoColon\r\n\r\n": 400,
+            f"{base}Host: {own}\r\nX-A: a\x00b\r\n\r\n": 400,
+            f"GET /{'a' * 20000}{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,
+            f"{base}\r\n": 403,  # no Host
+            f"{base}Host: 127.0.0.1\xe9:{port}\r\n\r\n": 403,  # a non-ASCII Host
+            f"{base}Host: [::1:{port}\r\n\r\n": 403,  # an unbalanced IPv6 literal
+            f"GET /?token=\xe9\xff HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,
+            f"GET /%00{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 404,
+            f"GET /assets/%00.js{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 404,
+            f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Key: x\r\nSec-WebSocket-Version: 13\r\n\r\n": 400,
+            f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Version: 13\r\n\r\n": 400,  # no key
+            f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+            "Sec-WebSocket-Version: 99\r\n\r\n": 400,
+        }
+        for request, status in cases.items():
+            assert _raw_status(port, request.encode("latin-1")) == status, request[:120]
+        assert _raw_status(port, f"{base}Host: {own}\r\n\r\n".encode()) == 200
     finally:
         editor.stop()

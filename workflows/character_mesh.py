@@ -155,11 +155,12 @@ def own_mesh_item(char: CustomCharacter, pose: CustomPose, color=(0.85, 0.72, 0.
     return None if posed is None else MeshItem(posed[0], posed[1], color)
 
 
-def scene_character_own_mesh(character, color=(0.85, 0.72, 0.60, 1.0)):
+def scene_character_own_mesh(character, color=(0.85, 0.72, 0.60, 1.0), base_dir=None):
     """A scene character's own posed mesh (glTF/GLB characters with a pose), else None.
 
     ``character`` is a :class:`workflows.scene.SceneCharacter`; its skeleton file is re-read with its
-    stored options and its ``(betas, scale)``.
+    stored options and its ``(betas, scale)``. A relative skeleton path is resolved against ``base_dir``
+    (the scene file's folder; default: the current folder), as :func:`workflows.scene.export.export_scene` does.
     """
     import dataclasses
     from pathlib import Path
@@ -167,9 +168,11 @@ def scene_character_own_mesh(character, color=(0.85, 0.72, 0.60, 1.0)):
     from workflows.character import character_from_estimate, smpl_to_custom
 
     sk = character.skeleton
-    if sk is None or character.pose is None or Path(sk.path).suffix.lower() not in (".glb", ".gltf") \
-            or not Path(sk.path).is_file():
+    if sk is None or character.pose is None or Path(sk.path).suffix.lower() not in (".glb", ".gltf"):
         return None
-    char = character_from_estimate(sk.path, sk.options, character.betas, character.scale, character.gender)
+    path = Path(sk.path) if base_dir is None or Path(sk.path).is_absolute() else Path(base_dir) / sk.path
+    if not path.is_file():
+        return None
+    char = character_from_estimate(str(path), sk.options, character.betas, character.scale, character.gender)
     pose = smpl_to_custom(dataclasses.replace(character.pose, betas=character.betas), char)
     return own_mesh_item(char, pose, color)

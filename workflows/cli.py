@@ -199,7 +199,7 @@ def render_cmd(
                 raise  # over a limit: its own line (names the variable)
             except (OSError, ValueError, SyntaxError, MemoryError) as exc:  # PIL/matplotlib on a bad file
                 fail(f"{src}: not a readable image ({type(exc).__name__}: {exc})")
-        save_png(render_scene(loaded, image=background), out)
+        save_png(render_scene(loaded, image=background, base_dir=scene.resolve().parent), out)
     say(f"wrote {out}")
 
 

@@ -14,7 +14,10 @@ and Export, or ask viser for a public share tunnel. Like Jupyter, ``smplik edit`
   asked for): ``Origin: http://evil.example.com``, ``Origin: null`` (a sandboxed frame, a local HTML
   file), another local port, or no ``Origin`` at all are refused with HTTP 403;
 * sends ``Referrer-Policy: no-referrer`` with every HTTP response, so the token in the page's URL never
-  leaves in a ``Referer`` header.
+  leaves in a ``Referer`` header;
+* answers a request websockets cannot parse (a method other than GET, HTTP/1.0, a header line over
+  8 KiB or more than 128 headers, a line without a colon, a body) with HTTP 400 before closing
+  (websockets itself closes without a word): :func:`answer_unparsed_requests`.
 
 The check wraps the ``process_request`` hook that viser passes to :func:`websockets.asyncio.server.serve`
 (viser >= 1.1 serves its page and its WebSocket from that one server): :func:`guarded_serve` replaces
@@ -30,6 +33,7 @@ import hmac
 import http
 import ipaddress
 import logging
+import re
 import secrets
 import threading
 from collections.abc import Callable, Iterator
@@ -53,11 +57,14 @@ def cookie_name(port: int) -> str:
 
 
 def _host_name_ok(name: str) -> bool:
-    """A loopback name or an IP literal (never a domain name a DNS-rebinding page could use)."""
+    """A loopback name or an IP literal (never a domain name a DNS-rebinding page could use); an IPv6
+    literal in brackets (``[::1]``, not ``[::1`` or ``::1``)."""
     if name in LOOPBACK_NAMES:
         return True
+    if name.startswith("[") != name.endswith("]") or (":" in name and not name.startswith("[")):
+        return False
     try:
-        ipaddress.ip_address(name.strip("[]"))
+        ipaddress.ip_address(name[1:-1] if name.startswith("[") else name)
         return True
     except ValueError:
         return False
@@ -144,6 +151,35 @@ class AccessGuard:
         return process_request
 
 
+def answer_unparsed_requests(base: type) -> type:
+    """A websockets ``ServerConnection`` subclass (of ``base``) whose protocol answers an HTTP request it
+    cannot parse with ``400 Bad Request`` before the end of the stream (websockets sends only the end)."""
+    from websockets.exceptions import InvalidMessage
+    from websockets.protocol import CONNECTING
+
+    class AnsweringConnection(base):  # type: ignore[misc, valid-type]
+        def __init__(self, protocol: Any, *args: Any, **kwargs: Any) -> None:
+            super().__init__(protocol, *args, **kwargs)
+            send_eof = protocol.send_eof
+
+            def answer_then_eof() -> None:
+                exc = protocol.handshake_exc
+                if protocol.state is CONNECTING and isinstance(exc, InvalidMessage) and not protocol.writes \
+                        and not isinstance(exc.__cause__, EOFError):  # a request it could not parse, no answer
+                    reason = str(exc.__cause__ or exc).encode("ascii", "backslashreplace").decode()[:200]
+                    reason = re.sub(rf"{TOKEN_PARAM}=[^&\s]*", f"{TOKEN_PARAM}=...", reason)  # never log the token
+                    refused = protocol.reject(http.HTTPStatus.BAD_REQUEST,
+                                              f"smplik editor: malformed HTTP request ({reason}).\n")
+                    refused.headers["Referrer-Policy"] = REFERRER_POLICY
+                    protocol.writes.append(refused.serialize())
+                    log.warning("smplik editor: refused a malformed request: %s", reason)
+                send_eof()
+
+            protocol.send_eof = answer_then_eof
+
+    return AnsweringConnection
+
+
 @contextlib.contextmanager
 def guarded_serve(guard: AccessGuard) -> Iterator[list[int]]:
     """While open, every :func:`websockets.asyncio.server.serve` call gets ``guard``'s ``process_request``
@@ -156,6 +192,8 @@ def guarded_serve(guard: AccessGuard) -> Iterator[list[int]]:
 
         def serve(*args: Any, **kwargs: Any) -> Any:
             kwargs["process_request"] = guard.wrap(kwargs.get("process_request"))
+            kwargs["create_connection"] = answer_unparsed_requests(kwargs.get("create_connection")
+                                                                   or ws_server.ServerConnection)
             calls.append(1)
             return original(*args, **kwargs)
 

@@ -49,8 +49,8 @@ def _person(data: Any, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
             raise base.EstimateFormatError(f"{where}: 'params.global_orient' has {go.size} numbers; expected 3 "
                                            "(pose2rot True: axis-angle).")
     else:
-        go = base.rotations_to_axis_angle(go.reshape(-1, 3, 3)[:1]).reshape(-1)
-        bp = base.rotations_to_axis_angle(bp.reshape(-1, 3, 3)).reshape(-1)
+        go = base.rotations_to_axis_angle(go.reshape(-1, 3, 3)[:1], "params.global_orient", where).reshape(-1)
+        bp = base.rotations_to_axis_angle(bp.reshape(-1, 3, 3), "params.body_pose", where).reshape(-1)
     if bp.size == 69:
         family, body = "smpl", bp.reshape(23, 3)
     elif bp.size == 63:

@@ -328,12 +328,37 @@ def _as_float(name: str, value, shape_tail: tuple[int, ...], source: str) -> np.
     return arr
 
 
-def rotations_to_axis_angle(R: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices -> (..., 3) axis-angle (projected to the nearest rotation first)."""
+MAX_ROTATION_ENTRY = 2.0
+"""A rotation matrix's entries lie in [-1, 1]; an estimator's (float32, not quite orthonormal) within this."""
+ROTATION_SINGULAR_RANGE = (0.5, 1.5)
+"""Singular values a stored rotation matrix may have (1 for a rotation): a zero, rank-deficient or scaled
+matrix is not a rotation, and projecting it to the "nearest" one would invent a pose."""
+
+
+def rotations_to_axis_angle(R: np.ndarray, name: str = "rotation matrices", where: str = "") -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 3) axis-angle (projected to the nearest rotation first).
+
+    Raises :class:`EstimateFormatError` naming ``where`` (the file) and ``name`` (its key) on a non-finite
+    matrix, an entry beyond :data:`MAX_ROTATION_ENTRY` (checked before the SVD, which numpy may fail to
+    converge on) or singular values outside :data:`ROTATION_SINGULAR_RANGE`.
+    """
     R = np.asarray(R, dtype=np.float64)
+    what = f"{where}: '{name}'" if where else name
     if not np.isfinite(R).all():
-        raise EstimateFormatError("rotation matrices contain NaN or inf.")
-    u, _, vt = np.linalg.svd(R)
+        raise EstimateFormatError(f"{what} contain NaN or inf.")
+    flat = R.reshape(-1, 3, 3)
+    big = np.abs(flat).max(axis=(1, 2), initial=0.0)
+    if (big > MAX_ROTATION_ENTRY).any():
+        k = int(np.argmax(big > MAX_ROTATION_ENTRY))
+        raise EstimateFormatError(f"{what}: matrix {k} is not a rotation (an entry of {float(big[k]):.3g}; "
+                                  f"rotation entries lie in [-1, 1]).")
+    u, sv, vt = np.linalg.svd(R)
+    lo, hi = ROTATION_SINGULAR_RANGE
+    bad = ((sv < lo) | (sv > hi)).reshape(-1, 3).any(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise EstimateFormatError(f"{what}: matrix {k} is not a rotation (singular values "
+                                  f"{np.round(sv.reshape(-1, 3)[k], 3).tolist()}; a rotation's are 1).")
     d = np.sign(np.linalg.det(u @ vt))
     d[d == 0] = 1.0
     u[..., :, -1] *= d[..., None]

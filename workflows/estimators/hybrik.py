@@ -83,7 +83,7 @@ def from_data(data: dict[str, Any], *, source: str = "<hybrik>", frame: int = 0,
         R = quaternion_to_matrix(torch.as_tensor(row.reshape(NUM_JOINTS, 4))).numpy()
     else:
         R = row.reshape(NUM_JOINTS, 3, 3)
-    aa = base.rotations_to_axis_angle(R[None])
+    aa = base.rotations_to_axis_angle(R[None], "pred_thetas", source)
     return base.make_people(aa, transl[frame:frame + 1], betas[frame:frame + 1], frame_of_reference="camera",
                             translation_kind="pelvis", camera=base.CameraInfo(focal, size), person_ids=["0"],
                             frames=[str(frame)], source=f"{source} (hybrik)", max_people=max_people)

@@ -85,7 +85,7 @@ def from_data(data: dict[str, Any], *, source: str = "<phalp>", frame: int | str
     tids = [str(t) for t in (tid.tolist() if isinstance(tid, np.ndarray) else list(tid))]
     if len(tids) != len(smpl):
         raise base.EstimateFormatError(f"{where}: {len(tids)} 'tid' entries for {len(smpl)} people.")
-    return base.make_people(base.rotations_to_axis_angle(R), camera, betas, frame_of_reference="camera",
+    return base.make_people(base.rotations_to_axis_angle(R, "smpl", where), camera, betas, frame_of_reference="camera",
                             translation_kind="transl", camera=base.CameraInfo(focal, size), person_ids=tids,
                             frames=[str(key)] * len(smpl), source=f"{source} (phalp)", max_people=max_people)
 

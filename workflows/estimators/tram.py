@@ -85,7 +85,9 @@ def _world_pose(pose: np.ndarray, pelvis_cam: np.ndarray, cam: dict, frame: int,
     if not 0 <= frame < R_all.shape[0]:
         raise EstimateFormatError(f"{where}: the camera trajectory has {R_all.shape[0]} frames; no frame {frame}.")
     R_world_cam = R_all[frame]
-    root = base.rotations_to_axis_angle((R_world_cam @ Rotation.from_rotvec(pose[0]).as_matrix())[None])
+    base.rotations_to_axis_angle(R_world_cam[None], f"pred_cam_R[{frame}]", where)  # a rotation, or one line
+    root = base.rotations_to_axis_angle((R_world_cam @ Rotation.from_rotvec(pose[0]).as_matrix())[None],
+                                        f"pred_cam_R[{frame}]", where)
     return np.concatenate([root, pose[1:]]), R_world_cam @ pelvis_cam + T_all.reshape(-1, 3)[frame]
 
 
@@ -108,7 +110,7 @@ def _row(data: Any, frame: int, where: str) -> tuple[np.ndarray, np.ndarray, np.
     if hit.size == 0:
         return None
     r = int(hit[0])  # the track's mean shape, as TRAM's own renderer (lib/pipeline/visualization.py) uses it
-    return base.rotations_to_axis_angle(R[r]), trans[r], shape.mean(axis=0)
+    return base.rotations_to_axis_angle(R[r], "pred_rotmat", where), trans[r], shape.mean(axis=0)
 
 
 def read(path: str | Path, data: Any, *, frame: int = 0, max_people: int = base.MAX_PEOPLE,

@@ -55,7 +55,7 @@ def orig_cam_to_transl(orig_cam: np.ndarray, fov_deg: float = FOV_DEG) -> np.nda
 def _pose(value: Any, where: str) -> np.ndarray:
     arr = base.finite(value, "pose", where)
     if arr.ndim == 4 and arr.shape[1:] == (24, 3, 3):  # PARE: rotation matrices
-        return base.rotations_to_axis_angle(arr).reshape(-1, 72)
+        return base.rotations_to_axis_angle(arr, "pose", where).reshape(-1, 72)
     return base.rows(arr, "pose", 72, where)
 
 

@@ -136,6 +136,15 @@ def _field_names(cls: type) -> set[str]:
     return {f.name for f in dataclasses.fields(cls)}
 
 
+def _file_name(value: Any, path: str, what: str) -> str:
+    """``value`` as a file path string: a string without a NUL character (the OS refuses those with "embedded
+    null byte", a line naming no file)."""
+    _expect(value, str, path, what)
+    if "\x00" in value:
+        raise SceneError(f"{path}: {short_repr(value)} holds a NUL character (\\u0000); not a file path.")
+    return value
+
+
 def _check_keys(data: Mapping[str, Any], allowed: set[str], path: str) -> None:
     unknown = sorted(str(k) for k in set(data) - allowed)
     if unknown:
@@ -158,7 +167,9 @@ def _character(data: Any, path: str) -> SceneCharacter:
     if data.get("skeleton") is not None:
         sk = _expect(data["skeleton"], Mapping, f"{path}.skeleton", "null or {\"path\", \"rig\", ...}")
         _check_keys(sk, _field_names(SkeletonSource), f"{path}.skeleton")
-        sk_path = _expect(sk.get("path"), str, f"{path}.skeleton.path", "a string")
+        sk_path = _file_name(sk.get("path"), f"{path}.skeleton.path", "a string")
+        if sk.get("map") is not None:
+            _file_name(sk["map"], f"{path}.skeleton.map", "a file path or null")
         try:
             options = CharacterOptions.from_dict({k: v for k, v in sk.items() if k not in ("path", "joint_map")})
         except (ValueError, TypeError) as exc:
@@ -251,7 +262,7 @@ def _scene(data: Any, max_characters: int) -> Scene:
     camera = None if data.get("camera") is None else _camera(data["camera"])
     for key in ("source", "image"):
         if data.get(key) is not None:
-            _expect(data[key], str, key, "a string or null")
+            _file_name(data[key], key, "a string or null")
     ground = None
     if data.get("ground") is not None:
         g = _expect(data["ground"], Mapping, "ground", "an object")

@@ -446,7 +446,7 @@ def posed_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], fram
     out = _GlbData(blob, list(gltf.accessors or []), list(gltf.bufferViews or []))
     add = out.add
     n_nodes = len(doc.world)
-    local = np.stack([node_local_matrix(node) for node in doc.gltf.nodes])
+    local = np.stack([node_local_matrix(node, f"{doc.path}: nodes[{i}]") for i, node in enumerate(doc.gltf.nodes)])
     order = _parents_first(doc.parent)
     joint_of = {n: k for k, n in enumerate(rig.joint_nodes)}
     A = rig.T_world_joint_bind[:, :3, :3]

@@ -91,13 +91,18 @@ def custom_skeleton_segments(char: CustomCharacter, pose: CustomPose, color=(0.9
     return [Segment(p[par], p[k], radius, color) for k, par in enumerate(char.parents) if par >= 0 and par not in above]
 
 
-def scene_items(scene: Scene, *, markers: bool = True) -> tuple[list[MeshItem], list[Sphere], list[Segment]]:
-    """Meshes (one colour per character) and effector markers of every character."""
+def scene_items(scene: Scene, *, markers: bool = True,
+                base_dir: str | Path | None = None) -> tuple[list[MeshItem], list[Sphere], list[Segment]]:
+    """Meshes (one colour per character) and effector markers of every character.
+
+    ``base_dir``: the folder relative skeleton paths are resolved against (the scene file's; default: the
+    current folder)."""
     meshes, spheres, segments = [], [], []
     from workflows.character_mesh import scene_character_own_mesh
 
     for i, c in enumerate(scene.characters):  # a glTF character's own skinned mesh, else its SMPL body
-        mesh = scene_character_own_mesh(c, PALETTE[i % len(PALETTE)]) or character_mesh(c, PALETTE[i % len(PALETTE)])
+        color = PALETTE[i % len(PALETTE)]
+        mesh = scene_character_own_mesh(c, color, base_dir) or character_mesh(c, color)
         if mesh is not None:
             meshes.append(mesh)
         if markers:
@@ -136,7 +141,8 @@ def ghost_segments(pose: Pose, scale: float = 1.0, color=GHOST_COLOR, radius: fl
 def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[int, int] = (480, 640),
                  directions: Sequence[Sequence[float]] = ((0.0, 0.2, 1.0), (1.0, 0.2, 0.0)),
                  extra_segments: Sequence[Segment] = (), ghosts: Sequence[Pose | None] = (),
-                 errors_m: Sequence[float | None] = (), labels: bool = True) -> np.ndarray:
+                 errors_m: Sequence[float | None] = (), labels: bool = True,
+                 base_dir: str | Path | None = None) -> np.ndarray:
     """All characters with markers: over ``image`` (RGB uint8, estimator camera) and/or from ``directions``.
 
     Args:
@@ -144,10 +150,11 @@ def render_scene(scene: Scene, *, image: np.ndarray | None = None, size: tuple[i
             character's body) drawn as a dark wireframe skeleton; None skips one.
         errors_m: per character, its final error (metres) printed in the legend.
         labels: name every panel and list the people (colour, name, final error).
+        base_dir: the folder relative skeleton paths are resolved against (the scene file's).
 
     Returns the panels side by side (RGB uint8). ``size`` = (width, height) of each 3D view.
     """
-    meshes, spheres, segments = scene_items(scene)
+    meshes, spheres, segments = scene_items(scene, base_dir=base_dir)
     segments = segments + list(extra_segments)
     for c, g in zip(scene.characters, ghosts, strict=False):
         if g is not None:
