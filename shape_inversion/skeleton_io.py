@@ -285,7 +285,12 @@ def read_character(path: str | Path, options: CharacterOptions | None = None) ->
     """Read ``path`` and map it to SMPL as ``options`` say (one call for every command taking a character)."""
     o = CharacterOptions() if options is None else options
     skeleton = read_skeleton(path, rest=o.rest, bind=o.bind, positions=o.positions, max_joints=o.max_joints)
-    char = prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
+    try:
+        char = prepare_character(skeleton, rig=o.rig, map_file=o.map, units=o.units, up=o.up, root=o.root)
+    except RigError as exc:  # a refusal names the file it is about (the rig mapper sees only joint names)
+        if str(path) in str(exc):
+            raise
+        raise RigError(f"{path}: {exc}") from None
     if o.rest == "auto" and skeleton.bvh is not None and skeleton.rest == "frame0":
         char = _rest_by_evidence(char, o)
     return char

@@ -168,7 +168,7 @@ def test_a_real_non_human_is_refused_in_one_line_naming_the_feature(rig_id):
     entry = NON_HUMANS[rig_id]
     with pytest.raises(RigError) as err:
         read_character(RIGS / entry["file"])
-    assert "\n" not in str(err.value) and str(err.value).startswith(entry["refusal"])
+    assert "\n" not in str(err.value) and str(err.value).startswith(f"{RIGS / entry['file']}: {entry['refusal']}")
 
 
 # ----------------------------------------------------------------------------- names
