@@ -64,7 +64,9 @@ STALE_AGE_S = 3600.0
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>\d+)-)?[A-Za-z0-9_]{8}\.tmp(?P<ext>.*)$")
 
 
-def _process_alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` may still be running (this one, or one that exists; when unsure: yes, so that a
+    leftover of ours is kept rather than removed under a live writer)."""
     if pid == os.getpid():
         return True
     try:
@@ -93,7 +95,7 @@ def remove_stale_temp_files(path: str | Path, suffix: str | None = None) -> list
             continue
         try:
             if m["pid"] is not None:
-                stale = not _process_alive(int(m["pid"]))
+                stale = not process_alive(int(m["pid"]))
             else:
                 stale = time.time() - candidate.stat().st_mtime > STALE_AGE_S
             if stale and candidate.is_file():

@@ -38,6 +38,8 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from smplik.atomic import process_alive
+
 JOURNAL = ".smplik-commit.json"
 """The commit journal inside a temporary folder: the relative names being moved into ``OUT``."""
 _BACKUP = ".smplik-old"
@@ -78,18 +80,6 @@ def check_writes(writes: Iterable[str | Path], reads: Iterable[str | Path | None
                                       "another output folder or file.")
 
 
-def _process_alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, OSError):
-        return True
-    return True
-
-
 def _files_under(root: Path) -> list[Path]:
     """Relative paths of the files under ``root`` (the backup folder and journal excluded), sorted."""
     found = []
@@ -121,7 +111,7 @@ def recover_stale_stages(out_dir: str | Path) -> list[Path]:
             candidates += list(folder.glob(f".{_glob_escape(out.name)}.smplik-*.tmp"))
     for stage in candidates:
         m = _STAGE_NAME.match(stage.name)
-        if m is None or m["name"] != out.name or not stage.is_dir() or _process_alive(int(m["pid"])):
+        if m is None or m["name"] != out.name or not stage.is_dir() or process_alive(int(m["pid"])):
             continue
         journal = stage / JOURNAL
         with contextlib.suppress(OSError, ValueError):

@@ -639,7 +639,9 @@ def _raw_status(port: int, request: bytes) -> int:
     return int(head.split()[1]) if head else 0  # 0: closed without an answer
 
 
-def test_editor_answers_repeated_host_and_origin_headers_with_400(tmp_path):
+@pytest.fixture(scope="module")
+def running_editor(tmp_path_factory):
+    """One editor on a fresh scene for the HTTP tests: ``(port, token, "127.0.0.1:PORT")``."""
     pytest.importorskip("viser")
     import torch
 
@@ -648,62 +650,51 @@ def test_editor_answers_repeated_host_and_origin_headers_with_400(tmp_path):
     from workflows.editor.state import EditorState, fresh_scene
 
     torch.set_num_threads(1)
-    editor = EditorApp(EditorState(fresh_scene(), IKSolver.load(), path=tmp_path / "scene.json"), host="127.0.0.1",
-                       port=0)
+    path = tmp_path_factory.mktemp("editor") / "scene.json"
+    editor = EditorApp(EditorState(fresh_scene(), IKSolver.load(), path=path), host="127.0.0.1", port=0)
     try:
-        port, token = editor.port, editor.access.token
-        own = f"127.0.0.1:{port}"
-        base = f"GET /?token={token} HTTP/1.1\r\n"
-        assert _raw_status(port, f"{base}Host: {own}\r\n\r\n".encode()) == 200
-        for extra in (f"Host: {own}\r\nHost: {own}\r\n", f"Host: {own}\r\nHost: evil.example.com:{port}\r\n",
-                      f"Host: {own}\r\nOrigin: http://{own}\r\nOrigin: http://{own}\r\n"):
-            assert _raw_status(port, f"{base}{extra}\r\n".encode()) == 400, extra
+        yield editor.port, editor.access.token, f"127.0.0.1:{editor.port}"
     finally:
         editor.stop()
 
 
-def test_editor_answers_malformed_http_with_4xx_and_stays_up(tmp_path):
+def test_editor_answers_repeated_host_and_origin_headers_with_400(running_editor):
+    port, token, own = running_editor
+    base = f"GET /?token={token} HTTP/1.1\r\n"
+    assert _raw_status(port, f"{base}Host: {own}\r\n\r\n".encode()) == 200
+    for extra in (f"Host: {own}\r\nHost: {own}\r\n", f"Host: {own}\r\nHost: evil.example.com:{port}\r\n",
+                  f"Host: {own}\r\nOrigin: http://{own}\r\nOrigin: http://{own}\r\n"):
+        assert _raw_status(port, f"{base}{extra}\r\n".encode()) == 400, extra
+
+
+def test_editor_answers_malformed_http_with_4xx_and_stays_up(running_editor):
     """Requests websockets' HTTP parser refuses (it closed them without an answer) get 400; bad Host, token,
     path or WebSocket handshakes get 4xx; never a 5xx, and the editor still serves its page afterwards."""
-    pytest.importorskip("viser")
-    import torch
-
-    from smplik.solver import IKSolver
-    from workflows.editor.app import EditorApp
-    from workflows.editor.state import EditorState, fresh_scene
-
-    torch.set_num_threads(1)
-    editor = EditorApp(EditorState(fresh_scene(), IKSolver.load(), path=tmp_path / "scene.json"), host="127.0.0.1",
-                       port=0)
-    try:
-        port, token = editor.port, editor.access.token
-        own = f"127.0.0.1:{port}"
-        q = f"/?token={token}"
-        base = f"GET {q} HTTP/1.1\r\n"
-        ws = f"Origin: http://{own}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-        cases = {  # request -> expected status
-            f"FOO {q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,  # a bad method
-            f"POST {q} HTTP/1.1\r\nHost: {own}\r\nContent-Length: 3\r\n\r\nabc": 400,
-            "GARBAGE\r\n\r\n": 400,
-            f"GET {q} HTTP/1.0\r\nHost: {own}\r\n\r\n": 400,
-            f"{base}Host: {own}\r\nX-A: {'a' * 20000}\r\n\r\n": 400,  # an over-long header
-            f"{base}Host: {own}\r\n" + "".join(f"X-{i}: a\r\n" for i in range(300)) + "\r\n": 400,
-            f"{base}Host: {own}\r\nNoColon\r\n\r\n": 400,
-            f"{base}Host: {own}\r\nX-A: a\x00b\r\n\r\n": 400,
-            f"GET /{'a' * 20000}{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,
-            f"{base}\r\n": 403,  # no Host
-            f"{base}Host: 127.0.0.1\xe9:{port}\r\n\r\n": 403,  # a non-ASCII Host
-            f"{base}Host: [::1:{port}\r\n\r\n": 403,  # an unbalanced IPv6 literal
-            f"GET /?token=\xe9\xff HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,
-            f"GET /%00{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 404,
-            f"GET /assets/%00.js{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 404,
-            f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Key: x\r\nSec-WebSocket-Version: 13\r\n\r\n": 400,
-            f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Version: 13\r\n\r\n": 400,  # no key
-            f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
-            "Sec-WebSocket-Version: 99\r\n\r\n": 400,
-        }
-        for request, status in cases.items():
-            assert _raw_status(port, request.encode("latin-1")) == status, request[:120]
-        assert _raw_status(port, f"{base}Host: {own}\r\n\r\n".encode()) == 200
-    finally:
-        editor.stop()
+    port, token, own = running_editor
+    q = f"/?token={token}"
+    base = f"GET {q} HTTP/1.1\r\n"
+    ws = f"Origin: http://{own}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+    cases = {  # request -> expected status
+        f"FOO {q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,  # a bad method
+        f"POST {q} HTTP/1.1\r\nHost: {own}\r\nContent-Length: 3\r\n\r\nabc": 400,
+        "GARBAGE\r\n\r\n": 400,
+        f"GET {q} HTTP/1.0\r\nHost: {own}\r\n\r\n": 400,
+        f"{base}Host: {own}\r\nX-A: {'a' * 20000}\r\n\r\n": 400,  # an over-long header
+        f"{base}Host: {own}\r\n" + "".join(f"X-{i}: a\r\n" for i in range(300)) + "\r\n": 400,
+        f"{base}Host: {own}\r\nNoColon\r\n\r\n": 400,
+        f"{base}Host: {own}\r\nX-A: a\x00b\r\n\r\n": 400,
+        f"GET /{'a' * 20000}{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,
+        f"{base}\r\n": 403,  # no Host
+        f"{base}Host: 127.0.0.1\xe9:{port}\r\n\r\n": 403,  # a non-ASCII Host
+        f"{base}Host: [::1:{port}\r\n\r\n": 403,  # an unbalanced IPv6 literal
+        f"GET /?token=\xe9\xff HTTP/1.1\r\nHost: {own}\r\n\r\n": 400,
+        f"GET /%00{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 404,
+        f"GET /assets/%00.js{q} HTTP/1.1\r\nHost: {own}\r\n\r\n": 404,
+        f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Key: x\r\nSec-WebSocket-Version: 13\r\n\r\n": 400,
+        f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Version: 13\r\n\r\n": 400,  # no key
+        f"{base}Host: {own}\r\n{ws}Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+        "Sec-WebSocket-Version: 99\r\n\r\n": 400,
+    }
+    for request, status in cases.items():
+        assert _raw_status(port, request.encode("latin-1")) == status, request[:120]
+    assert _raw_status(port, f"{base}Host: {own}\r\n\r\n".encode()) == 200

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("pythonosc", reason="python-osc is in the [live] and [dev] extras: pip install -e '.[dev]'")
+pytest.importorskip("pythonosc", reason="python-osc is a dependency of smplik: pip install -e .")
 
 from pythonosc.osc_bundle import OscBundle  # noqa: E402
 from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder  # noqa: E402
