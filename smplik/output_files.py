@@ -38,8 +38,6 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from smplik.atomic import process_alive
-
 JOURNAL = ".smplik-commit.json"
 """The commit journal inside a temporary folder: the relative names being moved into ``OUT``."""
 _BACKUP = ".smplik-old"
@@ -103,6 +101,7 @@ def _move_in(stage: Path, out: Path, names: Iterable[str]) -> None:
 def recover_stale_stages(out_dir: str | Path) -> list[Path]:
     """Finish or drop the temporary folders left next to ``out_dir`` by killed writers (module docstring);
     returns the folders handled. Folders of a live process are left alone."""
+    from smplik.atomic import process_alive  # lazy: smplik.atomic imports numpy, --help must not
     out = Path(os.path.abspath(out_dir))
     handled: list[Path] = []
     candidates = []
