@@ -531,9 +531,40 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
             return float(np.median(lengths[ok, 0] / lengths[ok, 1])) if ok.any() else 1.0
 
         sized = [B for B in candidates if abs(np.log(max(size_ratio(B), 1e-12))) < np.log(1.5)]
+        if "KHR_mesh_quantization" in (gltf.extensionsUsed or []) and bones:
+            # gltfpack / glTF-Transform fold the mesh's dequantization into the IBMs: the same frames with it undone
+            # (only where the bone lengths say the IBMs are scaled; a file quantized elsewhere keeps its frames)
+            dequantized = [B @ D for B in candidates[:3]
+                           if (D := _dequantization(B, inv[:, :3, 3], node_p, par, bones)) is not None
+                           and abs(np.log(D[0, 0])) > 1e-3]
+            sized = [*dequantized, *sized] if dequantized else sized
         to_world = min(sized or candidates, key=mismatch)
         T_bind = to_world @ inv
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
+
+
+def _dequantization(B: np.ndarray, Q: np.ndarray, node_p: np.ndarray, par: list[int],
+                    bones: list[int]) -> np.ndarray | None:
+    """The dequantization transform ``D`` (4, 4), a uniform scale ``s`` and a translation ``t``, that gltfpack and
+    glTF-Transform fold into a quantized skin's inverse bind matrices (``IBM' = IBM @ inv(D)``: the mesh's integer
+    positions then need no node transform, which glTF ignores on a skinned mesh), so that ``B @ D @ inv(IBM')`` is
+    the bind pose again. ``Q`` (J, 3): joint positions ``inv(IBM')`` in the quantized space; ``node_p`` (J, 3): the
+    joints' default world positions. ``s`` is the median ratio of bone lengths (the pose does not change them),
+    ``t`` the median offset; None when degenerate."""
+    try:
+        Y = (np.linalg.inv(B[:3, :3]) @ (node_p - B[:3, 3]).T).T  # node positions in B's frame
+    except np.linalg.LinAlgError:
+        return None
+    lq = np.array([np.linalg.norm(Q[k] - Q[par[k]]) for k in bones])
+    ly = np.array([np.linalg.norm(Y[k] - Y[par[k]]) for k in bones])
+    ok = (lq > 1e-12) & (ly > 1e-12)
+    if not ok.any():
+        return None
+    scale = float(np.median(ly[ok] / lq[ok]))
+    D = np.eye(4)
+    D[:3, :3] *= scale
+    D[:3, 3] = np.median(Y - scale * Q, axis=0)
+    return D if np.isfinite(D).all() and scale > 0 else None
 
 
 def _depths(parent: tuple[int, ...], members: tuple[int, ...] | list[int], index: dict[int, int]) -> list[int]:
