@@ -274,7 +274,8 @@ def _decode_meshopt_views(path: Path, gltf, buffers: tuple[bytes, ...]) -> tuple
         src, count, stride = spec.get("buffer"), spec.get("count"), spec.get("byteStride")
         offset, length = spec.get("byteOffset", 0), spec.get("byteLength")
         if not _is_index(src, 0, len(buffers) - 1):
-            raise GltfError(f"{where}: 'buffer' must be the index of one of its {len(buffers)} buffers, got {src!r:.40}")
+            raise GltfError(f"{where}: 'buffer' must be the index of one of its {len(buffers)} buffers, got "
+                            f"{src!r:.40}")
         if not (_is_index(offset) and _is_index(length, 1) and _is_index(count) and _is_index(stride, 1, 256)):
             raise GltfError(f"{where}: 'byteOffset', 'byteLength', 'count' and 'byteStride' must be integers "
                             "(byteLength >= 1, byteStride 1..256)")
