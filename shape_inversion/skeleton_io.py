@@ -56,6 +56,10 @@ HEAD_ANKLE_PER_STATURE = 0.84
 """(head joint - ankle joint height) / stature of SMPL-like bodies; used to estimate stature."""
 
 PLAUSIBLE_STATURE_M = (0.8, 2.5)
+OWN_SIZE_STATURE_M = (0.06, 28.0)
+"""Statures (m) at which a glTF/VRM character (metres by the glTF spec) is read at its own size, a figurine to a
+giant (SMPL-SI fits it at human size and scales the body, saying so in one line); outside, its units are detected
+(a human exported in centimetres without the 0.01 scale is 170 m tall)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -654,6 +658,10 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
                             f"{_axis_name(up_vec)}; pass the right --up.")
     if str(units).lower() == "auto" and skeleton.format == "fbx":  # the file states its unit (UnitScaleFactor)
         units_m, units_source = float(skeleton.units or 1.0), "file"
+    elif str(units).lower() == "auto" and skeleton.format == "gltf" and not PLAUSIBLE_STATURE_M[0] <= \
+            height / HEAD_ANKLE_PER_STATURE <= PLAUSIBLE_STATURE_M[1] and \
+            OWN_SIZE_STATURE_M[0] <= height / HEAD_ANKLE_PER_STATURE <= OWN_SIZE_STATURE_M[1]:
+        units_m, units_source = 1.0, "file: glTF is in metres"  # a figurine or a giant at its own size
     elif str(units).lower() == "auto":
         units_m, units_source = _detect_units(height, [skeleton.units, rig_map.units])
     else:
