@@ -55,6 +55,9 @@ class SkeletonError(ValueError):
 HEAD_ANKLE_PER_STATURE = 0.84
 """(head joint - ankle joint height) / stature of SMPL-like bodies; used to estimate stature."""
 
+HEAD_PER_STATURE = 0.874
+"""(head joint - lowest joint height) / stature of SMPL's template (1.70 m); a head-top joint's stand-in."""
+
 PLAUSIBLE_STATURE_M = (0.8, 2.5)
 OWN_SIZE_STATURE_M = (0.06, 28.0)
 """Statures (m) at which a glTF/VRM character (metres by the glTF spec) is read at its own size, a figurine to a
@@ -451,6 +454,31 @@ class Character:
     def joint(self, smpl_name: str) -> np.ndarray:
         """Position (3,) of a mapped SMPL joint, metres."""
         return self.positions[self.smpl_joints[smpl_name]]
+
+    @property
+    def height_m(self) -> float:
+        """Stature: the lowest joint (the feet) to the top of the head, metres.
+
+        The top of the head is the highest joint of the head's subtree (a head-top end bone: Mixamo's
+        ``HeadTop_End``, a Blender head bone's tail) when it rises above the head joint by at least 3 % of the
+        head's height; else, for a skeleton ending at the head joint, the head joint's height over SMPL's ratio
+        (the head joint is at 87.4 % of the stature above SMPL's lowest joint).
+        """
+        head = self.smpl_joints["head"]
+        floor = float(self.positions[:, 1].min())
+        head_h = float(self.positions[head, 1]) - floor
+        parents = self.skeleton.parents
+        def under_head(j: int) -> bool:
+            for _ in range(len(parents)):
+                if j == head:
+                    return True
+                if j < 0:
+                    return False
+                j = parents[j]
+            return False
+
+        top = max(float(self.positions[j, 1]) for j in range(len(parents)) if under_head(j)) - floor
+        return top if top >= 1.03 * head_h else head_h / HEAD_PER_STATURE
 
     @property
     def head_ankle_height_m(self) -> float:
