@@ -271,7 +271,7 @@ def calibrate(signals: Any, *, height: float | None = None, betas: Sequence[floa
                 f"({lo:g}-{hi:g} m): the origin is not the floor or the user never stands; give --height (the "
                 "user's stature) to place the floor.")
         floor = h - head_m
-        how = f"a {stature:.2f} m user ({'the default body; give --height' if given == 'recording' else given})"
+        how = f"a {stature:.2f} m user, {'the default body: give --height' if given == 'recording' else given}"
         message = (f"{src}: the standing headset is {h:.2f} m above the origin: the origin is not the floor; "
                    f"moved the floor to {floor:+.2f} m ({how})")
         h = head_m
