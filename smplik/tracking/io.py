@@ -154,11 +154,16 @@ def _unit_quaternions(q: np.ndarray, err: JSONPathError, path: str) -> np.ndarra
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
-def read_trackers(path: str | Path) -> TrackerSignals:
-    """Read a tracker file: ``smplik-trackers`` JSON, or a SteamVR JSON-lines log (``.jsonl``)."""
+def read_trackers(path: str | Path, **csv_options: Any) -> TrackerSignals:
+    """Read a tracker file: ``smplik-trackers`` JSON, a SteamVR JSON-lines log (``.jsonl``) or a VR CSV recording
+    (``.csv``, :func:`smplik.tracking.csv_io.read_csv_trackers`, which takes ``csv_options``)."""
     path = Path(path)
     if path.suffix.lower() == ".jsonl":
         return read_steamvr_jsonl(path)
+    if path.suffix.lower() == ".csv":
+        from smplik.tracking.csv_io import read_csv_trackers
+
+        return read_csv_trackers(path, **csv_options)
     return signals_from_dict(read_json(path, TrackerFileError, what="tracker file"), str(path))
 
 
