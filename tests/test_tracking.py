@@ -221,7 +221,7 @@ def test_streaming_equals_batch(model, fast):
     if fast:
         pytest.importorskip("numba", reason="the kernels need numba (pip install 'smplik[fast]')")
     sig, *_ = synthetic_signals(40)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, fast=fast))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, effector_fit=False, fast=fast))
     res = track_sequence(tracker, sig)
     from smplik.tracking.fast import quaternion_to_matrix_np
 
@@ -242,7 +242,7 @@ def test_tracker_fit_meets_wrists_and_pelvis(model):
     from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
 
     sig, *_ = synthetic_signals(30)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True, effector_fit=False))
     res = track_sequence(tracker, sig)
     G, p = fk_np(res.R_local.astype(np.float32), tracker.J_rest, res.transl.astype(np.float32))
     R_trk = quaternion_to_matrix_np(sig.rotations)

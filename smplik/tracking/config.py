@@ -139,6 +139,35 @@ class TrackingTrainConfig:
 
 
 @dataclass(frozen=True)
+class FitConfig:
+    """The end-effector fit (:mod:`smplik.tracking.fit`): head and wrists onto their trackers through a noise band."""
+
+    head: bool = True
+    """Bend the spine (CCD over spine1 to neck) to bring the head joint to its tracker, and give the head the
+    tracker's rotation."""
+    wrists: bool = True
+    """Two-bone arm IK to the wrist trackers, and the wrists' rotations from theirs."""
+    noise_window: int = 60
+    """Frames over which each tracker's jitter is estimated (median of its second differences)."""
+    process_m: float = 0.003
+    """How far (metres per frame) the network's miss may drift: the random walk of the steady-state Kalman gain
+    (gain 1 on exact trackers; about 0.26 under 1 cm of jitter)."""
+    process_deg: float = 1.5
+    """The same for rotations (degrees per frame)."""
+    band_sigmas: float = 3.0
+    """The correction stays within this many jitter sigmas of the measured one ..."""
+    band_min_m: float = 0.005
+    """... and at least within this many metres (the hands' and head's largest miss on exact trackers) ..."""
+    band_min_deg: float = 2.0
+    """... or degrees for rotations."""
+    spine_passes: int = 2
+    """CCD passes over the spine for the head."""
+    joint_filter: bool = True
+    """Follow the arm IK's shoulder and elbow changes (rotation vectors) at the wrist's gain too: a target held
+    still while the shoulder jitters would otherwise swing the elbow (gain 1, no effect, on exact trackers)."""
+
+
+@dataclass(frozen=True)
 class TrackerRuntimeConfig:
     """Streaming inference (:class:`smplik.tracking.runtime.Tracker`)."""
 
@@ -195,9 +224,14 @@ class TrackerRuntimeConfig:
     lock_centre: str = "median"
     """Offline locks: the lock's height, ``"median"`` (the median of the network's foot over the segment, like the
     horizontal position) or ``"min"`` (the segment's low point)."""
+    effector_fit: bool = True
+    """Put the head and the wrists on their trackers with the causal, noise-banded end-effector fit
+    (:mod:`smplik.tracking.fit`, settings in ``fit``); legs and root untouched."""
+    fit: FitConfig = field(default_factory=FitConfig)
+    """Settings of the end-effector fit."""
     tracker_fit: bool = False
     """Meet the trackers exactly where the skeleton allows: the root from the pelvis tracker (position, and
     rotation when given), the wrists by two-bone arm IK to their positions and their rotations (when given), the
     head's rotation (the paper's suggested extra IK pass on the arms). Off by default: it lowers the error on exact
     trackers but passes tracker noise straight through and unlocks feet (benchmarks/results/tracking.json,
-    ``ours_fit``)."""
+    ``ours_fit``); ``effector_fit`` is the one to use."""
