@@ -68,24 +68,25 @@ def animate_cmd(
     """Video estimates or joint-position motion (HumanML3D joints or features, MDM results.npy, a BVH) -> per
     track: cleaned per-frame poses on the body or character, effectors on keyframes, OUT/animation.json and an
     animated BVH (and GLB) at the source frame rate."""
+    from workflows.animation.options import check_animate_options, check_preview_path
+
+    formats = [f.strip().lower() for f in export.split(",") if f.strip()]
+    with user_errors():  # options judged from their text: refused before numpy, torch or the model load
+        check_fps(fps)
+        check_animate_options(frames=frames, fps=fps, formats=formats, format=format, space=space,
+                              smoothing=smoothing)
+        if preview is not None:  # a preview that cannot be written fails now, not after the work
+            check_preview_path(preview)
     from rich.progress import Progress
 
     from smplik.cli.errors import console
     from workflows.animation.clean import CleanConfig
-    from workflows.animation.clips import AnimateConfig, AnimationError
-    from workflows.animation.run import animate_file, check_animate_options
+    from workflows.animation.clips import AnimateConfig
+    from workflows.animation.run import animate_file
     from workflows.cli_shared import _solver
-    from workflows.estimators import FORMATS as READERS
     from workflows.scene.recovery import RecoveryConfig
 
-    formats = [f.strip().lower() for f in export.split(",") if f.strip()]
-    with user_errors():  # every option is checked before the model and the file load (one line each)
-        if format not in ("auto", *READERS):
-            raise AnimationError(f"--format must be one of auto, {', '.join(READERS)}, got {format!r}.")
-        if space not in (None, "camera", "world"):
-            raise AnimationError(f"--space must be 'camera' or 'world', got {space!r}.")
-        check_fps(fps)
-        check_animate_options(frames=frames, fps=fps, formats=formats)
+    with user_errors():  # the numeric settings, checked by their configs before the model and the file load
         config = AnimateConfig(CleanConfig(smoothing="adaptive" if smoothing == "auto" else smoothing,  # type: ignore[arg-type]
                                            smoothness=smoothness, foot_lock=foot_lock,
                                            pose_budget_mm=pose_budget or None),
@@ -93,10 +94,6 @@ def animate_cmd(
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
-        if preview is not None:  # a preview that cannot be written fails now, not after the work
-            from workflows.animation.preview import check_preview_path
-
-            check_preview_path(preview)
     options = character_cli()
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:

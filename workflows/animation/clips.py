@@ -59,6 +59,7 @@ from workflows.animation.clean import (
     split_on_lift,
     stance_noise,
 )
+from workflows.animation.options import AnimationError, parse_frames  # noqa: F401 (re-exported)
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
 from workflows.scene import SkeletonSource
 from workflows.scene.recovery import RecoveryConfig, TargetPose, TensorSolver
@@ -79,8 +80,6 @@ ASSUMED_FPS = {"gvhmr": 30.0}
 (``tools/demo/demo.py``) works on 30 frames/s video and its ``hmr4d_results.pt`` holds no rate."""
 
 
-class AnimationError(ValueError):
-    """Bad animation input (frame range, track, frame rate, missing frames); one line."""
 
 
 @dataclass(frozen=True)
@@ -195,23 +194,6 @@ class Animation:
 
 
 # ----------------------------------------------------------------------------- reading a clip
-
-
-def parse_frames(spec: str) -> tuple[int, int] | None:
-    """``"all"`` -> None; ``"A:B"`` -> (A, B): frames A..B-1 (Python slice), 0 <= A < B."""
-    spec = str(spec).strip()
-    if spec == "all":
-        return None
-    parts = spec.split(":")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        start, stop = int(parts[0]), int(parts[1])
-    except ValueError:
-        raise AnimationError(f"--frames must be 'all' or 'A:B' (frames A..B-1), got {spec!r}.") from None
-    if start < 0 or stop <= start:
-        raise AnimationError(f"--frames {spec}: need 0 <= A < B (frames A..B-1).")
-    return start, stop
 
 
 def clip_length(data: Any, fmt: str, space: str | None = None) -> int:

@@ -36,12 +36,12 @@ import numpy as np
 from smplik.atomic import atomic_path
 from smplik.limits import MIN_FPS
 from workflows.animation.clips import Animation, AnimationError
+from workflows.animation.options import PREVIEW_SUFFIXES, check_preview_path  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:
     from smplik.render import MeshItem, View
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
-PREVIEW_SUFFIXES = (".gif", ".mp4")
 FLOOR_COLORS = ((0.80, 0.80, 0.80, 1.0), (0.62, 0.62, 0.64, 1.0))
 """The floor's two tile colours."""
 
@@ -83,33 +83,6 @@ class PreviewResult:
 
 
 # ----------------------------------------------------------------------------- checks and frame choice
-
-
-def check_preview_path(path: str | Path) -> None:
-    """Refuse, before any work, a preview file that cannot be written: a suffix other than .gif / .mp4, or an
-    MP4 without the ffmpeg writer (package ``imageio-ffmpeg``, a dependency of smplik)."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in PREVIEW_SUFFIXES:
-        raise AnimationError(f"--preview {path}: a preview is a .gif or .mp4 file.")
-    if path.is_dir():
-        raise AnimationError(f"--preview {path}: is a folder; give a .gif or .mp4 file path.")
-    if path.exists() and not path.is_file():
-        raise AnimationError(f"--preview {path}: is not a regular file (a device, pipe or socket).")
-    for parent in path.parents:  # the nearest existing folder above it must be a folder
-        if parent.exists():
-            if not parent.is_dir():
-                raise AnimationError(f"--preview {path}: {parent} is a file, not a folder.")
-            break
-    if suffix == ".mp4":
-        try:
-            import imageio_ffmpeg
-
-            imageio_ffmpeg.get_ffmpeg_exe()
-        except (ImportError, RuntimeError, OSError) as exc:
-            raise AnimationError(f"--preview {path}: no MP4 writer ({type(exc).__name__}: "
-                                 f"{' '.join(str(exc).split())[:160]}); pip install imageio-ffmpeg, or use a .gif."
-                                 ) from None
 
 
 MAX_PREVIEW_EVERY = 1000

@@ -21,11 +21,11 @@ from workflows.animation.clips import (
     SkeletonSource,
     TrackMotion,
     animation_from_clip,
-    parse_frames,
     read_clip,
 )
 from workflows.animation.files import save_animation, scene_of
 from workflows.animation.joint_motion import JointMotion
+from workflows.animation.options import check_animate_options  # noqa: F401 (re-exported)
 from workflows.scene.recovery import TensorSolver
 
 
@@ -41,25 +41,6 @@ class AnimateOutputs:
     @property
     def all_files(self) -> tuple[Path, ...]:
         return (self.animation_file, *self.exported)
-
-
-def check_animate_options(*, frames: str = "all", fps: float | None = None, formats: Sequence[str] = ("bvh",)
-                          ) -> tuple[int, int] | None:
-    """Refuse bad ``scene animate`` options (one :class:`AnimationError` line) before anything heavy loads (the model,
-    the file); returns the frame range (:func:`workflows.animation.clips.parse_frames`)."""
-    from workflows.scene.export import FORMATS
-
-    bad = [f for f in formats if f not in FORMATS]
-    if bad:
-        raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(FORMATS)}.")
-    if fps is not None:
-        from smplik.limits import LimitError, check_rate
-
-        try:
-            check_rate(fps, "--fps")
-        except LimitError as exc:
-            raise AnimationError(str(exc)) from None
-    return parse_frames(frames)
 
 
 def animate_file(results_path: str | Path, out_dir: str | Path, solver: TensorSolver, *, format: str = "auto",

@@ -1,0 +1,81 @@
+"""``smplik scene animate`` refuses a bad option before anything heavy loads (issue 44, item 4): the refusal is one
+``error:`` line with exit status 1, and the process never imported numpy or torch (nor read the file or loaded the
+model). The option lists of :mod:`workflows.animation.options` equal those of the modules they stand for."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+RUNNER = ("import sys\nfrom smplik.cli.main import app\n"
+          "try:\n    app(args=sys.argv[1:], prog_name='smplik')\nexcept SystemExit as exc:\n"
+          "    print('exit', exc.code, file=sys.stderr)\n"
+          "print('heavy', sorted(m for m in ('torch', 'numpy', 'scipy', 'sklearn') if m in sys.modules), "
+          "file=sys.stderr)\n")
+
+BAD = {
+    "frames": (["--frames", "abc"], "--frames must be 'all' or 'A:B'"),
+    "frames order": (["--frames", "9:3"], "need 0 <= A < B"),
+    "fps": (["--fps", "0"], "--fps"),
+    "export": (["--export", "bvh,fbx"], "unknown export format(s) ['fbx']"),
+    "format": (["--format", "xyz"], "--format must be one of auto"),
+    "space": (["--space", "up"], "--space must be 'camera' or 'world'"),
+    "smoothing": (["--smoothing", "bogus"], "--smoothing must be one of"),
+    "preview": (["--preview", "p.png"], "a preview is a .gif or .mp4 file"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_a_bad_option_is_refused_before_numpy_or_torch_import(case, tmp_path):
+    extra, message = BAD[case]
+    results = tmp_path / "hmr4d_results.pt"  # never read: the options are refused first
+    results.write_bytes(b"not a torch file")
+    args = ["scene", "animate", str(results), "--out", str(tmp_path / "out"), *extra]
+    res = subprocess.run([sys.executable, "-c", RUNNER, *args], capture_output=True, text=True, timeout=300,
+                         cwd=tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert lines[-1] == "heavy []", res.stderr[-2000:]
+    assert lines[-2] == "exit 1", res.stderr[-2000:]
+    errors = [line for line in lines if line.startswith("error:")]
+    assert len(errors) == 1 and message in errors[0], res.stderr[-2000:]
+    assert "Traceback" not in res.stderr and not (tmp_path / "out").exists()
+
+
+def test_a_good_option_set_goes_on_to_read_the_file(tmp_path):
+    """The same runner with valid options gets past the checks: the unreadable file is what it refuses."""
+    results = tmp_path / "hmr4d_results.pt"
+    results.write_bytes(b"not a torch file")
+    args = ["scene", "animate", str(results), "--out", str(tmp_path / "out"), "--frames", "0:5", "--fps", "30"]
+    res = subprocess.run([sys.executable, "-c", RUNNER, *args], capture_output=True, text=True, timeout=300,
+                         cwd=tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert lines[-2] == "exit 1" and "torch" in lines[-1], res.stderr[-2000:]
+    assert any(line.startswith("error:") and "hmr4d_results.pt" in line for line in lines), res.stderr[-2000:]
+
+
+def test_option_lists_match_the_modules_that_use_them():
+    from workflows.animation import options
+    from workflows.animation.clean import CleanConfig, CleanError
+    from workflows.estimators import FORMATS as READERS
+    from workflows.scene.export import FORMATS as EXPORTS
+
+    assert options.EXPORT_FORMATS == tuple(EXPORTS)
+    assert options.ESTIMATOR_FORMATS == tuple(READERS)
+    for method in options.SMOOTHING_METHODS:
+        if method != "auto":
+            CleanConfig(smoothing=method)  # every listed method is one the cleaning takes
+    with pytest.raises(CleanError):
+        CleanConfig(smoothing="bogus")
+
+
+def test_parse_frames_and_the_error_class_are_the_ones_the_pipeline_uses():
+    from workflows.animation import clips, options, preview, run
+
+    assert clips.AnimationError is options.AnimationError and clips.parse_frames is options.parse_frames
+    assert run.check_animate_options is options.check_animate_options
+    assert preview.check_preview_path is options.check_preview_path
+    assert options.parse_frames("all") is None and options.parse_frames(" 3:7 ") == (3, 7)
+    with pytest.raises(options.AnimationError, match="got '3'"):
+        options.parse_frames("3")
