@@ -109,7 +109,7 @@ class ClipSource:
 
 
 def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
-    """All clips of ``kind`` under ``root`` (recursively, sorted by name).
+    """All clips of ``kind`` under ``root`` (recursively, sorted by name), or the one clip file ``root``.
 
     AMASS's per-subject ``shape.npz`` files (betas only) are skipped.
 
@@ -120,12 +120,16 @@ def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
     if kind not in _SUFFIX:
         raise ValueError(f"Unknown source kind {kind!r}; expected one of: {', '.join(_SUFFIX)}.")
     root = Path(root)
-    if not root.is_dir():
-        raise FileNotFoundError(f"Source folder not found: {root}")
     suffix = _SUFFIX[kind]
     suffixes = (".bvh", ".fbx") if kind == "bvh" else (suffix,)  # FBX clips are read as BVH (smplik.data.fbx)
+    single = root.is_file() and root.suffix.lower() in suffixes  # one clip file: the same as its folder of one
+    if not root.is_dir() and not single:
+        raise FileNotFoundError(f"Source folder (or {'/'.join(suffixes)} file) not found: {root}")
     out = []
-    for path in sorted(p for p in root.rglob("*") if p.suffix.lower() in suffixes):
+    paths = [root] if single else sorted(p for p in root.rglob("*") if p.suffix.lower() in suffixes)
+    if single:
+        root = root.parent
+    for path in paths:
         if not path.is_file() or (kind == "amass" and path.name in _AMASS_METADATA_FILES):
             continue
         rel = path.relative_to(root)
