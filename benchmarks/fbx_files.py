@@ -13,7 +13,10 @@ three.js's examples). Per file:
   rigid alignment, mean over joints, % of the character's height; per pose, the largest, and whether it is
   within the 3 % bar);
 * training data (``data build``): frames retargeted per CPU second and the mean bone-direction error of the
-  retargeted clip against the file's own skeleton (degrees).
+  retargeted clip against the file's own skeleton (degrees);
+* commands: every command a user runs on it with no option, through the CLI (``invert-shape``, ``scene
+  from-estimate --character`` on a ROMP file of one person, ``scene export`` of that scene, and for an animated
+  file ``data build`` on a folder holding it and ``data preview``): exit code, seconds, the last output line.
 
 Run: ``python benchmarks/fbx_files.py [--dir DIR]``.
 """
@@ -78,7 +81,44 @@ def measure(path: Path) -> dict:
         row["data_build"] = {"frames": clip.num_frames,
                              "frames_per_cpu_second": round(clip.num_frames / max(cpu, 1e-9)),
                              "bone_direction_error_deg_mean": round(float(np.mean(errors.mean())), 2)}
+    row["commands"] = commands(path, animated=motion.num_frames > 1)
     return row
+
+
+def commands(path: Path, animated: bool) -> dict:
+    """Each command on ``path`` through the CLI, no option: {command: {exit, seconds, said}}."""
+    import tempfile
+
+    from typer.testing import CliRunner
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from estimator_fixtures import framing, people, write_romp
+
+    from smplik.cli.main import app
+
+    runner, out = CliRunner(), {}
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        aa, transl, betas = people(seed=3, n=1, **framing("romp"))
+        romp = write_romp(tmp, aa, transl, betas).path
+        clips = tmp / "clips"
+        clips.mkdir()
+        (clips / path.name).symlink_to(path.resolve())
+        runs = {"invert-shape": ["invert-shape", str(path), "--out", str(tmp / "shape.json")],
+                "scene from-estimate --character": ["scene", "from-estimate", str(romp), "--out", str(tmp / "scene"),
+                                                    "--character", str(path), "--no-previews"],
+                "scene export": ["scene", "export", str(tmp / "scene" / "scene.json"), "--out", str(tmp / "exp")]}
+        if animated:
+            runs["data build"] = ["data", "build", "--bvh", str(clips), "--out", str(tmp / "train.npz")]
+            runs["data preview"] = ["data", "preview", str(path), "--out", str(tmp / "strip.png")]
+        for name, args in runs.items():
+            t0 = time.perf_counter()
+            res = runner.invoke(app, args)
+            lines = [ln for ln in res.output.splitlines() if ln.strip()]
+            said = lines[-1] if lines else (repr(res.exception) if res.exception else "")
+            out[name] = {"exit": res.exit_code, "seconds": round(time.perf_counter() - t0, 2),
+                         "said": said.replace(str(tmp), "TMP")[:300]}
+    return out
 
 
 def main() -> None:

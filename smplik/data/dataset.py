@@ -372,7 +372,8 @@ def build_cache(
 
     Args:
         sources: clips, e.g. from :func:`find_sources`.
-        fps: target frame rate (nearest-frame subsampling; no upsampling).
+        fps: target frame rate (nearest-frame subsampling; a slower clip keeps every frame at its own rate,
+            recorded in ``clip_fps``: no upsampling).
         split: a :class:`SplitSpec`, a split file path, or None for every clip in train
             (:func:`split_all_train`).
         out: the cache path (``.npz``); replaced only once the new cache is complete.
@@ -433,7 +434,9 @@ def build_cache(
         except (ValueError, OSError, KeyError, IndexError) as exc:
             message = str(exc)
             raise ValueError(message if str(src.path) in message else f"{src.path}: {message}") from exc
-        idx = subsample_indices(seq.num_frames, seq.fps, fps)
+        # a clip slower than ``fps`` (a 24 frames/s FBX take, 30 asked) keeps every frame at its own rate
+        # (``clip_fps``); none is invented
+        idx = subsample_indices(seq.num_frames, seq.fps, min(fps, seq.fps))
         n = len(idx)
         clip_id = len(clip_names)
         clip_names.append(src.name)
