@@ -278,3 +278,36 @@ def test_devices_need_a_pose_each(walk_signals, tmp_path):
     lost = replace(rec, right=(rec.right[0], rec.right[1], np.zeros_like(rec.right[2])))
     with pytest.raises(CalibrationError, match="the right controller has no valid pose"):
         signals_from_devices(lost)
+
+
+def test_options_apply_to_their_files_and_a_misnamed_csv_is_read(walk_signals, tmp_path):
+    path = write_device_csv(walk_signals, tmp_path / "rec.csv", "omnicept")
+    (tmp_path / "rec.txt").write_text(path.read_text())  # not named .csv: not JSON, read as CSV
+    assert np.allclose(read_trackers(tmp_path / "rec.txt").positions, read_trackers(path).positions)
+    (tmp_path / "w.json").write_text(json.dumps(walk_signals.to_dict()))
+    with pytest.raises(TrackerFileError, match="w.json: --csv-units is for CSV recordings"):
+        read_trackers(tmp_path / "w.json", units="cm")
+    with pytest.raises(TrackerFileError, match="w.json: --controller is for device recordings"):
+        read_trackers(tmp_path / "w.json", controller="vive")
+    (tmp_path / "junk.txt").write_text("a,b\n1,2\n")
+    with pytest.raises(TrackerFileError, match="It is not a VR CSV recording either: .*junk.txt"):
+        read_trackers(tmp_path / "junk.txt")
+
+
+def test_steamvr_log_takes_the_controller_offsets(walk_signals, tmp_path):
+    """A SteamVR JSON-lines log keeps the controllers' rotations for their wrist points (--controller)."""
+    rec = read_csv_devices(write_device_csv(walk_signals, tmp_path / "r.csv", "who-is-alyx", controller="vive"))
+    lines = []
+    for i, t in enumerate(rec.times):
+        devs = [{"index": k, "class": c, "pose": {"valid": True, "position": dict(zip("xyz", d[0][i], strict=True)),
+                                                   "quaternion": dict(zip("wxyz", d[1][i], strict=True))}}
+                for k, (c, d) in enumerate((("HMD", rec.hmd), ("Controller", rec.left), ("Controller", rec.right)))]
+        lines.append(json.dumps({"timestamp": float(t), "devices": devs}))
+    (tmp_path / "log.jsonl").write_text("\n".join(lines) + "\n")
+    vive = read_trackers(tmp_path / "log.jsonl", controller="vive")
+    n = vive.num_frames  # the JSON-lines reader counts whole frames of the span (the last may fall short)
+    assert n >= walk_signals.num_frames - 1
+    assert np.linalg.norm(vive.positions - walk_signals.positions[:n, :3], axis=-1).max() < 0.01
+    plain = read_trackers(tmp_path / "log.jsonl")  # the default: the controllers' positions (as --live)
+    np.testing.assert_allclose(np.linalg.norm(plain.positions[:, 1:] - vive.positions[:, 1:], axis=-1),
+                               np.linalg.norm(CONTROLLERS["vive"]), atol=1e-6)

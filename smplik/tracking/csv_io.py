@@ -322,4 +322,5 @@ def read_csv_trackers(path: str | Path, *, fps: float = 60.0, units: str | None 
     try:
         return signals_from_devices(rec, fps, producer.controller if controller is None else controller)
     except CalibrationError as exc:
-        raise TrackerFileError(str(exc)) from None
+        msg = str(exc)
+        raise TrackerFileError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
