@@ -317,3 +317,21 @@ def test_steamvr_log_takes_the_controller_offsets(walk_signals, tmp_path):
     plain = read_trackers(tmp_path / "log.jsonl")  # the default: the controllers' positions (as --live)
     np.testing.assert_allclose(np.linalg.norm(plain.positions[:, 1:] - vive.positions[:, 1:], axis=-1),
                                np.linalg.norm(CONTROLLERS["vive"]), atol=1e-6)
+
+
+def test_from_motion_reads_an_fbx_file(tmp_path):
+    """A real FBX (Maya HumanIK, tests/data/fbx) through `smplik track --from-motion`: a trackers file at 60 Hz
+    whose head stands at the default body's head height and which `smplik track` reads back."""
+    from smplik.cli.main import app
+    from smplik.data.fbx import read_fbx
+
+    fbx = Path(__file__).resolve().parent / "data" / "fbx" / "maya_human_ik_7400_binary.fbx"
+    res = CliRunner().invoke(app, ["track", "--from-motion", str(fbx), "--out", str(tmp_path / "t.json")])
+    assert res.exit_code == 0, res.output
+    sig = read_trackers(tmp_path / "t.json")
+    motion = read_fbx(fbx)
+    assert sig.fps == 60.0 and sig.num_frames == int(np.floor((motion.num_frames - 1) / motion.fps * 60 + 1e-9)) + 1
+    # the default body; this clip's head stands 2 cm higher than a walk's (the 1 cm allowance is for walks)
+    assert abs(calibrate(sig).stature_m - body_heights(np.zeros(10))[1]) < 0.05
+    res = CliRunner().invoke(app, ["track", "--from-motion", str(tmp_path / "t.json"), "--out", str(tmp_path / "x")])
+    assert res.exit_code == 1 and "t.json" in res.output and "Traceback" not in res.output
