@@ -30,8 +30,12 @@ needs_cmu = pytest.mark.skipif(not (CMU / "split.json").is_file(), reason="needs
 
 # each producer's header, as its code writes it (the fixture writer must reproduce it exactly)
 HEADERS = {
-    "who-is-alyx": "delta_time_ms," + ",".join(f"{d}_{k}_{a}" for d in ("hmd", "left_controller", "right_controller")
-                                               for k, axes in (("pos", "xyz"), ("rot", "xyzw")) for a in axes),
+    "who-is-alyx": "timestamp,delta_time_ms," + ",".join(
+        f"{d}_{k}_{a}" for d in ("hmd", "left_controller", "right_controller")
+        for k, axes in (("pos", "xyz"), ("rot", "xyzw")) for a in axes) + "," + ",".join(
+        f"{s}_controller_{b}" for s in ("left", "right") for b in (
+            "grip_button", "menu_button", "trackpad_pressed", "trackpad_touched", "trackpad_x", "trackpad_y",
+            "trigger", "ul_button_pressed", "ul_button_touched")),
     "unity-hmd-recorder": "timestamp_ms,frame,unity_time," + ",".join(
         f"{d}_{k}_{a}" for d in ("hmd", "left", "right")
         for k, axes in (("pos", "xyz"), ("rot", "xyzw")) for a in axes),
@@ -70,7 +74,9 @@ def walk_signals():
 
 LAYOUTS = [("who-is-alyx", {}), ("unity-hmd-recorder", {}), ("omnicept", {}), ("magic-xroom", {}),
            # the issue's HTC Vive Pro recordings: OpenVR axes, centimetres, milliseconds, irregular sampling
-           ("who-is-alyx", {"units": "cm", "axes": "openvr"})]
+           ("who-is-alyx", {"units": "cm", "rate": 90.0}),
+           ("magic-xroom", {"axes": "openvr", "units": "mm"})]
+DEFAULT_AXES = {"who-is-alyx": "openvr", "unity-hmd-recorder": "unity", "omnicept": "unity", "magic-xroom": "unity"}
 
 
 @pytest.mark.parametrize("producer,options", LAYOUTS, ids=[f"{p}-{o.get('units', 'm')}" for p, o in LAYOUTS])
@@ -80,8 +86,8 @@ def test_each_csv_layout_is_read_with_no_options(walk_signals, tmp_path, produce
     rec = read_csv_devices(path)
     assert rec.producer == producer
     assert f"positions in {options.get('units', 'm')}" in rec.notes
-    assert f"{options.get('axes', 'unity')} axes (detected)" in rec.notes
-    assert np.ptp(np.diff(rec.times)) > 0.2 / 90  # irregular sampling
+    assert f"{options.get('axes', DEFAULT_AXES[producer])} axes (detected)" in rec.notes
+    assert np.ptp(np.diff(rec.times)) > 0.2 * np.median(np.diff(rec.times))  # irregular sampling
     sig = read_trackers(path)  # what `smplik track` does: by the suffix, no options
     assert sig.names == ("head", "left_wrist", "right_wrist") and sig.fps == 60.0
     assert sig.num_frames == walk_signals.num_frames  # frames in = frames out (the same span at 60 Hz)
@@ -278,3 +284,54 @@ def test_devices_need_a_pose_each(walk_signals, tmp_path):
     lost = replace(rec, right=(rec.right[0], rec.right[1], np.zeros_like(rec.right[2])))
     with pytest.raises(CalibrationError, match="the right controller has no valid pose"):
         signals_from_devices(lost)
+
+
+def test_options_apply_to_their_files_and_a_misnamed_csv_is_read(walk_signals, tmp_path):
+    path = write_device_csv(walk_signals, tmp_path / "rec.csv", "omnicept")
+    (tmp_path / "rec.txt").write_text(path.read_text())  # not named .csv: not JSON, read as CSV
+    assert np.allclose(read_trackers(tmp_path / "rec.txt").positions, read_trackers(path).positions)
+    (tmp_path / "w.json").write_text(json.dumps(walk_signals.to_dict()))
+    with pytest.raises(TrackerFileError, match="w.json: --csv-units is for CSV recordings"):
+        read_trackers(tmp_path / "w.json", units="cm")
+    with pytest.raises(TrackerFileError, match="w.json: --controller is for device recordings"):
+        read_trackers(tmp_path / "w.json", controller="vive")
+    (tmp_path / "junk.txt").write_text("a,b\n1,2\n")
+    with pytest.raises(TrackerFileError, match="It is not a VR CSV recording either: .*junk.txt"):
+        read_trackers(tmp_path / "junk.txt")
+
+
+def test_steamvr_log_takes_the_controller_offsets(walk_signals, tmp_path):
+    """A SteamVR JSON-lines log keeps the controllers' rotations for their wrist points (--controller)."""
+    rec = read_csv_devices(write_device_csv(walk_signals, tmp_path / "r.csv", "who-is-alyx", controller="vive"))
+    lines = []
+    for i, t in enumerate(rec.times):
+        devs = [{"index": k, "class": c, "pose": {"valid": True, "position": dict(zip("xyz", d[0][i], strict=True)),
+                                                   "quaternion": dict(zip("wxyz", d[1][i], strict=True))}}
+                for k, (c, d) in enumerate((("HMD", rec.hmd), ("Controller", rec.left), ("Controller", rec.right)))]
+        lines.append(json.dumps({"timestamp": float(t), "devices": devs}))
+    (tmp_path / "log.jsonl").write_text("\n".join(lines) + "\n")
+    vive = read_trackers(tmp_path / "log.jsonl", controller="vive")
+    n = vive.num_frames  # the JSON-lines reader counts whole frames of the span (the last may fall short)
+    assert n >= walk_signals.num_frames - 1
+    assert np.linalg.norm(vive.positions - walk_signals.positions[:n, :3], axis=-1).max() < 0.01
+    plain = read_trackers(tmp_path / "log.jsonl")  # the default: the controllers' positions (as --live)
+    np.testing.assert_allclose(np.linalg.norm(plain.positions[:, 1:] - vive.positions[:, 1:], axis=-1),
+                               np.linalg.norm(CONTROLLERS["vive"]), atol=1e-6)
+
+
+def test_from_motion_reads_an_fbx_file(tmp_path):
+    """A real FBX (Maya HumanIK, tests/data/fbx) through `smplik track --from-motion`: a trackers file at 60 Hz
+    whose head stands at the default body's head height and which `smplik track` reads back."""
+    from smplik.cli.main import app
+    from smplik.data.fbx import read_fbx
+
+    fbx = Path(__file__).resolve().parent / "data" / "fbx" / "maya_human_ik_7400_binary.fbx"
+    res = CliRunner().invoke(app, ["track", "--from-motion", str(fbx), "--out", str(tmp_path / "t.json")])
+    assert res.exit_code == 0, res.output
+    sig = read_trackers(tmp_path / "t.json")
+    motion = read_fbx(fbx)
+    assert sig.fps == 60.0 and sig.num_frames == int(np.floor((motion.num_frames - 1) / motion.fps * 60 + 1e-9)) + 1
+    # the default body; this clip's head stands 2 cm higher than a walk's (the 1 cm allowance is for walks)
+    assert abs(calibrate(sig).stature_m - body_heights(np.zeros(10))[1]) < 0.05
+    res = CliRunner().invoke(app, ["track", "--from-motion", str(tmp_path / "t.json"), "--out", str(tmp_path / "x")])
+    assert res.exit_code == 1 and "t.json" in res.output and "Traceback" not in res.output

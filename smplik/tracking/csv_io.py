@@ -3,9 +3,11 @@
 One row per sample, one column per coordinate; the header names each device and coordinate. Producers whose
 layouts are read (each with a fixture in its exact column layout in ``tests/test_tracking_recordings.py``):
 
-* ``who-is-alyx``: the *Who Is Alyx?* dataset (Rack et al., Frontiers in VR 2023; HTC Vive Pro, Half-Life: Alyx
-  sessions; ``players/<id>/<session>/vr-controllers*.csv``): ``delta_time_ms, hmd_pos_x .. hmd_rot_w,
-  left_controller_pos_x .. left_controller_rot_w, right_controller_pos_x ..``.
+* ``who-is-alyx``: the *Who Is Alyx?* dataset (Schell, Sieper, Latoschik 2022, doi 10.5281/zenodo.6472410; CC BY-NC-SA
+  4.0, so not committed here; 37 players of Half-Life: Alyx on an HTC Vive Pro, recorded through OpenVR at 60
+  falling to 10-15 frames/s; ``players/<id>/<date>/vr-controllers.csv``): ``timestamp, delta_time_ms`` (ms since
+  the start), ``hmd_pos_x .. hmd_rot_w, left_controller_pos_x .. left_controller_rot_w, right_controller_pos_x ..``,
+  then the buttons (``left_controller_trigger``, ...); a few rows have empty controller cells.
 * ``unity-hmd-recorder``: Unity HMD Recorder (Meta Quest, Meta XR SDK ``OVRCameraRig`` anchors,
   ``HMDDataRecorder.cs``): ``timestamp_ms, frame, unity_time, hmd_pos_x .. hmd_rot_w, left_pos_x .., right_pos_x ..``.
 * ``omnicept``: HP Omnicept Unity samples (``HeadTrackingData.cs``): ``time_stamp, head_pos_x .. head_rot_w,
@@ -61,7 +63,7 @@ class Producer:
 PRODUCERS: tuple[Producer, ...] = (
     Producer("who-is-alyx", "Who Is Alyx? dataset (HTC Vive Pro)",
              frozenset({"delta_time_ms", "hmd_pos_x", "left_controller_pos_x", "right_controller_rot_w"}),
-             "unity", "vive"),
+             "openvr", "vive"),
     Producer("unity-hmd-recorder", "Unity HMD Recorder (Meta Quest, OVRCameraRig)",
              frozenset({"timestamp_ms", "unity_time", "hmd_pos_x", "left_pos_x", "right_rot_w"}), "unity", "touch"),
     Producer("omnicept", "HP Omnicept Unity samples (HeadTrackingData)",
@@ -93,9 +95,11 @@ def normalise(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", name.strip().strip('"').lower()).strip("_")
 
 
-def _time_column(cols: list[str]) -> int | None:
-    """The time column: one with an explicit unit suffix first, then ``timestamp``-like, then any time-like."""
-    cands = [i for i, c in enumerate(cols) if _TIME.search(c) and c not in ("frame", "frame_count")]
+def _time_column(cols: list[str], table: np.ndarray) -> int | None:
+    """The time column: of the time-like columns whose cells are numbers (a date-time text is not read), one with
+    an explicit unit suffix first, then the first."""
+    cands = [i for i, c in enumerate(cols) if _TIME.search(c) and c not in ("frame", "frame_count")
+             and np.isfinite(table[:, i]).mean() > 0.99]
     if not cands:
         return None
     with_unit = [i for i in cands if cols[i].rsplit("_", 1)[-1] in _TIME_SUFFIX and "_" in cols[i]]
@@ -239,10 +243,10 @@ def read_csv_devices(path: str | Path, *, units: str | None = None, time_unit: s
     text = read_text(path, TrackerFileError, what="tracker file")
     cols, table = _parse_rows(text, src)
     found, producer = _layout(cols, src)
-    ti = _time_column(cols)
+    ti = _time_column(cols, table)
     if ti is None:
-        raise TrackerFileError(f"{src}: no time column (a column named time, timestamp, time_ms, delta_time_ms, ...); "
-                               "the samples' times are needed to resample them.")
+        raise TrackerFileError(f"{src}: no time column of numbers (a column named time, timestamp, time_ms, "
+                               "delta_time_ms, ...); the samples' times are needed to resample them.")
     times, tunit, summed = _times(table[:, ti], cols[ti], time_unit, src)
     keep = np.r_[True, np.diff(times) > 0]  # repeated timestamps: the first sample is kept
     times, table = times[keep], table[keep]
@@ -322,4 +326,5 @@ def read_csv_trackers(path: str | Path, *, fps: float = 60.0, units: str | None 
     try:
         return signals_from_devices(rec, fps, producer.controller if controller is None else controller)
     except CalibrationError as exc:
-        raise TrackerFileError(str(exc)) from None
+        msg = str(exc)
+        raise TrackerFileError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None

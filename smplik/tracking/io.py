@@ -154,17 +154,49 @@ def _unit_quaternions(q: np.ndarray, err: JSONPathError, path: str) -> np.ndarra
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
-def read_trackers(path: str | Path, **csv_options: Any) -> TrackerSignals:
+def read_trackers(path: str | Path, **options: Any) -> TrackerSignals:
     """Read a tracker file: ``smplik-trackers`` JSON, a SteamVR JSON-lines log (``.jsonl``) or a VR CSV recording
-    (``.csv``, :func:`smplik.tracking.csv_io.read_csv_trackers`, which takes ``csv_options``)."""
+    (``.csv``, or any file that is not JSON but has a CSV header of device columns:
+    :func:`smplik.tracking.csv_io.read_csv_trackers`). ``options``: ``controller`` (CSV and JSON lines) and the CSV
+    reader's ``units``, ``time_unit``, ``axes``; given for a file they do not apply to, they are refused."""
     path = Path(path)
-    if path.suffix.lower() == ".jsonl":
-        return read_steamvr_jsonl(path)
+    csv_only = sorted(k for k in ("units", "time_unit", "axes") if options.get(k) is not None)
+    unknown = sorted(set(options) - {"units", "time_unit", "axes", "controller"})
+    if unknown:
+        raise TypeError(f"read_trackers: unknown option {unknown[0]!r}")
     if path.suffix.lower() == ".csv":
         from smplik.tracking.csv_io import read_csv_trackers
 
-        return read_csv_trackers(path, **csv_options)
-    return signals_from_dict(read_json(path, TrackerFileError, what="tracker file"), str(path))
+        return read_csv_trackers(path, **options)
+    if csv_only:
+        raise TrackerFileError(f"{path}: --csv-{csv_only[0].replace('_', '-')} is for CSV recordings (.csv).")
+    if path.suffix.lower() == ".jsonl":
+        return read_steamvr_jsonl(path, controller=options.get("controller") or "none")
+    if options.get("controller") is not None:
+        raise TrackerFileError(f"{path}: --controller is for device recordings (.csv, .jsonl); a smplik-trackers "
+                               "file holds the wrists themselves.")
+    try:
+        data = read_json(path, TrackerFileError, what="tracker file")
+    except TrackerFileError as exc:
+        head = _first_line(path)
+        if head is None or "," not in head or head.lstrip().startswith(("{", "[")):
+            raise
+        from smplik.tracking.csv_io import read_csv_trackers
+
+        try:
+            return read_csv_trackers(path)
+        except TrackerFileError as csv_exc:
+            raise TrackerFileError(f"{exc} It is not a VR CSV recording either: {csv_exc}") from None
+    return signals_from_dict(data, str(path))
+
+
+def _first_line(path: Path) -> str | None:
+    """The file's first line (at most 4 KB), or None when it cannot be read as text."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(4096).decode("utf-8", errors="strict").splitlines()[0]
+    except (OSError, UnicodeDecodeError, IndexError):
+        return None
 
 
 def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, names: tuple[str, ...],
@@ -280,7 +312,7 @@ def _steamvr_record(frame: Any, where: str, err: JSONPathError
     return out
 
 
-def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
+def read_steamvr_jsonl(path: str | Path, fps: float = 60.0, controller: str = "none") -> TrackerSignals:
     """Read a SteamVR JSON-lines log (module docstring) into ``head``, ``left_wrist``, ``right_wrist`` (and
     ``pelvis`` when one generic tracker is present), resampled to ``fps`` by linear interpolation over the
     timestamps.
@@ -290,6 +322,8 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     position only (their rotations are in the device's own frame, not the wrist's: left out), left being the
     one on the headset's left at the first frame where both are valid; a single generic tracker gives the
     pelvis by position. Frames where a device's pose is invalid are interpolated from its valid neighbours.
+    ``controller``: the controllers' kind (:data:`smplik.tracking.calibrate.CONTROLLERS`): each wrist is put at
+    its controller's wrist point (``none``: the controller's position).
     """
     path = Path(path)
     err = JSONPathError(str(path), TrackerFileError)
@@ -350,9 +384,19 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     half_turn = np.diag([-1.0, 1.0, -1.0])
     R_head = R_hmd @ half_turn
     p_head = p_hmd + (R_hmd @ HMD_TO_HEAD_M[:, None])[..., 0]
-    (pa, _), (pb, _) = resample(ctrls[0]), resample(ctrls[1])
+    (pa, qa), (pb, qb) = resample(ctrls[0]), resample(ctrls[1])
     # left = on the headset's left: SMPL's head frame has +x to the body's left
     side = ((pa[0] - pb[0]) @ R_head[0][:, 0])
+    if controller != "none":
+        from smplik.tracking.calibrate import CalibrationError, controller_offset
+
+        try:
+            offsets = (controller_offset(controller, "left"), controller_offset(controller, "right"))
+        except CalibrationError as exc:
+            raise TrackerFileError(f"{path}: {exc}") from None
+        oa, ob = offsets if side > 0 else offsets[::-1]
+        pa = pa + (_quat_to_matrix(qa) @ oa[:, None])[..., 0]
+        pb = pb + (_quat_to_matrix(qb) @ ob[:, None])[..., 0]
     left, right = (pa, pb) if side > 0 else (pb, pa)
     names = ["head", "left_wrist", "right_wrist"]
     P = [p_head, left, right]

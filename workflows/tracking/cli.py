@@ -108,6 +108,10 @@ def track_cmd(
                 raise AnimationError("--from-motion CLIP takes --out FILE.json (the trackers file) and no TRACKERS.")
             from workflows.tracking.from_motion import write_trackers_from_motion
 
+            if height is not None:
+                from smplik.tracking.calibrate import betas_for_stature
+
+                values = list(betas_for_stature(height, gender))
             made = write_trackers_from_motion(from_motion, out, betas=values, gender=gender)
             say(f"wrote {made}")
             return

@@ -157,13 +157,14 @@ _GRIP = {"left": np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
 
 
 def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: str = "m", time_unit: str | None = None,
-                     axes: str | None = None, controller: str | None = None, rate: float = 90.0,
+                     axes: str | None = None, controller: str | None = None, rate: float | None = None,
                      jitter: float = 0.2, seed: int = 0) -> Path:
     """``signals`` (head, left_wrist, right_wrist with rotations; pelvis ignored) as the CSV a headset and two
     controllers would have made: in ``producer``'s exact column layout (:data:`_DEVICE_PREFIX`), positions in
     ``units``, times in ``time_unit`` (default: the producer's), ``axes`` (default: the producer's), the
-    controllers' tracked frames those of ``controller`` (default: the producer's), sampled at ``rate`` Hz with
-    each interval varied by up to ``jitter`` of itself."""
+    controllers' tracked frames those of ``controller`` (default: the producer's), sampled at ``rate`` Hz
+    (default: 15 for Who Is Alyx, whose recordings fall to 10-15 frames/s, else 90) with each interval varied by up
+    to ``jitter`` of itself."""
     from scipy.spatial.transform import Rotation
 
     from smplik.tracking.calibrate import controller_offset
@@ -175,6 +176,7 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
         raise ValueError(f"unknown CSV producer {producer!r}; choose from {', '.join(_DEVICE_PREFIX)}.")
     axes = axes or prod.axes
     controller = prod.controller if controller is None else controller
+    rate = (15.0 if producer == "who-is-alyx" else 90.0) if rate is None else float(rate)
     rng = np.random.default_rng(seed)
     span = (signals.num_frames - 1) / signals.fps
     dt = (1.0 + rng.uniform(-jitter, jitter, int(span * rate * 1.5) + 2)) / rate
@@ -213,9 +215,14 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
     if producer == "magic-xroom":  # version 1.0 of Magic XRoom spells the controllers' y position "pposY"
         header = [h.replace("controller_posY", "controller_pposY") for h in header]
     n = len(t)
+    buttons: dict[str, np.ndarray] = {}
     if producer == "who-is-alyx":
         tu = time_unit or "ms"
-        time_cols = {"delta_time_ms": np.r_[0.0, np.diff(t)] / TIME_UNITS[tu]}
+        time_cols = {"timestamp": np.full(n, np.nan), "delta_time_ms": t / TIME_UNITS[tu]}
+        for side in ("left", "right"):
+            for b in ("grip_button", "menu_button", "trackpad_pressed", "trackpad_touched", "trackpad_x",
+                      "trackpad_y", "trigger", "ul_button_pressed", "ul_button_touched"):
+                buttons[f"{side}_controller_{b}"] = np.zeros(n)
     elif producer == "unity-hmd-recorder":
         tu = time_unit or "ms"
         time_cols = {"timestamp_ms": np.round(1.7e12 * 1e-3 / TIME_UNITS[tu] + t / TIME_UNITS[tu], 3),
@@ -227,11 +234,15 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
         tu = time_unit or "s"
         time_cols = {"timestamp": 3.25 + t / TIME_UNITS[tu]}
     del GENERIC
-    header = list(time_cols) + header
-    table = np.stack(list(time_cols.values()) + cols, 1)
+    header = list(time_cols) + header + list(buttons)
+    table = np.stack(list(time_cols.values()) + cols + list(buttons.values()), 1)
     lines = [",".join(header)]
-    for row in table:
-        lines.append(",".join(f"{v:.6f}".rstrip("0").rstrip(".") if abs(v) < 1e9 else f"{v:.0f}" for v in row))
+    start = np.datetime64("2022-01-17T10:32:05.000000")
+    for i, row in enumerate(table):
+        cells = [f"{v:.6f}".rstrip("0").rstrip(".") if abs(v) < 1e9 else f"{v:.0f}" for v in row]
+        if producer == "who-is-alyx":  # a wall-clock time of day (the dataset's own scripts drop this column)
+            cells[0] = str(start + np.timedelta64(int(round(t[i] * 1e6)), "us")).replace("T", " ")
+        lines.append(",".join(cells))
     path = Path(path)
     path.write_text("\n".join(lines) + "\n")
     return path
