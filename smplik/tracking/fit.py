@@ -288,6 +288,24 @@ class EffectorFit:
         corr = self.rot[k].update(e, sigma, math.radians(c.process_deg), c.band_sigmas, math.radians(c.band_min_deg))
         return rotvec_to_matrix(corr) @ G
 
+    def _bend_and_aim(self, R: np.ndarray, G: np.ndarray, p: np.ndarray, k: int, ja: int, jb: int, jw: int,
+                      target: np.ndarray) -> None:
+        """Two-bone arm IK with the elbow's change followed at tracker k's gain: the elbow opens or closes by the
+        followed change of its angle (what reaching the target needs, less the network's bend), then the shoulder
+        aims the wrist at the target. Under jitter the elbow, whose angle the arm's length to the target sets
+        (sensitively near full extension), stays smooth; the wrist still points at the target."""
+        u, v = p[ja] - p[jb], p[jw] - p[jb]
+        l1, l2 = math.sqrt(float(u @ u)), math.sqrt(float(v @ v))
+        n = np.cross(u, v)
+        nn = math.sqrt(float(n @ n))
+        normal = n / nn if nn > 1e-9 * l1 * l2 else G[jb][:, 1] / max(np.linalg.norm(G[jb][:, 1]), 1e-12)
+        theta0 = math.atan2(nn, float(u @ v))
+        d = min(max(float(np.linalg.norm(target - p[ja])), abs(l1 - l2) + 1e-6), l1 + l2 - 1e-6)
+        theta1 = math.acos(min(max((l1 * l1 + l2 * l2 - d * d) / (2.0 * l1 * l2), -1.0), 1.0))
+        delta = self.joints[k, jb].update(np.array([theta1 - theta0, 0.0, 0.0]), self.pos[k].gain)[0]
+        turn_subtree(R, G, p, jb, rotvec_to_matrix(normal * delta), SUBTREE, _PARENTS)
+        turn_subtree(R, G, p, ja, swing_matrix(p[jw] - p[ja], target - p[ja], 1.0), SUBTREE, _PARENTS)
+
     def apply(self, R_local: np.ndarray, transl: np.ndarray, p_trk: np.ndarray, R_trk: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """One pose, fitted: R_local (24, 3, 3) (root in world), transl (3,), the frame's trackers p_trk (K, 3) and
@@ -307,7 +325,8 @@ class EffectorFit:
             if self.cfg.joint_filter:
                 self._follow(R, G, p, k, SPINE, before)
             if self.cfg.root_shift:  # what the spine cannot reach (it does not stretch): the whole body moves
-                shift = self.shift.update(target - p[HEAD], self.pos[k].gain)
+                gain = self.pos[k].gain  # scaled by the gain too: under jitter the spine's remainder is mostly noise
+                shift = gain * self.shift.update(target - p[HEAD], gain)
                 transl = transl + shift
                 p += shift
             if self.has_rot[k]:
@@ -324,8 +343,11 @@ class EffectorFit:
             for i, (side, k) in enumerate(self.arms):
                 _, ja, jb, jw = ARMS[side]
                 before = R[[ja, jb]]
-                turn_subtree(R, G, p, ja, R_a[i], SUBTREE, _PARENTS)
-                turn_subtree(R, G, p, jb, R_a[i] @ R_b[i] @ R_a[i].T, SUBTREE, _PARENTS)
+                if self.cfg.bend_filter and not self.cfg.joint_filter:
+                    self._bend_and_aim(R, G, p, k, ja, jb, jw, rows[i])
+                else:
+                    turn_subtree(R, G, p, ja, R_a[i], SUBTREE, _PARENTS)
+                    turn_subtree(R, G, p, jb, R_a[i] @ R_b[i] @ R_a[i].T, SUBTREE, _PARENTS)
                 if self.cfg.joint_filter:
                     self._follow(R, G, p, k, (ja, jb), before)
                 if self.has_rot[k]:
