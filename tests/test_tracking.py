@@ -221,7 +221,8 @@ def test_streaming_equals_batch(model, fast):
     if fast:
         pytest.importorskip("numba", reason="the kernels need numba (pip install 'smplik[fast]')")
     sig, *_ = synthetic_signals(40)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, effector_fit=False, fast=fast))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, effector_fit=False,
+                                                       fast=fast))
     res = track_sequence(tracker, sig)
     from smplik.tracking.fast import quaternion_to_matrix_np
 

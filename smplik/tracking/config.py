@@ -149,22 +149,35 @@ class FitConfig:
     """Two-bone arm IK to the wrist trackers, and the wrists' rotations from theirs."""
     noise_window: int = 60
     """Frames over which each tracker's jitter is estimated (median of its second differences)."""
+    jitter_floor_m: float = 0.002
+    """Tracker jitter (sigma, metres) below this counts as none (gain 1: the fit follows exactly); the jitter
+    above it sets the gain. Exact trackers of real motion show well under it (fast motion's own second
+    differences), 1 cm of noise far above."""
+    jitter_floor_deg: float = 0.5
+    """The same for rotations (degrees)."""
     process_m: float = 0.003
     """How far (metres per frame) the network's miss may drift: the random walk of the steady-state Kalman gain
-    (gain 1 on exact trackers; about 0.26 under 1 cm of jitter)."""
+    (gain 1 on exact trackers; about 0.3 under 1 cm of jitter)."""
     process_deg: float = 1.5
     """The same for rotations (degrees per frame)."""
-    band_sigmas: float = 3.0
+    band_sigmas: float = 6.0
     """The correction stays within this many jitter sigmas of the measured one ..."""
     band_min_m: float = 0.005
     """... and at least within this many metres (the hands' and head's largest miss on exact trackers) ..."""
     band_min_deg: float = 2.0
     """... or degrees for rotations."""
-    spine_passes: int = 2
+    spine_passes: int = 3
     """CCD passes over the spine for the head."""
-    joint_filter: bool = True
-    """Follow the arm IK's shoulder and elbow changes (rotation vectors) at the wrist's gain too: a target held
-    still while the shoulder jitters would otherwise swing the elbow (gain 1, no effect, on exact trackers)."""
+    root_shift: bool = True
+    """Move the whole body (the root's translation) by what the spine leaves of the head's miss."""
+    bend_filter: bool = True
+    """Arms: follow the elbow's change of angle at the wrist tracker's gain, then aim the arm at the target
+    (the elbow's angle is what the target's distance sets, sensitively near full extension: under jitter it would
+    swing); False: plain two-bone IK to the target."""
+    joint_filter: bool = False
+    """Follow the fit's changes of the spine, shoulder and elbow rotations (rotation vectors) at the tracker's gain
+    instead of filtering the targets (smoother under jitter, but slow to follow: an ablation; gain 1, no effect,
+    on exact trackers)."""
 
 
 @dataclass(frozen=True)

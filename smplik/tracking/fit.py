@@ -4,9 +4,11 @@ tracker noise through (:class:`EffectorFit`, on by default in :class:`smplik.tra
 
 Per frame, after the network's pose:
 
-1. **Head**: the head joint is brought toward its target by bending the spine (CCD over spine1, spine2, spine3
-   and neck, the swing spread over the four joints: each takes ``1 / (joints left)`` of what is still missing,
-   two passes); the head takes the tracker's world rotation (when it has one).
+1. **Head**: the head joint is brought toward its target by bending the spine (CCD over spine1, spine2 and
+   spine3, the swing spread over the three joints: each takes ``1 / (joints left)`` of what is still missing,
+   :attr:`FitConfig.spine_passes` passes); what the spine cannot reach (it does not stretch) moves the whole body
+   (the root's translation; the foot locks, after the fit, keep standing feet in place); the head takes the
+   tracker's world rotation (when it has one).
 2. **Wrists**: analytic two-bone arm IK (shoulder, elbow, wrist; :func:`smplik.limb_ik.two_bone_ik` or its numba
    kernel :func:`smplik.tracking.kernels.two_bone_ik`, the network's elbow plane kept) to the wrist target; the
    wrist takes the tracker's world rotation (when it has one).
@@ -33,11 +35,13 @@ import numpy as np
 from smplik.conventions import JOINT_INDEX, PARENTS
 from smplik.tracking.config import FitConfig
 
-SPINE = tuple(JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3", "neck"))
+SPINE = tuple(JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3"))
 HEAD = JOINT_INDEX["head"]
 NECK = JOINT_INDEX["neck"]
 ARMS = {s: (JOINT_INDEX[f"{s}_collar"], JOINT_INDEX[f"{s}_shoulder"], JOINT_INDEX[f"{s}_elbow"],
             JOINT_INDEX[f"{s}_wrist"]) for s in ("left", "right")}
+FOLLOWER_STAGES = 3
+"""Gain steps in cascade (2: critically damped)."""
 _CHI3_MEDIAN = 1.5382
 """Median of the chi distribution with 3 degrees of freedom (|N(0, I3)|)."""
 
@@ -153,26 +157,35 @@ def steady_gain(sigma: float, process: float) -> float:
 
 
 class _Follower:
-    """Two cascaded gain steps on a 3-vector (a critically damped follower: under white jitter its output's
-    acceleration scales with the gain squared, not the gain)."""
+    """Cascaded gain steps on a 3-vector (:data:`FOLLOWER_STAGES` of them: under white jitter the output's
+    acceleration falls with a power of the gain, not the gain)."""
 
     def __init__(self) -> None:
-        self.c1: np.ndarray | None = None
-        self.c = np.zeros(3)
+        self.stages: list[np.ndarray] | None = None
+
+    @property
+    def c(self) -> np.ndarray:
+        return np.zeros(3) if self.stages is None else self.stages[-1]
+
+    @c.setter
+    def c(self, value: np.ndarray) -> None:
+        self.stages = [value.copy() for _ in range(FOLLOWER_STAGES)]
 
     def update(self, e: np.ndarray, gain: float) -> np.ndarray:
-        if self.c1 is None:
-            self.c1, self.c = e.copy(), e.copy()
+        if self.stages is None:
+            self.c = e
         else:
-            self.c1 = self.c1 + gain * (e - self.c1)
-            self.c = self.c + gain * (self.c1 - self.c)
-        return self.c
+            x = e
+            for i, s in enumerate(self.stages):
+                x = self.stages[i] = s + gain * (x - s)
+        return self.stages[-1]
 
 
 class _Band:
     """One tracker's noise band for a 3-vector correction (a position or a rotation vector), causal."""
 
-    def __init__(self, window: int) -> None:
+    def __init__(self, window: int, floor: float) -> None:
+        self.floor = floor
         self.history: deque[np.ndarray] = deque(maxlen=3)
         self.d2 = np.zeros(window)
         self.n = 0
@@ -181,7 +194,7 @@ class _Band:
 
     def sigma(self, signal: np.ndarray) -> float:
         """Feed the tracker's signal (3,) of this frame; returns its jitter sigma (per axis) from the median of
-        its second differences over the window."""
+        its second differences over the window, less the floor (jitter below it counts as none)."""
         h = self.history
         h.append(signal)
         if len(h) == 3:
@@ -190,7 +203,8 @@ class _Band:
             self.n += 1
         if self.n == 0:
             return 0.0
-        return _median(self.d2[:min(self.n, self.d2.shape[0])]) / (math.sqrt(6.0) * _CHI3_MEDIAN)
+        sigma = _median(self.d2[:min(self.n, self.d2.shape[0])]) / (math.sqrt(6.0) * _CHI3_MEDIAN)
+        return max(sigma - self.floor, 0.0)
 
     def update(self, e: np.ndarray, sigma: float, process: float, band_sigmas: float, band_min: float
                ) -> np.ndarray:
@@ -235,11 +249,12 @@ class EffectorFit:
     def reset(self) -> None:
         """Forget the recording so far (noise estimates and corrections)."""
         w = self.cfg.noise_window
-        self.pos = {k: _Band(w) for k in range(len(self.trackers))}
-        self.rot = {k: _Band(w) for k in range(len(self.trackers))}
+        self.pos = {k: _Band(w, self.cfg.jitter_floor_m) for k in range(len(self.trackers))}
+        self.rot = {k: _Band(w, math.radians(self.cfg.jitter_floor_deg)) for k in range(len(self.trackers))}
         self.prev_R: dict[int, np.ndarray] = {}
         self.turned = {k: np.zeros(3) for k in range(len(self.trackers))}
         self.joints = {(k, j): _Follower() for k in range(len(self.trackers)) for j in range(24)}
+        self.shift = _Follower()
 
     def _rotation_sigma(self, k: int, R: np.ndarray) -> float:
         """Jitter of tracker k's rotation: the band sees the sum of its frame-to-frame rotation vectors (an
@@ -273,14 +288,33 @@ class EffectorFit:
         corr = self.rot[k].update(e, sigma, math.radians(c.process_deg), c.band_sigmas, math.radians(c.band_min_deg))
         return rotvec_to_matrix(corr) @ G
 
+    def _bend_and_aim(self, R: np.ndarray, G: np.ndarray, p: np.ndarray, k: int, ja: int, jb: int, jw: int,
+                      target: np.ndarray) -> None:
+        """Two-bone arm IK with the elbow's change followed at tracker k's gain: the elbow opens or closes by the
+        followed change of its angle (what reaching the target needs, less the network's bend), then the shoulder
+        aims the wrist at the target. Under jitter the elbow, whose angle the arm's length to the target sets
+        (sensitively near full extension), stays smooth; the wrist still points at the target."""
+        u, v = p[ja] - p[jb], p[jw] - p[jb]
+        l1, l2 = math.sqrt(float(u @ u)), math.sqrt(float(v @ v))
+        n = np.cross(u, v)
+        nn = math.sqrt(float(n @ n))
+        normal = n / nn if nn > 1e-9 * l1 * l2 else G[jb][:, 1] / max(np.linalg.norm(G[jb][:, 1]), 1e-12)
+        theta0 = math.atan2(nn, float(u @ v))
+        d = min(max(float(np.linalg.norm(target - p[ja])), abs(l1 - l2) + 1e-6), l1 + l2 - 1e-6)
+        theta1 = math.acos(min(max((l1 * l1 + l2 * l2 - d * d) / (2.0 * l1 * l2), -1.0), 1.0))
+        delta = self.joints[k, jb].update(np.array([theta1 - theta0, 0.0, 0.0]), self.pos[k].gain)[0]
+        turn_subtree(R, G, p, jb, rotvec_to_matrix(normal * delta), SUBTREE, _PARENTS)
+        turn_subtree(R, G, p, ja, swing_matrix(p[jw] - p[ja], target - p[ja], 1.0), SUBTREE, _PARENTS)
+
     def apply(self, R_local: np.ndarray, transl: np.ndarray, p_trk: np.ndarray, R_trk: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """One pose, fitted: R_local (24, 3, 3) (root in world), transl (3,), the frame's trackers p_trk (K, 3) and
-        world rotations R_trk (K, 3, 3) in :attr:`trackers` order -> ``(R_local, R_world (24, 3, 3), joints
+        world rotations R_trk (K, 3, 3) in :attr:`trackers` order -> ``(R_local, transl, R_world (24, 3, 3), joints
         (24, 3))``, float64."""
         R = np.array(R_local, dtype=np.float64)
+        transl = np.array(transl, dtype=np.float64)
         G, p = np.empty((24, 3, 3)), np.empty((24, 3))
-        forward_kinematics(R, np.asarray(transl, dtype=np.float64), self.offsets, self.J_rest[0], _PARENTS, G, p)
+        forward_kinematics(R, transl, self.offsets, self.J_rest[0], _PARENTS, G, p)
         p_trk = np.asarray(p_trk, dtype=np.float64)
         R_trk = np.asarray(R_trk, dtype=np.float64)
         if self.head is not None:
@@ -290,6 +324,11 @@ class EffectorFit:
             spine_ccd(R, G, p, target, _SPINE, HEAD, self.cfg.spine_passes, SUBTREE, _PARENTS)
             if self.cfg.joint_filter:
                 self._follow(R, G, p, k, SPINE, before)
+            if self.cfg.root_shift:  # what the spine cannot reach (it does not stretch): the whole body moves
+                gain = self.pos[k].gain  # scaled by the gain too: under jitter the spine's remainder is mostly noise
+                shift = gain * self.shift.update(target - p[HEAD], gain)
+                transl = transl + shift
+                p += shift
             if self.has_rot[k]:
                 G_head = self._rotation(k, R_trk[k], G[HEAD])
                 turn_subtree(R, G, p, HEAD, G_head @ G[HEAD].T, SUBTREE, _PARENTS)
@@ -304,11 +343,14 @@ class EffectorFit:
             for i, (side, k) in enumerate(self.arms):
                 _, ja, jb, jw = ARMS[side]
                 before = R[[ja, jb]]
-                turn_subtree(R, G, p, ja, R_a[i], SUBTREE, _PARENTS)
-                turn_subtree(R, G, p, jb, R_a[i] @ R_b[i] @ R_a[i].T, SUBTREE, _PARENTS)
+                if self.cfg.bend_filter and not self.cfg.joint_filter:
+                    self._bend_and_aim(R, G, p, k, ja, jb, jw, rows[i])
+                else:
+                    turn_subtree(R, G, p, ja, R_a[i], SUBTREE, _PARENTS)
+                    turn_subtree(R, G, p, jb, R_a[i] @ R_b[i] @ R_a[i].T, SUBTREE, _PARENTS)
                 if self.cfg.joint_filter:
                     self._follow(R, G, p, k, (ja, jb), before)
                 if self.has_rot[k]:
                     G_w = self._rotation(k, R_trk[k], G[jw])
                     turn_subtree(R, G, p, jw, G_w @ G[jw].T, SUBTREE, _PARENTS)
-        return R, G, p
+        return R, transl, G, p

@@ -396,7 +396,7 @@ class Tracker:
             R, transl = self._fit_trackers(R.astype(np.float32), transl.astype(np.float32), *signals)
             R_w, p = fk_np(R, self.J_rest, transl)
         if self.effector_fit is not None:
-            R, R_w, p = (a[None] for a in self.effector_fit.apply(R[0], transl[0], *signals))
+            R, transl, R_w, p = (a[None] for a in self.effector_fit.apply(R[0], transl[0], *signals))
         score = float(self._score(R, p)[0])
         R_np, prob_np = R[0].astype(np.float64), prob[0]
         locking = self.cfg.foot_lock and self.stream_lock
