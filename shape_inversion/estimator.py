@@ -47,11 +47,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.optimize
 import torch
-from sklearn.neighbors import KDTree
 
 from shape_inversion.bank import BankConfig, SampleBank, load_or_build_bank
 from shape_inversion.features import FEATURE_NAMES, FEATURE_PAIRS, NUM_FEATURES
@@ -59,6 +58,9 @@ from shape_inversion.joint_fit import MappedRest, reposed_rest
 from smplik.body_model import BodyModel
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, Gender
 from smplik.metrics import rigid_align
+
+if TYPE_CHECKING:  # scikit-learn and scipy.optimize are imported where used: a second of every start
+    from sklearn.neighbors import KDTree
 
 
 class ShapeInversionError(ValueError):
@@ -256,6 +258,8 @@ class ShapeEstimator:
         bank = load_or_build_bank(model, bank_config, root=cache_root, use_cache=use_cache)
         J_template, J_dirs = model.J_template.double().numpy(), model.J_dirs.double().numpy()
         T, D = _pair_dirs(J_template, J_dirs)
+        from sklearn.neighbors import KDTree
+
         return cls(bank, KDTree(bank.features), T, D, config, J_template, J_dirs)
 
     @property
@@ -473,9 +477,10 @@ class ShapeEstimator:
             return np.concatenate([(self._rest_distances(x, rest, w) * sqrt_w).ravel(), L_inv @ (x - x0),
                                    population * x[:NUM_BETAS]])
 
+        from scipy.optimize import least_squares
+
         start = np.clip(x0, lo + 1e-9, hi - 1e-9)
-        sol = scipy.optimize.least_squares(fun, start, bounds=(lo, hi), method="trf",
-                                           max_nfev=cfg.joint_fit_max_evaluations)
+        sol = least_squares(fun, start, bounds=(lo, hi), method="trf", max_nfev=cfg.joint_fit_max_evaluations)
         return sol.x
 
     def _refine(self, query: np.ndarray, x0: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -498,7 +503,8 @@ class ShapeEstimator:
         def jac(x: np.ndarray) -> np.ndarray:
             return np.concatenate([features_and_jacobian(T, D, x[:NUM_BETAS], x[NUM_BETAS])[1] / tol, L_inv])
 
+        from scipy.optimize import least_squares
+
         start = np.clip(x0, lo + 1e-9, hi - 1e-9)
-        sol = scipy.optimize.least_squares(fun, start, jac=jac, bounds=(lo, hi), method="trf",
-                                           max_nfev=cfg.refine_max_evaluations)
+        sol = least_squares(fun, start, jac=jac, bounds=(lo, hi), method="trf", max_nfev=cfg.refine_max_evaluations)
         return sol.x

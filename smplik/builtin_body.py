@@ -52,7 +52,6 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-import scipy.optimize
 import scipy.sparse
 from scipy.spatial import cKDTree
 
@@ -322,6 +321,8 @@ def _fit_regressor(verts: np.ndarray, targets: np.ndarray, perm: np.ndarray) -> 
     least-squares solution that moves that average exactly onto the target (sum-to-one enforced
     by a heavily weighted row).
     """
+    from scipy.optimize import nnls  # only when the body is generated (once; then cached): not on every start
+
     n = len(verts)
     tree = cKDTree(verts)
     reg = np.zeros((NUM_JOINTS, n))
@@ -333,7 +334,7 @@ def _fit_regressor(verts: np.ndarray, targets: np.ndarray, perm: np.ndarray) -> 
             alpha = 0.5
             goal = (t - (1.0 - alpha) * prior) / alpha
             a = np.vstack([verts[idx].T, 1e3 * np.ones((1, k))])
-            u, _ = scipy.optimize.nnls(a, np.append(goal, 1e3))
+            u, _ = nnls(a, np.append(goal, 1e3))
             u /= u.sum()
             row = (1.0 - alpha) / k + alpha * u
             if np.abs(row @ verts[idx] - t).max() < 2e-4:

@@ -62,6 +62,21 @@ def _levels(parents: tuple[int, ...]) -> _Levels:
                        tuple(parent_pos), inverse)
 
 
+def broadcast_shapes(a: tuple[int, ...], b: tuple[int, ...]) -> tuple[int, ...]:
+    """The broadcast of two shapes, as ``torch.broadcast_shapes`` (whose first call imports sympy through
+    ``torch._refs``: 0.7 CPU s of every command's start). Raises RuntimeError when they do not broadcast."""
+    if torch.jit.is_tracing():
+        return tuple(torch.broadcast_shapes(a, b))
+    n = max(len(a), len(b))
+    a, b = (1,) * (n - len(a)) + tuple(a), (1,) * (n - len(b)) + tuple(b)
+    out = []
+    for x, y in zip(a, b, strict=True):
+        if x != y and 1 not in (x, y):
+            raise RuntimeError(f"shapes {a} and {b} do not broadcast.")
+        out.append(x if y == 1 else y)
+    return tuple(out)
+
+
 def forward_kinematics(
     R_parent_joint: Tensor,
     J_rest: Tensor,
@@ -84,7 +99,7 @@ def forward_kinematics(
         raise ValueError(f"Invalid local rotations shape {tuple(R_parent_joint.shape)}; expected (..., {J}, 3, 3).")
     if J_rest.shape[-2:] != (J, 3):
         raise ValueError(f"Invalid rest joints shape {tuple(J_rest.shape)}; expected (..., {J}, 3).")
-    batch = torch.broadcast_shapes(R_parent_joint.shape[:-3], J_rest.shape[:-2])
+    batch = broadcast_shapes(R_parent_joint.shape[:-3], J_rest.shape[:-2])
     lv = _levels(tuple(parents))
     dev = R_parent_joint.device
     order = lv.order.to(dev)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -79,3 +80,32 @@ def test_parse_frames_and_the_error_class_are_the_ones_the_pipeline_uses():
     assert options.parse_frames("all") is None and options.parse_frames(" 3:7 ") == (3, 7)
     with pytest.raises(options.AnimationError, match="got '3'"):
         options.parse_frames("3")
+
+
+def _smplik(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "smplik.cli", *args], capture_output=True, text=True, timeout=600,
+                          cwd=cwd)
+
+
+def test_the_command_leaves_with_its_status_output_and_files_after_torch_loaded(tmp_path):
+    """The end of a command that imported torch skips the interpreter's teardown (:func:`smplik.cli.leave`): its
+    files, its printed lines, atexit functions and the exit status are all still there."""
+    from animation_fixtures import video_motion, write_gvhmr_video
+
+    src = write_gvhmr_video(tmp_path, *video_motion(12))
+    res = _smplik("scene", "animate", str(src), "--out", str(tmp_path / "out"), "--export", "bvh", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-2000:]
+    said = res.stdout + res.stderr  # the command's lines go to stderr
+    assert f"wrote {tmp_path / 'out' / 'person_0.bvh'}" in said and said.endswith("\n")
+    assert (tmp_path / "out" / "animation.json").stat().st_size > 0
+    res = _smplik("scene", "animate", str(src), "--out", str(tmp_path / "o2"), "--track", "7", cwd=tmp_path)
+    assert res.returncode == 1 and "no track '7'" in res.stdout + res.stderr  # refused after torch loaded
+    code = ("import atexit, sys, torch\nfrom smplik.cli import leave\n"
+            "atexit.register(lambda: print('atexit ran', flush=True))\nprint('before', end='')\nleave(sys.argv[1:] and "
+            "int(sys.argv[1]))\n")
+    for status in (0, 3):
+        res = subprocess.run([sys.executable, "-c", code, str(status)], capture_output=True, text=True, timeout=300)
+        assert res.returncode == status and res.stdout == "beforeatexit ran\n", res
+    res = subprocess.run([sys.executable, "-c", code.replace("int(sys.argv[1])", "'a message'"), "x"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 1 and res.stderr.strip() == "a message"

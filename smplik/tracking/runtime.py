@@ -52,6 +52,14 @@ from smplik.tracking.model_io import TrackingModel, load_model
 from smplik.tracking.network import TrackingNet
 
 _IDENTITY_Q = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (8, 1))
+RATE_WINDOW = 30
+""":meth:`Tracker.step` with timestamps judges the stream's rate over its last this many frame intervals."""
+RATE_TOLERANCE = 0.1
+"""... refusing a mean rate more than this share away from the model's once :data:`RATE_MIN_INTERVALS` intervals
+have arrived (the sampling jitter of a real headset log averages out) ..."""
+RATE_MIN_INTERVALS = 5
+RATE_FAR = 0.4
+"""... and, from the second frame on, a rate this far away (a 30 or 90 frames/s stream into a 60 frames/s model)."""
 ANOMALY_THRESHOLD = 0.02
 """A pose whose :func:`anomaly_scores` exceeds this is implausible (counted in the benchmark's anomaly rate)."""
 CROSS_PAIRS = tuple((JOINT_INDEX[f"left_{j}"], JOINT_INDEX[f"right_{j}"]) for j in ("knee", "ankle", "foot"))
@@ -254,6 +262,7 @@ class Tracker:
         self.prev: tuple[np.ndarray, float] | None = None
         self.frame_in = 0
         self.frame_out = 0
+        self.times: deque[float] = deque(maxlen=RATE_WINDOW)  # the last timestamps given to step
         self.buffer: deque[tuple[np.ndarray, float, np.ndarray, tuple[np.ndarray, np.ndarray]]] = deque()
         self.current = 0
         self.transition: tuple[int, int, int] | None = None  # (from, to, first output frame)
@@ -269,10 +278,20 @@ class Tracker:
         """Frames between an input and its output pose."""
         return self.cfg.lookahead if self.cfg.samples > 1 else 0
 
-    def step(self, positions: np.ndarray, rotations: np.ndarray | None = None) -> TrackedPose | None:
+    def step(self, positions: np.ndarray, rotations: np.ndarray | None = None, *,
+             time_s: float | None = None) -> TrackedPose | None:
         """One frame: positions (K, 3) metres, rotations (K, 4) unit quaternions (w, x, y, z) (rows of trackers
         without rotation are ignored), in the model's tracker order (:attr:`trackers`). Returns the output pose of
-        frame ``frame_in - latency``, or None while the look-ahead buffer fills."""
+        frame ``frame_in - latency``, or None while the look-ahead buffer fills.
+
+        The model runs at :attr:`fps` frames per second (its velocities are per frame at that rate). ``time_s``:
+        the frame's timestamp (seconds, any origin); given, the stream's rate is checked before the frame is
+        used, and a stream at another rate (its mean over the last :data:`RATE_WINDOW` intervals more than
+        :data:`RATE_TOLERANCE` away, or :data:`RATE_FAR` from the second frame on) or timestamps that do not
+        increase raise ValueError (one line): resample such a stream to the model's rate first
+        (:class:`workflows.tracking.live.TickResampler` does, as ``smplik track --live --fps`` uses it)."""
+        if time_s is not None:
+            self._check_time(time_s)
         K = len(self.trackers)
         if self.kernels is not None:
             p = np.asarray(positions, dtype=np.float64).reshape(K, 3)
@@ -303,6 +322,25 @@ class Tracker:
         if len(self.buffer) > self.cfg.lookahead:
             return self._pop()
         return None
+
+    def _check_time(self, time_s: float) -> None:
+        """Refuse a timestamp that does not increase or a stream whose rate is not the model's (:meth:`step`)."""
+        t = float(time_s)
+        times = self.times
+        if not np.isfinite(t):
+            raise ValueError(f"Tracker.step: time_s must be a finite number of seconds, got {time_s!r}.")
+        if times and t <= times[-1]:
+            raise ValueError(f"Tracker.step: timestamps must increase; frame {self.frame_in} is at {t:g} s, the "
+                             f"previous one at {times[-1]:g} s.")
+        if times:
+            n = min(len(times), RATE_WINDOW)
+            rate = n / (t - times[-n])
+            off = abs(rate / self.fps - 1.0)
+            if off > RATE_FAR or (n >= RATE_MIN_INTERVALS and off > RATE_TOLERANCE):
+                raise ValueError(f"Tracker.step: the stream runs at {rate:.1f} frames/s (mean of its last {n} "
+                                 f"intervals); this model runs at {self.fps:g}: resample it to {self.fps:g} frames/s "
+                                 "first (workflows.tracking.live.TickResampler).")
+        times.append(t)
 
     def flush(self) -> list[TrackedPose]:
         """The poses still in the look-ahead buffer (call once at the end of a recording)."""

@@ -70,6 +70,10 @@ def track_cmd(
                                                       "(default: detected).")] = None,
     csv_axes: Annotated[str | None, typer.Option("--csv-axes", help="CSV axes: openvr (right-handed) or unity "
                                                  "(left-handed) (default: detected).")] = None,
+    preview: Annotated[Path | None, typer.Option("--preview", help="Write an animated preview (.gif or .mp4), "
+                                                 "as scene animate does.")] = None,
+    preview_every: Annotated[int, typer.Option("--preview-every", min=1, max=1000, help="Preview every N-th "
+                                               "frame, 1..1000.")] = 1,
 ) -> None:
     """Tracker recording (head, wrists, pelvis; or head and wrists) -> OUT/animation.json and BVH/GLB; or live:
     VMC/SteamVR trackers in, VMC bones out (--live)."""
@@ -77,6 +81,12 @@ def track_cmd(
 
     with user_errors():
         values = None
+        if preview is not None:  # refused before any work (and before numpy/torch load)
+            from workflows.animation.options import check_preview_path
+
+            if live:
+                raise AnimationError("--preview is for a recording, not --live.")
+            check_preview_path(preview)
         if betas is not None and height is not None:
             raise AnimationError("give --betas or --height, not both.")
         if betas is not None:
@@ -126,6 +136,11 @@ def track_cmd(
                              calibrate=not no_calibrate, controller=controller, csv_units=csv_units,
                              csv_time_unit=csv_time_unit, csv_axes=csv_axes,
                              formats=[f.strip().lower() for f in export.split(",") if f.strip()])
+        shown = None
+        if preview is not None:  # the animation preview of scene animate (workflows.animation.preview)
+            from workflows.animation.preview import write_preview
+
+            shown = write_preview(outputs.animation, preview, every=preview_every)
     if outputs.calibration is not None:
         if outputs.calibration.message:
             say(outputs.calibration.message)
@@ -133,7 +148,9 @@ def track_cmd(
     anim = outputs.animation
     say(f"{anim.tracks[0].num_frames} frames at {anim.fps:g} frames/s, anomaly rate {outputs.anomaly_rate:.3f}, "
         f"{outputs.switches} sample switches")
-    for path in (outputs.animation_file, *outputs.exported):
+    if shown is not None:
+        say(shown.describe())
+    for path in (outputs.animation_file, *outputs.exported, *([shown.path] if shown is not None else [])):
         say(f"wrote {path}")
 
 
