@@ -16,12 +16,12 @@ from smplik.tracking.features import OUT_DIM, decode_pose, pose_targets, tracker
 from smplik.tracking.io import (
     TrackerFileError,
     read_steamvr_jsonl,
-    read_trackers,
     signals_from_dict,
     signals_from_motion,
 )
 from smplik.tracking.model_io import TrackingModelError, load_model
 from smplik.tracking.network import TrackingNet, WindowMLP, input_dim
+from smplik.tracking.recordings import read_trackers
 from smplik.tracking.runtime import Tracker, _FootLock, contact_segments, offline_foot_lock, track_sequence
 
 TRACKERS = TRACKER_SETS["4"]

@@ -22,7 +22,8 @@ from smplik.tracking.calibrate import (
     signals_from_devices,
 )
 from smplik.tracking.csv_io import read_csv_devices, read_csv_trackers
-from smplik.tracking.io import TrackerFileError, read_trackers, signals_from_motion
+from smplik.tracking.io import TrackerFileError, signals_from_motion
+from smplik.tracking.recordings import read_trackers
 from workflows.tracking.from_motion import _sole_height, motion_signals, write_device_csv
 
 CMU = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "cmu"

@@ -24,19 +24,7 @@ from typing import Any
 
 import numpy as np
 
-CONTROLLERS: dict[str, tuple[float, float, float]] = {
-    "vive": (-0.032, -0.085, 0.133),
-    "touch": (-0.032, -0.038, 0.101),
-    "index": (-0.025, -0.030, 0.150),
-    "none": (0.0, 0.0, 0.0),
-}
-"""The left wrist joint in its controller's tracked frame (OpenVR axes of the device: +x right, +y up, +z back
-toward the user; metres); the right wrist mirrors x. ``vive``: HTC Vive wand; ``touch``: Oculus / Meta Touch;
-``index``: Valve Index ("knuckles"); ``none``: the controller's position is the wrist. The Vive and Touch values
-are the hand-model offsets commonly used in Unity projects (hand root 3 cm to the outer side, 8.5 / 3.8 cm down
-and 13.3 / 10.1 cm behind the controller's origin, mirrored to OpenVR's right-handed axes); the Index value puts
-the wrist 2 cm behind Monado's Index grip pose (0, -1.5, 13 cm): estimates within a few centimetres, not
-measurements of one hand."""
+from smplik.tracking.controllers import CONTROLLERS, controller_offset
 
 STANDING_QUANTILE = 0.95
 """Quantile of the head tracker's height taken as the user's standing head height (robust to crouching, sitting
@@ -79,14 +67,6 @@ class DeviceRecording:
     notes: tuple[str, ...] = ()
 
 
-def controller_offset(controller: str, side: str) -> np.ndarray:
-    """(3,) the ``side`` ("left"/"right") wrist in the controller's frame (:data:`CONTROLLERS`)."""
-    if controller not in CONTROLLERS:
-        raise CalibrationError(f"unknown controller {controller!r}; choose from {', '.join(CONTROLLERS)}.")
-    off = np.asarray(CONTROLLERS[controller], dtype=np.float64)
-    return off if side == "left" else off * np.array([-1.0, 1.0, 1.0])
-
-
 def _resample(times: np.ndarray, out_t: np.ndarray, track: tuple[np.ndarray, np.ndarray, np.ndarray], what: str,
               source: str) -> tuple[np.ndarray, np.ndarray]:
     """A device's valid samples linearly interpolated at ``out_t`` (quaternions sign-continuous, renormalised)."""
@@ -120,6 +100,8 @@ def signals_from_devices(rec: DeviceRecording, fps: float = 60.0, controller: st
     R_hmd = _quat_to_matrix(q_hmd)
     R_head = R_hmd @ np.diag([-1.0, 1.0, -1.0])
     p_head = p_hmd + (R_hmd @ HMD_TO_HEAD_M[:, None])[..., 0]
+    if rec.has_controller_rotation and controller not in CONTROLLERS:
+        raise CalibrationError(f"unknown controller {controller!r}; choose from {', '.join(CONTROLLERS)}.")
     wrists = {}
     for side, track in (("left", rec.left), ("right", rec.right)):
         p, q = _resample(rec.times, out_t, track, f"{side} controller", rec.source)

@@ -26,7 +26,7 @@ import numpy as np
 
 from smplik.conventions import JOINT_NAMES, unknown_joint
 from smplik.limits import LimitError, check_rate, check_resampled_frames
-from smplik.validation import JSONPathError, finite_array, read_json, read_text, short_repr
+from smplik.validation import JSONPathError, finite_array, read_text, short_repr
 
 MAX_ABS_TIMESTAMP_S = 1e10
 """Largest |timestamp| of a SteamVR log line (seconds: Unix time until the year 2286; beyond it a double cannot
@@ -152,51 +152,6 @@ def _unit_quaternions(q: np.ndarray, err: JSONPathError, path: str) -> np.ndarra
         raise err(f"{path}[{int(np.argmax(zero))}]", "is a zero quaternion (no rotation).")
     q = q / scale
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def read_trackers(path: str | Path, **options: Any) -> TrackerSignals:
-    """Read a tracker file: ``smplik-trackers`` JSON, a SteamVR JSON-lines log (``.jsonl``) or a VR CSV recording
-    (``.csv``, or any file that is not JSON but has a CSV header of device columns:
-    :func:`smplik.tracking.csv_io.read_csv_trackers`). ``options``: ``controller`` (CSV and JSON lines) and the CSV
-    reader's ``units``, ``time_unit``, ``axes``; given for a file they do not apply to, they are refused."""
-    path = Path(path)
-    csv_only = sorted(k for k in ("units", "time_unit", "axes") if options.get(k) is not None)
-    unknown = sorted(set(options) - {"units", "time_unit", "axes", "controller"})
-    if unknown:
-        raise TypeError(f"read_trackers: unknown option {unknown[0]!r}")
-    if path.suffix.lower() == ".csv":
-        from smplik.tracking.csv_io import read_csv_trackers
-
-        return read_csv_trackers(path, **options)
-    if csv_only:
-        raise TrackerFileError(f"{path}: --csv-{csv_only[0].replace('_', '-')} is for CSV recordings (.csv).")
-    if path.suffix.lower() == ".jsonl":
-        return read_steamvr_jsonl(path, controller=options.get("controller") or "none")
-    if options.get("controller") is not None:
-        raise TrackerFileError(f"{path}: --controller is for device recordings (.csv, .jsonl); a smplik-trackers "
-                               "file holds the wrists themselves.")
-    try:
-        data = read_json(path, TrackerFileError, what="tracker file")
-    except TrackerFileError as exc:
-        head = _first_line(path)
-        if head is None or "," not in head or head.lstrip().startswith(("{", "[")):
-            raise
-        from smplik.tracking.csv_io import read_csv_trackers
-
-        try:
-            return read_csv_trackers(path)
-        except TrackerFileError as csv_exc:
-            raise TrackerFileError(f"{exc} It is not a VR CSV recording either: {csv_exc}") from None
-    return signals_from_dict(data, str(path))
-
-
-def _first_line(path: Path) -> str | None:
-    """The file's first line (at most 4 KB), or None when it cannot be read as text."""
-    try:
-        with open(path, "rb") as f:
-            return f.read(4096).decode("utf-8", errors="strict").splitlines()[0]
-    except (OSError, UnicodeDecodeError, IndexError):
-        return None
 
 
 def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, names: tuple[str, ...],
@@ -388,11 +343,11 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0, controller: str = "n
     # left = on the headset's left: SMPL's head frame has +x to the body's left
     side = ((pa[0] - pb[0]) @ R_head[0][:, 0])
     if controller != "none":
-        from smplik.tracking.calibrate import CalibrationError, controller_offset
+        from smplik.tracking.controllers import ControllerError, controller_offset
 
         try:
             offsets = (controller_offset(controller, "left"), controller_offset(controller, "right"))
-        except CalibrationError as exc:
+        except ControllerError as exc:
             raise TrackerFileError(f"{path}: {exc}") from None
         oa, ob = offsets if side > 0 else offsets[::-1]
         pa = pa + (_quat_to_matrix(qa) @ oa[:, None])[..., 0]

@@ -1,6 +1,6 @@
 """``smplik track``: a tracker recording -> an animation (``smplik-animation``) and animated BVH/GLB files.
 
-The recording (:func:`smplik.tracking.io.read_trackers`: ``smplik-trackers`` JSON or a SteamVR JSON-lines log)
+The recording (:func:`smplik.tracking.recordings.read_trackers`: ``smplik-trackers`` JSON or a SteamVR JSON-lines log)
 runs through the streaming tracker (:mod:`smplik.tracking.runtime`), one pose per input frame, on the user's
 body (``betas``, ``gender``) or on a custom character (``--character``: its SMPL-SI shape and scale; the
 trackers are then taken in the character's units and divided by its scale). The result is one track in the
@@ -83,7 +83,7 @@ def _track_into(stage: Any, path: str | Path, *, samples: int, betas: Sequence[f
                 height: float | None = None, calibrate: bool = True, read: dict[str, Any] | None = None
                 ) -> TrackOutputs:
     from smplik.tracking.config import TrackerRuntimeConfig
-    from smplik.tracking.io import read_trackers
+    from smplik.tracking.recordings import read_trackers
     from smplik.tracking.runtime import ANOMALY_THRESHOLD, Tracker, track_sequence
     from workflows.animation.files import save_animation
     from workflows.scene import SkeletonSource
