@@ -206,3 +206,36 @@ def test_a_draco_compressed_character_reads_its_mesh_with_dracopy():
     tol = 2e-4 * np.ptp(mesh0.vertices_world[:, 1])
     assert cKDTree(mesh0.vertices_world).query(mesh.vertices_world)[0].max() < tol
     assert cKDTree(mesh.vertices_world).query(mesh0.vertices_world)[0].max() < tol
+
+
+def test_scene_export_of_a_compressed_character_writes_a_plain_glb_of_its_own_mesh(tmp_path):
+    """The exported GLB holds the decoded views (no meshopt extension left pointing at moved bytes) and re-reads
+    as the same character: its mesh equal to the original's at the bind pose."""
+    import sys
+
+    from typer.testing import CliRunner
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from estimator_fixtures import framing, people, write_romp
+
+    from smplik.cli.main import app
+
+    aa, transl, betas = people(seed=3, n=1, **framing("romp"))
+    w = write_romp(tmp_path, aa, transl, betas)
+    runner = CliRunner()
+    packed = MESHOPT / "RiggedFigure_gltf_transform.glb"
+    res = runner.invoke(app, ["scene", "from-estimate", str(w.path), "--out", str(tmp_path / "scene"), "--character",
+                              str(packed), "--no-previews", "--max-effectors", "2"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["scene", "export", str(tmp_path / "scene" / "scene.json"), "--out", str(tmp_path / "x"),
+                              "--format", "glb"])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "x" / "person_0.glb"
+    doc, _ = _glb_json_and_bin(out)
+    assert not any("meshopt" in e for e in doc.get("extensionsUsed", []) + doc.get("extensionsRequired", []))
+    assert not any("meshopt" in str(v.get("extensions")) for v in doc["bufferViews"])
+    _, mesh0 = _mesh(ORIGINAL)
+    _, mesh = _mesh(out)  # the exported file's bind pose, in its own (the file's) frame
+    assert len(mesh.faces) == len(mesh0.faces)
+    d0 = np.ptp(mesh0.vertices_world, axis=0)
+    np.testing.assert_allclose(np.sort(np.ptp(mesh.vertices_world, axis=0)), np.sort(d0), rtol=2e-3)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from shape_inversion.gltf_io import node_local_matrix
+from shape_inversion.gltf_io import MESHOPT_EXTENSIONS, node_local_matrix
 from smplik.atomic import write_bytes_atomic, write_text_atomic
 from smplik.conventions import JOINT_NAMES, PARENTS
 from smplik.data.bvh import format_bvh, matrix_to_euler_channels
@@ -443,6 +443,10 @@ def posed_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], fram
     for view in gltf.bufferViews or []:
         view.byteOffset = (view.byteOffset or 0) + bases[view.buffer]
         view.buffer = 0
+        if view.extensions:  # meshopt views were decoded into their (fallback) buffer when read: written plain
+            view.extensions = {k: v for k, v in view.extensions.items() if k not in MESHOPT_EXTENSIONS} or None
+    gltf.extensionsUsed = [e for e in gltf.extensionsUsed or [] if e not in MESHOPT_EXTENSIONS] or None
+    gltf.extensionsRequired = [e for e in gltf.extensionsRequired or [] if e not in MESHOPT_EXTENSIONS] or None
     out = _GlbData(blob, list(gltf.accessors or []), list(gltf.bufferViews or []))
     add = out.add
     n_nodes = len(doc.world)
