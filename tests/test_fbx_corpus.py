@@ -67,7 +67,9 @@ def test_every_command_takes_it_with_no_option(name, tmp_path):
         return res.output
 
     run("invert-shape", path, "--out", tmp_path / "shape.json")
-    joint_map = json.loads((tmp_path / "shape.json").read_text())["character"]["joint_map"]
+    saved = json.loads((tmp_path / "shape.json").read_text())["character"]
+    joint_map = saved["joint_map"]
+    assert FILES[name][0][0] < saved["height_m"] < FILES[name][0][1]
     aa, transl, betas = people(seed=3, n=1, **framing("romp"))
     romp = write_romp(tmp_path, aa, transl, betas).path
     run("scene", "from-estimate", romp, "--out", tmp_path / "scene", "--character", path, "--no-previews")
