@@ -33,6 +33,7 @@ def shape_payload(character, estimate, model, *, rest: str, elapsed_s: float) ->
         "units_source": character.units_source,
         "up": character.up,
         "head_ankle_height_m": character.head_ankle_height_m,
+        "height_m": character.height_m,
         "joint_map": character.joint_map,
         "root": character.rig.root,
         "map_warnings": list(character.rig.warnings),

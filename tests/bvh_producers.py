@@ -3,20 +3,21 @@
 Each writer names the producer's code whose layout it follows; the motion itself is made up (a walking body,
 small joint rotations), the layout is the producer's:
 
-* :func:`write_axis_neuron_bvh`: Noitom's Perception Neuron / Axis Neuron export (the header template of
-  Perception Neuron streaming tools, e.g. a C++ ``bvh_header_template`` with ``ROOT Hips`` ... ``Spine3``,
-  ``RightInHandIndex``): centimetres, y up, facing +z, every joint ``Yrotation Xrotation Zrotation`` (with
-  displacement: six channels on every joint), **no toe joints** (an End Site under each foot), four spine joints
-  ``Spine .. Spine3`` (the arms branch from ``Spine3``), ``Neck``, ``Head``, fingers with ``InHand`` metacarpals.
+* :func:`write_axis_neuron_bvh`: Noitom's Perception Neuron / Axis Neuron export, as public Perception Neuron
+  streaming tools reproduce its header (a C++ ``bvh_header_template`` string: ``ROOT Hips`` ... ``Spine3``,
+  ``RightInHandIndex``; our own bone lengths): centimetres, y up, facing +z, every joint
+  ``Yrotation Xrotation Zrotation`` (with displacement: six channels on every joint), **no toe joints** (an End
+  Site under each foot), four spine joints ``Spine .. Spine3`` (the arms branch from ``Spine3``), ``Neck``,
+  ``Head``, fingers with ``InHand`` metacarpals.
 * :func:`write_video2bvh_bvh`: KevinLTT/video2bvh, ``bvh_skeleton/h36m_skeleton.py`` (``H36mSkeleton``) written by
   ``bvh_skeleton/bvh_helper.py`` (``write_bvh``): the Human3.6M 17 keypoints, z up, the T-pose OFFSETs of
   ``initial_directions`` times the mean bone length, ``HeadEndSite`` an End Site (no head joint: the neck is the
   last joint of the head chain), the root ``Xposition Yposition Zposition Zrotation Xrotation Yrotation``, every
   other joint ``zxy``, 30 frames/s, metres.
-* :func:`write_mediapipe_bvh`: the layout of MediaPipe-to-BVH tools that write every OFFSET as the same "up"
-  vector times the bone length (helper joints zero), so the body exists only once the rotations are applied
-  (the writer of ``tests/test_joint_motion.py``, ``write_rotation_only_bvh``); its joints lack ``Spine1`` and a
-  toe.
+* :func:`write_mediapipe_bvh`: the layout issue 42 reports for a MediaPipe-to-BVH tool: every OFFSET the same
+  "up" vector times the bone length (helper joints zero), so the body exists only once the rotations are
+  applied, as ``tests/test_joint_motion.py``'s ``write_rotation_only_bvh``; its joints lack ``Spine1`` and the
+  toes. (The tool's own code was not found in the searchable public code; the layout follows the report.)
 """
 
 from __future__ import annotations

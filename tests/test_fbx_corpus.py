@@ -67,7 +67,9 @@ def test_every_command_takes_it_with_no_option(name, tmp_path):
         return res.output
 
     run("invert-shape", path, "--out", tmp_path / "shape.json")
-    joint_map = json.loads((tmp_path / "shape.json").read_text())["character"]["joint_map"]
+    saved = json.loads((tmp_path / "shape.json").read_text())["character"]
+    joint_map = saved["joint_map"]
+    assert FILES[name][0][0] < saved["height_m"] < FILES[name][0][1]
     aa, transl, betas = people(seed=3, n=1, **framing("romp"))
     romp = write_romp(tmp_path, aa, transl, betas).path
     run("scene", "from-estimate", romp, "--out", tmp_path / "scene", "--character", path, "--no-previews")
@@ -85,3 +87,19 @@ def test_every_command_takes_it_with_no_option(name, tmp_path):
     if can_render():
         said = run("data", "preview", path, "--out", tmp_path / "strip.png", "--frames", "2", "--panel", "96")
         assert f"of {frames}" in said and (tmp_path / "strip.png").is_file()
+
+
+@pytest.mark.parametrize("scale", [0.9, 1.0, 1.2])
+def test_height_without_a_head_top_joint_uses_smpls_head_ratio(scale, tmp_path):
+    """A skeleton ending at the head joint (SMPL's own joints as a Mixamo BVH): the height is the head joint's
+    over SMPL's ratio, so SMPL's template (1.70 m feet to head top, its mesh) reads 1.70 m times its scale."""
+    from shape_inversion.skeleton_io import read_character
+    from smplik.body_model import load_body_model
+    from workflows.animation.clips import rest_joints
+    from workflows.layout_examples import write_mixamo_bvh
+
+    v = load_body_model().arrays["v_template"]
+    mesh_height = float(v[:, 1].max() - v[:, 1].min())
+    write_mixamo_bvh(tmp_path / "smpl.bvh", rest_joints(np.zeros(10), "neutral") * scale)
+    char = read_character(tmp_path / "smpl.bvh")
+    assert char.height_m == pytest.approx(scale * mesh_height, rel=0.01)
