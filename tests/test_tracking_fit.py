@@ -63,20 +63,19 @@ def test_fit_is_on_by_default():
 
 @pytest.mark.parametrize("model", [None, "smplik/checkpoints/smplik_tracking_3.pt"], ids=["4 trackers", "3 trackers"])
 def test_exact_trackers_put_head_and_wrists_within_a_centimetre(cmu_motion, model):
-    """Exact trackers of held-out motion: without the fit the network misses its wrist trackers by centimetres;
-    with it (the default) the wrists are on them (within 1 cm on every frame) and the head within 1 cm on 95 % of
-    frames (the spine cannot stretch: a head the network holds too low stays a few millimetres short)."""
+    """Exact trackers of held-out motion: without the fit the network misses its trackers by centimetres; with it
+    (the default) the head and the wrists are on them, within 1 cm on every frame after the first second (a new
+    stream starts by assuming jittery trackers, :attr:`FitConfig.prior_jitter_m`, until its own show otherwise)."""
     R, transl, J = cmu_motion
     tracker = Tracker.load(model)
     sig = signals_from_motion(R, transl, J, tracker.trackers, 60.0)
     fitted = misses(joints(track_sequence(tracker, sig), J), sig)
     raw = misses(joints(track_sequence(Tracker.load(model, config=TrackerRuntimeConfig(effector_fit=False)), sig), J),
                  sig)
-    for side in ("left_wrist", "right_wrist"):
-        assert raw[side].mean() > 0.02, raw[side].mean()
-        assert fitted[side].max() < 0.01, (side, fitted[side].max())
-    assert np.percentile(fitted["head"], 95) < 0.01, np.percentile(fitted["head"], 95)
-    assert fitted["head"].mean() < 0.5 * raw["head"].mean()
+    for name in HEAD_AND_WRISTS:
+        assert raw[name].mean() > 0.015, (name, raw[name].mean())
+        assert fitted[name][60:].max() < 0.01, (name, fitted[name][60:].max())
+        assert fitted[name].mean() < 0.25 * raw[name].mean(), name
 
 
 def test_noisy_trackers_are_not_passed_through(cmu_motion):
@@ -130,7 +129,7 @@ def test_jitter_estimate_and_gain():
     """The band's jitter estimate recovers the sigma of white noise on a moving signal (less its floor), and the
     gain is 1 without jitter and falls with it."""
     rng = np.random.default_rng(0)
-    band = _Band(60, floor=0.0)
+    band = _Band(60, floor=0.0)  # no prior, no floor: the estimate alone
     for i in range(200):
         s = band.sigma(np.array([0.01 * i, 1.0, 0.0]) + rng.normal(0.0, 0.01, 3))
     assert s == pytest.approx(0.01, rel=0.2)

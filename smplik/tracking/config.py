@@ -155,9 +155,21 @@ class FitConfig:
     differences), 1 cm of noise far above."""
     jitter_floor_deg: float = 0.5
     """The same for rotations (degrees)."""
+    prior_jitter_m: float = 0.01
+    """Jitter assumed before the recording has shown its own (weighted as ``prior_frames`` frames against the
+    frames seen, at most ``noise_window``): a new stream starts cautious, and exact trackers reach gain 1 within
+    about a second."""
+    prior_jitter_deg: float = 2.0
+    """The same for rotations (degrees)."""
+    prior_frames: int = 10
+    """Weight of the prior jitter, in frames."""
     process_m: float = 0.003
     """How far (metres per frame) the network's miss may drift: the random walk of the steady-state Kalman gain
     (gain 1 on exact trackers; about 0.3 under 1 cm of jitter)."""
+    head_process_m: float = 0.003
+    """The same for the head (whose correction is also scaled by its gain: under jitter the network's head, the
+    heading reference it tracks best, is already close, and the spine the correction bends carries everything
+    above it)."""
     process_deg: float = 1.5
     """The same for rotations (degrees per frame)."""
     band_sigmas: float = 6.0

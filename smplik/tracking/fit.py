@@ -42,6 +42,8 @@ ARMS = {s: (JOINT_INDEX[f"{s}_collar"], JOINT_INDEX[f"{s}_shoulder"], JOINT_INDE
             JOINT_INDEX[f"{s}_wrist"]) for s in ("left", "right")}
 FOLLOWER_STAGES = 3
 """Gain steps in cascade (2: critically damped)."""
+SIGMA_RATE = 0.05
+"""Per-frame rate of the exponential smoothing of each jitter estimate."""
 _CHI3_MEDIAN = 1.5382
 """Median of the chi distribution with 3 degrees of freedom (|N(0, I3)|)."""
 
@@ -184,8 +186,9 @@ class _Follower:
 class _Band:
     """One tracker's noise band for a 3-vector correction (a position or a rotation vector), causal."""
 
-    def __init__(self, window: int, floor: float) -> None:
-        self.floor = floor
+    def __init__(self, window: int, floor: float, prior: float = 0.0, prior_frames: int = 0) -> None:
+        self.floor, self.prior, self.prior_frames = floor, prior, prior_frames
+        self.smooth: float | None = None
         self.history: deque[np.ndarray] = deque(maxlen=3)
         self.d2 = np.zeros(window)
         self.n = 0
@@ -201,10 +204,14 @@ class _Band:
             d = h[2] - 2.0 * h[1] + h[0]
             self.d2[self.n % self.d2.shape[0]] = math.sqrt(float(d @ d))
             self.n += 1
-        if self.n == 0:
-            return 0.0
-        sigma = _median(self.d2[:min(self.n, self.d2.shape[0])]) / (math.sqrt(6.0) * _CHI3_MEDIAN)
-        return max(sigma - self.floor, 0.0)
+        n = min(self.n, self.d2.shape[0])
+        measured = _median(self.d2[:n]) / (math.sqrt(6.0) * _CHI3_MEDIAN) if n else 0.0
+        # until frames have shown otherwise, the trackers are taken to jitter by the prior
+        weight = n + self.prior_frames
+        sigma = max((n * measured + self.prior_frames * self.prior) / weight - self.floor, 0.0) if weight else 0.0
+        # smoothed: the median steps as frames enter and leave the window, and a gain that steps scales corrections
+        self.smooth = sigma if self.smooth is None else self.smooth + SIGMA_RATE * (sigma - self.smooth)
+        return self.smooth
 
     def update(self, e: np.ndarray, sigma: float, process: float, band_sigmas: float, band_min: float
                ) -> np.ndarray:
@@ -249,8 +256,10 @@ class EffectorFit:
     def reset(self) -> None:
         """Forget the recording so far (noise estimates and corrections)."""
         w = self.cfg.noise_window
-        self.pos = {k: _Band(w, self.cfg.jitter_floor_m) for k in range(len(self.trackers))}
-        self.rot = {k: _Band(w, math.radians(self.cfg.jitter_floor_deg)) for k in range(len(self.trackers))}
+        c = self.cfg
+        self.pos = {k: _Band(w, c.jitter_floor_m, c.prior_jitter_m, c.prior_frames) for k in range(len(self.trackers))}
+        self.rot = {k: _Band(w, math.radians(c.jitter_floor_deg), math.radians(c.prior_jitter_deg), c.prior_frames)
+                    for k in range(len(self.trackers))}
         self.prev_R: dict[int, np.ndarray] = {}
         self.turned = {k: np.zeros(3) for k in range(len(self.trackers))}
         self.joints = {(k, j): _Follower() for k in range(len(self.trackers)) for j in range(24)}
@@ -265,13 +274,13 @@ class EffectorFit:
             self.turned[k] = self.turned[k] + matrix_to_rotvec(R @ prev.T)
         return self.rot[k].sigma(self.turned[k])
 
-    def _position(self, k: int, target: np.ndarray, current: np.ndarray) -> np.ndarray:
+    def _position(self, k: int, target: np.ndarray, current: np.ndarray, process: float) -> np.ndarray:
         c = self.cfg
         sigma = self.pos[k].sigma(target)
         if c.joint_filter:  # the target as measured; the joints' changes are followed instead (:meth:`_follow`)
-            self.pos[k].gain = steady_gain(sigma, c.process_m)
+            self.pos[k].gain = steady_gain(sigma, process)
             return target
-        return current + self.pos[k].update(target - current, sigma, c.process_m, c.band_sigmas, c.band_min_m)
+        return current + self.pos[k].update(target - current, sigma, process, c.band_sigmas, c.band_min_m)
 
     def _follow(self, R: np.ndarray, G: np.ndarray, p: np.ndarray, k: int, joints: tuple[int, ...],
                 before: np.ndarray) -> None:
@@ -319,7 +328,8 @@ class EffectorFit:
         R_trk = np.asarray(R_trk, dtype=np.float64)
         if self.head is not None:
             k = self.head
-            target = self._position(k, p_trk[k], p[HEAD])
+            target = self._position(k, p_trk[k], p[HEAD], self.cfg.head_process_m)
+            target = p[HEAD] + self.pos[k].gain * (target - p[HEAD])  # under jitter the network's head is close
             before = R[_SPINE]
             spine_ccd(R, G, p, target, _SPINE, HEAD, self.cfg.spine_passes, SUBTREE, _PARENTS)
             if self.cfg.joint_filter:
@@ -336,7 +346,7 @@ class EffectorFit:
             rows = []
             for side, k in self.arms:
                 _, a, b, w = ARMS[side]
-                rows.append(self._position(k, p_trk[k], p[w]))
+                rows.append(self._position(k, p_trk[k], p[w], self.cfg.process_m))
             chains = np.array([ARMS[s][1:] for s, _ in self.arms])
             a, b, w = chains.T
             R_a, R_b = self.two_bone_ik(p[a], p[b], p[w], np.stack(rows), G[b][:, :, 1])
