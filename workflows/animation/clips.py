@@ -722,7 +722,9 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
                 p_s = joints_of(R_s, t_s, J_rest)
         # the contacts reported are the frames the locks hold still (a hand-over between two locks moves the foot)
         held = lock_plan(p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)[2]
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)
+        knee_turn = (np.deg2rad(cfg.lock_knee_turn_deg)
+                     if cfg.lock_knee_turn_deg is not None and cfg.smoothing == "adaptive" else None)
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within, knee_turn)
         contacts = held
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
