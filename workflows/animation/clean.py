@@ -171,6 +171,19 @@ class CleanConfig:
     root_from_locks: bool = True
     """Adaptive: move the root by the locked feet's smoothed offsets before the leg IK
     (:func:`root_shift_from_locks`): the root's noise goes into the root, not the legs."""
+    lock_turn_prior: float | None = 0.001
+    """Adaptive: after the root's shift, the whole body turns about the locked feet (:func:`turn_from_locks`) by as
+    much as their remaining offsets ask where both feet are locked (one foot forward, the other back: a yaw of the
+    estimate's root, which a shift cannot undo and the leg IK would turn into bent legs), against this weight
+    (m^2 per rad^2) of the turn's square. None: no turn (the earlier rule)."""
+    bridge_frames: int = 15
+    """Adaptive, noisy estimates: two runs of one foot at most this many frames apart, whose foot stays low between
+    them and whose locks are within the lift release, are one run (:func:`bridge_short_gaps`: a planted foot of an
+    estimate whose noise drifts over frames wanders out of the speed threshold for up to half a second)."""
+    lock_knee_turn_deg: float | None = 3.0
+    """Adaptive: most a foot lock's leg IK changes a knee's angle (degrees; :func:`lock_feet`): a nearly straight
+    stance leg would bend its knee by degrees (moving it centimetres) for a few millimetres of reach; beyond this,
+    the foot stays short of its lock along the leg. None: no limit (the earlier rule)."""
     root_lock_smoothness: float = 1.0
     """Smoothness (frames^2 weight of the squared acceleration) of that root shift, at 30 frames/s (scaled by
     ``(fps / 30) ** 4`` at other rates, so it spans the same time)."""
@@ -237,6 +250,13 @@ class CleanConfig:
             raise CleanError(f"stance_noise_ratio must be a positive number or None, got {self.stance_noise_ratio}.")
         if not 0 < self.stance_share <= 1:
             raise CleanError(f"stance_share must be in (0, 1], got {self.stance_share}.")
+        if self.lock_turn_prior is not None and not (np.isfinite(self.lock_turn_prior) and self.lock_turn_prior > 0):
+            raise CleanError(f"lock_turn_prior must be a positive number or None, got {self.lock_turn_prior}.")
+        if self.lock_knee_turn_deg is not None and not (np.isfinite(self.lock_knee_turn_deg)
+                                                        and self.lock_knee_turn_deg > 0):
+            raise CleanError(f"lock_knee_turn_deg must be a positive number or None, got {self.lock_knee_turn_deg}.")
+        if self.bridge_frames < 0:
+            raise CleanError(f"bridge_frames must be >= 0, got {self.bridge_frames}.")
         if self.hold_frames not in (0, 1):
             raise CleanError(f"hold_frames must be 0 or 1, got {self.hold_frames}.")
 
@@ -563,13 +583,17 @@ def local_to_world(R_parent_joint: np.ndarray) -> np.ndarray:
 
 def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarray, blend_frames: int = 3,
               ground: np.ndarray | None = None, blend_max: float | None = None, hold: int = 0, ease: bool = False,
-              hold_within: float | None = None) -> np.ndarray:
+              hold_within: float | None = None, knee_turn: float | None = None) -> np.ndarray:
     """Pin each foot joint to its lock (:func:`lock_targets`) over each contact run by two-bone leg IK.
 
     Args:
         R_parent_joint: (T, 24, 3, 3) local rotations; p_world: (T, 24, 3) their joint positions;
         contact: (T, 2) bool (left, right) from :func:`foot_contacts`; ground: (3,) or (T, 3) the ground's
-        velocity (units per frame; default still); blend_max, hold, ease: as in :func:`lock_plan`.
+        velocity (units per frame; default still); blend_max, hold, ease: as in :func:`lock_plan`;
+        knee_turn: most the IK may change a knee's angle (rad; None: no limit). A nearly straight leg (a stance)
+        reaches a few millimetres farther or nearer only by bending its knee by degrees, which moves the knee by
+        centimetres: the foot then stays short of its lock along the leg (mostly vertically) instead
+        (:func:`limit_knee_turn`).
 
     Returns: new local rotations (T, 24, 3, 3); only the hips, knees and ankles of locked legs change
     (the ankles keep their world rotations).
@@ -582,6 +606,9 @@ def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarr
         if rows.size == 0:
             continue
         ankle_target = targets[rows, side] - (p_world[rows, foot] - p_world[rows, ankle])
+        if knee_turn is not None:
+            ankle_target = limit_knee_turn(p_world[rows, hip], p_world[rows, knee], p_world[rows, ankle],
+                                           ankle_target, knee_turn)
         R_a, R_b = two_bone_ik(p_world[rows, hip], p_world[rows, knee], p_world[rows, ankle], ankle_target,
                                -G[rows, knee, :, 0])
         G_hip = R_a @ G[rows, hip]
@@ -590,6 +617,25 @@ def lock_feet(R_parent_joint: np.ndarray, p_world: np.ndarray, contact: np.ndarr
         R_out[rows, knee] = np.swapaxes(G_hip, -1, -2) @ G_knee
         R_out[rows, ankle] = np.swapaxes(G_knee, -1, -2) @ G[rows, ankle]
     return R_out
+
+
+def limit_knee_turn(p_hip: np.ndarray, p_knee: np.ndarray, p_ankle: np.ndarray, target: np.ndarray,
+                    max_turn: float) -> np.ndarray:
+    """The ankle target (..., 3) moved along the line from the hip so that reaching it changes the knee's angle by
+    at most ``max_turn`` (rad): the hip-to-target distance clamped to those the knee reaches within that turn (law
+    of cosines), the direction kept. p_hip, p_knee, p_ankle, target (..., 3)."""
+    upper = np.linalg.norm(p_knee - p_hip, axis=-1)
+    lower = np.linalg.norm(p_ankle - p_knee, axis=-1)
+
+    def angle(distance: np.ndarray) -> np.ndarray:  # the knee's interior angle for a hip-to-ankle distance
+        return np.arccos(np.clip((upper ** 2 + lower ** 2 - distance ** 2) / (2 * upper * lower), -1.0, 1.0))
+
+    reach = target - p_hip
+    distance = np.linalg.norm(reach, axis=-1)
+    now = angle(np.linalg.norm(p_ankle - p_hip, axis=-1))
+    wanted = np.clip(angle(distance), now - max_turn, now + max_turn)
+    allowed = np.sqrt(np.maximum(upper ** 2 + lower ** 2 - 2 * upper * lower * np.cos(wanted), 0.0))
+    return p_hip + reach * (allowed / np.maximum(distance, 1e-12))[..., None]
 
 
 # ----------------------------------------------------------------------------- metrics
@@ -775,6 +821,42 @@ def root_shift_from_locks(p_world: np.ndarray, contact: np.ndarray, blend_frames
     mean = (weights[..., None] * offset).sum(1) / np.maximum(total, 1e-9)[:, None]
     w = np.repeat((total + 1e-3)[:, None], 3, axis=1)
     return whittaker(mean, w, np.full(3, smoothness))
+
+
+def turn_from_locks(R_parent_joint: np.ndarray, transl: np.ndarray, p_world: np.ndarray, contact: np.ndarray,
+                    blend_frames: int, ground: np.ndarray | None, blend_max: float | None, prior: float,
+                    smoothness: float, hold: int = 0, ease: bool = False, hold_within: float | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Turn the whole body about its locked feet so that their remaining offsets go into the root's rotation, not
+    the legs: local rotations (T, 24, 3, 3) and transl (T, 3) with the root turned.
+
+    A root shift (:func:`root_shift_from_locks`) moves both feet alike; where both are locked and their offsets
+    (lock target minus foot, :func:`lock_targets`) differ (an estimate's yaw or tilt of the whole body: one foot
+    forward, the other back), the leg IK would bend the legs by the difference, which a similarity-aligned error
+    (PA-MPJPE) counts and a turn of the whole body does not. Per frame, the small turn ``w`` (rotation vector, rad)
+    about the lock-weighted centre ``c`` of the feet minimises ``sum_i weight_i |w x (f_i - c) - offset_i|^2 +
+    prior |w|^2`` (a closed form: the feet's moment of inertia about ``c`` plus ``prior``); it is smoothed over
+    time (Whittaker, ``smoothness``; data weight the smaller lock weight of the two feet, so single support
+    interpolates) and applied to the root's rotation, the root moved so that ``c`` stays. p_world (T, 24, 3) the
+    joints of ``R_parent_joint`` and ``transl``; contact (T, 2); the rest as :func:`lock_plan`."""
+    from workflows.animation.denoise import whittaker
+
+    targets, weights = lock_targets(p_world, contact, blend_frames, ground, blend_max, hold, ease, hold_within)
+    feet = p_world[:, list(FOOT_JOINTS)]  # (T, 2, 3)
+    offset = targets - feet
+    total = weights.sum(1)
+    centre = (weights[..., None] * feet).sum(1) / np.maximum(total, 1e-9)[:, None]  # (T, 3)
+    arm = feet - centre[:, None]  # (T, 2, 3)
+    inertia = (weights * (arm ** 2).sum(-1))[..., None, None] * np.eye(3) \
+        - weights[..., None, None] * arm[..., :, None] * arm[..., None, :]
+    turn = np.linalg.solve(inertia.sum(1) + prior * np.eye(3),
+                           (weights[..., None] * np.cross(arm, offset)).sum(1)[..., None])[..., 0]  # (T, 3)
+    both = np.repeat((weights.min(1) + 1e-3)[:, None], 3, axis=1)
+    turn = Rotation.from_rotvec(whittaker(turn, both, np.full(3, smoothness))).as_matrix()  # (T, 3, 3)
+    R_out = R_parent_joint.copy()
+    R_out[:, 0] = turn @ R_parent_joint[:, 0]
+    pelvis = p_world[:, 0]
+    return R_out, transl + np.einsum("tij,tj->ti", turn, pelvis - centre) + centre - pelvis
 
 
 def split_on_lift(feet: np.ndarray, contact: np.ndarray, release: float, min_frames: int = 1,

@@ -58,6 +58,7 @@ from workflows.animation.clean import (
     split_on_lift,
     stance_noise,
     trim_sliding_runs,
+    turn_from_locks,
 )
 from workflows.animation.options import AnimationError, parse_frames  # noqa: F401 (re-exported)
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
@@ -682,7 +683,7 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
                                  cfg.contact_min_frames, both_ways=True)
         if release > cfg.release_m:  # a raised threshold admits noisy planted feet: runs must be still on average
             low = height_above_floor(p_s[:, list(FOOT_JOINTS)] * scale, floor_plane(p_s * scale)) < cfg.contact_height_m
-            contacts = bridge_short_gaps((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, 3 * cfg.blend_frames,
+            contacts = bridge_short_gaps((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, cfg.bridge_frames,
                                          release, low)
             contacts = trim_sliding_runs((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts,
                                          cfg.slide_speed_mps / fps, cfg.contact_min_frames)
@@ -696,9 +697,16 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
                                               cfg.root_lock_smoothness * (fps / 30.0) ** 4, hold, ease, within)
             p_s = joints_of(R_s, t_s, J_rest)
             blend_max *= ROOT_SHIFT_BLEND_SHARE  # the root's shift moves a blending foot a little too
+            if cfg.lock_turn_prior is not None:  # ... and the whole body's turn what the feet ask differently
+                R_s, t_s = turn_from_locks(R_s, t_s, p_s, contacts, cfg.blend_frames, ground, blend_max,
+                                           cfg.lock_turn_prior / scale ** 2,
+                                           cfg.root_lock_smoothness * (fps / 30.0) ** 4, hold, ease, within)
+                p_s = joints_of(R_s, t_s, J_rest)
         # the contacts reported are the frames the locks hold still (a hand-over between two locks moves the foot)
         held = lock_plan(p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)[2]
-        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within)
+        knee_turn = (np.deg2rad(cfg.lock_knee_turn_deg)
+                     if cfg.lock_knee_turn_deg is not None and cfg.smoothing == "adaptive" else None)
+        R_s = lock_feet(R_s, p_s, contacts, cfg.blend_frames, ground, blend_max, hold, ease, within, knee_turn)
         contacts = held
         p_s = joints_of(R_s, t_s, J_rest)
     return R_s, t_s, contacts, raw, p_s * scale, glitches
