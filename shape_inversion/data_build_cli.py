@@ -38,7 +38,8 @@ SplitSeedOpt = Annotated[int | None, typer.Option("--split-by-subject", metavar=
                                                   "validation, 10 % test).")]
 BvhOpt = Annotated[Path | None, typer.Option("--bvh", help="Folder of BVH and FBX files (searched recursively).")]
 AmassOpt = Annotated[Path | None, typer.Option("--amass", help="Folder of AMASS .npz files (searched recursively).")]
-FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source).")]
+FpsOpt = Annotated[float, typer.Option("--fps", help="Target frame rate (subsampled from the source; a slower "
+                                                        "clip keeps its own rate).")]
 PresetOpt = Annotated[str, typer.Option("--preset", help="BVH rig preset for retargeting: auto (each clip mapped "
                                         "by the rig mapper; no map needed), or cmu, mixamo, unity, unreal, "
                                         "makehuman (smplik/data/presets), or a JSON file.")]

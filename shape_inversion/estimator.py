@@ -124,8 +124,8 @@ HUMAN_SIZE_SCALE = (0.5, 1.5)
 """Mean-body scales fitted as they are; a skeleton outside is fitted at the bank's middle scale and scaled back
 (:meth:`ShapeEstimator._size_factor`): scale has no bank range."""
 
-ANY_SIZE_SCALE = (0.04, 16.0)
-"""Mean-body scales read at their own size (about 7 cm to 27 m tall: a figurine to a giant); beyond, a skeleton
+ANY_SIZE_SCALE = (0.03, 18.0)
+"""Mean-body scales read at their own size (about 5 cm to 30 m tall: a figurine to a giant); beyond, a skeleton
 is a unit error (a human in centimetres read as metres) and refused as one ("its units look wrong ... --units")."""
 
 

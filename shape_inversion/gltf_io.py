@@ -248,7 +248,62 @@ def _check_buffer_views(path: Path, gltf, buffers: tuple[bytes, ...]) -> None:
             raise GltfError(f"{where}: 'byteStride' must be an integer in [4, 252], got {view.byteStride!r:.40}")
 
 
+MESHOPT_EXTENSIONS = ("EXT_meshopt_compression", "KHR_meshopt_compression")
+MAX_MESHOPT_BYTES = MAX_GLTF_BYTES
+"""Most bytes all meshopt-compressed bufferViews of one file may decode to (each view's ``count * byteStride``)."""
+
+
+def _decode_meshopt_views(path: Path, gltf, buffers: tuple[bytes, ...]) -> tuple[bytes, ...]:
+    """``buffers`` with every bufferView that carries ``EXT_meshopt_compression`` / ``KHR_meshopt_compression``
+    decoded into its place (``bufferView.buffer`` at ``bufferView.byteOffset``; the fallback buffer without a uri
+    starts as zeros), so that every accessor read afterwards sees the uncompressed bytes
+    (:mod:`shape_inversion.meshopt_codec`)."""
+    from shape_inversion.meshopt_codec import MeshoptError, decode_gltf_buffer
+
+    out: dict[int, bytearray] = {}
+    total = 0
+    for i, view in enumerate(gltf.bufferViews or []):
+        ext = getattr(view, "extensions", None) or {}
+        name = next((k for k in MESHOPT_EXTENSIONS if k in ext), None)
+        if name is None:
+            continue
+        where = f"{path}: bufferViews[{i}].extensions.{name}"
+        spec = ext[name]
+        if not isinstance(spec, dict):
+            raise GltfError(f"{where}: must be an object")
+        src, count, stride = spec.get("buffer"), spec.get("count"), spec.get("byteStride")
+        offset, length = spec.get("byteOffset", 0), spec.get("byteLength")
+        if not _is_index(src, 0, len(buffers) - 1):
+            raise GltfError(f"{where}: 'buffer' must be the index of one of its {len(buffers)} buffers, got "
+                            f"{src!r:.40}")
+        if not (_is_index(offset) and _is_index(length, 1) and _is_index(count) and _is_index(stride, 1, 256)):
+            raise GltfError(f"{where}: 'byteOffset', 'byteLength', 'count' and 'byteStride' must be integers "
+                            "(byteLength >= 1, byteStride 1..256)")
+        if offset + length > len(buffers[src]):
+            raise GltfError(f"{where}: compressed bytes {offset}..{offset + length} lie outside buffer {src} "
+                            f"({len(buffers[src])} bytes)")
+        size = count * stride
+        if size > view.byteLength:
+            raise GltfError(f"{where}: count {count} x byteStride {stride} = {size} bytes do not fit the bufferView's "
+                            f"byteLength {view.byteLength}")
+        total += size
+        if total > MAX_MESHOPT_BYTES:
+            raise GltfError(f"{where}: the compressed views decode to more than {MAX_MESHOPT_BYTES} bytes")
+        try:
+            data = decode_gltf_buffer(buffers[src][offset:offset + length], count, stride, spec.get("mode"),
+                                      spec.get("filter", "NONE"))
+        except MeshoptError as exc:
+            raise GltfError(f"{where}: {exc}") from None
+        target = out.setdefault(view.buffer, bytearray(buffers[view.buffer]))
+        start = view.byteOffset or 0
+        target[start:start + size] = data
+    if not out:
+        return buffers
+    return tuple(bytes(out[i]) if i in out else b for i, b in enumerate(buffers))
+
+
 READ_EXTENSIONS = frozenset({
+    *MESHOPT_EXTENSIONS,  # decoded here (meshopt_codec)
     "KHR_draco_mesh_compression",  # decoded with DracoPy (draco_primitive)
     "KHR_mesh_quantization",  # integer / normalized accessors: read_accessor
     "KHR_texture_basisu", "EXT_texture_webp", "EXT_texture_avif", "KHR_texture_transform",  # textures: not read
@@ -256,17 +311,15 @@ READ_EXTENSIONS = frozenset({
     "KHR_materials_specular", "KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_sheen",
     "KHR_materials_iridescence", "KHR_materials_anisotropy", "KHR_materials_dispersion",
     "KHR_materials_pbrSpecularGlossiness", "KHR_materials_variants", "KHR_lights_punctual", "KHR_xmp_json_ld",
+    "KHR_materials_diffuse_transmission", "KHR_node_visibility", "EXT_lights_image_based",
     "KHR_animation_pointer", "EXT_mesh_gpu_instancing", "VRM", "VRMC_vrm", "VRMC_springBone",
     "VRMC_materials_mtoon", "VRMC_node_constraint",
 })
 """glTF extensions a file may *require* (``extensionsRequired``) and still be read: geometry ones decoded here,
 material, texture and light ones because no material, texture or light is read."""
 
-_HOW_TO_DECOMPRESS = {
-    "EXT_meshopt_compression": "decompress it first, e.g. `gltf-transform copy in.glb out.glb` (glTF-Transform "
-                               "decodes meshopt) or `gltfpack -i in.glb -o out.glb -noq` without -c",
-    "KHR_meshopt_compression": "decompress it first, e.g. `gltf-transform copy in.glb out.glb`",
-}
+_HOW_TO_DECOMPRESS: dict[str, str] = {}
+"""A hint per unreadable extension (none at present: every ratified one is in :data:`READ_EXTENSIONS`)."""
 
 
 def _check_required_extensions(path: Path, gltf) -> None:
@@ -311,6 +364,7 @@ def load_gltf(path: str | Path, *, max_joints: int = DEFAULT_MAX_JOINTS) -> Gltf
     _check_required_extensions(path, gltf)
     buffers = tuple(_buffer_bytes(path, gltf, i) for i in range(len(gltf.buffers or [])))
     _check_buffer_views(path, gltf, buffers)
+    buffers = _decode_meshopt_views(path, gltf, buffers)
     try:
         world, parent = _world_matrices(path, gltf)
     except (TypeError, ValueError) as exc:
@@ -478,9 +532,40 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
             return float(np.median(lengths[ok, 0] / lengths[ok, 1])) if ok.any() else 1.0
 
         sized = [B for B in candidates if abs(np.log(max(size_ratio(B), 1e-12))) < np.log(1.5)]
+        if "KHR_mesh_quantization" in (gltf.extensionsUsed or []) and bones:
+            # gltfpack / glTF-Transform fold the mesh's dequantization into the IBMs: the same frames with it undone
+            # (only where the bone lengths say the IBMs are scaled; a file quantized elsewhere keeps its frames)
+            dequantized = [B @ D for B in candidates[:3]
+                           if (D := _dequantization(B, inv[:, :3, 3], node_p, par, bones)) is not None
+                           and abs(np.log(D[0, 0])) > 1e-3]
+            sized = [*dequantized, *sized] if dequantized else sized
         to_world = min(sized or candidates, key=mismatch)
         T_bind = to_world @ inv
     return GltfRig(doc, skin, joints, order, ibm, to_world, T_bind)
+
+
+def _dequantization(B: np.ndarray, Q: np.ndarray, node_p: np.ndarray, par: list[int],
+                    bones: list[int]) -> np.ndarray | None:
+    """The dequantization transform ``D`` (4, 4), a uniform scale ``s`` and a translation ``t``, that gltfpack and
+    glTF-Transform fold into a quantized skin's inverse bind matrices (``IBM' = IBM @ inv(D)``: the mesh's integer
+    positions then need no node transform, which glTF ignores on a skinned mesh), so that ``B @ D @ inv(IBM')`` is
+    the bind pose again. ``Q`` (J, 3): joint positions ``inv(IBM')`` in the quantized space; ``node_p`` (J, 3): the
+    joints' default world positions. ``s`` is the median ratio of bone lengths (the pose does not change them),
+    ``t`` the median offset; None when degenerate."""
+    try:
+        Y = (np.linalg.inv(B[:3, :3]) @ (node_p - B[:3, 3]).T).T  # node positions in B's frame
+    except np.linalg.LinAlgError:
+        return None
+    lq = np.array([np.linalg.norm(Q[k] - Q[par[k]]) for k in bones])
+    ly = np.array([np.linalg.norm(Y[k] - Y[par[k]]) for k in bones])
+    ok = (lq > 1e-12) & (ly > 1e-12)
+    if not ok.any():
+        return None
+    scale = float(np.median(ly[ok] / lq[ok]))
+    D = np.eye(4)
+    D[:3, :3] *= scale
+    D[:3, 3] = np.median(Y - scale * Q, axis=0)
+    return D if np.isfinite(D).all() and scale > 0 else None
 
 
 def _depths(parent: tuple[int, ...], members: tuple[int, ...] | list[int], index: dict[int, int]) -> list[int]:

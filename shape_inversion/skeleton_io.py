@@ -55,7 +55,14 @@ class SkeletonError(ValueError):
 HEAD_ANKLE_PER_STATURE = 0.84
 """(head joint - ankle joint height) / stature of SMPL-like bodies; used to estimate stature."""
 
+HEAD_PER_STATURE = 0.874
+"""(head joint - lowest joint height) / stature of SMPL's template (1.70 m); a head-top joint's stand-in."""
+
 PLAUSIBLE_STATURE_M = (0.8, 2.5)
+OWN_SIZE_STATURE_M = (0.06, 28.0)
+"""Statures (m) at which a glTF/VRM character (metres by the glTF spec) is read at its own size, a figurine to a
+giant (SMPL-SI fits it at human size and scales the body, saying so in one line); outside, its units are detected
+(a human exported in centimetres without the 0.01 scale is 170 m tall)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -449,6 +456,31 @@ class Character:
         return self.positions[self.smpl_joints[smpl_name]]
 
     @property
+    def height_m(self) -> float:
+        """Stature: the lowest joint (the feet) to the top of the head, metres.
+
+        The top of the head is the highest joint of the head's subtree (a head-top end bone: Mixamo's
+        ``HeadTop_End``, a Blender head bone's tail) when it rises above the head joint by at least 3 % of the
+        head's height; else, for a skeleton ending at the head joint, the head joint's height over SMPL's ratio
+        (the head joint is at 87.4 % of the stature above SMPL's lowest joint).
+        """
+        head = self.smpl_joints["head"]
+        floor = float(self.positions[:, 1].min())
+        head_h = float(self.positions[head, 1]) - floor
+        parents = self.skeleton.parents
+        def under_head(j: int) -> bool:
+            for _ in range(len(parents)):
+                if j == head:
+                    return True
+                if j < 0:
+                    return False
+                j = parents[j]
+            return False
+
+        top = max(float(self.positions[j, 1]) for j in range(len(parents)) if under_head(j)) - floor
+        return top if top >= 1.03 * head_h else head_h / HEAD_PER_STATURE
+
+    @property
     def head_ankle_height_m(self) -> float:
         """Height of the head joint above the mean ankle joint, metres."""
         ankles = [self.joint(a)[1] for a in ("left_ankle", "right_ankle") if a in self.smpl_joints]
@@ -654,6 +686,10 @@ def prepare_character(skeleton: Skeleton, *, rig: str | RigMap | None = None, ma
                             f"{_axis_name(up_vec)}; pass the right --up.")
     if str(units).lower() == "auto" and skeleton.format == "fbx":  # the file states its unit (UnitScaleFactor)
         units_m, units_source = float(skeleton.units or 1.0), "file"
+    elif str(units).lower() == "auto" and skeleton.format == "gltf" and not PLAUSIBLE_STATURE_M[0] <= \
+            height / HEAD_ANKLE_PER_STATURE <= PLAUSIBLE_STATURE_M[1] and \
+            OWN_SIZE_STATURE_M[0] <= height / HEAD_ANKLE_PER_STATURE <= OWN_SIZE_STATURE_M[1]:
+        units_m, units_source = 1.0, "file: glTF is in metres"  # a figurine or a giant at its own size
     elif str(units).lower() == "auto":
         units_m, units_source = _detect_units(height, [skeleton.units, rig_map.units])
     else:

@@ -272,7 +272,8 @@ def test_every_round4_limit_is_on_the_security_page():
 
 
 def test_a_json_integer_of_5001_digits_is_named_by_its_file(tmp_path):
-    from smplik.tracking.io import TrackerFileError, read_trackers
+    from smplik.tracking.io import TrackerFileError
+    from smplik.tracking.recordings import read_trackers
 
     path = tmp_path / "t.json"
     path.write_text('{"format": "smplik-trackers", "version": 1, "fps": 1' + "0" * 5000 + ', "trackers": {}}')

@@ -16,12 +16,12 @@ from smplik.tracking.features import OUT_DIM, decode_pose, pose_targets, tracker
 from smplik.tracking.io import (
     TrackerFileError,
     read_steamvr_jsonl,
-    read_trackers,
     signals_from_dict,
     signals_from_motion,
 )
 from smplik.tracking.model_io import TrackingModelError, load_model
 from smplik.tracking.network import TrackingNet, WindowMLP, input_dim
+from smplik.tracking.recordings import read_trackers
 from smplik.tracking.runtime import Tracker, _FootLock, contact_segments, offline_foot_lock, track_sequence
 
 TRACKERS = TRACKER_SETS["4"]
@@ -221,7 +221,8 @@ def test_streaming_equals_batch(model, fast):
     if fast:
         pytest.importorskip("numba", reason="the kernels need numba (pip install 'smplik[fast]')")
     sig, *_ = synthetic_signals(40)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, fast=fast))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, effector_fit=False,
+                                                       fast=fast))
     res = track_sequence(tracker, sig)
     from smplik.tracking.fast import quaternion_to_matrix_np
 
@@ -242,7 +243,7 @@ def test_tracker_fit_meets_wrists_and_pelvis(model):
     from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
 
     sig, *_ = synthetic_signals(30)
-    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True))
+    tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True, effector_fit=False))
     res = track_sequence(tracker, sig)
     G, p = fk_np(res.R_local.astype(np.float32), tracker.J_rest, res.transl.astype(np.float32))
     R_trk = quaternion_to_matrix_np(sig.rotations)

@@ -284,7 +284,7 @@ def test_known_pose_in_same_pose_out_over_udp_and_record_replays(tmp_path):
     assert doc["format"] == "smplik-trackers" and doc["fps"] == 60.0
     assert list(doc["trackers"]) == list(TRACKER_SETS["4"])
     assert len(doc["trackers"]["head"]["position"]) == T and "rotation" not in doc["trackers"]["left_wrist"]
-    outputs = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[])
+    outputs = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[], calibrate=False)
     track = outputs.animation.tracks[0]
     R_replay = Rotation.from_rotvec(np.concatenate([track.global_orient[:, None], track.body_pose], 1).reshape(-1, 3))
     R_replay = R_replay.as_matrix().reshape(T, 24, 3, 3)[:, vmc.BONE_JOINTS]
@@ -387,7 +387,8 @@ def test_steamvr_lines_on_stdin_through_the_command(tmp_path):
         np.testing.assert_allclose(rec["trackers"][name]["position"], ref.positions[:, k], atol=2e-6)
     # and the bones sent are the replay's poses
     R_got, _ = vmc.vmc_bones_to_pose(np.stack([bones_of(m) for m in bundles]))
-    track = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[]).animation.tracks[0]
+    track = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[],
+                       calibrate=False).animation.tracks[0]
     aa = np.concatenate([track.global_orient[:, None], track.body_pose], 1)
     R_replay = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)[:, vmc.BONE_JOINTS]
     angle = np.linalg.norm(Rotation.from_matrix((np.swapaxes(R_got, -1, -2) @ R_replay).reshape(-1, 3, 3))
@@ -488,7 +489,8 @@ def test_a_90hz_stream_steps_the_model_at_60hz_and_sends_a_bundle_per_frame(tmp_
                                 [(m.address, list(m.params)) for m in OscBundle(d)]
                                 if address == "/VMC/Ext/Bone/Pos"]) for d in sent])
     R_got, _ = vmc.vmc_bones_to_pose(bones)
-    track = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[]).animation.tracks[0]
+    track = track_file(record, tmp_path / "replay", foot_locks="streaming", formats=[],
+                       calibrate=False).animation.tracks[0]
     aa = np.concatenate([track.global_orient[:, None], track.body_pose], 1)
     R_replay = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(20, 24, 3, 3)[:, vmc.BONE_JOINTS]
     newest_tick = np.floor(np.arange(30) * 60 / 90 + 1e-9).astype(int)  # the last tick at or before each frame

@@ -109,7 +109,7 @@ class ClipSource:
 
 
 def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
-    """All clips of ``kind`` under ``root`` (recursively, sorted by name).
+    """All clips of ``kind`` under ``root`` (recursively, sorted by name), or the one clip file ``root``.
 
     AMASS's per-subject ``shape.npz`` files (betas only) are skipped.
 
@@ -120,12 +120,16 @@ def find_sources(root: str | Path, kind: SourceKind) -> list[ClipSource]:
     if kind not in _SUFFIX:
         raise ValueError(f"Unknown source kind {kind!r}; expected one of: {', '.join(_SUFFIX)}.")
     root = Path(root)
-    if not root.is_dir():
-        raise FileNotFoundError(f"Source folder not found: {root}")
     suffix = _SUFFIX[kind]
     suffixes = (".bvh", ".fbx") if kind == "bvh" else (suffix,)  # FBX clips are read as BVH (smplik.data.fbx)
+    single = root.is_file() and root.suffix.lower() in suffixes  # one clip file: the same as its folder of one
+    if not root.is_dir() and not single:
+        raise FileNotFoundError(f"Source folder (or {'/'.join(suffixes)} file) not found: {root}")
     out = []
-    for path in sorted(p for p in root.rglob("*") if p.suffix.lower() in suffixes):
+    paths = [root] if single else sorted(p for p in root.rglob("*") if p.suffix.lower() in suffixes)
+    if single:
+        root = root.parent
+    for path in paths:
         if not path.is_file() or (kind == "amass" and path.name in _AMASS_METADATA_FILES):
             continue
         rel = path.relative_to(root)
@@ -368,7 +372,8 @@ def build_cache(
 
     Args:
         sources: clips, e.g. from :func:`find_sources`.
-        fps: target frame rate (nearest-frame subsampling; no upsampling).
+        fps: target frame rate (nearest-frame subsampling; a slower clip keeps every frame at its own rate,
+            recorded in ``clip_fps``: no upsampling).
         split: a :class:`SplitSpec`, a split file path, or None for every clip in train
             (:func:`split_all_train`).
         out: the cache path (``.npz``); replaced only once the new cache is complete.
@@ -429,7 +434,9 @@ def build_cache(
         except (ValueError, OSError, KeyError, IndexError) as exc:
             message = str(exc)
             raise ValueError(message if str(src.path) in message else f"{src.path}: {message}") from exc
-        idx = subsample_indices(seq.num_frames, seq.fps, fps)
+        # a clip slower than ``fps`` (a 24 frames/s FBX take, 30 asked) keeps every frame at its own rate
+        # (``clip_fps``); none is invented
+        idx = subsample_indices(seq.num_frames, seq.fps, min(fps, seq.fps))
         n = len(idx)
         clip_id = len(clip_names)
         clip_names.append(src.name)

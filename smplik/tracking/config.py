@@ -139,6 +139,48 @@ class TrackingTrainConfig:
 
 
 @dataclass(frozen=True)
+class FitConfig:
+    """The end-effector fit (:mod:`smplik.tracking.fit`): head and wrists onto their trackers through a noise band."""
+
+    head: bool = True
+    """Bend the spine (CCD over spine1 to neck) to bring the head joint to its tracker, and give the head the
+    tracker's rotation."""
+    wrists: bool = True
+    """Two-bone arm IK to the wrist trackers, and the wrists' rotations from theirs."""
+    noise_window: int = 60
+    """Frames over which each tracker's jitter is estimated (median of its second differences)."""
+    jitter_floor_m: float = 0.002
+    """Tracker jitter (sigma, metres) below this counts as none (gain 1: the fit follows exactly); the jitter
+    above it sets the gain. Exact trackers of real motion show well under it (fast motion's own second
+    differences), 1 cm of noise far above."""
+    jitter_floor_deg: float = 0.5
+    """The same for rotations (degrees)."""
+    process_m: float = 0.003
+    """How far (metres per frame) the network's miss may drift: the random walk of the steady-state Kalman gain
+    (gain 1 on exact trackers; about 0.3 under 1 cm of jitter)."""
+    process_deg: float = 1.5
+    """The same for rotations (degrees per frame)."""
+    band_sigmas: float = 6.0
+    """The correction stays within this many jitter sigmas of the measured one ..."""
+    band_min_m: float = 0.005
+    """... and at least within this many metres (the hands' and head's largest miss on exact trackers) ..."""
+    band_min_deg: float = 2.0
+    """... or degrees for rotations."""
+    spine_passes: int = 3
+    """CCD passes over the spine for the head."""
+    root_shift: bool = True
+    """Move the whole body (the root's translation) by what the spine leaves of the head's miss."""
+    bend_filter: bool = True
+    """Arms: follow the elbow's change of angle at the wrist tracker's gain, then aim the arm at the target
+    (the elbow's angle is what the target's distance sets, sensitively near full extension: under jitter it would
+    swing); False: plain two-bone IK to the target."""
+    joint_filter: bool = False
+    """Follow the fit's changes of the spine, shoulder and elbow rotations (rotation vectors) at the tracker's gain
+    instead of filtering the targets (smoother under jitter, but slow to follow: an ablation; gain 1, no effect,
+    on exact trackers)."""
+
+
+@dataclass(frozen=True)
 class TrackerRuntimeConfig:
     """Streaming inference (:class:`smplik.tracking.runtime.Tracker`)."""
 
@@ -195,9 +237,14 @@ class TrackerRuntimeConfig:
     lock_centre: str = "median"
     """Offline locks: the lock's height, ``"median"`` (the median of the network's foot over the segment, like the
     horizontal position) or ``"min"`` (the segment's low point)."""
+    effector_fit: bool = True
+    """Put the head and the wrists on their trackers with the causal, noise-banded end-effector fit
+    (:mod:`smplik.tracking.fit`, settings in ``fit``); legs and root untouched."""
+    fit: FitConfig = field(default_factory=FitConfig)
+    """Settings of the end-effector fit."""
     tracker_fit: bool = False
     """Meet the trackers exactly where the skeleton allows: the root from the pelvis tracker (position, and
     rotation when given), the wrists by two-bone arm IK to their positions and their rotations (when given), the
     head's rotation (the paper's suggested extra IK pass on the arms). Off by default: it lowers the error on exact
     trackers but passes tracker noise straight through and unlocks feet (benchmarks/results/tracking.json,
-    ``ours_fit``)."""
+    ``ours_fit``); ``effector_fit`` is the one to use."""

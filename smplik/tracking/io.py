@@ -26,7 +26,7 @@ import numpy as np
 
 from smplik.conventions import JOINT_NAMES, unknown_joint
 from smplik.limits import LimitError, check_rate, check_resampled_frames
-from smplik.validation import JSONPathError, finite_array, read_json, read_text, short_repr
+from smplik.validation import JSONPathError, finite_array, read_text, short_repr
 
 MAX_ABS_TIMESTAMP_S = 1e10
 """Largest |timestamp| of a SteamVR log line (seconds: Unix time until the year 2286; beyond it a double cannot
@@ -154,14 +154,6 @@ def _unit_quaternions(q: np.ndarray, err: JSONPathError, path: str) -> np.ndarra
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
-def read_trackers(path: str | Path) -> TrackerSignals:
-    """Read a tracker file: ``smplik-trackers`` JSON, or a SteamVR JSON-lines log (``.jsonl``)."""
-    path = Path(path)
-    if path.suffix.lower() == ".jsonl":
-        return read_steamvr_jsonl(path)
-    return signals_from_dict(read_json(path, TrackerFileError, what="tracker file"), str(path))
-
-
 def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, names: tuple[str, ...],
                         fps: float, *, noise_m: float = 0.0, noise_deg: float = 0.0,
                         rng: np.random.Generator | None = None) -> TrackerSignals:
@@ -275,7 +267,7 @@ def _steamvr_record(frame: Any, where: str, err: JSONPathError
     return out
 
 
-def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
+def read_steamvr_jsonl(path: str | Path, fps: float = 60.0, controller: str = "none") -> TrackerSignals:
     """Read a SteamVR JSON-lines log (module docstring) into ``head``, ``left_wrist``, ``right_wrist`` (and
     ``pelvis`` when one generic tracker is present), resampled to ``fps`` by linear interpolation over the
     timestamps.
@@ -285,6 +277,8 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     position only (their rotations are in the device's own frame, not the wrist's: left out), left being the
     one on the headset's left at the first frame where both are valid; a single generic tracker gives the
     pelvis by position. Frames where a device's pose is invalid are interpolated from its valid neighbours.
+    ``controller``: the controllers' kind (:data:`smplik.tracking.calibrate.CONTROLLERS`): each wrist is put at
+    its controller's wrist point (``none``: the controller's position).
     """
     path = Path(path)
     err = JSONPathError(str(path), TrackerFileError)
@@ -345,9 +339,19 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0) -> TrackerSignals:
     half_turn = np.diag([-1.0, 1.0, -1.0])
     R_head = R_hmd @ half_turn
     p_head = p_hmd + (R_hmd @ HMD_TO_HEAD_M[:, None])[..., 0]
-    (pa, _), (pb, _) = resample(ctrls[0]), resample(ctrls[1])
+    (pa, qa), (pb, qb) = resample(ctrls[0]), resample(ctrls[1])
     # left = on the headset's left: SMPL's head frame has +x to the body's left
     side = ((pa[0] - pb[0]) @ R_head[0][:, 0])
+    if controller != "none":
+        from smplik.tracking.controllers import ControllerError, controller_offset
+
+        try:
+            offsets = (controller_offset(controller, "left"), controller_offset(controller, "right"))
+        except ControllerError as exc:
+            raise TrackerFileError(f"{path}: {exc}") from None
+        oa, ob = offsets if side > 0 else offsets[::-1]
+        pa = pa + (_quat_to_matrix(qa) @ oa[:, None])[..., 0]
+        pb = pb + (_quat_to_matrix(qb) @ ob[:, None])[..., 0]
     left, right = (pa, pb) if side > 0 else (pb, pa)
     names = ["head", "left_wrist", "right_wrist"]
     P = [p_head, left, right]

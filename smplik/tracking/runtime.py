@@ -46,6 +46,7 @@ from smplik.tracking.fast import (
     quaternion_to_matrix_np,
     yaw_matrix,
 )
+from smplik.tracking.fit import EffectorFit
 from smplik.tracking.io import TrackerSignals
 from smplik.tracking.model_io import TrackingModel, load_model
 from smplik.tracking.network import TrackingNet
@@ -269,6 +270,8 @@ class Tracker:
         self.lock = _FootLock(c.contact_threshold, c.release_frames, c.floor_y, self.fps, max_height_m=c.lock_height_m,
                               max_speed_mps=c.lock_speed_mps, max_drift_m=c.lock_drift_m,
                               fast=self.kernels is not None)
+        self.effector_fit = (EffectorFit(self.trackers, has, self.J_rest64, c.fit, fast=self.kernels is not None)
+                             if c.effector_fit else None)
 
     @property
     def latency(self) -> int:
@@ -430,6 +433,8 @@ class Tracker:
         if self.cfg.tracker_fit:
             R, transl = self._fit_trackers(R.astype(np.float32), transl.astype(np.float32), *signals)
             R_w, p = fk_np(R, self.J_rest, transl)
+        if self.effector_fit is not None:
+            R, transl, R_w, p = (a[None] for a in self.effector_fit.apply(R[0], transl[0], *signals))
         score = float(self._score(R, p)[0])
         R_np, prob_np = R[0].astype(np.float64), prob[0]
         locking = self.cfg.foot_lock and self.stream_lock

@@ -835,6 +835,29 @@ def drop_sliding_runs(feet: np.ndarray, contact: np.ndarray, max_speed: float) -
     return out
 
 
+def trim_sliding_runs(feet: np.ndarray, contact: np.ndarray, max_speed: float, min_frames: int = 3) -> np.ndarray:
+    """Contacts (T, 2) with each run that moves on average faster than ``max_speed`` (units per frame, as
+    :func:`drop_sliding_runs`) trimmed, one end frame at a time (the one farther from the run's median position),
+    until what is left does not (a stance whose detected run also holds the foot's landing or lift-off: a fast
+    run's contacts last 3-5 frames at 30 frames/s, the low frames around them move a metre a second); a run
+    shorter than ``min_frames`` by then is dropped. feet (T, 2, 3) positions (ground frame, smoothed), contact
+    (T, 2) bool."""
+    out = contact.copy()
+    for side in range(contact.shape[1]):
+        for s, e in _runs(contact[:, side]):
+            a, b = s, e
+            while b - a >= min_frames and np.linalg.norm(feet[b - 1, side] - feet[a, side]) > max_speed * (b - 1 - a):
+                median = np.median(feet[a:b, side], axis=0)
+                if np.linalg.norm(feet[a, side] - median) > np.linalg.norm(feet[b - 1, side] - median):
+                    a += 1
+                else:
+                    b -= 1
+            out[s:e, side] = False
+            if b - a >= min_frames:
+                out[a:b, side] = True
+    return out
+
+
 BUDGET_MARGIN = 0.85
 """Share of ``pose_budget_mm`` the smoothed paths may use; the body fit and the foot locks use the rest."""
 

@@ -43,7 +43,6 @@ from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
     bridge_short_gaps,
-    drop_sliding_runs,
     floor_plane,
     foot_contacts,
     foot_noise,
@@ -58,6 +57,7 @@ from workflows.animation.clean import (
     smooth_motion,
     split_on_lift,
     stance_noise,
+    trim_sliding_runs,
 )
 from workflows.animation.options import AnimationError, parse_frames  # noqa: F401 (re-exported)
 from workflows.estimators.base import CameraInfo, EstimatedPerson, EstimateFormatError
@@ -684,8 +684,8 @@ def clean_track(poses: Sequence[Pose], fps: float, cfg: CleanConfig, scale: floa
             low = height_above_floor(p_s[:, list(FOOT_JOINTS)] * scale, floor_plane(p_s * scale)) < cfg.contact_height_m
             contacts = bridge_short_gaps((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts, 3 * cfg.blend_frames,
                                          release, low)
-            contacts = drop_sliding_runs((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts,
-                                         cfg.slide_speed_mps / fps)
+            contacts = trim_sliding_runs((p_s[:, list(FOOT_JOINTS)] - drift) * scale, contacts,
+                                         cfg.slide_speed_mps / fps, cfg.contact_min_frames)
         hold = cfg.hold_frames if cfg.smoothing == "adaptive" else 0
         ease = cfg.blend_ease and cfg.smoothing == "adaptive"
         within = cfg.hold_within_m / scale if cfg.hold_within_m is not None else None

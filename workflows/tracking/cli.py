@@ -13,8 +13,9 @@ from smplik.cli.errors import say, user_errors
 
 @with_character_options
 def track_cmd(
-    trackers: Annotated[Path | None, typer.Argument(help="Tracker recording: smplik-trackers JSON (docs/formats.md) "
-                                                    "or a SteamVR JSON-lines log (.jsonl). Not with --live.")] = None,
+    trackers: Annotated[Path | None, typer.Argument(help="Tracker recording: smplik-trackers JSON (docs/formats.md), "
+                                                    "a SteamVR JSON-lines log (.jsonl) or a VR CSV recording (.csv, "
+                                                    "docs/tracking.md). Not with --live.")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Output folder (animation.json and the exports); "
                                              "required without --live.")] = None,
     samples: Annotated[int, typer.Option("--samples", help="Latent samples run in one batch; above 1: sample "
@@ -57,6 +58,18 @@ def track_cmd(
                                                    "frames.")] = None,
     idle_timeout: Annotated[float | None, typer.Option("--idle-timeout", help="Live: stop after this many seconds "
                                                        "without input.")] = None,
+    from_motion: Annotated[Path | None, typer.Option("--from-motion", help="Make a trackers file (--out FILE.json) "
+                                                     "from a motion file (BVH, FBX, animation.json).")] = None,
+    no_calibrate: Annotated[bool, typer.Option("--no-calibrate", help="Keep the recording's floor and the "
+                                               "given (or default) body: no floor or stature estimate.")] = False,
+    controller: Annotated[str | None, typer.Option("--controller", help="The controllers: vive, touch, index or "
+                                                   "none (CSV/JSONL: the wrist point; default: the layout's).")] = None,
+    csv_units: Annotated[str | None, typer.Option("--csv-units", help="CSV positions in m, cm or mm (default: "
+                                                  "detected).")] = None,
+    csv_time_unit: Annotated[str | None, typer.Option("--csv-time-unit", help="CSV times in s, ms, us or ns "
+                                                      "(default: detected).")] = None,
+    csv_axes: Annotated[str | None, typer.Option("--csv-axes", help="CSV axes: openvr (right-handed) or unity "
+                                                 "(left-handed) (default: detected).")] = None,
     preview: Annotated[Path | None, typer.Option("--preview", help="Write an animated preview (.gif or .mp4), "
                                                  "as scene animate does.")] = None,
     preview_every: Annotated[int, typer.Option("--preview-every", min=1, max=1000, help="Preview every N-th "
@@ -100,24 +113,38 @@ def track_cmd(
                      if v is not None]
         if live_only:
             raise AnimationError(f"{live_only[0]} needs --live.")
+        if from_motion is not None:
+            if trackers is not None or out is None:
+                raise AnimationError("--from-motion CLIP takes --out FILE.json (the trackers file) and no TRACKERS.")
+            from workflows.tracking.from_motion import write_trackers_from_motion
+
+            if height is not None:
+                from smplik.tracking.calibrate import betas_for_stature
+
+                values = list(betas_for_stature(height, gender))
+            made = write_trackers_from_motion(from_motion, out, betas=values, gender=gender)
+            say(f"wrote {made}")
+            return
         if trackers is None or out is None:
             raise AnimationError("give a TRACKERS file and --out (or --live).")
-        if height is not None:
-            from workflows.tracking.live import betas_for_height
-
-            values = list(betas_for_height(height, gender))
         from workflows.tracking.run import track_file
 
         options = character_cli()
         outputs = track_file(trackers, out, samples=samples, betas=values, gender=gender, character_path=character,
                              character_options=options, checkpoint=checkpoint, seed=seed,
-                             fit_trackers=fit_trackers, foot_locks=foot_locks,
+                             fit_trackers=fit_trackers, foot_locks=foot_locks, height=height,
+                             calibrate=not no_calibrate, controller=controller, csv_units=csv_units,
+                             csv_time_unit=csv_time_unit, csv_axes=csv_axes,
                              formats=[f.strip().lower() for f in export.split(",") if f.strip()])
         shown = None
         if preview is not None:  # the animation preview of scene animate (workflows.animation.preview)
             from workflows.animation.preview import write_preview
 
             shown = write_preview(outputs.animation, preview, every=preview_every)
+    if outputs.calibration is not None:
+        if outputs.calibration.message:
+            say(outputs.calibration.message)
+        say(outputs.calibration.summary())
     anim = outputs.animation
     say(f"{anim.tracks[0].num_frames} frames at {anim.fps:g} frames/s, anomaly rate {outputs.anomaly_rate:.3f}, "
         f"{outputs.switches} sample switches")
