@@ -216,7 +216,10 @@ def main() -> None:
     parser.add_argument("folder", type=Path, nargs="?", default=None)
     parser.add_argument("--only", default="", help="Only files whose path contains this.")
     parser.add_argument("--no-preview", action="store_true")
-    parser.add_argument("--fast-off", action="store_true", help="Also run the command without the [fast] backends.")
+    parser.add_argument("--fast-off", default=None, metavar="PATTERN",
+                        help="Also run the command without the [fast] backends, on files whose path contains PATTERN "
+                             "('' for every file).")
+    parser.add_argument("--demo", action="store_true", help="Also time `smplik demo` with and without [fast].")
     parser.add_argument("--no-save", action="store_true")
     parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--child-preview", action="store_true", help=argparse.SUPPRESS)
@@ -247,7 +250,8 @@ def main() -> None:
             tmp = Path(tmp_dir) / str(k)
             tmp.mkdir()
             try:
-                row = bench(path, tmp, solver, not args.no_preview, args.fast_off)
+                row = bench(path, tmp, solver, not args.no_preview,
+                            args.fast_off is not None and args.fast_off in str(path))
             except Exception as exc:  # a file scene animate refuses: listed, not fatal
                 print(f"{path}: refused ({type(exc).__name__}: {str(exc)[:160]})")
                 continue
@@ -265,12 +269,23 @@ def main() -> None:
             w = row["warm"]
             print(f"  warm (model loaded): {w['end_to_end_cpu_s']:.2f} CPU s = {w['frames_per_cpu_s']} frames/CPU s "
                   f"({', '.join(f'{s} {v:.2f}' for s, v in w['cpu_s'].items())})")
+    demo = []
+    if args.demo:
+        with tempfile.TemporaryDirectory() as tmp_dir:
+            for hide in (False, True):
+                out = str(Path(tmp_dir) / f"demo{int(hide)}")
+                rc, c, wall, _ = _child_cpu([sys.executable, "-m", "smplik.cli", "demo", "--out", out],
+                                            child_env(Path(tmp_dir), hide))
+                demo.append({"fast_backends": not hide, "exit": rc, "cpu_s": round(c, 2), "wall_s": round(wall, 2)})
+                print(f"smplik demo, {'with' if not hide else 'without'} [fast]: {c:.1f} CPU s (exit {rc}, wall "
+                      f"{wall:.0f} s)")
     checks = {"command_at_least_60": {r["file"]: r["command"][0]["frames_per_cpu_s"] is not None
                                       and r["command"][0]["frames_per_cpu_s"] >= TARGET for r in rows},
               "warm_at_least_60": {r["file"]: r["warm"]["frames_per_cpu_s"] >= TARGET for r in rows}}
     print(json.dumps(checks))
     if not args.no_save and rows:
-        print(f"wrote {save('animation_real_speed', {'folder': str(folder), 'rows': rows, 'checks': checks})}")
+        result = {"folder": str(folder), "rows": rows, "demo": demo, "checks": checks}
+        print(f"wrote {save('animation_real_speed', result)}")
 
 
 if __name__ == "__main__":

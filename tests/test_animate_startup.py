@@ -109,3 +109,33 @@ def test_the_command_leaves_with_its_status_output_and_files_after_torch_loaded(
     res = subprocess.run([sys.executable, "-c", code.replace("int(sys.argv[1])", "'a message'"), "x"],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 1 and res.stderr.strip() == "a message"
+
+
+def test_the_speed_benchmark_splits_a_run_into_its_stages(tmp_path):
+    """``benchmarks/animation_real_speed.py``: the stages of one run on a GVHMR file (the files written, every
+    stage timed once, the wrapped functions put back), and an empty folder said and left with status 0."""
+    import importlib.util
+
+    from animation_fixtures import video_motion, write_gvhmr_video
+
+    root = Path(__file__).resolve().parents[1]
+    script = root / "benchmarks" / "animation_real_speed.py"
+    spec = importlib.util.spec_from_file_location("animation_real_speed", script)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    from workflows.animation import clips
+    from workflows.scene import recovery
+
+    before = (clips.clean_track, clips.select_keyframes, recovery.recover_many)
+    src = write_gvhmr_video(tmp_path, *video_motion(12))
+    row = bench.animate_stages(src, tmp_path / "out", None)
+    assert row["frames"] == 12 and row["tracks"] == 1 and row["keyframes"] >= 2
+    assert set(row["cpu_s"]) == set(bench.STAGES) - {"start"}
+    assert all(v >= 0 for v in row["cpu_s"].values()) and row["cpu_s"]["effectors"] > 0
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {"animation.json", "person_0.bvh", "person_0.glb"}
+    assert (clips.clean_track, clips.select_keyframes, recovery.recover_many) == before
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = subprocess.run([sys.executable, str(script), str(empty)],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and "no estimator files under" in res.stdout
