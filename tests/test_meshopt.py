@@ -269,3 +269,17 @@ def test_a_gltf_with_an_external_compressed_buffer_and_a_fallback_buffer_reads_a
     plain, packed = read_character(ORIGINAL), read_character(f)
     assert packed.joint_map == plain.joint_map
     np.testing.assert_allclose(packed.positions, plain.positions, atol=1e-5)
+
+
+def test_a_gltfpack_skin_without_a_mesh_reads_from_its_nodes_with_one_warning():
+    """gltfpack quantizes a meshless skin's inverse bind matrices to zeros: the joints' default pose (here the
+    bind pose) is used, said in one warning, instead of refusing the file."""
+    from shape_inversion.skeleton_io import read_character
+
+    f = MESHOPT / "sketchfab_anime_boy_skeleton_gltfpack.glb"
+    plain = read_character(DATA / "rigs" / "sketchfab_anime_boy_skeleton.glb")
+    with pytest.warns(UserWarning, match="singular inverse bind matrix") as caught:
+        packed = read_character(f)
+    assert sum("singular inverse bind" in str(w.message) for w in caught) == 1
+    assert packed.joint_map == plain.joint_map
+    np.testing.assert_allclose(packed.positions, plain.positions, atol=1e-5)
