@@ -487,14 +487,19 @@ def read_rig(doc: GltfFile, skin: int = 0, bind: str = "inverse_bind") -> GltfRi
     order = tuple(sorted(range(J), key=lambda k: depth[k]))
     joints, ibm = tuple(joints[k] for k in order), ibm[list(order)]
     root = 0
+    if bind != "nodes":
+        try:
+            inv = np.linalg.inv(ibm)
+        except np.linalg.LinAlgError:
+            import warnings
+
+            warnings.warn(f"{doc.path}: skin #{skin} has a singular inverse bind matrix (gltfpack writes all-zero ones "
+                          "for a skin without a mesh): the joints' default pose is used as the bind pose", stacklevel=2)
+            bind = "nodes"
     if bind == "nodes":
         T_bind = doc.world[list(joints)].copy()
         to_world = np.eye(4)
     else:
-        try:
-            inv = np.linalg.inv(ibm)
-        except np.linalg.LinAlgError:
-            raise GltfError(f"{doc.path}: skin #{skin} has a singular inverse bind matrix") from None
         parent_world = doc.world[doc.parent[joints[root]]] if doc.parent[joints[root]] >= 0 else np.eye(4)
         node_p = doc.world[list(joints), :3, 3]
 

@@ -33,10 +33,12 @@ _BITS_V1 = ((0, 1, 2, 4), (1, 2, 4, 8))  # by the byte's control mode 0 / 1
 # the 16 encoded values of one group, by header bits: 1-bit values least significant bit first, 2- and 4-bit
 # values most significant first (vertexcodec.cpp decodeBytesGroup)
 _SPLIT = {
-    1: [tuple((b >> i) & 1 for i in range(8)) for b in range(256)],
-    2: [tuple((b >> s) & 3 for s in (6, 4, 2, 0)) for b in range(256)],
-    4: [((b >> 4) & 15, b & 15) for b in range(256)],
+    1: [bytes((b >> i) & 1 for i in range(8)) for b in range(256)],
+    2: [bytes((b >> s) & 3 for s in (6, 4, 2, 0)) for b in range(256)],
+    4: [bytes(((b >> 4) & 15, b & 15)) for b in range(256)],
 }
+_SENTINELS = {bits: [tuple(m for m, v in enumerate(split[b]) if v == (1 << bits) - 1) for b in range(256)]
+              for bits, split in _SPLIT.items()}  # positions of the all-ones values (a literal byte follows)
 
 
 class MeshoptError(ValueError):
@@ -51,33 +53,38 @@ def _decode_groups(data: bytes, p: int, end: int, out: np.ndarray, bits_table: t
         raise MeshoptError("attribute stream ends inside a group header")
     header = data[p:p + header_size]
     p += header_size
+    buf = bytearray(16 * groups)
     for g in range(groups):
         bits = bits_table[(header[g >> 2] >> ((g & 3) << 1)) & 3]
-        base = g * 16
         if bits == 0:
             continue
+        base = g * 16
         if bits == 8:
             if p + 16 > end:
                 raise MeshoptError("attribute stream ends inside a literal group")
-            out[base:base + 16] = np.frombuffer(data, np.uint8, 16, p)
+            buf[base:base + 16] = data[p:p + 16]
             p += 16
             continue
-        nbytes = 2 * bits  # 16 values of `bits` bits
+        nbytes = 2 * bits  # 16 values of `bits` bits, then one literal byte per all-ones value
         if p + nbytes > end:
             raise MeshoptError("attribute stream ends inside a group")
-        split = _SPLIT[bits]
-        values: list[int] = []
-        for b in data[p:p + nbytes]:
-            values.extend(split[b])
+        split, where = _SPLIT[bits], _SENTINELS[bits]
+        per = 8 // bits
+        values = bytearray()
+        literal: list[int] = []
+        for i, b in enumerate(data[p:p + nbytes]):
+            values += split[b]
+            if where[b]:
+                literal.extend(i * per + m for m in where[b])
         p += nbytes
-        sentinel = (1 << bits) - 1
-        for m, v in enumerate(values):
-            if v == sentinel:
-                if p >= end:
-                    raise MeshoptError("attribute stream ends inside a group's literal bytes")
-                v = data[p]
-                p += 1
-            out[base + m] = v
+        if literal:
+            if p + len(literal) > end:
+                raise MeshoptError("attribute stream ends inside a group's literal bytes")
+            for m, v in zip(literal, data[p:p + len(literal)], strict=True):
+                values[m] = v
+            p += len(literal)
+        buf[base:base + 16] = values
+    out[:] = np.frombuffer(bytes(buf), np.uint8)
     return p
 
 

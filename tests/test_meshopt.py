@@ -239,3 +239,47 @@ def test_scene_export_of_a_compressed_character_writes_a_plain_glb_of_its_own_me
     assert len(mesh.faces) == len(mesh0.faces)
     d0 = np.ptp(mesh0.vertices_world, axis=0)
     np.testing.assert_allclose(np.sort(np.ptp(mesh.vertices_world, axis=0)), np.sort(d0), rtol=2e-3)
+
+
+def test_a_gltf_with_an_external_compressed_buffer_and_a_fallback_buffer_reads_as_its_original():
+    """gltfpack ``-cf``: a ``.gltf`` with two external buffers (compressed data; an uncompressed fallback with a uri,
+    the extension only used): the decoded views agree with the fallback's bytes."""
+    from shape_inversion.gltf_io import _buffer_bytes, load_gltf
+    from shape_inversion.skeleton_io import read_character
+
+    f = MESHOPT / "gltfpack_cf" / "RiggedFigure.gltf"
+    doc = json.loads(f.read_text())
+    assert len(doc["buffers"]) == 2 and all("uri" in b for b in doc["buffers"])
+    assert "EXT_meshopt_compression" in doc["extensionsUsed"]
+    assert "EXT_meshopt_compression" not in doc.get("extensionsRequired", [])
+    loaded = load_gltf(f)
+    fallback = _buffer_bytes(f, loaded.gltf, 1)  # the file's own uncompressed bytes
+    for view in doc["bufferViews"]:
+        if view["buffer"] == 1:
+            a, n = view.get("byteOffset", 0), view["byteLength"]
+            mine, theirs = loaded.buffers[1][a:a + n], fallback[a:a + n]
+            if view["extensions"]["EXT_meshopt_compression"]["mode"] == "TRIANGLES":
+                # the index codec may start a triangle at another corner (same winding): compare rotations
+                t1, t2 = (np.frombuffer(b, np.uint16).reshape(-1, 3) for b in (mine, theirs))
+                canon = lambda t: np.stack([np.roll(t, -k, axis=1) for k in range(3)])[  # noqa: E731
+                    np.argmin(t, axis=1), np.arange(len(t))]
+                np.testing.assert_array_equal(canon(t1), canon(t2))
+            else:
+                assert mine == theirs
+    plain, packed = read_character(ORIGINAL), read_character(f)
+    assert packed.joint_map == plain.joint_map
+    np.testing.assert_allclose(packed.positions, plain.positions, atol=1e-5)
+
+
+def test_a_gltfpack_skin_without_a_mesh_reads_from_its_nodes_with_one_warning():
+    """gltfpack quantizes a meshless skin's inverse bind matrices to zeros: the joints' default pose (here the
+    bind pose) is used, said in one warning, instead of refusing the file."""
+    from shape_inversion.skeleton_io import read_character
+
+    f = MESHOPT / "sketchfab_anime_boy_skeleton_gltfpack.glb"
+    plain = read_character(DATA / "rigs" / "sketchfab_anime_boy_skeleton.glb")
+    with pytest.warns(UserWarning, match="singular inverse bind matrix") as caught:
+        packed = read_character(f)
+    assert sum("singular inverse bind" in str(w.message) for w in caught) == 1
+    assert packed.joint_map == plain.joint_map
+    np.testing.assert_allclose(packed.positions, plain.positions, atol=1e-5)

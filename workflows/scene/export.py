@@ -444,9 +444,9 @@ def posed_character_glb(char: CustomCharacter, poses: Sequence[CustomPose], fram
         view.byteOffset = (view.byteOffset or 0) + bases[view.buffer]
         view.buffer = 0
         if view.extensions:  # meshopt views were decoded into their (fallback) buffer when read: written plain
-            view.extensions = {k: v for k, v in view.extensions.items() if k not in MESHOPT_EXTENSIONS} or None
-    gltf.extensionsUsed = [e for e in gltf.extensionsUsed or [] if e not in MESHOPT_EXTENSIONS] or None
-    gltf.extensionsRequired = [e for e in gltf.extensionsRequired or [] if e not in MESHOPT_EXTENSIONS] or None
+            view.extensions = {k: v for k, v in view.extensions.items() if k not in MESHOPT_EXTENSIONS}
+    gltf.extensionsUsed = [e for e in gltf.extensionsUsed or [] if e not in MESHOPT_EXTENSIONS]
+    gltf.extensionsRequired = [e for e in gltf.extensionsRequired or [] if e not in MESHOPT_EXTENSIONS]
     out = _GlbData(blob, list(gltf.accessors or []), list(gltf.bufferViews or []))
     add = out.add
     n_nodes = len(doc.world)
