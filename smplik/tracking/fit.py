@@ -43,7 +43,6 @@ from smplik.tracking.config import FitConfig
 
 SPINE = tuple(JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3"))
 HEAD = JOINT_INDEX["head"]
-NECK = JOINT_INDEX["neck"]
 ARMS = {s: (JOINT_INDEX[f"{s}_collar"], JOINT_INDEX[f"{s}_shoulder"], JOINT_INDEX[f"{s}_elbow"],
             JOINT_INDEX[f"{s}_wrist"]) for s in ("left", "right")}
 FOLLOWER_STAGES = 3
