@@ -9,20 +9,26 @@ Per frame, after the network's pose:
    :attr:`FitConfig.spine_passes` passes); what the spine cannot reach (it does not stretch) moves the whole body
    (the root's translation; the foot locks, after the fit, keep standing feet in place); the head takes the
    tracker's world rotation (when it has one).
-2. **Wrists**: analytic two-bone arm IK (shoulder, elbow, wrist; :func:`smplik.limb_ik.two_bone_ik` or its numba
-   kernel :func:`smplik.tracking.kernels.two_bone_ik`, the network's elbow plane kept) to the wrist target; the
-   wrist takes the tracker's world rotation (when it has one).
+2. **Wrists**: two-bone arm IK (shoulder, elbow, wrist) to the wrist target: by default
+   (:attr:`FitConfig.bend_filter`) the elbow opens or closes about the arm's plane by the followed change of the
+   angle the target's distance needs, then the shoulder aims the wrist at the target
+   (:meth:`EffectorFit._bend_and_aim`); otherwise :func:`smplik.limb_ik.two_bone_ik` (or its numba kernel
+   :func:`smplik.tracking.kernels.two_bone_ik`), the network's elbow plane kept. The wrist takes the tracker's
+   world rotation (when it has one).
 
 Targets are not the raw trackers: the *correction* (tracker minus the network's joint, a position or a rotation
 vector) goes through a noise band. Each tracker's jitter sigma is estimated causally from its own second
 differences (the median of the last :attr:`FitConfig.noise_window` frames, robust to the few frames of real
-fast motion); the correction follows the measured one with a steady-state Kalman gain for a random walk of
-``process`` per frame under that jitter (gain 1 on exact trackers, about 0.2 under 1 cm of noise), and is then
+fast motion; less a floor, below which jitter counts as none; a new stream starts from a prior of 1 cm, weighted
+as :attr:`FitConfig.prior_frames` frames; smoothed over time, so the gain does not step); the correction follows
+the measured one through :data:`FOLLOWER_STAGES` cascaded steps of the steady-state Kalman gain for a random walk
+of ``process`` per frame under that jitter (gain 1 on exact trackers, about 0.3 under 1 cm of noise), and is then
 held within a band of ``band_sigmas`` x sigma (at least ``band_min``) of the measured correction: tracker jitter
 inside the band is not followed, a drift beyond it is. On exact trackers the hands and the head land on their
-trackers (the gain is 1); on noisy ones they stay within the band and move as smoothly as the network.
+trackers (the gain is 1); on noisy ones they follow slowly and the motion stays as smooth as the network's
+(``benchmarks/results/tracking.json``, ``ours`` against ``ours_nofit``).
 
-The legs and the root are left alone (feet stay where the foot locks put them).
+The legs and the root's rotation are left alone (the foot locks come after the fit).
 """
 
 from __future__ import annotations
@@ -37,7 +43,6 @@ from smplik.tracking.config import FitConfig
 
 SPINE = tuple(JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3"))
 HEAD = JOINT_INDEX["head"]
-NECK = JOINT_INDEX["neck"]
 ARMS = {s: (JOINT_INDEX[f"{s}_collar"], JOINT_INDEX[f"{s}_shoulder"], JOINT_INDEX[f"{s}_elbow"],
             JOINT_INDEX[f"{s}_wrist"]) for s in ("left", "right")}
 FOLLOWER_STAGES = 3
