@@ -25,6 +25,11 @@ BAD = {
     "space": (["--space", "up"], "--space must be 'camera' or 'world'"),
     "smoothing": (["--smoothing", "bogus"], "--smoothing must be one of"),
     "preview": (["--preview", "p.png"], "a preview is a .gif or .mp4 file"),
+    "smoothness": (["--smoothness", "-1"], "--smoothness must be a positive number, got -1."),
+    "pose budget": (["--pose-budget", "nan"], "--pose-budget must be a number of mm >= 0"),
+    "keyframe threshold": (["--keyframe-threshold", "0"], "the keyframe threshold must be a positive number"),
+    "character": (["--character", "missing.bvh"], "--character missing.bvh: no such file."),
+    "units": (["--units", "furlong"], "Unknown units 'furlong'"),
 }
 
 
