@@ -25,6 +25,11 @@ BAD = {
     "space": (["--space", "up"], "--space must be 'camera' or 'world'"),
     "smoothing": (["--smoothing", "bogus"], "--smoothing must be one of"),
     "preview": (["--preview", "p.png"], "a preview is a .gif or .mp4 file"),
+    "smoothness": (["--smoothness", "-1"], "--smoothness must be a positive number, got -1."),
+    "pose budget": (["--pose-budget", "nan"], "--pose-budget must be a number of mm >= 0"),
+    "keyframe threshold": (["--keyframe-threshold", "0"], "the keyframe threshold must be a positive number"),
+    "character": (["--character", "missing.bvh"], "--character missing.bvh: no such file."),
+    "units": (["--units", "furlong"], "Unknown units 'furlong'"),
 }
 
 
@@ -100,12 +105,15 @@ def test_the_command_leaves_with_its_status_output_and_files_after_torch_loaded(
     assert (tmp_path / "out" / "animation.json").stat().st_size > 0
     res = _smplik("scene", "animate", str(src), "--out", str(tmp_path / "o2"), "--track", "7", cwd=tmp_path)
     assert res.returncode == 1 and "no track '7'" in res.stdout + res.stderr  # refused after torch loaded
-    code = ("import atexit, sys, torch\nfrom smplik.cli import leave\n"
-            "atexit.register(lambda: print('atexit ran', flush=True))\nprint('before', end='')\nleave(sys.argv[1:] and "
-            "int(sys.argv[1]))\n")
+    code = ("import atexit, sys, threading, time, torch\nfrom concurrent.futures import ThreadPoolExecutor\n"
+            "from smplik.cli import leave\n"
+            "atexit.register(lambda: print('atexit ran', flush=True))\nprint('before', end='')\n"
+            "pool = ThreadPoolExecutor(1)\npool.submit(time.sleep, 0.2)\n"  # a pool's idle worker must not hang it
+            "threading.Thread(target=lambda: (time.sleep(0.3), print(' thread', flush=True))).start()\n"
+            "leave(sys.argv[1:] and int(sys.argv[1]))\n")
     for status in (0, 3):
         res = subprocess.run([sys.executable, "-c", code, str(status)], capture_output=True, text=True, timeout=300)
-        assert res.returncode == status and res.stdout == "beforeatexit ran\n", res
+        assert res.returncode == status and res.stdout == "before thread\natexit ran\n", res
     res = subprocess.run([sys.executable, "-c", code.replace("int(sys.argv[1])", "'a message'"), "x"],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 1 and res.stderr.strip() == "a message"

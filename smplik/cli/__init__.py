@@ -42,19 +42,18 @@ def main() -> None:
 def leave(code: object) -> None:
     """Exit with ``code`` as ``SystemExit`` would, without tearing the interpreter's modules down: after torch was
     imported that teardown costs 0.4-0.6 CPU s of every command (``benchmarks/animation_real_speed.py``). What an
-    exit must still do is done first: other non-daemon threads are joined, the ``atexit`` functions run
+    exit must still do is done first: thread pools are shut down and other non-daemon threads joined
+    (``threading._shutdown``, as the interpreter's exit), the ``atexit`` functions run
     (``weakref.finalize`` and temporary folders included), the standard streams are flushed. Every file a command
     writes is closed (atomic writes) before this point."""
     import atexit
     import os
     import threading
 
-    for thread in threading.enumerate():
-        if thread is not threading.main_thread() and not thread.daemon:
-            thread.join()
-    run = getattr(atexit, "_run_exitfuncs", None)
-    if run is None:  # another interpreter: the ordinary exit
+    shutdown, run = getattr(threading, "_shutdown", None), getattr(atexit, "_run_exitfuncs", None)
+    if shutdown is None or run is None:  # another interpreter: the ordinary exit
         raise SystemExit(code)
+    shutdown()  # what the interpreter's exit does first: thread-pool exits, then non-daemon threads joined
     run()
     if code is None:
         status = 0

@@ -74,9 +74,11 @@ def animate_cmd(
     with user_errors():  # options judged from their text: refused before numpy, torch or the model load
         check_fps(fps)
         check_animate_options(frames=frames, fps=fps, formats=formats, format=format, space=space,
-                              smoothing=smoothing)
+                              smoothing=smoothing, smoothness=smoothness, pose_budget=pose_budget,
+                              keyframe_threshold=keyframe_threshold, character=character)
         if preview is not None:  # a preview that cannot be written fails now, not after the work
             check_preview_path(preview)
+        options = character_cli()  # --rig, --map, --units, ...
     from rich.progress import Progress
 
     from smplik.cli.errors import console
@@ -94,7 +96,6 @@ def animate_cmd(
                                keyframe_threshold_m=keyframe_threshold,
                                camera_fov_deg=None if keep_depth else AnimateConfig().camera_fov_deg,
                                recovery=RecoveryConfig(max_effectors=max_effectors, threshold=0.03))
-    options = character_cli()
     solver = _solver(checkpoint)
     with user_errors(), Progress(console=console, transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("reading", total=None)

@@ -48,10 +48,22 @@ def parse_frames(spec: str) -> tuple[int, int] | None:
 
 
 def check_animate_options(*, frames: str = "all", fps: float | None = None, formats: Sequence[str] = ("bvh",),
-                          format: str = "auto", space: str | None = None, smoothing: str = "auto"
-                          ) -> tuple[int, int] | None:
+                          format: str = "auto", space: str | None = None, smoothing: str = "auto",
+                          smoothness: float = 2.0, pose_budget: float = 0.0, keyframe_threshold: float = 0.03,
+                          character: str | Path | None = None) -> tuple[int, int] | None:
     """Refuse bad ``scene animate`` options (one :class:`AnimationError` line) before anything heavy loads (numpy,
     torch, the model, the file); returns the frame range (:func:`parse_frames`)."""
+    import math
+
+    if not (math.isfinite(smoothness) and smoothness > 0):
+        raise AnimationError(f"--smoothness must be a positive number, got {smoothness:g}.")
+    if not (math.isfinite(pose_budget) and pose_budget >= 0):
+        raise AnimationError(f"--pose-budget must be a number of mm >= 0 (0: no cap), got {pose_budget:g}.")
+    if not (math.isfinite(keyframe_threshold) and keyframe_threshold > 0):
+        raise AnimationError(f"--keyframe-threshold: the keyframe threshold must be a positive number of metres, "
+                             f"got {keyframe_threshold:g}.")
+    if character is not None and not Path(character).exists():
+        raise AnimationError(f"--character {character}: no such file.")
     bad = [f for f in formats if f not in EXPORT_FORMATS]
     if bad:
         raise AnimationError(f"unknown export format(s) {bad}; choose from {', '.join(EXPORT_FORMATS)}.")
