@@ -339,6 +339,15 @@ CORRELATION_GAIN_MAX = 20.0
 """Most :func:`correlation_gain` multiplies the smoothness by."""
 
 
+ROOT_CORRELATION_SHARE = 0.4
+"""The root's correlation gain is at least this share of the rotations' (:func:`denoise_motion`): its three
+channels measure their correlation poorly (a median of three residuals, a run's bounce in them; on the test run
+09_06 with AR(1) noise their lag-1 autocorrelation looks white while the rotations' gives a gain of 20), and an
+estimator's slow drift moves the body and the root alike. Left at 1, the root's residual drift made the foot locks
+of a run's 3-5 frame stances shift the root frame by frame (acceleration error 16.7 against Savitzky-Golay's 15.2;
+13.0 with it). 0.3-0.5 change no check on either split but that one; 0.7 made the walk 02_01 (AR(1)) skate."""
+
+
 def correlation_gain(lag1: np.ndarray) -> float:
     """Smoothness multiplier for a group of channels whose fit residuals have lag-1 autocorrelations ``lag1``
     (C,) (:class:`workflows.animation.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
@@ -356,7 +365,8 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
     own noise level (:func:`.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
     choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
-    rotation channels or of the root's; on a clean estimate, ``clean_noise_share``, at least ``min_smoothness``),
+    rotation channels or of the root's, the latter at least :data:`ROOT_CORRELATION_SHARE` of the former; on a
+    clean estimate, ``clean_noise_share``, at least ``min_smoothness``),
     then a Whittaker smoothing; with ``motion_trust``, on a noisy clip, a second pass weighs the estimate more where
     the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
 
@@ -370,8 +380,9 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     y = np.concatenate([q, np.asarray(transl, dtype=np.float64)], axis=1)  # (T, 4J + 3)
     noise = estimate_noise(y)
     lam = cfg.noise_gain * sure_smoothness(y, noise.sigma)
-    lam[:4 * J] *= correlation_gain(noise.lag1[:4 * J])
-    lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
+    rotation_gain = correlation_gain(noise.lag1[:4 * J])
+    lam[:4 * J] *= rotation_gain
+    lam[4 * J:] *= max(correlation_gain(noise.lag1[4 * J:]), ROOT_CORRELATION_SHARE * rotation_gain)
     share = noise_share(y, noise.sigma)  # constant channels (NaN) say nothing about the estimate's noise
     clean = bool(np.isfinite(share).any() and np.nanmedian(share) < cfg.clean_noise_share)
     if clean:
