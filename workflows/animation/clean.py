@@ -359,6 +359,17 @@ def correlation_gain(lag1: np.ndarray) -> float:
     return float(np.clip(1.0 + CORRELATION_SLOPE * excess, 1.0, CORRELATION_GAIN_MAX))
 
 
+CORRELATED_GAIN = 9.0
+"""A rotation correlation gain (:func:`correlation_gain`) at least this marks noise correlated over frames for
+:data:`WHITE_NOISE_TRUST` (frame-independent noise gave 1-8 on the known-truth clips, the short runs' the highest;
+AR(1) noise 10.3-19.6)."""
+WHITE_NOISE_TRUST = 1.25
+"""Multiplier of ``motion_trust`` where the noise is not correlated over frames (:data:`CORRELATED_GAIN`): there the
+estimate's fast motion is the body's, not a drift, and a short run's lift-off kept sharper lets the foot lock hold
+its stance to the end (run 09_06 with glitches: skating on the truth's contacts 8.9 -> 5.3 mm/frame against a
+bound of 7.7). Under correlated noise a stronger trust hands the drift back (2 made the AR(1) walks skate)."""
+
+
 def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanConfig
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The adaptive smoothing (``smoothing="adaptive"``, the default) of local rotations (T, 24, 3, 3) and the root
@@ -367,8 +378,9 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
     rotation channels or of the root's, the latter at least :data:`ROOT_CORRELATION_SHARE` of the former; on a
     clean estimate, ``clean_noise_share``, at least ``min_smoothness``),
-    then a Whittaker smoothing; with ``motion_trust``, on a noisy clip, a second pass weighs the estimate more where
-    the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
+    then a Whittaker smoothing; with ``motion_trust`` (times :data:`WHITE_NOISE_TRUST` where the noise is not
+    correlated over frames), on a noisy clip, a second pass weighs the estimate more where the first bent fast motion
+    (:func:`workflows.animation.denoise.motion_weights`).
 
     Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
     from workflows.animation.denoise import estimate_noise, motion_weights, noise_share, sure_smoothness, whittaker
@@ -389,7 +401,8 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
         lam = np.maximum(lam, cfg.min_smoothness)
     z = whittaker(y, np.ones_like(y), lam)
     if cfg.motion_trust > 0 and not clean:
-        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust), lam)
+        trust = cfg.motion_trust * (WHITE_NOISE_TRUST if rotation_gain < CORRELATED_GAIN else 1.0)
+        z = whittaker(y, motion_weights(y, z, noise.sigma, trust), lam)
     return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
 
 
