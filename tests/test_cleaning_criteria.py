@@ -23,8 +23,6 @@ NOISE = ("independent", "ar1", "glitches")
 FRAMES = 240
 FAILING: dict[tuple[str, str], str] = {
     ("02_04", "ar1"): "foot skating above the truth's + 1 mm/frame",
-    ("09_06", "ar1"): "acceleration error above Savitzky-Golay's",
-    ("09_06", "glitches"): "foot skating above the truth's + 1 mm/frame (missed contacts of a run)",
     ("02_03", "ar1"): "acceleration error above Savitzky-Golay's; foot skating above the truth's + 1 mm/frame",
 }
 """Rows that miss a condition today (what they miss)."""

@@ -339,6 +339,15 @@ CORRELATION_GAIN_MAX = 20.0
 """Most :func:`correlation_gain` multiplies the smoothness by."""
 
 
+ROOT_CORRELATION_SHARE = 0.4
+"""The root's correlation gain is at least this share of the rotations' (:func:`denoise_motion`): its three
+channels measure their correlation poorly (a median of three residuals, a run's bounce in them; on the test run
+09_06 with AR(1) noise their lag-1 autocorrelation looks white while the rotations' gives a gain of 20), and an
+estimator's slow drift moves the body and the root alike. Left at 1, the root's residual drift made the foot locks
+of a run's 3-5 frame stances shift the root frame by frame (acceleration error 16.7 against Savitzky-Golay's 15.2;
+13.0 with it). 0.3-0.5 change no check on either split but that one; 0.7 made the walk 02_01 (AR(1)) skate."""
+
+
 def correlation_gain(lag1: np.ndarray) -> float:
     """Smoothness multiplier for a group of channels whose fit residuals have lag-1 autocorrelations ``lag1``
     (C,) (:class:`workflows.animation.denoise.ChannelNoise`): 1 for independent noise; noise correlated over frames (an
@@ -350,15 +359,28 @@ def correlation_gain(lag1: np.ndarray) -> float:
     return float(np.clip(1.0 + CORRELATION_SLOPE * excess, 1.0, CORRELATION_GAIN_MAX))
 
 
+CORRELATED_GAIN = 9.0
+"""A rotation correlation gain (:func:`correlation_gain`) at least this marks noise correlated over frames for
+:data:`WHITE_NOISE_TRUST` (frame-independent noise gave 1-8 on the known-truth clips, the short runs' the highest;
+AR(1) noise 10.3-19.6)."""
+WHITE_NOISE_TRUST = 1.25
+"""Multiplier of ``motion_trust`` where the noise is not correlated over frames (:data:`CORRELATED_GAIN`): there the
+estimate's fast motion is the body's, not a drift, and a short run's lift-off kept sharper lets the foot lock hold
+its stance to the end (run 09_06 with glitches: skating on the truth's contacts 8.9 -> 5.3 mm/frame against a
+bound of 7.7). Under correlated noise a stronger trust hands the drift back (2 made the AR(1) walks skate)."""
+
+
 def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanConfig
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The adaptive smoothing (``smoothing="adaptive"``, the default) of local rotations (T, 24, 3, 3) and the root
     (T, 3): every channel (each joint's sign-continuous quaternion components, the root's x, y and z) gets its
     own noise level (:func:`.denoise.estimate_noise`) and from it its own smoothness (the unbiased-risk
     choice, :func:`.denoise.sure_smoothness`, times ``noise_gain`` and :func:`correlation_gain` of the
-    rotation channels or of the root's; on a clean estimate, ``clean_noise_share``, at least ``min_smoothness``),
-    then a Whittaker smoothing; with ``motion_trust``, on a noisy clip, a second pass weighs the estimate more where
-    the first bent fast motion (:func:`workflows.animation.denoise.motion_weights`).
+    rotation channels or of the root's, the latter at least :data:`ROOT_CORRELATION_SHARE` of the former; on a
+    clean estimate, ``clean_noise_share``, at least ``min_smoothness``),
+    then a Whittaker smoothing; with ``motion_trust`` (times :data:`WHITE_NOISE_TRUST` where the noise is not
+    correlated over frames), on a noisy clip, a second pass weighs the estimate more where the first bent fast motion
+    (:func:`workflows.animation.denoise.motion_weights`).
 
     Returns: local rotations (T, 24, 3, 3) (renormalised quaternions) and the root (T, 3)."""
     from workflows.animation.denoise import estimate_noise, motion_weights, noise_share, sure_smoothness, whittaker
@@ -370,15 +392,17 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     y = np.concatenate([q, np.asarray(transl, dtype=np.float64)], axis=1)  # (T, 4J + 3)
     noise = estimate_noise(y)
     lam = cfg.noise_gain * sure_smoothness(y, noise.sigma)
-    lam[:4 * J] *= correlation_gain(noise.lag1[:4 * J])
-    lam[4 * J:] *= correlation_gain(noise.lag1[4 * J:])
+    rotation_gain = correlation_gain(noise.lag1[:4 * J])
+    lam[:4 * J] *= rotation_gain
+    lam[4 * J:] *= max(correlation_gain(noise.lag1[4 * J:]), ROOT_CORRELATION_SHARE * rotation_gain)
     share = noise_share(y, noise.sigma)  # constant channels (NaN) say nothing about the estimate's noise
     clean = bool(np.isfinite(share).any() and np.nanmedian(share) < cfg.clean_noise_share)
     if clean:
         lam = np.maximum(lam, cfg.min_smoothness)
     z = whittaker(y, np.ones_like(y), lam)
     if cfg.motion_trust > 0 and not clean:
-        z = whittaker(y, motion_weights(y, z, noise.sigma, cfg.motion_trust), lam)
+        trust = cfg.motion_trust * (WHITE_NOISE_TRUST if rotation_gain < CORRELATED_GAIN else 1.0)
+        z = whittaker(y, motion_weights(y, z, noise.sigma, trust), lam)
     return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
 
 
