@@ -11,6 +11,14 @@ import os
 # Headless rendering for every test, set before anything imports pyrender/PyOpenGL (the CLI does the same).
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+import signal  # noqa: E402
+
+# A test run started in the background by a shell without job control (`.ci/run &`) inherits SIGINT ignored, and
+# every command the tests start would inherit that too: the Ctrl-C tests' signals would be lost and their commands
+# run on. The tests' own process takes Python's usual handler, which a started command resets to the default.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
 import json  # noqa: E402
 from dataclasses import dataclass
 from pathlib import Path
