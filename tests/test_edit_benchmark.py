@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
-from smplik.benchmark.two_bone import two_bone_ik
 from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
 from smplik.kinematics import forward_kinematics
+from smplik.limb_ik import two_bone_ik_pose
 from smplik.rotations import axis_angle_to_matrix
 from workflows.edit_benchmark.pairs import (
     EditPairConfig,
@@ -151,7 +151,7 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
     par = torch.tensor(PARENTS)
     root = p[rows, par[par[tip]]]
     target = root + 0.85 * (p[rows, tip] - root) + 0.03  # closer to the root: reachable
-    R2 = two_bone_ik(R, t, J, tip, target)
+    R2 = two_bone_ik_pose(R, t, J, tip, target)
     _, p2 = forward_kinematics(R2, J, t)
     assert (p2[rows, tip] - target).norm(dim=-1).max() < 1e-6
     changed = (R2 - R).abs().amax((-1, -2)) > 1e-12
@@ -159,7 +159,7 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
         assert set(torch.nonzero(changed[b])[:, 0].tolist()) <= {int(par[tip[b]]), int(par[par[tip[b]]])}
     # beyond reach: the straight limb points at the target
     far = p[rows, par[par[tip]]] + torch.tensor([0.0, 0.0, 3.0], dtype=torch.float64)
-    _, p3 = forward_kinematics(two_bone_ik(R, t, J, tip, far), J, t)
+    _, p3 = forward_kinematics(two_bone_ik_pose(R, t, J, tip, far), J, t)
     root = p3[rows, par[par[tip]]]
     u = (p3[rows, tip] - root) / (p3[rows, tip] - root).norm(dim=-1, keepdim=True)
     assert torch.allclose(u, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(B, 3), atol=1e-6)
@@ -168,7 +168,7 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
 def test_turn_swivel_moves_only_the_middle_joint_about_the_reach_axis(bodies):
     """The elbow/knee pole: turning by swivel_angle towards a reference limb puts the middle joint in the
     reference's plane, keeps the root and the reached tip, and changes only the chain root's rotation."""
-    from smplik.benchmark.two_bone import swivel_angle, turn_swivel
+    from smplik.limb_ik import swivel_angle, turn_swivel
 
     g = torch.Generator().manual_seed(5)
     B = 4
@@ -181,7 +181,7 @@ def test_turn_swivel_moves_only_the_middle_joint_about_the_reach_axis(bodies):
     mid, root = par[tip], par[par[tip]]
     _, p = forward_kinematics(R, J, t)
     target = p[rows, root] + 0.8 * (p[rows, tip] - p[rows, root])
-    R = two_bone_ik(R, t, J, tip, target)
+    R = two_bone_ik_pose(R, t, J, tip, target)
     _, p = forward_kinematics(R, J, t)
     _, p_ref = forward_kinematics(R_ref, J, t)
     angle = swivel_angle(p[rows, root], p[rows, mid], target, p_ref[rows, root], p_ref[rows, mid])

@@ -227,7 +227,8 @@ def test_gizmo_drags_re_solve_and_redraw_without_a_browser(editor):
     rotation handles turn the joint, undo/redo come back to the handles."""
     from types import SimpleNamespace
 
-    from workflows.editor.app import matrix_to_wxyz, wxyz_to_matrix
+    from smplik.rotations import matrix_to_quat_wxyz as matrix_to_wxyz
+    from smplik.rotations import quat_wxyz_to_matrix as wxyz_to_matrix
 
     state = editor.state
     mesh = editor._meshes[0]
