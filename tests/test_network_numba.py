@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from test_onnx import SHIPPED, needs_ort, needs_shipped, random_effectors
+from helpers import SHIPPED, needs_ort, needs_shipped, random_effectors
 
 from smplik.network import NetworkConfig, ProtoResIK
 from smplik.onnx_runtime import OUTPUT_NAMES
