@@ -42,6 +42,7 @@ def editor(shipped_solver, tmp_path):
     app.stop()
 
 
+@pytest.mark.slow
 def test_editor_in_headless_chromium(editor, tmp_path):
     state = editor.state
     saved = tmp_path / "scene.json"
@@ -211,6 +212,7 @@ def _project(camera: Any, point: np.ndarray, box: dict[str, float]) -> tuple[flo
     return box["x"] + 0.5 * box["width"] + f * p[0] / p[2], box["y"] + 0.5 * box["height"] + f * p[1] / p[2]
 
 
+@pytest.mark.slow
 def test_add_then_drag_an_elbow_in_headless_chromium(editor):
     """Issue 44 in the browser: "Add effector" on the left elbow does not move the body; dragging its handle's
     up arrow with the mouse raises the elbow, meets the handle within 1 cm and keeps everything outside the arm

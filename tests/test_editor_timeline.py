@@ -333,6 +333,7 @@ def test_keyframe_dropdown_always_agrees_with_the_header(app):
     assert agree()
 
 
+@pytest.mark.slow
 def test_timeline_controls_in_headless_chromium(app):
     from editor_helpers import CHROMIUM, IN_CI, editor_page, wait_for
 

@@ -65,6 +65,7 @@ def problem(result, needle: str) -> str | None:  # noqa: ANN001 - click.testing.
     return None
 
 
+@pytest.mark.slow
 def test_every_budget_case_is_one_error_line_and_keeps_its_input(round4):
     module, cases = round4
     assert {c.reader for c, _ in cases} == {"r4_trackers", "r4_steamvr", "r4_tracking_model", "r4_ik_model",

@@ -360,6 +360,7 @@ def test_deterministic_npz_bytes_depend_only_on_the_arrays(tmp_path):
 # ----------------------------------------------------------------------------- 11.3 one-line CLI errors
 
 
+@pytest.mark.slow
 def test_user_mistakes_are_one_stderr_line(tmp_path):
     (tmp_path / "a[").mkdir()
     eff = tmp_path / "a[" / "red].json"  # its path holds '[/red]', rich markup if printed unescaped

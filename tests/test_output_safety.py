@@ -305,6 +305,7 @@ def gvhmr_file(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_scene_animate_export_killed_while_committing_is_all_old_then_all_new(gvhmr_file, tmp_path):
     args = ["scene", "animate", gvhmr_file, "--fps", "30", "--max-effectors", "2", "--export", "bvh,glb",
             "--smoothing", "none"]

@@ -103,6 +103,7 @@ def test_the_str_dag_smpl_model_file_is_one_line(tmp_path):
         read_model_arrays(path)
 
 
+@pytest.mark.slow
 def test_compressed_pickles_are_inflated_with_a_running_cap(tmp_path, monkeypatch):
     from smplik.safe_pickle import load_pickle
 
