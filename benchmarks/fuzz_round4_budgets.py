@@ -8,7 +8,7 @@ file's key or the limit's environment variable), under 2 GB, quickly; the except
 :func:`round4_budget_cases` writes its own small material (tracker recordings, SteamVR logs, tracking and IK model
 files from the shipped ones, an animation file, AMASS clips) and returns ``(case, needle)`` pairs;
 ``benchmarks/fuzz_campaign.py`` runs them in subprocesses (``--round4-budgets-only`` alone, results in
-``benchmarks/results/fuzz_round4_budgets.json``), ``tests/test_security_round4_budgets.py`` in-process.
+``benchmarks/results/fuzz_round4_budgets.json``), ``tests/test_input_budgets.py`` in-process.
 
 Groups (``reader``): ``r4_trackers`` (TQ, TF, strings as numbers, the tracker's frame cap), ``r4_steamvr`` (SV1-SV4,
 string timestamps), ``r4_tracking_model`` (MH, MF, MS, MZ, stride-0 and unknown keys), ``r4_ik_model`` (a view

@@ -233,14 +233,13 @@ def test_benchmark_on_a_cache_without_edits_says_so(tiny_cache, tmp_path):
     assert "single-limb edit pairs" in res.output and "Traceback" not in res.output
 
 
-def test_run_edit_benchmark_on_a_hand_made_clip():
+def test_run_edit_benchmark_on_a_hand_made_clip(shipped_solver):
     """A clip whose only motion is the right elbow bending 90 degrees: every pair is a right-wrist edit, the
     drag meets its target, and the results document is JSON."""
     import json
 
     import numpy as np
 
-    from smplik.solver import IKSolver
     from workflows.edit_benchmark.run import EditBenchmarkConfig, EditClip, run_edit_benchmark
 
     T = 40
@@ -250,7 +249,7 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
     bend = torch.linspace(0, 1, T).sub(5 / T).clamp(0, 1) * (math.pi / 2)
     pose[:, JOINT_INDEX["right_elbow"], 1] = bend
     clip = EditClip("hand_made", "x", FPS, pose, torch.zeros(T, 3))
-    solver = IKSolver.load()
+    solver = shipped_solver
     ranges = JointRanges.fit(pose.double())
     doc = run_edit_benchmark([clip], solver, ranges, methods=("smplik", "two_bone"),
                              cfg=EditBenchmarkConfig(max_pairs=2))
@@ -285,11 +284,10 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     assert pairs and all(p.end == "right_wrist" for p in pairs)  # the test split's right-hand edits of 02_05/06
 
 
-def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(shared_data):
+def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(shipped_solver, shared_data):
     """The edit benchmark's joint drags (workflows.edit_benchmark.joints) on a real CMU clip: every joint's drag
     meets its reachable targets within 1 cm and moves nothing outside its chain by 5 mm; every case is reported."""
     from smplik.data.dataset import find_sources
-    from smplik.solver import IKSolver
     from workflows.edit_benchmark.joints import JOINTS, joint_drag_benchmark
     from workflows.edit_benchmark.run import clips_from_folder
 
@@ -302,7 +300,7 @@ def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(sha
     with tempfile.TemporaryDirectory() as folder:
         shutil.copy(shared_data.cmu_dir / "02_01.bvh", folder)
         clips = clips_from_folder(folder, preset="cmu")
-    out = joint_drag_benchmark(clips, IKSolver.load(), pairs_per_joint=3, before=False)
+    out = joint_drag_benchmark(clips, shipped_solver, pairs_per_joint=3, before=False)
     assert set(out["joints"]) == set(JOINTS)
     assert len(out["pairs"]) == sum(v["smplik"]["pairs"] for v in out["joints"].values())
     for joint, figures in out["joints"].items():

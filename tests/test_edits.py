@@ -22,10 +22,9 @@ TORSO = [JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3", "neck", "head")]
 
 
 @pytest.fixture(scope="module")
-def solver():
-    from smplik.solver import IKSolver
+def solver(shipped_solver):
 
-    return IKSolver.load()  # the shipped model
+    return shipped_solver  # the shipped model
 
 
 def _eff(joint: str, kind: str) -> Effector:
