@@ -48,8 +48,6 @@ def joint_drags(argv: list[str]) -> int:
     if not args.clips.is_dir():
         print(f"error: clips folder {args.clips} not found (give --clips DIR of BVH files).", file=sys.stderr)
         return 1
-    import shape_inversion.auto_preset  # noqa: F401 - the rig mapper's preset "auto"
-
     clips = clips_from_folder(args.clips, preset=args.clips_preset)
     solver = IKSolver.load()
     start = time.process_time()

@@ -74,7 +74,7 @@ def cmu_middle_frames(cmu: Path, count: int) -> list[Pose]:
 
 
 def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.dataset import build_cache, find_sources, load_cache, load_split
 
     if not cache.is_file():
@@ -86,7 +86,8 @@ def load_test_poses(cache: Path, count: int) -> list[Pose] | None:
             return cmu_middle_frames(cmu, count)
         cache = Path("/tmp/smplik_effector_recovery_cmu.npz")
         if not cache.is_file():
-            build_cache(find_sources(cmu, "bvh"), fps=30, split=load_split(split), out=cache)
+            build_cache(find_sources(cmu, "bvh"), fps=30, split=load_split(split), out=cache,
+                        rig_mapper=auto_preset)
     test = load_cache(cache).subset("test")
     index = np.linspace(0, len(test) - 1, count).round().astype(int)
     poses = []

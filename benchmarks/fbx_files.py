@@ -40,7 +40,7 @@ from smplik.atomic import write_json_atomic  # noqa: E402
 def measure(path: Path) -> dict:
     import numpy as np
 
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto"
+    from shape_inversion.auto_preset import auto_preset
     from shape_inversion.estimator import ShapeInversionError
     from shape_inversion.skeleton_io import _neutral_estimator, read_character
     from smplik.data.fbx import read_fbx_info
@@ -75,7 +75,7 @@ def measure(path: Path) -> dict:
                                         "within_3pct": max(posed.values()) <= 3.0}
     if motion.num_frames > 1:
         t0 = time.process_time()
-        clip = retarget_bvh(motion, preset="auto")
+        clip = retarget_bvh(motion, preset="auto", rig_mapper=auto_preset)
         cpu = time.process_time() - t0
         errors = bone_direction_errors(clip, frames=slice(0, None, 5))
         row["data_build"] = {"frames": clip.num_frames,

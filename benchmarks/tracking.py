@@ -236,7 +236,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     threadpool_limits(1)  # numpy's BLAS on one thread too (the per-frame path is numpy)
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.dataset import build_cache, find_sources, load_cache
 
     split_file = ROOT / "configs" / "split_cmu_dance.json"
@@ -245,7 +245,7 @@ def main() -> None:
     cache = Path(args.cache)
     if not cache.exists():
         sources = [s for s in find_sources(cmu, "bvh") if s.path.name in wanted]
-        build_cache(sources, fps=60, split=split_file, out=cache)
+        build_cache(sources, fps=60, split=split_file, out=cache, rig_mapper=auto_preset)
     data = load_cache(cache)
     missing = wanted - set(data.clip_names)
     if missing:

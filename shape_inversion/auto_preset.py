@@ -1,8 +1,9 @@
 """``preset="auto"`` of BVH retargeting (:mod:`smplik.data.retarget`): the rig mapper picks the preset of a clip.
 
-Importing this module installs :func:`auto_preset` in :func:`smplik.data.retarget.register_rig_mapper`:
-smplik, the lowest package, cannot import the mapper (:mod:`shape_inversion.rigs`), so the mapper registers
-itself. The ``smplik data`` commands (:mod:`shape_inversion.data_cli`) and the edit benchmark import it.
+smplik, the lowest package, cannot import the mapper (:mod:`shape_inversion.rigs`), so the callers above it
+pass :func:`auto_preset` explicitly (``retarget_bvh(..., rig_mapper=auto_preset)``, ``build_cache``'s and
+``read_source``'s ``rig_mapper``): the ``smplik data`` commands, the edit benchmark, tracking from a motion
+file. Importing this module installs nothing.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from smplik.data.retarget import (
     RetargetPreset,
     load_preset,
     preset_names,
-    register_rig_mapper,
     resolve_joint_names,
 )
 
@@ -75,6 +75,3 @@ def _offsets_one_way(motion: BVHMotion) -> bool:
     lengths = np.linalg.norm(off, axis=-1)
     off = off[lengths > 1e-9] / lengths[lengths > 1e-9, None]
     return len(off) >= 5 and bool(np.all(off @ off[0] > 0.999))
-
-
-register_rig_mapper(auto_preset)

@@ -62,7 +62,7 @@ def build(
     model_dir: ModelDirOpt = None,
 ) -> None:
     """Build a training cache from a BVH folder (--bvh) or an AMASS folder (--amass)."""
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data import dataset
 
     if (bvh is None) == (amass is None):
@@ -117,7 +117,8 @@ def build(
         try:
             summary = dataset.build_cache(sources, fps=fps, split=spec, out=out, preset=preset,
                                           dtype=dtype.value, body_models=body_models,
-                                          skip_unassigned=skip_unassigned, progress=advance)
+                                          skip_unassigned=skip_unassigned, progress=advance,
+                                          rig_mapper=auto_preset)
         except (ValueError, FileNotFoundError) as exc:
             progress.stop()
             from smplik.cli.errors import fail

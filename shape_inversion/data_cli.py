@@ -51,7 +51,7 @@ def preview(
     import numpy as np
     import torch
 
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
+    from shape_inversion.auto_preset import auto_preset
     from smplik.body_model import load_body_model
     from smplik.data.bvh import BVHError
     from smplik.data.retarget import RetargetError, read_motion, retarget_bvh
@@ -62,7 +62,7 @@ def preview(
     path = resolve_clip(clip)
     try:
         motion = read_motion(path)
-        rc = retarget_bvh(motion, preset, gender=gender, model_dir=model_dir)
+        rc = retarget_bvh(motion, preset, gender=gender, model_dir=model_dir, rig_mapper=auto_preset)
     except (BVHError, RetargetError) as exc:
         fail(exc)
     picks = np.linspace(rc.motion_start, rc.num_frames - 1, frames).round().astype(int)

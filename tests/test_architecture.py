@@ -4,6 +4,11 @@ Layers, lowest first: ``smplik`` (body, IK model, training, data) -> ``shape_inv
 A module may import modules of its own layer or of a lower one, never of a higher one, and the graph of
 module-to-module imports has no cycle. Every import counts: module level, inside functions, inside
 ``if TYPE_CHECKING:`` blocks, and relative imports (``from .x import y``).
+
+One upward edge is the design: the console-script entry point (``smplik.cli.main``, the composition root)
+reads the command table at the top layer (``workflows.commands``), whose loaders import every command's
+module, so every command's dependencies are edges of this graph. It is the only upward edge allowed, and it
+takes part in the cycle check.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("smplik", "shape_inversion", "workflows")
+COMPOSITION_ROOT = "smplik.cli.main -> workflows.commands"
+"""The one upward import: the entry point reads the command table (see the module docstring)."""
 
 
 def _module_name(path: Path, root: Path) -> str:
@@ -156,7 +163,7 @@ def _cycle_path(graph: dict[str, set[str]], component: list[str]) -> list[str]:
 
 
 def test_no_upward_import() -> None:
-    edges = upward_edges(import_graph())
+    edges = [e for e in upward_edges(import_graph()) if e != COMPOSITION_ROOT]
     layers = " < ".join(LAYERS)
     assert not edges, f"imports from a lower layer to a higher one ({layers}):\n" + "\n".join(edges)
 
@@ -198,3 +205,77 @@ def test_graph_sees_real_imports() -> None:
     """The graph is not empty by accident: the solver's imports of its own package are edges."""
     graph = import_graph()
     assert "smplik.body_model" in graph["smplik.solver"]
+
+
+def test_the_entry_point_reads_the_command_table_with_one_visible_import() -> None:
+    """``smplik.cli.main``'s one upward edge is the table; the table names no command by a string: each row's
+    loader returns an attribute of a module that ``workflows.commands`` imports (an edge of the graph)."""
+    import importlib
+    import inspect
+
+    from workflows.commands import COMMANDS
+
+    graph = import_graph()
+    assert [e for e in upward_edges(graph) if e.startswith("smplik.cli.")] == [COMPOSITION_ROOT]
+    for name, (loader, short) in COMMANDS.items():
+        assert callable(loader) and short, name
+        imports = [n for n in ast.walk(ast.parse(inspect.getsource(loader))) if isinstance(n, ast.ImportFrom)]
+        assert len(imports) == 1 and len(imports[0].names) == 1, f"{name}: the loader imports one command"
+        module, attribute = imports[0].module, imports[0].names[0].name
+        assert module in graph["workflows.commands"], f"{name}: {module} is no edge of workflows.commands"
+        assert loader() is getattr(importlib.import_module(module), attribute), name
+
+
+def _module_level_calls_on_imports(root: Path = ROOT) -> list[str]:
+    """Module-level call statements whose callee is not the module's own object (``register(x)`` on an imported
+    function: a side effect on another module at import time). ``app.command(...)(f)`` on the module's own
+    ``app`` is its own business; a ``__main__.py`` is a script."""
+    found = []
+    for package in LAYERS:
+        for path in sorted((root / package).rglob("*.py")):
+            if path.name == "__main__.py":
+                continue
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            own = {t.id for node in tree.body if isinstance(node, (ast.Assign, ast.AnnAssign))
+                   for t in (node.targets if isinstance(node, ast.Assign) else [node.target])
+                   if isinstance(t, ast.Name)}
+            own |= {node.name for node in tree.body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
+            for node in tree.body:
+                if isinstance(node, ast.Expr) and isinstance(node.value, ast.Call):
+                    base = node.value.func
+                    while isinstance(base, (ast.Attribute, ast.Call)):
+                        base = base.value if isinstance(base, ast.Attribute) else base.func
+                    if not (isinstance(base, ast.Name) and base.id in own):
+                        found.append(f"{_module_name(path, root)}:{node.lineno}: {ast.unparse(node)[:80]}")
+    return found
+
+
+def test_no_module_registers_anything_on_import() -> None:
+    """No module calls into another at import time (the rig mapper of ``preset="auto"`` is passed explicitly as
+    ``rig_mapper``, not installed by importing ``shape_inversion.auto_preset``)."""
+    calls = _module_level_calls_on_imports()
+    assert not calls, "module-level calls with a side effect on another module:\n" + "\n".join(calls)
+    from smplik.data import retarget
+
+    assert not [n for n in vars(retarget) if "register" in n.lower() or n == "_rig_mapper"]
+
+
+def test_the_side_effect_check_finds_an_import_time_registration(tmp_path: Path) -> None:
+    _write(tmp_path, {"smplik/__init__.py": "", "smplik/r.py": "from smplik.q import register\nregister(len)\n",
+                      "smplik/ok.py": "import typer\napp = typer.Typer()\napp.command('x')(len)\n",
+                      "shape_inversion/__init__.py": "", "workflows/__init__.py": ""})
+    assert _module_level_calls_on_imports(tmp_path) == ["smplik.r:2: register(len)"]
+
+
+def test_preset_auto_needs_the_mapper_passed_even_after_importing_it(tmp_path: Path) -> None:
+    import pytest
+
+    import shape_inversion.auto_preset as auto
+    from smplik.data.retarget import RetargetError, read_motion, retarget_bvh
+    from workflows.examples_gen import write_mixamo_character
+
+    motion = read_motion(write_mixamo_character(tmp_path / "m.bvh"))
+    with pytest.raises(RetargetError, match="m.bvh: preset 'auto' needs a rig mapper"):
+        retarget_bvh(motion, "auto")
+    clip = retarget_bvh(motion, "auto", rig_mapper=auto.auto_preset)
+    assert clip.num_frames == motion.num_frames

@@ -51,7 +51,6 @@ def _cli(*args):
 @pytest.mark.parametrize("producer", sorted(PRODUCERS))
 def test_invert_shape_and_data_build_read_the_same_map(producer, tmp_path):
     """``invert-shape`` succeeds with no option, and ``data build``'s retarget map is the one it prints."""
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto"
     from shape_inversion.auto_preset import auto_preset
     from smplik.data.retarget import read_motion, resolve_joint_names
 
@@ -69,7 +68,6 @@ def test_invert_shape_and_data_build_read_the_same_map(producer, tmp_path):
 def test_axis_neuron_maps_its_four_spine_joints_where_its_arms_branch(tmp_path):
     """Axis Neuron's ``Spine .. Spine3``: spine3 is ``Spine3`` (the arms' parent) in every command, not the
     Mixamo preset's ``Spine2``; no toe joints: the feet are the last leg joints."""
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto"
     from shape_inversion.auto_preset import auto_preset
     from smplik.data.retarget import read_motion
 

@@ -20,7 +20,7 @@ def test_cmu_dance_builds_a_training_cache_with_no_map(shared_data, tmp_path):
     preset = auto_preset(motion)  # mapped by topology: no preset knows hip/abdomen/lThigh/rShin
     assert preset.joints["left_hip"] == "lThigh" and preset.joints["right_elbow"] == "rForeArm"
     assert preset.joints["spine3"] == "chest" and preset.up == "y" and preset.units == 0.01
-    clip = retarget_bvh(motion, preset="auto", fps=30)
+    clip = retarget_bvh(motion, preset="auto", fps=30, rig_mapper=auto_preset)
     errors = bone_direction_errors(clip, frames=slice(0, None, 10))
     assert errors.mean() < 1.0, errors.group_means()  # the retargeted bones follow the dancer's
 

@@ -268,7 +268,7 @@ def test_build_from_cmu_bvh(tmp_path: Path, shared_data) -> None:
     cmu_dir = shared_data.cmu("09_06.bvh").parent
     import shutil
 
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto", which build_cache's default uses
+    from shape_inversion.auto_preset import auto_preset  # preset "auto", build_cache's default
     from smplik.data.retarget import retarget_bvh
 
     src_dir = tmp_path / "bvh"
@@ -276,7 +276,8 @@ def test_build_from_cmu_bvh(tmp_path: Path, shared_data) -> None:
     for name in ("09_06.bvh", "02_03.bvh"):  # 142 and 174 frames, both test subjects
         shutil.copy(cmu_dir / name, src_dir / name)
     out = tmp_path / "cmu.npz"
-    summary = build_cache(find_sources(src_dir, "bvh"), fps=30, split=cmu_dir / "split.json", out=out)
+    summary = build_cache(find_sources(src_dir, "bvh"), fps=30, split=cmu_dir / "split.json", out=out,
+                          rig_mapper=auto_preset)
     assert summary.frames == {"train": 0, "validation": 0, "test": 44 + 36}
     ds = load_cache(out)
     assert ds.clip_names == ("02_03.bvh", "09_06.bvh") and ds.subject_names == ("02", "09")

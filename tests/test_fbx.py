@@ -156,12 +156,12 @@ def test_data_build_turns_a_folder_of_fbx_clips_into_training_data(tmp_path):
     import typer
     from typer.testing import CliRunner
 
-    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
+    from shape_inversion.auto_preset import auto_preset
     from shape_inversion.data_build_cli import build
     from smplik.data.dataset import load_cache
     from smplik.data.retarget import bone_direction_errors, read_motion, retarget_bvh
 
-    clip = retarget_bvh(read_motion(HUMAN_IK_ASCII), preset="auto", fps=24)
+    clip = retarget_bvh(read_motion(HUMAN_IK_ASCII), preset="auto", fps=24, rig_mapper=auto_preset)
     errors = bone_direction_errors(clip, frames=slice(0, None, 10))
     assert errors.mean() < 1.0, errors.group_means()
     folder = tmp_path / "clips"
@@ -181,7 +181,7 @@ def test_data_build_turns_a_folder_of_fbx_clips_into_training_data(tmp_path):
 def test_a_bvh_without_toe_joints_builds_with_the_preset_it_nearly_fits(tmp_path):
     """A Perception-Neuron-like Mixamo-named BVH without toes: ``data build`` once refused it (``preset 'mixamo'
     names source joints the file does not have: left_foot -> mixamorig:LeftToeBase``)."""
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto"
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.retarget import read_motion, retarget_bvh
     from workflows.examples_gen import write_mixamo_character
 
@@ -204,7 +204,7 @@ def test_a_bvh_without_toe_joints_builds_with_the_preset_it_nearly_fits(tmp_path
                                          + " ".join(["0"] * channels) + "\n")
     motion = read_motion(tmp_path / "notoes.bvh")
     assert not any("Toe" in n for n in motion.joint_names)
-    clip = retarget_bvh(motion, preset="auto")
+    clip = retarget_bvh(motion, preset="auto", rig_mapper=auto_preset)
     assert clip.num_frames == motion.num_frames and np.isfinite(clip.body_pose).all()
 
 
@@ -345,8 +345,8 @@ def test_a_gltf_requiring_ktx_textures_or_quantization_still_reads(tmp_path):
 def test_an_fbx_animation_pack_becomes_one_clip_per_animated_take(tmp_path, monkeypatch):
     """A Unity / Blender export of several actions in one FBX (``Armature|Idle``, ``Armature|Walk``): each animated
     take is a clip (``pack.fbx#Armature|Walk``); a Mixamo file's empty ``Take 001`` is no clip."""
-    import shape_inversion.auto_preset  # noqa: F401, I001 - installs preset "auto"
     import smplik.data.fbx as fbx
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.dataset import find_sources, read_source
     from smplik.data.fbx import FbxTake, read_fbx, read_fbx_takes
 
@@ -361,10 +361,10 @@ def test_an_fbx_animation_pack_becomes_one_clip_per_animated_take(tmp_path, monk
     sources = find_sources(folder, "bvh")
     assert [(s.name, s.take) for s in sources] == [("pack.fbx#Take 001", "Take 001"),
                                                   ("pack.fbx#Armature|Walk", "Armature|Walk"), ("single.fbx", None)]
-    seq = read_source(sources[0])  # the named take is read
+    seq = read_source(sources[0], rig_mapper=auto_preset)  # the named take is read
     assert seq.num_frames == read_fbx(HUMAN_IK_ASCII, take="Take 001").num_frames
     with pytest.raises(ValueError, match=re.escape("no take 'Armature|Walk'; takes: 'Take 001'")):
-        read_source(sources[1])  # (this file has one take: the error names the take and the file's takes)
+        read_source(sources[1], rig_mapper=auto_preset)  # (one take: the error names the take and the file's takes)
 
 
 def test_scene_animate_takes_an_fbx_character_and_writes_its_own_skeleton(tmp_path, monkeypatch, best_solver):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 
 def test_contact_config_has_the_cleaning_defaults():
@@ -38,10 +39,12 @@ def test_every_character_command_has_the_same_character_options():
         assert "character_cli" not in params
 
 
-def test_auto_preset_is_installed_by_shape_inversion(shared_data):
+def test_auto_preset_is_passed_explicitly_by_shape_inversion(shared_data):
     import shape_inversion.auto_preset as auto
     from smplik.data import retarget
     from smplik.data.bvh import read_bvh
 
     motion = read_bvh(shared_data.cmu("09_06.bvh"))
-    assert retarget.auto_preset(motion) == auto.auto_preset(motion)
+    assert retarget.resolve_preset(motion, "auto", auto.auto_preset) == auto.auto_preset(motion)
+    with pytest.raises(retarget.RetargetError, match="09_06.bvh: preset 'auto' needs a rig mapper"):
+        retarget.resolve_preset(motion, "auto")

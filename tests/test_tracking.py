@@ -444,7 +444,7 @@ def test_track_command_writes_an_animation(tmp_path):
 def test_shipped_model_beats_a_trivial_baseline_on_held_out_cmu(shared_data, model):
     """CMU 02_01 (subject 02: test split): trackers from the motion; the model's MPJPE is far below the rest pose
     placed at the pelvis tracker, turned to the head's heading."""
-    import shape_inversion.auto_preset  # noqa: F401 - preset "auto", as the data commands install it
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.dataset import find_sources, read_source, subsample_indices
     from smplik.kinematics import forward_kinematics
     from smplik.rotations import axis_angle_to_matrix
@@ -453,7 +453,7 @@ def test_shipped_model_beats_a_trivial_baseline_on_held_out_cmu(shared_data, mod
 
     path = shared_data.cmu("02_01.bvh")
     src = next(s for s in find_sources(path.parent, "bvh") if s.path.name == "02_01.bvh")
-    seq = read_source(src)
+    seq = read_source(src, rig_mapper=auto_preset)
     idx = subsample_indices(seq.num_frames, seq.fps, 60.0)[:240]
     R = axis_angle_to_matrix(torch.as_tensor(seq.pose[idx], dtype=torch.float64)).numpy()
     transl = seq.transl[idx].astype(np.float64)

@@ -28,13 +28,13 @@ def rest_joints(betas=None, gender=Gender.NEUTRAL) -> np.ndarray:
 @pytest.fixture(scope="module")
 def cmu_motion(shared_data):
     """CMU 02_05 (punch/strike, subject 02: test split) at 60 Hz, 300 frames: R_local, transl, J_rest."""
-    import shape_inversion.auto_preset  # noqa: F401 - preset "auto", as the data commands install it
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.dataset import find_sources, read_source, subsample_indices
     from smplik.rotations import axis_angle_to_matrix
 
     path = shared_data.cmu("02_05.bvh")
     src = next(s for s in find_sources(path.parent, "bvh") if s.path.name == "02_05.bvh")
-    seq = read_source(src)
+    seq = read_source(src, rig_mapper=auto_preset)
     idx = subsample_indices(seq.num_frames, seq.fps, 60.0)[60:360]
     R = axis_angle_to_matrix(torch.as_tensor(seq.pose[idx], dtype=torch.float64)).numpy()
     return R, seq.transl[idx].astype(np.float64), rest_joints()

@@ -1,8 +1,10 @@
 """The ``smplik`` command tree, built from each component's command group.
 
-Commands are loaded lazily: ``smplik --help`` lists :data:`COMMANDS` without importing any of them, and
-``smplik scene export --help`` imports only ``workflows.cli`` (whose top level imports no torch), so help
-answers fast. To add a command, add one row to :data:`COMMANDS`.
+The command table is :data:`workflows.commands.COMMANDS`, at the top layer, where every command's module is a
+real import (inside its loader function, so the layering test sees it); this entry point reads it with its one
+import of the top layer. Commands are loaded lazily: ``smplik --help`` lists the table without importing any
+command, and ``smplik scene export --help`` imports only ``workflows.cli`` (whose top level imports no torch),
+so help answers fast. To add a command, add one row to :data:`workflows.commands.COMMANDS`.
 
 Help is click's plain layout (flags as flags, ``ARGUMENTS`` in capitals, option names never cut), and
 every user error, usage errors included, is one ``error: ...`` line on stderr with exit status 1
@@ -11,105 +13,23 @@ every user error, usage errors included, is one ``error: ...`` line on stderr wi
 
 from __future__ import annotations
 
-import importlib
 import os
-import re
 import sys
 from typing import Any
 
 import typer
-from typer.core import TyperArgument, TyperGroup
+from typer.core import TyperGroup
 
 from smplik.cli.errors import error_message, is_user_error, print_error
-from smplik.cli.outputs import guard_outputs
+from workflows import commands  # the command table (top layer): the composition root's one upward import
 
 _CLICK = {c.__name__: c for c in typer.BadParameter.__mro__}  # typer's (vendored) click exception classes
 ClickException, UsageError, Abort = _CLICK["ClickException"], _CLICK["UsageError"], typer.Abort
 NoArgsIsHelpError = next(c for c in UsageError.__subclasses__() if c.__name__ == "NoArgsIsHelpError")
 
-COMMANDS: dict[str, tuple[str, str]] = {
-    # name: ("module:attribute" (a typer command function or a typer.Typer group), one-line help)
-    "demo": ("workflows.cli:demo_cmd", "The whole chain on built-in material: estimator file -> scenes, BVH."),
-    "solve": ("smplik.cli.solve:solve_command", "Solve an SMPL pose for the effectors in a JSON file."),
-    "scene": ("workflows.cli:scene_app", "Editable scenes: from estimator outputs, re-solve, render, export."),
-    "edit": ("workflows.editor.cli:edit_cmd", "Edit a scene in the browser (needs the edit extra: viser)."),
-    "invert-shape": ("shape_inversion.cli:invert_shape", "SMPL-SI: custom skeleton -> SMPL shape (beta) and scale."),
-    "body": ("smplik.cli.body:body_app", "Body models: export, inspect and render."),
-    "data": ("shape_inversion.data_cli:app", "Motion data: build pose caches from BVH/AMASS, preview retargeting."),
-    "train": ("smplik.cli.train:train_command", "Train SMPL-IK on a pose cache (resumable; torchrun for DDP)."),
-    "export-model": ("smplik.cli.models:export_command", "Compact inference model and/or ONNX graph of a checkpoint."),
-    "average-models": ("smplik.cli.models:average_command", "Average models fine-tuned from one start (model soup)."),
-    "benchmark": ("workflows.benchmark_cli:app",
-                  "Randomized-effector IK benchmark: make files, run methods, calibrate."),
-    "track": ("workflows.tracking.cli:track_cmd", "Full body from VR trackers (head, wrists, pelvis) -> animation."),
-    "batch": ("workflows.batch.cli:app", "One job over many inputs (folder, glob, manifest): local pool or Ray."),
-}
-"""Every top-level command, in the order ``smplik --help`` lists them."""
-
-_TYPE_NAMES = {"int": "INTEGER", "float": "FLOAT", "str": "TEXT", "bool": "BOOLEAN"}
-_DEFAULT_IN_HELP = re.compile(r"\s*\(default:?\s+((?:[^()]|\([^()]*\))*)\)")
-
-
-class _PlainArgument(TyperArgument):
-    """An argument shown as click shows it: ``NAME`` (required) or ``[NAME]`` in the usage line, no type."""
-
-    def _usage_display_name(self) -> str:
-        return self.display_name_raw if self.required else f"[{self.display_name_raw}]"
-
-    def display_type_rich(self, ctx: Any) -> None:
-        return None
-
-
-def _one_default_style(param: Any) -> None:
-    """Write every default as ``[default: X]`` after the help: a "(default: X)" in the help text moves
-    there, and a flag that is off by default shows none."""
-    if getattr(param, "is_flag", False) and not param.default:
-        param.show_default = False
-    match = _DEFAULT_IN_HELP.search(param.help or "")
-    if match:
-        param.help = (param.help[:match.start()] + param.help[match.end():]).rstrip()
-        param.help = f"{param.help}  [default: {match.group(1).strip()}]"
-        param.show_default = False
-
-
-def _plain_help(command: Any) -> Any:
-    """Give ``command`` (and its subcommands) click's plain help layout and capitalised metavars."""
-    command.rich_markup_mode = None
-    command.params = [p for p in command.params if p.name not in ("install_completion", "show_completion")]
-    for param in command.params:
-        _one_default_style(param)
-        if type(param) is TyperArgument:
-            param.__class__ = _PlainArgument
-        if param.metavar is not None or getattr(param, "is_flag", False):
-            continue
-        if param.param_type_name == "argument":
-            param.metavar = param.name.upper() + ("..." if param.nargs != 1 else "")
-            continue
-        desc = param.type_descriptor
-        if desc.is_choice:
-            param.metavar = "[" + "|".join(str(getattr(c, "value", c)) for c in desc.choices) + "]"
-        elif desc.is_path:
-            param.metavar = "FILE" if desc.path_type == "file" else "PATH"
-        else:
-            param.metavar = _TYPE_NAMES.get(param.bare_type(), param.bare_type().upper())
-        if param.nargs != 1 or getattr(param, "multiple", False):
-            param.metavar += "..."
-    for sub in getattr(command, "commands", {}).values():
-        _plain_help(sub)
-    return command
-
-
-def load_command(name: str) -> Any:
-    """Import the command ``name`` of :data:`COMMANDS` and return it as a click command."""
-    module, attribute = COMMANDS[name][0].split(":")
-    obj = getattr(importlib.import_module(module), attribute)
-    if not isinstance(obj, typer.Typer):
-        single = typer.Typer(add_completion=False)
-        single.command(name)(obj)
-        obj = single
-    command = typer.main.get_command(obj)
-    command.name = name
-    return guard_outputs(_plain_help(command))
+COMMANDS = commands.COMMANDS
+"""Every top-level command, in the order ``smplik --help`` lists them (:data:`workflows.commands.COMMANDS`)."""
+load_command = commands.load_command
 
 
 class SmplikGroup(TyperGroup):

@@ -45,7 +45,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -54,6 +54,9 @@ from torch import Tensor
 from smplik.atomic import savez_atomic
 from smplik.conventions import NUM_BETAS, NUM_JOINTS, Gender
 from smplik.data.amass import PoseSequence, read_amass
+
+if TYPE_CHECKING:
+    from smplik.data.retarget import RigMapper
 
 __all__ = [
     "CACHE_VERSION",
@@ -295,15 +298,18 @@ def _rest_pelvis_fn(body_models: Any) -> Callable[[np.ndarray | None, Gender | N
     return rest_pelvis
 
 
-def read_source(source: ClipSource, *, preset: str = "auto", body_models: Any = None) -> PoseSequence:
+def read_source(source: ClipSource, *, preset: str = "auto", body_models: Any = None,
+                rig_mapper: RigMapper | None = None) -> PoseSequence:
     """Read one clip as y-up SMPL poses.
 
     Args:
         source: the clip.
-        preset: BVH rig preset for :func:`smplik.data.retarget.retarget_bvh` (``"auto"``: the rig mapper
-            maps each clip, :func:`smplik.data.retarget.auto_preset`).
+        preset: BVH rig preset for :func:`smplik.data.retarget.retarget_bvh` (``"auto"``: ``rig_mapper``
+            maps each clip).
         body_models: a :class:`smplik.body_model.BodyModelSet` giving AMASS's rest pelvis for the
             z-up -> y-up translation (see :mod:`smplik.data.amass`); None assumes ``J0 = 0``.
+        rig_mapper: the rig mapper behind ``preset="auto"`` (:func:`shape_inversion.auto_preset.auto_preset`);
+            needed for BVH/FBX clips read with ``preset="auto"``.
 
     BVH clips drop the source's rest frames (the preset's ``motion_start``; frame 0 for CMU)
     and carry no betas or gender (the retargeted skeleton is the neutral beta = 0 body).
@@ -316,9 +322,10 @@ def read_source(source: ClipSource, *, preset: str = "auto", body_models: Any = 
         if source.take is not None:
             from smplik.data.fbx import read_fbx
 
-            clip = retarget_bvh(read_fbx(source.path, take=source.take), preset=preset)
+            clip = retarget_bvh(read_fbx(source.path, take=source.take), preset=preset,
+                                rig_mapper=rig_mapper)
         else:
-            clip = retarget_bvh(source.path, preset=preset)
+            clip = retarget_bvh(source.path, preset=preset, rig_mapper=rig_mapper)
         start = int(clip.motion_start)
         if clip.num_frames <= start:
             raise ValueError(f"{source.path}: no motion frames after the {start} rest frame(s).")
@@ -367,6 +374,7 @@ def build_cache(
     skip_unassigned: bool = False,
     progress: Callable[[ClipSource], None] | None = None,
     reader: Callable[[ClipSource], PoseSequence] | None = None,
+    rig_mapper: RigMapper | None = None,
 ) -> CacheSummary:
     """Read, split, subsample and write ``sources`` as one cache ``.npz`` (atomically).
 
@@ -384,6 +392,8 @@ def build_cache(
         skip_unassigned: leave out clips of no split instead of raising.
         progress: called with each clip once it is done.
         reader: reads one clip (default :func:`read_source`); for tests and custom formats.
+        rig_mapper: the rig mapper behind ``preset="auto"`` for BVH/FBX sources
+            (:func:`shape_inversion.auto_preset.auto_preset`).
 
     Raises:
         ValueError: no sources, a bad split, an unassigned clip (unless skipped), a clip that
@@ -407,7 +417,8 @@ def build_cache(
             from smplik.body_model import BodyModelSet
 
             body_models = BodyModelSet.load()
-        reader = functools.partial(read_source, preset=preset, body_models=body_models)
+        reader = functools.partial(read_source, preset=preset, body_models=body_models,
+                                   rig_mapper=rig_mapper)
 
     assignments = [spec.assign(s) for s in sources]
     unassigned = tuple(s.name for s, a in zip(sources, assignments, strict=True) if a is None)

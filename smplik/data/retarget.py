@@ -161,31 +161,25 @@ def resolve_joint_names(wanted: dict[str, str], names: tuple[str, ...]) -> dict[
 
 
 RigMapper = Callable[[BVHMotion], "RetargetPreset"]
-"""A rig mapper: a parsed BVH clip -> the preset that retargets it (``preset="auto"``)."""
-_rig_mapper: RigMapper | None = None
+"""A rig mapper: a parsed BVH clip -> the preset that retargets it (``preset="auto"``).
+
+The mapper (topology, geometry and names) is shape_inversion's, above this package: the caller passes it
+(``rig_mapper=shape_inversion.auto_preset.auto_preset``); nothing is installed globally."""
 
 
-def register_rig_mapper(mapper: RigMapper) -> None:
-    """Install the rig mapper behind ``preset="auto"``.
+def resolve_preset(motion: BVHMotion, preset: str | Path | dict[str, Any] | RetargetPreset,
+                   rig_mapper: RigMapper | None = None) -> RetargetPreset:
+    """The preset of ``motion``: ``"auto"`` asks ``rig_mapper``; anything else is :func:`load_preset`'s.
 
-    The mapper (topology, geometry and names) is shape_inversion's, above this package:
-    :mod:`shape_inversion.auto_preset` installs :func:`shape_inversion.auto_preset.auto_preset` when it is
-    imported (the ``smplik data`` commands and the edit benchmark import it), so smplik imports nothing above it.
+    Raises :class:`RetargetError` naming the clip when ``preset="auto"`` and no mapper is given.
     """
-    global _rig_mapper
-    _rig_mapper = mapper
-
-
-def auto_preset(motion: BVHMotion) -> RetargetPreset:
-    """The preset of a BVH clip found by the installed rig mapper (``preset="auto"``; no hand-written map).
-
-    Raises :class:`RetargetError` naming the clip when it is not a humanoid, or when no mapper is installed
-    (:func:`register_rig_mapper`).
-    """
-    if _rig_mapper is None:
-        raise RetargetError(f"{motion.name}: preset 'auto' needs the rig mapper (import shape_inversion.auto_preset, "
-                            "as the smplik data commands do), or give a preset name or JSON file.")
-    return _rig_mapper(motion)
+    if not (isinstance(preset, str) and preset == "auto"):
+        return load_preset(preset)
+    if rig_mapper is None:
+        raise RetargetError(f"{motion.name}: preset 'auto' needs a rig mapper (rig_mapper="
+                            "shape_inversion.auto_preset.auto_preset, as the smplik data commands pass), "
+                            "or give a preset name or JSON file.")
+    return rig_mapper(motion)
 
 
 MOTION_SUFFIXES = (".bvh", ".fbx")
@@ -387,12 +381,13 @@ def retarget_bvh(
     scale_root: bool = True,
     fit_directions: bool = True,
     model_dir: str | Path | None = None,
+    rig_mapper: RigMapper | None = None,
 ) -> RetargetedClip:
     """Retarget a BVH clip onto SMPL (method in the module docstring).
 
     Args:
         path_or_motion: a BVH path or a parsed :class:`BVHMotion`.
-        preset: ``"auto"`` (:func:`auto_preset`: the rig mapper), a built-in preset name, JSON path, dict,
+        preset: ``"auto"`` (``rig_mapper`` picks it), a built-in preset name, JSON path, dict,
             or :class:`RetargetPreset`.
         gender: body model whose rest skeleton ``J(betas)`` receives the motion.
         betas: (10,) shape; zeros by default.
@@ -402,6 +397,8 @@ def retarget_bvh(
         fit_directions: apply the per-frame direction fit (step 4); False gives rest alignment only
             (an ablation for the quality benchmark).
         model_dir: real SMPL files (default: ``$SMPLIK_MODEL_DIR`` or the built-in model).
+        rig_mapper: the :data:`RigMapper` behind ``preset="auto"``
+            (:func:`shape_inversion.auto_preset.auto_preset`).
 
     Returns:
         A :class:`RetargetedClip` with T frames (all source frames, or resampled).
@@ -409,7 +406,7 @@ def retarget_bvh(
     from smplik.body_model import load_body_model
 
     motion = path_or_motion if isinstance(path_or_motion, BVHMotion) else read_motion(path_or_motion)
-    preset = auto_preset(motion) if isinstance(preset, str) and preset == "auto" else load_preset(preset)
+    preset = resolve_preset(motion, preset, rig_mapper)
     gender = Gender.parse(gender)
     model = load_body_model(gender, model_dir)
     betas_np = check_betas(betas)

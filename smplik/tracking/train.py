@@ -9,12 +9,11 @@ the predicted ankle/foot speed on the truth's contact frames (m/s / 10) + ``cont
 Validation: deterministic (eps = 0) MPJPE on fixed windows of the validation
 split; the best state is the one saved.
 
-Usage: ``python -m smplik.tracking.train CACHE OUT.pt [--minutes M] [--kind cvae|mlp]``.
+Usage: ``smplik track-train CACHE OUT.pt [--minutes M] [--kind cvae|mlp]`` (:mod:`smplik.cli.track_train`).
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import json
@@ -31,7 +30,7 @@ from smplik.body_model import BodyModelSet
 from smplik.conventions import JOINT_INDEX
 from smplik.data.dataset import load_cache
 from smplik.kinematics import forward_kinematics
-from smplik.tracking.config import TrackingNetConfig, TrackingTrainConfig
+from smplik.tracking.config import TrackingTrainConfig
 from smplik.tracking.data import WindowBatch, WindowSampler
 from smplik.tracking.features import NUM_OUT_ROT, decode_pose
 from smplik.tracking.model_io import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, save_checkpoint
@@ -192,36 +191,3 @@ def train(cfg: TrackingTrainConfig, out: str | Path, log: Any = print, init: str
     save_checkpoint(out, net, info, pose_lo=lo, pose_hi=hi)
     write_json_atomic(Path(out).with_suffix(".json"), info)
     return info
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("cache")
-    ap.add_argument("out")
-    ap.add_argument("--minutes", type=float, default=TrackingTrainConfig.minutes)
-    ap.add_argument("--kind", choices=["cvae", "mlp"], default="cvae")
-    ap.add_argument("--trackers", choices=["3", "4"], default="4")
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--device", default="cpu", help="Torch device of the network, e.g. cuda.")
-    ap.add_argument("--workers", type=int, default=0, help="Background processes drawing batches.")
-    ap.add_argument("--batch", type=int, default=TrackingTrainConfig.batch)
-    ap.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: the config's; half of "
-                    "it when continuing with --init).")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--init", default=None, help="Model file to continue from.")
-    ap.add_argument("--rotation-weight", type=float, default=TrackingTrainConfig.rotation_weight)
-    args = ap.parse_args()
-    from smplik.tracking.config import TRACKER_SETS
-
-    net = TrackingNetConfig(kind=args.kind, trackers=TRACKER_SETS[args.trackers])
-    cfg = dataclasses.replace(TrackingTrainConfig(), cache=args.cache, net=net, minutes=args.minutes,
-                              threads=args.threads, seed=args.seed + (1 if args.init else 0),
-                              lr=args.lr or TrackingTrainConfig.lr * (0.5 if args.init else 1.0),
-                              rotation_weight=args.rotation_weight, device=args.device, workers=args.workers,
-                              batch=args.batch)
-    info = train(cfg, args.out, log=lambda s: print(s, flush=True), init=args.init)
-    print(f"best validation MPJPE {info['val_mpjpe_mm']:.1f} mm after {info['steps']} steps")
-
-
-if __name__ == "__main__":
-    main()

@@ -65,6 +65,31 @@ JOBS: dict[str, Job] = {job.name: job for job in (
 )}
 """Every job, in the order ``smplik batch --help`` lists them."""
 
+
+
+def _scene_app() -> Any:
+    from workflows.cli import scene_app
+
+    return scene_app
+
+
+def _track_cmd() -> Any:
+    from workflows.tracking.cli import track_cmd
+
+    return track_cmd
+
+
+def _invert_shape() -> Any:
+    from shape_inversion.cli import invert_shape
+
+    return invert_shape
+
+
+JOB_COMMANDS = {"scene": _scene_app, "track": _track_cmd, "invert-shape": _invert_shape}
+"""The top-level command of each job's ``command`` -> its loader (the typer group or function). The batch does
+not read the ``smplik`` command table (:mod:`workflows.commands`, which loads the batch itself): the jobs'
+commands are imports of this module."""
+
 SHAPE_FILE = "shape.json"
 """``invert-shape``'s output in each input's folder (the command's ``--out SHAPE.json``)."""
 

@@ -217,9 +217,10 @@ def _safe(text: str) -> str:
 
 def job_command(job: Job) -> Any:
     """The click command of ``job`` (loaded as ``smplik`` loads it; its module imports nothing heavy)."""
-    from smplik.cli.main import load_command
+    from smplik.cli.tree import click_command
+    from workflows.batch.jobs import JOB_COMMANDS
 
-    command = load_command(job.command[0])
+    command = click_command(JOB_COMMANDS[job.command[0]](), job.command[0])
     for word in job.command[1:]:
         command = command.commands[word]
     if getattr(command, "commands", None):  # a group of one command (invert-shape's typer app)

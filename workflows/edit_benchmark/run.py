@@ -104,12 +104,12 @@ def clips_from_dataset(dataset: Any, split: str) -> list[EditClip]:
 
 def clips_from_folder(folder: str | Path, *, preset: str = "cmu", fps: float = EDIT_FPS) -> list[EditClip]:
     """Every BVH clip under ``folder`` (held-out motion), retargeted to SMPL and resampled to ``fps``."""
-    import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
+    from shape_inversion.auto_preset import auto_preset
     from smplik.data.dataset import find_sources, read_source, subsample_indices
 
     clips = []
     for src in find_sources(folder, "bvh"):
-        seq = read_source(src, preset=preset)
+        seq = read_source(src, preset=preset, rig_mapper=auto_preset)
         idx = subsample_indices(len(seq.transl), seq.fps, min(fps, seq.fps))
         pose = np.concatenate([seq.global_orient[:, None], seq.body_pose], 1)[idx]
         clips.append(EditClip(src.name, src.subject, min(fps, seq.fps), torch.from_numpy(pose).float(),

@@ -74,13 +74,13 @@ def motion_truth(path: str | Path, *, fps: float = 60.0, betas: Sequence[float] 
     elif suffix in (".bvh", ".fbx"):
         import torch
 
-        import shape_inversion.auto_preset  # noqa: F401 - installs preset "auto" (the rig mapper)
+        from shape_inversion.auto_preset import auto_preset
         from smplik.data.retarget import retarget_bvh
 
         g = Gender.parse(gender)
         body = np.zeros(10) if betas is None else np.asarray(betas, dtype=np.float64)
         try:
-            clip = retarget_bvh(path, "auto", gender=g, betas=body, fps=fps)
+            clip = retarget_bvh(path, "auto", gender=g, betas=body, fps=fps, rig_mapper=auto_preset)
         except (ValueError, KeyError) as exc:
             raise MotionFileError(f"{path}: {' '.join(str(exc).split())[:300]}") from None
         start = clip.motion_start  # earlier frames are the source's rest pose
