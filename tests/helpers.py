@@ -62,12 +62,12 @@ def random_effectors(bodies, B: int, N: int, seed: int):  # noqa: ANN001, ANN201
     import torch
 
     from smplik.effectors import EffectorBatch
+    from smplik.kinematics import forward_kinematics
     from smplik.rotations import axis_angle_to_matrix
+
     g = torch.Generator().manual_seed(seed)
     betas = torch.randn(B, 10, generator=g)
     gender = torch.randint(0, 3, (B,), generator=g)
-    from smplik.kinematics import forward_kinematics
-
     R_world, p_world = forward_kinematics(axis_angle_to_matrix(torch.randn(B, 24, 3, generator=g) * 0.3),
                                           bodies.rest_joints(betas, gender), torch.randn(B, 3, generator=g) * 0.3)
     joint = torch.randint(0, 24, (B, N), generator=g)
