@@ -92,6 +92,7 @@ def _smplik(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           cwd=cwd)
 
 
+@pytest.mark.slow
 def test_the_command_leaves_with_its_status_output_and_files_after_torch_loaded(tmp_path):
     """The end of a command that imported torch skips the interpreter's teardown (:func:`smplik.cli.leave`): its
     files, its printed lines, atexit functions and the exit status are all still there."""

@@ -61,6 +61,7 @@ def test_fit_is_on_by_default():
     assert Tracker.load(config=TrackerRuntimeConfig(effector_fit=False)).effector_fit is None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", [None, "smplik/checkpoints/smplik_tracking_3.pt"], ids=["4 trackers", "3 trackers"])
 def test_exact_trackers_put_head_and_wrists_within_a_centimetre(cmu_motion, model):
     """Exact trackers of held-out motion: without the fit the network misses its trackers by centimetres; with it
