@@ -4,7 +4,7 @@ file byte-identical.
 
 :func:`round3_cases` writes its own small material (a BVH and a GLB character, a ROMP estimate, a scene, a
 pose cache, WHAM output) and returns the cases; ``benchmarks/fuzz_campaign.py`` runs them in subprocesses with
-the crafted cases, ``tests/test_inputs_round3.py`` runs them in-process in CI (a few seconds).
+the crafted cases, ``tests/test_input_errors_one_line.py`` runs them in-process in CI (a few seconds).
 
 Groups (the ``reader`` of each case): ``r3_config`` (training options and config values out of range),
 ``r3_pose_cache`` (cache values: a non-scalar version, subject names not a list of strings, poses 1e30 or NaN),

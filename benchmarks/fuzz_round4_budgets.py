@@ -8,7 +8,7 @@ file's key or the limit's environment variable), under 2 GB, quickly; the except
 :func:`round4_budget_cases` writes its own small material (tracker recordings, SteamVR logs, tracking and IK model
 files from the shipped ones, an animation file, AMASS clips) and returns ``(case, needle)`` pairs;
 ``benchmarks/fuzz_campaign.py`` runs them in subprocesses (``--round4-budgets-only`` alone, results in
-``benchmarks/results/fuzz_round4_budgets.json``), ``tests/test_security_round4_budgets.py`` in-process.
+``benchmarks/results/fuzz_round4_budgets.json``), ``tests/test_input_budgets.py`` in-process.
 
 Groups (``reader``): ``r4_trackers`` (TQ, TF, strings as numbers, the tracker's frame cap), ``r4_steamvr`` (SV1-SV4,
 string timestamps), ``r4_tracking_model`` (MH, MF, MS, MZ, stride-0 and unknown keys), ``r4_ik_model`` (a view
@@ -101,6 +101,7 @@ def round4_budget_cases(work: Path) -> list[tuple[Case, str]]:
     """Every round-4 budget case with the text its one error line must hold (or :data:`ACCEPT`)."""
     import torch
 
+    from smplik.model_io import read_model_file, read_torch_file
     from smplik.solver import packaged_model_path
     from smplik.tracking.model_io import DEFAULT_CHECKPOINT
 
@@ -174,7 +175,7 @@ def round4_budget_cases(work: Path) -> list[tuple[Case, str]]:
         track("r4_steamvr", text, note, needle, suffix=".jsonl")
 
     # tracking model files through the one reader: MH, MF, MS, MZ, stride 0
-    blob = torch.load(DEFAULT_CHECKPOINT, map_location="cpu", weights_only=True)
+    blob = read_torch_file(DEFAULT_CHECKPOINT, what="tracking model")  # raw: info.net stays a dict
     trackers = tracker_doc()
 
     def model_case(note: str, needle: str, edit: Any = None, raw: Path | None = None) -> None:
@@ -208,7 +209,7 @@ def round4_budget_cases(work: Path) -> list[tuple[Case, str]]:
                raw=_deflated_member(plain, d / "bomb.pt", 80 << 20))
 
     # IK model file: a transposed view as a weight (the same reader)
-    ik = torch.load(packaged_model_path(), map_location="cpu", weights_only=True)
+    ik = read_model_file(packaged_model_path())
     name, weight = next((k, v) for k, v in ik["model"].items() if v.ndim == 2 and v.shape[0] != v.shape[1])
     d = folder()
     torch.save({**ik, "model": {**ik["model"], name: weight.t().contiguous().t()}}, d / "model.pt")

@@ -4,7 +4,7 @@ exit 1, < 2 GiB, < 150 s).
 
     python benchmarks/limits_round3.py            # writes benchmarks/results/limits_round3.json
 
-The recipes are the ones of ``tests/test_limits_round3.py`` (which asserts the same outcomes in CI).
+The recipes are the ones of ``tests/test_resource_limits.py`` (which asserts the same outcomes in CI).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from tests.test_limits_round3 import _bvh, _gltf, run_capped, str_of_list_dag  # noqa: E402
+from limit_recipes import bvh_text, gltf_rig, run_capped, str_of_list_dag  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "limits_round3.json"
 
@@ -85,11 +85,11 @@ def cases(work: Path) -> dict[str, list[str]]:
     out["z.glb -> /dev/zero"] = ["invert-shape", str(d / "z.glb"), "--out", str(d / "s.json")]
     d = folder("fifo")
     os.mkfifo(d / "pipe.bin")
-    _gltf(d, [{"uri": "pipe.bin", "byteLength": 128}],
+    gltf_rig(d, [{"uri": "pipe.bin", "byteLength": 128}],
           [{"bufferView": 0, "componentType": 5126, "count": 2, "type": "MAT4"}])
     out["glTF buffer on a named pipe"] = ["invert-shape", str(d / "rig.gltf"), "--out", str(d / "s.json")]
     d = folder("skin")
-    _gltf(d, [], [{"componentType": 5126, "count": 50_000_000, "type": "MAT4"}])
+    gltf_rig(d, [], [{"componentType": 5126, "count": 50_000_000, "type": "MAT4"}])
     out["skin accessor claiming 5e7 matrices"] = ["invert-shape", str(d / "rig.gltf"), "--out", str(d / "s.json")]
     d = folder("json")
     with open(d / "plain.json", "wb") as fh:
@@ -97,7 +97,7 @@ def cases(work: Path) -> dict[str, list[str]]:
     out["300 MB estimator JSON"] = ["scene", "from-estimate", str(d / "plain.json"), "--out", str(d / "o"),
                                     "--no-previews"]
     d = folder("bvh")
-    (d / "long.bvh").write_text(_bvh(31, 900_000, 2))
+    (d / "long.bvh").write_text(bvh_text(31, 900_000, 2))
     out["BVH declaring 900,000 frames of 31 joints (data preview)"] = ["data", "preview", str(d / "long.bvh"),
                                                                        "--out", str(d / "p.png")]
     d = folder("bench")

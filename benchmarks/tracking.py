@@ -128,7 +128,7 @@ def metrics(R: np.ndarray, p: np.ndarray, R_true: np.ndarray, truth: np.ndarray,
 
 def ik_motion(solver, sig, betas: np.ndarray, gender: Gender) -> tuple[np.ndarray, np.ndarray]:
     from smplik.effectors import Effector
-    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
 
     R_trk = quaternion_to_matrix_np(sig.rotations)
     lists = [[e for k, name in enumerate(sig.names) for e in (Effector.position(name, sig.positions[t, k]),

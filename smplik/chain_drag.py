@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
+from smplik.rotations import axis_angle_to_matrix_np
 
 CONTACT_M = 0.05
 """A foot whose ``*_foot`` joint is within this height (m, +y up) of the lower foot's counts as planted."""
@@ -163,12 +164,6 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def _rotvec(w: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(w).as_matrix()
-
-
 @dataclass(frozen=True)
 class DragResult:
     """A solved drag: local rotations (24, 3, 3), root translation (3,), joints (24, 3) and the plan used."""
@@ -216,7 +211,7 @@ def drag_joint(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndarray, join
             for axis in range(3):
                 for sign in (-1.0, 1.0):
                     R_try = np.array(R_start)
-                    R_try[k] = R_try[k] @ _rotvec(sign * RESTART_BEND * np.eye(3)[axis])
+                    R_try[k] = R_try[k] @ axis_angle_to_matrix_np(sign * RESTART_BEND * np.eye(3)[axis])
                     got = _lm(R_try, np.array(t_start), J_rest, free, plan.translate, locks, terms, stiff,
                               iterations)
                     if got[2] < best:
@@ -308,7 +303,7 @@ def _apply(R_local: np.ndarray, transl: np.ndarray, R_world: np.ndarray, free: S
     """Turn each free joint by its world-frame rotation vector of ``step`` (about the joint)."""
     R_new = R_local.copy()
     for c, f in enumerate(free):
-        D = _rotvec(step[3 * c:3 * c + 3])
+        D = axis_angle_to_matrix_np(step[3 * c:3 * c + 3])
         if PARENTS[f] < 0:
             R_new[f] = D @ R_local[f]
         else:

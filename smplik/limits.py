@@ -397,10 +397,10 @@ large compressed one can only be a decompression bomb (refused from the zip dire
 
 
 def check_torch_zip(path: str | Path) -> None:
-    """Check a ``torch.save`` zip from its directory before ``torch.load`` reads anything: every storage
-    member's declared size within :data:`ARRAY_BYTES`, all together within :data:`INPUT_BYTES`, and no
-    compressed member over :data:`TORCH_COMPRESSED_MEMBER_BYTES` (torch never compresses). A file that is
-    not a zip (a legacy ``.pt``) is left to the loader.
+    """Check a ``torch.save`` zip from its directory before :func:`smplik.model_io.read_torch_file` unpickles
+    anything: every storage member's declared size within :data:`ARRAY_BYTES`, all together within
+    :data:`INPUT_BYTES`, and no compressed member over :data:`TORCH_COMPRESSED_MEMBER_BYTES` (torch never
+    compresses). A file that is not a zip (a legacy ``.pt``) is left to the loader.
 
     Raises:
         LimitError: over a limit (named, with its variable). ValueError: a compressed storage.

@@ -92,7 +92,7 @@ def _distributed() -> tuple[int, int, bool]:
 
 
 def _rng_state(gens: dict[str, torch.Generator]) -> dict[str, Any]:
-    """Every RNG state as tensors and numbers (readable by ``torch.load(weights_only=True)``)."""
+    """Every RNG state as tensors and numbers (readable by :func:`smplik.model_io.read_torch_file`, weights only)."""
     np_kind, np_key, np_pos, np_has_gauss, np_gauss = np.random.get_state()
     py_version, py_state, py_gauss = random.getstate()
     return {**{name: g.get_state() for name, g in gens.items()}, "torch": torch.get_rng_state(),

@@ -103,3 +103,22 @@ def write_phalp_video(folder: Path, frames: list[dict[int, tuple[np.ndarray, np.
     path = folder / "demo_video.pkl"
     joblib.dump(data, path, compress=3)
     return path
+
+
+def walking_joints(T: int = 40, seed: int = 0, scale: float = 1.0, betas: np.ndarray | None = None) -> np.ndarray:
+    """(T, 24, 3) joints of our body walking forward (y-up metres, facing +z), SMPL order."""
+    rng = np.random.default_rng(seed)
+    phase = 2 * np.pi * np.arange(T) / 20.0
+    aa = np.zeros((T, 24, 3))
+    aa[:, 1, 0], aa[:, 2, 0] = 0.5 * np.sin(phase), -0.5 * np.sin(phase)
+    aa[:, 4, 0], aa[:, 5, 0] = 0.5 * (1 + np.sin(phase)), 0.5 * (1 - np.sin(phase))
+    aa[:, 16, 2], aa[:, 17, 2] = -1.1, 1.1
+    aa[:, 18, 1], aa[:, 19, 1] = -0.4 - 0.2 * np.sin(phase), 0.4 - 0.2 * np.sin(phase)
+    aa[:, 1:] += rng.normal(0, 0.01, (T, 23, 3))
+    betas = np.zeros(10) if betas is None else betas
+    from workflows.animation.clips import joints_of, rest_joints
+
+    J_rest = rest_joints(betas, "neutral")
+    transl = np.stack([np.zeros(T), np.full(T, -J_rest[:, 1].min() + 0.0), 0.05 * np.arange(T)], 1)
+    R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
+    return joints_of(R, transl, J_rest) * scale

@@ -212,6 +212,17 @@ def shipped_solver():
     return IKSolver.load(SHIPPED)
 
 
+@pytest.fixture()
+def animate_shipped(monkeypatch, shipped_solver):
+    """``animate_shipped(*args)``: ``smplik scene animate ARGS`` (typer's CliRunner) on the shipped solver."""
+    from typer.testing import CliRunner
+
+    from workflows.cli import scene_app
+
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
+    return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
+
+
 class OracleSolver:
     """A solver whose answer improves with every effector: joints start 0.3 m off the target; an
     effector on joint j puts j on the target (a rotation effector also its children). Counts its calls."""

@@ -7,27 +7,10 @@ import types
 import numpy as np
 import pytest
 import scipy.sparse
+from helpers import tiny_smpl_arrays
 
 from smplik.body_model import ModelFileError, find_model_file, read_model_arrays
-from smplik.conventions import PARENTS, Gender
-
-
-def tiny_smpl_arrays(V=30, seed=0):
-    rng = np.random.default_rng(seed)
-    J_reg = rng.random((24, V))
-    J_reg /= J_reg.sum(1, keepdims=True)
-    weights = rng.random((V, 24))
-    weights /= weights.sum(1, keepdims=True)
-    kintree = np.stack([np.array([4294967295] + list(PARENTS[1:]), dtype=np.int64), np.arange(24)])
-    return {
-        "v_template": rng.normal(size=(V, 3)),
-        "shapedirs": rng.normal(size=(V, 3, 10)) * 0.01,
-        "posedirs": np.zeros((V, 3, 207)),
-        "J_regressor": J_reg,
-        "weights": weights,
-        "kintree_table": kintree,
-        "f": rng.integers(0, V, size=(40, 3)),
-    }
+from smplik.conventions import Gender
 
 
 @pytest.fixture

@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
-from smplik.benchmark.two_bone import two_bone_ik
 from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS
 from smplik.kinematics import forward_kinematics
+from smplik.limb_ik import two_bone_ik_pose
 from smplik.rotations import axis_angle_to_matrix
 from workflows.edit_benchmark.pairs import (
     EditPairConfig,
@@ -151,7 +151,7 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
     par = torch.tensor(PARENTS)
     root = p[rows, par[par[tip]]]
     target = root + 0.85 * (p[rows, tip] - root) + 0.03  # closer to the root: reachable
-    R2 = two_bone_ik(R, t, J, tip, target)
+    R2 = two_bone_ik_pose(R, t, J, tip, target)
     _, p2 = forward_kinematics(R2, J, t)
     assert (p2[rows, tip] - target).norm(dim=-1).max() < 1e-6
     changed = (R2 - R).abs().amax((-1, -2)) > 1e-12
@@ -159,7 +159,7 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
         assert set(torch.nonzero(changed[b])[:, 0].tolist()) <= {int(par[tip[b]]), int(par[par[tip[b]]])}
     # beyond reach: the straight limb points at the target
     far = p[rows, par[par[tip]]] + torch.tensor([0.0, 0.0, 3.0], dtype=torch.float64)
-    _, p3 = forward_kinematics(two_bone_ik(R, t, J, tip, far), J, t)
+    _, p3 = forward_kinematics(two_bone_ik_pose(R, t, J, tip, far), J, t)
     root = p3[rows, par[par[tip]]]
     u = (p3[rows, tip] - root) / (p3[rows, tip] - root).norm(dim=-1, keepdim=True)
     assert torch.allclose(u, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(B, 3), atol=1e-6)
@@ -168,7 +168,7 @@ def test_two_bone_ik_reaches_and_changes_only_the_chain(bodies):
 def test_turn_swivel_moves_only_the_middle_joint_about_the_reach_axis(bodies):
     """The elbow/knee pole: turning by swivel_angle towards a reference limb puts the middle joint in the
     reference's plane, keeps the root and the reached tip, and changes only the chain root's rotation."""
-    from smplik.benchmark.two_bone import swivel_angle, turn_swivel
+    from smplik.limb_ik import swivel_angle, turn_swivel
 
     g = torch.Generator().manual_seed(5)
     B = 4
@@ -181,7 +181,7 @@ def test_turn_swivel_moves_only_the_middle_joint_about_the_reach_axis(bodies):
     mid, root = par[tip], par[par[tip]]
     _, p = forward_kinematics(R, J, t)
     target = p[rows, root] + 0.8 * (p[rows, tip] - p[rows, root])
-    R = two_bone_ik(R, t, J, tip, target)
+    R = two_bone_ik_pose(R, t, J, tip, target)
     _, p = forward_kinematics(R, J, t)
     _, p_ref = forward_kinematics(R_ref, J, t)
     angle = swivel_angle(p[rows, root], p[rows, mid], target, p_ref[rows, root], p_ref[rows, mid])
@@ -233,14 +233,13 @@ def test_benchmark_on_a_cache_without_edits_says_so(tiny_cache, tmp_path):
     assert "single-limb edit pairs" in res.output and "Traceback" not in res.output
 
 
-def test_run_edit_benchmark_on_a_hand_made_clip():
+def test_run_edit_benchmark_on_a_hand_made_clip(shipped_solver):
     """A clip whose only motion is the right elbow bending 90 degrees: every pair is a right-wrist edit, the
     drag meets its target, and the results document is JSON."""
     import json
 
     import numpy as np
 
-    from smplik.solver import IKSolver
     from workflows.edit_benchmark.run import EditBenchmarkConfig, EditClip, run_edit_benchmark
 
     T = 40
@@ -250,7 +249,7 @@ def test_run_edit_benchmark_on_a_hand_made_clip():
     bend = torch.linspace(0, 1, T).sub(5 / T).clamp(0, 1) * (math.pi / 2)
     pose[:, JOINT_INDEX["right_elbow"], 1] = bend
     clip = EditClip("hand_made", "x", FPS, pose, torch.zeros(T, 3))
-    solver = IKSolver.load()
+    solver = shipped_solver
     ranges = JointRanges.fit(pose.double())
     doc = run_edit_benchmark([clip], solver, ranges, methods=("smplik", "two_bone"),
                              cfg=EditBenchmarkConfig(max_pairs=2))
@@ -285,11 +284,10 @@ def test_held_out_folder_clips_are_read_and_searched(shared_data, tmp_path):
     assert pairs and all(p.end == "right_wrist" for p in pairs)  # the test split's right-hand edits of 02_05/06
 
 
-def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(shared_data):
+def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(shipped_solver, shared_data):
     """The edit benchmark's joint drags (workflows.edit_benchmark.joints) on a real CMU clip: every joint's drag
     meets its reachable targets within 1 cm and moves nothing outside its chain by 5 mm; every case is reported."""
     from smplik.data.dataset import find_sources
-    from smplik.solver import IKSolver
     from workflows.edit_benchmark.joints import JOINTS, joint_drag_benchmark
     from workflows.edit_benchmark.run import clips_from_folder
 
@@ -302,7 +300,7 @@ def test_joint_drags_on_real_motion_meet_reachable_targets_and_hold_the_rest(sha
     with tempfile.TemporaryDirectory() as folder:
         shutil.copy(shared_data.cmu_dir / "02_01.bvh", folder)
         clips = clips_from_folder(folder, preset="cmu")
-    out = joint_drag_benchmark(clips, IKSolver.load(), pairs_per_joint=3, before=False)
+    out = joint_drag_benchmark(clips, shipped_solver, pairs_per_joint=3, before=False)
     assert set(out["joints"]) == set(JOINTS)
     assert len(out["pairs"]) == sum(v["smplik"]["pairs"] for v in out["joints"].values())
     for joint, figures in out["joints"].items():

@@ -11,7 +11,6 @@ Save/Export outside the allowed folders and viser's share-URL request are refuse
 
 from __future__ import annotations
 
-import asyncio
 import http.server
 import json
 import threading
@@ -20,46 +19,24 @@ import urllib.request
 from pathlib import Path
 
 import pytest
-
-from tests.test_editor_browser import CHROMIUM, CHROMIUM_ARGS, WAIT_S, wait_for
+from editor_helpers import CHROMIUM, CHROMIUM_ARGS, WAIT_S, wait_for, ws_attempt
 
 pytest.importorskip("viser")
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
+def app(shipped_solver, tmp_path_factory):
     import torch
 
-    from smplik.solver import IKSolver
     from workflows.editor.app import EditorApp
     from workflows.editor.state import EditorState, fresh_scene
 
     torch.set_num_threads(1)
     folder = tmp_path_factory.mktemp("editor")
-    state = EditorState(fresh_scene(), IKSolver.load(), path=folder / "scene.json")
+    state = EditorState(fresh_scene(), shipped_solver, path=folder / "scene.json")
     editor = EditorApp(state, host="127.0.0.1", port=0)
     yield editor
     editor.stop()
-
-
-def ws_attempt(url: str, origin: str | None) -> str:
-    """Open a WebSocket as viser's client does (its subprotocol); 'open' when the first message arrives."""
-    import viser
-    import websockets.asyncio.client as client
-    from websockets.exceptions import InvalidStatus
-
-    headers = {} if origin is None else {"Origin": origin}
-
-    async def go() -> str:
-        try:
-            async with client.connect(url, subprotocols=[f"viser-v{viser.__version__}"], additional_headers=headers,
-                                      origin=None, open_timeout=WAIT_S) as ws:
-                await asyncio.wait_for(ws.recv(), WAIT_S)
-                return "open"
-        except InvalidStatus as exc:
-            return f"refused {exc.response.status_code}"
-
-    return asyncio.run(go())
 
 
 def test_raw_websocket_clients_need_the_token_and_the_editors_origin(app):

@@ -10,81 +10,28 @@ also writes the screenshot there (docs/editor.png is made so).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import shutil
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from editor_helpers import WAIT_S, body_pixels, editor_page, needs_chromium, wait_for
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-IN_CI = os.environ.get("CI", "").lower() == "true"
-pytestmark = pytest.mark.skipif(not IN_CI and not Path(CHROMIUM).is_file(),
-                                reason="Debian chromium is not installed (apt-get install -y chromium); "
-                                       "CI installs it and never skips this test")
-WAIT_S = 120.0
-"""Per-step hang guard, not a timing assumption: every wait polls for a condition and returns as soon as
-it holds. On an idle 2-core machine the whole test takes about 15 s; software WebGL (SwiftShader) on a
-machine loaded by other processes can take tens of seconds for one frame."""
-CHROMIUM_ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--disable-dev-shm-usage"]
-
-
-def wait_for(condition, what: str, timeout: float = WAIT_S):
-    """Poll ``condition()`` until it is truthy (returned) or fail after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(0.2)
-
-
-def body_pixels(png: bytes) -> int:
-    """Pixels of the body's blue-grey colour (blue well above red) in a screenshot."""
-    import io
-
-    from PIL import Image
-
-    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
-    r, g, b = img[..., 0], img[..., 1], img[..., 2]
-    return int(((b - r > 25) & (b > 120) & (g > 100)).sum())
-
-
-@contextlib.contextmanager
-def editor_page(url: str, *, width: int = 1100, height: int = 700) -> Iterator[Any]:
-    """A playwright page of headless Debian Chromium on the editor at ``url``, its 3D canvas loaded; the browser
-    closes on exit."""
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=30_000)
-        try:
-            page = browser.new_page(viewport={"width": width, "height": height})
-            page.set_default_timeout(WAIT_S * 1000)
-            page.goto(url)
-            page.wait_for_selector("canvas")
-            yield page
-        finally:
-            browser.close()
+pytestmark = needs_chromium
 
 
 @pytest.fixture()
-def editor(tmp_path):
+def editor(shipped_solver, tmp_path):
     import torch
 
-    from smplik.solver import IKSolver
     from workflows.editor.app import EditorApp
     from workflows.editor.state import EditorState, fresh_scene
 
     torch.set_num_threads(1)
-    state = EditorState(fresh_scene(), IKSolver.load(), path=tmp_path / "scene.json")
+    state = EditorState(fresh_scene(), shipped_solver, path=tmp_path / "scene.json")
     state.add_effector("head", "look_at")  # all three handle types in view
     state.add_effector("right_wrist", "position")
     state.move_effector(1, position=[-0.35, 1.85, 0.25])  # the right arm raised
@@ -95,6 +42,7 @@ def editor(tmp_path):
     app.stop()
 
 
+@pytest.mark.slow
 def test_editor_in_headless_chromium(editor, tmp_path):
     state = editor.state
     saved = tmp_path / "scene.json"
@@ -187,7 +135,7 @@ def test_edit_command_serves_the_page_and_prints_the_url(tmp_path):
         proc.wait(timeout=20)
 
 
-def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkeypatch):
+def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(shipped_solver, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
     import workflows.editor.app as app_mod
@@ -204,9 +152,8 @@ def test_edit_command_warns_off_loopback_and_rejects_bad_scenes(tmp_path, monkey
         raise KeyboardInterrupt
 
     monkeypatch.setattr(app_mod, "EditorApp", FakeApp)
-    from smplik.solver import IKSolver
 
-    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: IKSolver.load())
+    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
     monkeypatch.setattr(cli.time, "sleep", interrupt)
     result = CliRunner().invoke(cli.app, [str(tmp_path / "s.json"), "--host", "0.0.0.0", "--port", "8123"])
     assert result.exit_code == 0, result.output
@@ -227,7 +174,8 @@ def test_gizmo_drags_re_solve_and_redraw_without_a_browser(editor):
     rotation handles turn the joint, undo/redo come back to the handles."""
     from types import SimpleNamespace
 
-    from workflows.editor.app import matrix_to_wxyz, wxyz_to_matrix
+    from smplik.rotations import matrix_to_quat_wxyz as matrix_to_wxyz
+    from smplik.rotations import quat_wxyz_to_matrix as wxyz_to_matrix
 
     state = editor.state
     mesh = editor._meshes[0]
@@ -265,6 +213,7 @@ def _project(camera: Any, point: np.ndarray, box: dict[str, float]) -> tuple[flo
     return box["x"] + 0.5 * box["width"] + f * p[0] / p[2], box["y"] + 0.5 * box["height"] + f * p[1] / p[2]
 
 
+@pytest.mark.slow
 def test_add_then_drag_an_elbow_in_headless_chromium(editor):
     """Issue 44 in the browser: "Add effector" on the left elbow does not move the body; dragging its handle's
     up arrow with the mouse raises the elbow, meets the handle within 1 cm and keeps everything outside the arm

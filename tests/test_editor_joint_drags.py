@@ -36,10 +36,9 @@ ANCHOR = {"left_elbow": "left_shoulder", "right_elbow": "right_shoulder", "left_
 
 
 @pytest.fixture(scope="module")
-def solver():
-    from smplik.solver import IKSolver
+def solver(shipped_solver):
 
-    return IKSolver.load()
+    return shipped_solver
 
 
 @pytest.fixture(scope="module", params=["cmu_02_01", "example_walk"])

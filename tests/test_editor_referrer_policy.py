@@ -15,16 +15,15 @@ WAIT_S = 60.0
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
+def app(shipped_solver, tmp_path_factory):
     import torch
 
-    from smplik.solver import IKSolver
     from workflows.editor.app import EditorApp
     from workflows.editor.state import EditorState, fresh_scene
 
     torch.set_num_threads(1)
     folder = tmp_path_factory.mktemp("editor")
-    editor = EditorApp(EditorState(fresh_scene(), IKSolver.load(), path=folder / "scene.json"), host="127.0.0.1",
+    editor = EditorApp(EditorState(fresh_scene(), shipped_solver, path=folder / "scene.json"), host="127.0.0.1",
                        port=0)
     yield editor
     editor.stop()

@@ -17,10 +17,9 @@ from workflows.scene import Scene, SceneCharacter, SkeletonSource, load_scene, s
 
 
 @pytest.fixture(scope="module")
-def solver():
-    from smplik.solver import IKSolver
+def solver(shipped_solver):
 
-    return IKSolver.load()  # the shipped model
+    return shipped_solver  # the shipped model
 
 
 @pytest.fixture()

@@ -122,7 +122,7 @@ def test_playback_steps_at_the_source_rate_and_never_holds_the_server(app):
     thread = app._play_thread
     assert thread.daemon and thread is not threading.current_thread() and thread.is_alive()
     user_event(app.frame_slider, 20)  # served while playing (no assertion on which frame playback reached)
-    from tests.test_editor_access import ws_attempt
+    from editor_helpers import ws_attempt
 
     port = app.port  # a browser connecting while it plays gets the scene: the server is not held
     assert ws_attempt(f"ws://127.0.0.1:{port}/?token={app.access.token}", f"http://127.0.0.1:{port}") == "open"
@@ -333,8 +333,9 @@ def test_keyframe_dropdown_always_agrees_with_the_header(app):
     assert agree()
 
 
+@pytest.mark.slow
 def test_timeline_controls_in_headless_chromium(app):
-    from tests.test_editor_browser import CHROMIUM, IN_CI, editor_page, wait_for
+    from editor_helpers import CHROMIUM, IN_CI, editor_page, wait_for
 
     if not IN_CI and not Path(CHROMIUM).is_file():
         pytest.skip("Debian chromium is not installed (apt-get install -y chromium); CI installs it")

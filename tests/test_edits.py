@@ -22,10 +22,9 @@ TORSO = [JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3", "neck", "head")]
 
 
 @pytest.fixture(scope="module")
-def solver():
-    from smplik.solver import IKSolver
+def solver(shipped_solver):
 
-    return IKSolver.load()  # the shipped model
+    return shipped_solver  # the shipped model
 
 
 def _eff(joint: str, kind: str) -> Effector:
@@ -205,9 +204,9 @@ def test_a_dragged_wrist_moves_only_its_arm_and_takes_the_priors_swivel(solver):
     """The default drag: the wrist reaches its target, every joint outside shoulder-elbow-wrist-hand stays
     exactly where it was (collar included), and the elbow's pole turns SWIVEL_SHARE of the way from the
     scene's to the network's."""
-    from smplik.benchmark.two_bone import swivel_angle, two_bone_ik
     from smplik.effectors import pack_effectors
     from smplik.kinematics import forward_kinematics
+    from smplik.limb_ik import swivel_angle, two_bone_ik_pose
     from smplik.refine import NO_REFINEMENT
     from smplik.rotations import axis_angle_to_matrix
     from workflows.scene.edits import SWIVEL_SHARE, solve_edit
@@ -227,7 +226,7 @@ def test_a_dragged_wrist_moves_only_its_arm_and_takes_the_priors_swivel(solver):
     aa = torch.from_numpy(np.concatenate([previous.global_orient[None], previous.body_pose]))[None]
     J = solver.bodies.rest_joints(torch.zeros(1, NUM_BETAS), torch.zeros(1, dtype=torch.long)).double()
     tr, tip, tgt = torch.from_numpy(previous.transl)[None], torch.tensor([wrist]), torch.from_numpy(target)[None]
-    _, p_plain = forward_kinematics(two_bone_ik(axis_angle_to_matrix(aa), tr, J, tip, tgt), J, tr)
+    _, p_plain = forward_kinematics(two_bone_ik_pose(axis_angle_to_matrix(aa), tr, J, tip, tgt), J, tr)
     net = solver.solve_tensors(pack_effectors([effs]), torch.zeros(1, NUM_BETAS), torch.zeros(1, dtype=torch.long),
                                refine=NO_REFINEMENT)
     sh, el = JOINT_INDEX["left_shoulder"], JOINT_INDEX["left_elbow"]
@@ -245,7 +244,7 @@ def test_a_dragged_wrist_moves_only_its_arm_and_takes_the_priors_swivel(solver):
         q = matrix_to_quaternion(R_elbow)
         return float((q[1:] * bone).sum().abs())
     assert twist(axis_angle_to_matrix(torch.from_numpy(pose.body_pose[el - 1]))) < 1e-6
-    assert twist(two_bone_ik(axis_angle_to_matrix(aa), tr, J, tip, tgt)[0, el]) > 1e-3
+    assert twist(two_bone_ik_pose(axis_angle_to_matrix(aa), tr, J, tip, tgt)[0, el]) > 1e-3
     # the previous release's solve (analytic=False) re-poses the chain with the network instead
     chain_pose = solve_edit(solver, [effs], [previous], [wrist], analytic=False)[0]
     assert not np.allclose(chain_pose.body_pose, pose.body_pose)

@@ -256,7 +256,8 @@ def test_bvh_export_keeps_the_source_frames_after_the_pose(tmp_path):
 def _turned_bvh(src, dst, R, units):
     """The BVH character ``src`` rewritten in other axes (``R``: its axes -> the new file's) and units (metres per
     unit): the same body, facing another way in its file. Written with smplik's BVH writer (``format_bvh``)."""
-    from smplik.data.bvh import format_bvh, matrix_to_euler_channels
+    from smplik.data.bvh import format_bvh
+    from smplik.rotations import matrix_to_euler_deg_np
 
     m = read_bvh(src)
     k = 0.01 / units  # the source is in centimetres
@@ -266,7 +267,7 @@ def _turned_bvh(src, dst, R, units):
     rows = []
     for j, chans in enumerate(m.channels):
         order = "".join(c[0] for c in chans if c.endswith("rotation"))
-        angles = dict(zip(order, np.moveaxis(matrix_to_euler_channels(local[:, j], order), -1, 0), strict=True))
+        angles = dict(zip(order, np.moveaxis(matrix_to_euler_deg_np(local[:, j], order), -1, 0), strict=True))
         for c in chans:
             rows.append(k * (m.local_translations[:, j] @ R.T)[:, "XYZ".index(c[0])] if c.endswith("position")
                         else angles[c[0]])

@@ -87,10 +87,10 @@ def assert_contract(result) -> None:  # noqa: ANN001 - click.testing.Result
 
 
 @pytest.fixture(scope="module")
-def solver():
+def solver(shipped_solver):
     if not packaged_model_path().is_file():
         pytest.skip("no packaged model in this checkout")
-    return IKSolver.load()
+    return shipped_solver
 
 
 @pytest.fixture

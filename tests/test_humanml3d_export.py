@@ -3,14 +3,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_joint_motion import _walk, animate  # noqa: E402, F401 - the shipped-solver CLI fixture
+from animation_fixtures import walking_joints
 
 
 def _features(P: np.ndarray) -> np.ndarray:
@@ -43,37 +40,37 @@ def _bvh_root_path(path: Path) -> np.ndarray:
 
 
 @pytest.mark.parametrize("kind", ["joints", "features"])
-def test_humanml3d_to_bvh_and_glb_on_smpl_keeps_every_frame(animate, tmp_path, kind):  # noqa: F811
+def test_humanml3d_to_bvh_and_glb_on_smpl_keeps_every_frame(animate_shipped, tmp_path, kind):
     from smplik.data.bvh import read_bvh
 
     T = 33
-    P = _walk(T)[:, :22]
+    P = walking_joints(T)[:, :22]
     data = P.astype(np.float32) if kind == "joints" else _features(P).astype(np.float32)
     np.save(tmp_path / "motion.npy", data)
-    res = animate(tmp_path / "motion.npy", "--out", tmp_path / "out", "--export", "bvh,glb")
+    res = animate_shipped(tmp_path / "motion.npy", "--out", tmp_path / "out", "--export", "bvh,glb")
     assert res.exit_code == 0, res.output
     bvh = read_bvh(tmp_path / "out" / "person_0.bvh")
     assert bvh.num_frames == T and bvh.fps == pytest.approx(20.0)  # HumanML3D's rate
     assert bvh.joint_names[:2] == ("pelvis", "left_hip")  # SMPL's skeleton
     assert _glb_frames(tmp_path / "out" / "person_0.glb") == {"pose": T}
-    # the BVH's root walks the way the joints walk (+z, 0.05 m a frame in _walk)
+    # the BVH's root walks the way the joints walk (+z, 0.05 m a frame in walking_joints)
     root = _bvh_root_path(tmp_path / "out" / "person_0.bvh")
     travel = np.ptp(root, axis=0)
     assert travel[2] == pytest.approx(travel.max()) and travel[2] > 0
 
 
 @pytest.mark.parametrize("kind", ["joints", "features"])
-def test_humanml3d_to_bvh_and_glb_on_a_character_keeps_every_frame(animate, tmp_path, kind):  # noqa: F811
+def test_humanml3d_to_bvh_and_glb_on_a_character_keeps_every_frame(animate_shipped, tmp_path, kind):
     from smplik.data.bvh import read_bvh
     from workflows.animation.clips import rest_joints
     from workflows.layout_examples import write_mixamo_bvh
 
     T = 27
-    P = _walk(T)[:, :22]
+    P = walking_joints(T)[:, :22]
     data = P.astype(np.float32) if kind == "joints" else _features(P).astype(np.float32)
     np.save(tmp_path / "motion.npy", data)
     write_mixamo_bvh(tmp_path / "hero.bvh", rest_joints(np.zeros(10), "neutral") * 1.15)
-    res = animate(tmp_path / "motion.npy", "--out", tmp_path / "out", "--character", tmp_path / "hero.bvh",
+    res = animate_shipped(tmp_path / "motion.npy", "--out", tmp_path / "out", "--character", tmp_path / "hero.bvh",
                   "--export", "bvh,glb")
     assert res.exit_code == 0, res.output
     bvh = read_bvh(tmp_path / "out" / "person_0.bvh")

@@ -25,17 +25,17 @@ from smplik.effector_schema import parse_effector_document
 from smplik.effectors import Effector, EffectorError, pack_effectors
 from smplik.refine import RefineConfig, refine_output
 from smplik.safe_pickle import UnsafePickleError, load_pickle, loads_restricted, read_npz
-from smplik.solver import IKSolver, packaged_model_path
+from smplik.solver import packaged_model_path
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "egl")}
 
 
 @pytest.fixture(scope="module")
-def solver():
+def solver(shipped_solver):
     if not packaged_model_path().is_file():
         pytest.skip("no packaged model in this checkout")
-    return IKSolver.load()
+    return shipped_solver
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -360,6 +360,7 @@ def test_deterministic_npz_bytes_depend_only_on_the_arrays(tmp_path):
 # ----------------------------------------------------------------------------- 11.3 one-line CLI errors
 
 
+@pytest.mark.slow
 def test_user_mistakes_are_one_stderr_line(tmp_path):
     (tmp_path / "a[").mkdir()
     eff = tmp_path / "a[" / "red].json"  # its path holds '[/red]', rich markup if printed unescaped

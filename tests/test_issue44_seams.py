@@ -46,7 +46,7 @@ def test_a_misspelled_joint_gets_a_suggestion_everywhere_names_are_parsed():
         load_preset({"joints": {"left_hp": "LeftUpLeg", "pelvis": "Hips"}})
 
 
-def test_scene_json_stores_skeleton_paths_relative_to_itself_so_a_moved_folder_works(tmp_path):
+def test_scene_json_stores_skeleton_paths_relative_to_itself_so_a_moved_folder_works(shipped_solver, tmp_path):
     """Issue 44: ``scene.json`` stored the absolute skeleton path (``scene from-estimate --character`` and
     ``smplik edit --character`` resolve it), so moving the folder broke it. Now saved relative to the scene file;
     an old file's absolute path still reads."""
@@ -55,7 +55,6 @@ def test_scene_json_stores_skeleton_paths_relative_to_itself_so_a_moved_folder_w
 
     import numpy as np
 
-    from smplik.solver import IKSolver
     from workflows.character import load_character
     from workflows.editor.state import EditorState
     from workflows.examples_gen import write_mixamo_character
@@ -70,7 +69,7 @@ def test_scene_json_stores_skeleton_paths_relative_to_itself_so_a_moved_folder_w
     assert json.loads((first / "scene.json").read_text())["characters"][0]["skeleton"]["path"] == "chars/hero.bvh"
     moved = tmp_path / "elsewhere" / "moved"
     shutil.move(str(first), str(moved))
-    solver = IKSolver.load()
+    solver = shipped_solver
     state = EditorState.open(moved / "scene.json", solver)
     assert state.skeleton_bones() is not None  # the skeleton is found in the moved folder
     old = json.loads((moved / "scene.json").read_text())  # an old file: the absolute path

@@ -6,37 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from animation_fixtures import walking_joints
 from scipy.spatial.transform import Rotation
 
 from workflows.animation.clips import joints_of, rest_joints
 from workflows.animation.joint_motion import joint_motion_kind, recover_from_ric
-
-
-@pytest.fixture()
-def animate(monkeypatch, shipped_solver):
-    from typer.testing import CliRunner
-
-    from workflows.cli import scene_app
-
-    monkeypatch.setattr("workflows.cli_shared._solver", lambda checkpoint: shipped_solver)
-    return lambda *args: CliRunner().invoke(scene_app, ["animate", *map(str, args)])
-
-
-def _walk(T: int = 40, seed: int = 0, scale: float = 1.0, betas: np.ndarray | None = None) -> np.ndarray:
-    """(T, 24, 3) joints of our body walking forward (y-up metres, facing +z), SMPL order."""
-    rng = np.random.default_rng(seed)
-    phase = 2 * np.pi * np.arange(T) / 20.0
-    aa = np.zeros((T, 24, 3))
-    aa[:, 1, 0], aa[:, 2, 0] = 0.5 * np.sin(phase), -0.5 * np.sin(phase)
-    aa[:, 4, 0], aa[:, 5, 0] = 0.5 * (1 + np.sin(phase)), 0.5 * (1 - np.sin(phase))
-    aa[:, 16, 2], aa[:, 17, 2] = -1.1, 1.1
-    aa[:, 18, 1], aa[:, 19, 1] = -0.4 - 0.2 * np.sin(phase), 0.4 - 0.2 * np.sin(phase)
-    aa[:, 1:] += rng.normal(0, 0.01, (T, 23, 3))
-    betas = np.zeros(10) if betas is None else betas
-    J_rest = rest_joints(betas, "neutral")
-    transl = np.stack([np.zeros(T), np.full(T, -J_rest[:, 1].min() + 0.0), 0.05 * np.arange(T)], 1)
-    R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
-    return joints_of(R, transl, J_rest) * scale
 
 
 def _track_joints(track) -> np.ndarray:
@@ -107,13 +81,13 @@ def test_kinds():
 # ----------------------------------------------------------------------------- end to end
 
 
-def test_humanml3d_joints_become_an_animation_on_the_right_body(animate, tmp_path):
+def test_humanml3d_joints_become_an_animation_on_the_right_body(animate_shipped, tmp_path):
     """A taller person's joints (scale 1.1): SMPL-SI finds the size; the animation's joints match the input."""
     from workflows.animation.files import load_animation
 
-    P = _walk(40, scale=1.1)
+    P = walking_joints(40, scale=1.1)
     np.save(tmp_path / "motion.npy", P[:, :22].astype(np.float32))  # HumanML3D new_joints layout (T, 22, 3)
-    result = animate(tmp_path / "motion.npy", "--out", tmp_path / "out", "--export", "bvh,glb")
+    result = animate_shipped(tmp_path / "motion.npy", "--out", tmp_path / "out", "--export", "bvh,glb")
     assert result.exit_code == 0, result.output
     assert "20 frames/s assumed" in result.output
     anim = load_animation(tmp_path / "out" / "animation.json")
@@ -128,11 +102,11 @@ def test_humanml3d_joints_become_an_animation_on_the_right_body(animate, tmp_pat
     assert (tmp_path / "out" / "person_0.bvh").is_file() and (tmp_path / "out" / "person_0.glb").is_file()
 
 
-def test_humanml3d_features_with_mean_std(animate, tmp_path):
+def test_humanml3d_features_with_mean_std(animate_shipped, tmp_path):
     """Normalised 263-d features + Mean/Std: the joints recovered by recover_from_ric become the animation."""
     from workflows.animation.files import load_animation
 
-    P = _walk(30)[:, :22]
+    P = walking_joints(30)[:, :22]
     T = len(P)
     feats = np.zeros((T, 263))  # root without rotation: ric = joints relative to the root's xz, root height
     feats[:, 3] = P[:, 0, 1]
@@ -147,7 +121,7 @@ def test_humanml3d_features_with_mean_std(animate, tmp_path):
     np.save(tmp_path / "Mean.npy", mean)
     np.save(tmp_path / "Std.npy", std)
     np.save(tmp_path / "feats.npy", ((feats - mean) / std).astype(np.float32))
-    result = animate(tmp_path / "feats.npy", "--out", tmp_path / "out", "--mean", tmp_path / "Mean.npy",
+    result = animate_shipped(tmp_path / "feats.npy", "--out", tmp_path / "out", "--mean", tmp_path / "Mean.npy",
                      "--std", tmp_path / "Std.npy", "--fps", 20, "--export", "")
     assert result.exit_code == 0, result.output
     assert "de-normalised by --mean/--std" in result.output
@@ -156,33 +130,33 @@ def test_humanml3d_features_with_mean_std(animate, tmp_path):
     shifted = P - np.array([P[0, 0, 0], 0, P[0, 0, 2]])
     assert np.linalg.norm(_track_joints(track)[:, :22] - shifted, axis=-1).mean() < 0.03
     # half the pair is an error naming the options, not a traceback
-    result = animate(tmp_path / "feats.npy", "--out", tmp_path / "o2", "--mean", tmp_path / "Mean.npy")
+    result = animate_shipped(tmp_path / "feats.npy", "--out", tmp_path / "o2", "--mean", tmp_path / "Mean.npy")
     assert result.exit_code == 1 and "--mean and --std go together" in result.output
 
 
-def test_mdm_results_npy_one_track_per_motion(animate, tmp_path):
+def test_mdm_results_npy_one_track_per_motion(animate_shipped, tmp_path):
     """MDM's sample/generate.py: np.save('results.npy', {'motion': (N, 22, 3, T), 'text', 'lengths', ...})."""
     from workflows.animation.files import load_animation
 
-    a, b = _walk(30, seed=1)[:, :22], _walk(30, seed=2)[:, :22]
+    a, b = walking_joints(30, seed=1)[:, :22], walking_joints(30, seed=2)[:, :22]
     motion = np.stack([a, b]).transpose(0, 2, 3, 1).astype(np.float32)  # (2, 22, 3, 30)
     np.save(tmp_path / "results.npy", {"motion": motion, "text": ["a person walks", "a person walks forward"],
                                        "lengths": np.array([30, 24]), "num_samples": 2, "num_repetitions": 1})
-    result = animate(tmp_path / "results.npy", "--out", tmp_path / "out", "--export", "")
+    result = animate_shipped(tmp_path / "results.npy", "--out", tmp_path / "out", "--export", "")
     assert result.exit_code == 0, result.output
     anim = load_animation(tmp_path / "out" / "animation.json")
     assert [t.num_frames for t in anim.tracks] == [30, 24]
     assert np.linalg.norm(_track_joints(anim.tracks[1])[:, :22] - b[:24], axis=-1).mean() < 0.03
 
 
-def test_bvh_read_as_joint_positions_round_trip(animate, tmp_path):
+def test_bvh_read_as_joint_positions_round_trip(animate_shipped, tmp_path):
     """The BVH an animation exports, read back as joint positions, gives the same motion."""
     from workflows.animation.files import load_animation
 
-    P = _walk(30)[:, :22]
+    P = walking_joints(30)[:, :22]
     np.save(tmp_path / "m.npy", P)
-    assert animate(tmp_path / "m.npy", "--out", tmp_path / "a", "--fps", 30).exit_code == 0
-    result = animate(tmp_path / "a" / "person_0.bvh", "--out", tmp_path / "b", "--export", "")
+    assert animate_shipped(tmp_path / "m.npy", "--out", tmp_path / "a", "--fps", 30).exit_code == 0
+    result = animate_shipped(tmp_path / "a" / "person_0.bvh", "--out", tmp_path / "b", "--export", "")
     assert result.exit_code == 0, result.output
     assert "a BVH read as joint positions" in result.output
     first = load_animation(tmp_path / "a" / "animation.json").tracks[0]
@@ -192,18 +166,18 @@ def test_bvh_read_as_joint_positions_round_trip(animate, tmp_path):
     assert err.mean() < 0.03, err.mean()
 
 
-def test_bad_joint_files_are_one_line(animate, tmp_path):
+def test_bad_joint_files_are_one_line(animate_shipped, tmp_path):
     np.save(tmp_path / "nan.npy", np.full((10, 22, 3), np.nan))
-    result = animate(tmp_path / "nan.npy", "--out", tmp_path / "o")
+    result = animate_shipped(tmp_path / "nan.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "NaN" in result.output and "Traceback" not in result.output
-    np.save(tmp_path / "cm.npy", _walk(10)[:, :22] * 1e5)
-    result = animate(tmp_path / "cm.npy", "--out", tmp_path / "o")
+    np.save(tmp_path / "cm.npy", walking_joints(10)[:, :22] * 1e5)
+    result = animate_shipped(tmp_path / "cm.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "expected metres" in result.output
     np.save(tmp_path / "mdm.npy", {"motion": np.zeros((2, 22, 3, 9)), "lengths": np.array(["9", "x"])})
-    result = animate(tmp_path / "mdm.npy", "--out", tmp_path / "o")
+    result = animate_shipped(tmp_path / "mdm.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "'lengths'" in result.output
     np.save(tmp_path / "flat.npy", np.zeros((10, 22, 3)))
-    result = animate(tmp_path / "flat.npy", "--out", tmp_path / "o")
+    result = animate_shipped(tmp_path / "flat.npy", "--out", tmp_path / "o")
     assert result.exit_code == 1 and "error" in result.output.lower() and "Traceback" not in result.output
 
 
@@ -283,13 +257,13 @@ def write_rotation_only_bvh(path, P: np.ndarray, fps: float = 30.0) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def test_bvh_whose_body_is_in_its_rotations(animate, tmp_path):
+def test_bvh_whose_body_is_in_its_rotations(animate_shipped, tmp_path):
     """Every OFFSET along +y (MediaPipe-to-BVH): read by forward kinematics as joint positions, no options."""
     from smplik.data.bvh import read_bvh
     from workflows.animation.files import load_animation
     from workflows.animation.joint_motion import offsets_share_one_direction
 
-    P = _walk(30)[:, :22]
+    P = walking_joints(30)[:, :22]
     write_rotation_only_bvh(tmp_path / "mp.bvh", P)
     motion = read_bvh(tmp_path / "mp.bvh")
     names = list(motion.joint_names)
@@ -297,7 +271,7 @@ def test_bvh_whose_body_is_in_its_rotations(animate, tmp_path):
     smpl = [j for _, _, j in _BVH_JOINTS if j is not None]
     assert np.allclose(fk, P[:, smpl], atol=1e-4)  # the fixture's FK is the body
     assert offsets_share_one_direction(tmp_path / "mp.bvh")
-    result = animate(tmp_path / "mp.bvh", "--out", tmp_path / "out", "--export", "")
+    result = animate_shipped(tmp_path / "mp.bvh", "--out", tmp_path / "out", "--export", "")
     assert result.exit_code == 0, result.output
     assert "OFFSETs all point one way" in result.output
     (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
@@ -305,17 +279,17 @@ def test_bvh_whose_body_is_in_its_rotations(animate, tmp_path):
     assert err.mean() < 0.03, err.mean()
 
 
-def test_t2m_gpt_motion_npy_and_a_character(animate, tmp_path):
+def test_t2m_gpt_motion_npy_and_a_character(animate_shipped, tmp_path):
     """T2M-GPT's demo: np.save('motion.npy', recover_from_ric(...).reshape(1, -1, 22, 3)); onto a Mixamo character
     (workflows/layout_examples.py writes Mixamo's BVH layout): the BVH is the character's own skeleton."""
     from smplik.data.bvh import read_bvh
     from workflows.animation.files import load_animation
     from workflows.layout_examples import write_mixamo_bvh
 
-    P = _walk(24)[:, :22]
+    P = walking_joints(24)[:, :22]
     np.save(tmp_path / "motion.npy", P[None].astype(np.float32))
     write_mixamo_bvh(tmp_path / "hero.bvh", rest_joints(np.zeros(10), "neutral") * 1.2)
-    result = animate(tmp_path / "motion.npy", "--out", tmp_path / "out", "--character", tmp_path / "hero.bvh")
+    result = animate_shipped(tmp_path / "motion.npy", "--out", tmp_path / "out", "--character", tmp_path / "hero.bvh")
     assert result.exit_code == 0, result.output
     (track,) = load_animation(tmp_path / "out" / "animation.json").tracks
     assert track.num_frames == 24 and track.scale == pytest.approx(1.2, rel=0.05)  # the character's size

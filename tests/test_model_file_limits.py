@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse
+from helpers import tiny_smpl_arrays
 
 from smplik.body_model import ModelFileError, read_model_arrays
-from tests.test_body_model_files import tiny_smpl_arrays
 
 ROOT = Path(__file__).resolve().parents[1]
 

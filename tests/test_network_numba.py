@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from test_onnx import SHIPPED, needs_ort, needs_shipped, random_effectors
+from helpers import SHIPPED, needs_ort, needs_shipped, random_effectors
 
 from smplik.network import NetworkConfig, ProtoResIK
 from smplik.onnx_runtime import OUTPUT_NAMES
@@ -37,6 +37,7 @@ def model(bodies, request):
     return ProtoResIK(request.param, bodies.J_template, bodies.J_dirs).eval()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("B", "N"), [(1, 1), (1, 8), (4, 3), (8, 12), (2 * CHUNK_ROWS + 5, 6)])
 def test_kernel_is_the_network(model, bodies, B, N):
     eff, betas, gender = random_effectors(bodies, B, N, seed=B * 7 + N)
@@ -69,6 +70,7 @@ def test_unsupported_networks_are_refused(bodies):
                      threads=0)
 
 
+@pytest.mark.slow
 @needs_ort
 @needs_shipped
 def test_solver_runs_small_calls_in_the_kernel_and_large_ones_in_onnxruntime(monkeypatch):

@@ -12,12 +12,12 @@ from __future__ import annotations
 import copy
 import shutil
 import sys
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from helpers import SHIPPED, needs_ort, needs_shipped, random_effectors
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
@@ -33,50 +33,7 @@ from smplik.onnx_runtime import (
     export_onnx,
     model_fingerprint,
 )
-from smplik.rotations import axis_angle_to_matrix
 from smplik.solver import IKSolver
-
-SHIPPED = resources.files("smplik") / "checkpoints" / "smplik_cmu.pt"
-needs_shipped = pytest.mark.skipif(not SHIPPED.is_file(),
-                                   reason="shipped model smplik/checkpoints/smplik_cmu.pt absent")
-
-
-def _ort_installed() -> bool:
-    try:
-        import onnx  # noqa: F401
-        import onnxruntime  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_ort = pytest.mark.skipif(not _ort_installed(),
-                               reason="onnxruntime/onnx not installed (pip install 'smplik[fast]')")
-
-
-def random_effectors(bodies, B: int, N: int, seed: int) -> tuple[EffectorBatch, torch.Tensor, torch.Tensor]:
-    """B rows of up to N effectors of all three types from random posed bodies; rows padded at random."""
-    g = torch.Generator().manual_seed(seed)
-    betas = torch.randn(B, 10, generator=g)
-    gender = torch.randint(0, 3, (B,), generator=g)
-    from smplik.kinematics import forward_kinematics
-
-    R_world, p_world = forward_kinematics(axis_angle_to_matrix(torch.randn(B, 24, 3, generator=g) * 0.3),
-                                          bodies.rest_joints(betas, gender), torch.randn(B, 3, generator=g) * 0.3)
-    joint = torch.randint(0, 24, (B, N), generator=g)
-    kind = torch.randint(0, 3, (B, N), generator=g)
-    rows = torch.arange(B)[:, None]
-    p, R = p_world[rows, joint], R_world[rows, joint]
-    direction = torch.nn.functional.normalize(torch.randn(B, N, 3, generator=g), dim=-1)
-    look_target = p + 1.5 * (R @ direction[..., None])[..., 0]
-    data = torch.where((kind == 0)[..., None], torch.cat([p, torch.zeros_like(p)], -1),
-                       torch.where((kind == 1)[..., None], torch.cat([R[..., 0], R[..., 1]], -1),
-                                   torch.cat([look_target, direction], -1)))
-    count = torch.randint(1, N + 1, (B,), generator=g)
-    mask = torch.arange(N)[None] < count[:, None]
-    tolerance = torch.rand(B, N, generator=g) * 0.5 * (torch.rand(B, N, generator=g) < 0.3)
-    eff = EffectorBatch(joint, kind, data * mask[..., None], tolerance * mask, mask)
-    return eff, betas, gender
 
 
 def _as(eff: EffectorBatch, dtype: torch.dtype) -> EffectorBatch:

@@ -7,7 +7,7 @@ import torch
 
 from smplik.body_model import load_body_model
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, PARENTS
-from smplik.data.bvh import format_bvh, matrix_to_euler_channels, parse_bvh
+from smplik.data.bvh import format_bvh, parse_bvh
 from smplik.data.retarget import (
     RetargetError,
     bone_direction_errors,
@@ -16,7 +16,7 @@ from smplik.data.retarget import (
     swing_rotation,
 )
 from smplik.kinematics import forward_kinematics
-from smplik.rotations import axis_angle_to_matrix, geodesic_distance
+from smplik.rotations import axis_angle_to_matrix, geodesic_distance, matrix_to_euler_deg_np
 
 ORDERS = ("ZYX", "XYZ", "YZX", "ZXY")
 Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z-up -> y-up
@@ -44,7 +44,7 @@ def smpl_to_bvh_text(J_rest, R_local, transl, *, units=1.0, C=None):
         order = ORDERS[j % len(ORDERS)]
         rot = [f"{a}rotation" for a in order]
         channels.append(tuple(["Xposition", "Yposition", "Zposition"] + rot) if j == 0 else tuple(rot))
-        euler = matrix_to_euler_channels(R_file[:, j], order)
+        euler = matrix_to_euler_deg_np(R_file[:, j], order)
         cols.append(np.concatenate([root, euler], 1) if j == 0 else euler)
     leaves = {j: [0.0, 0.05 / units, 0.0] for j in range(24) if j not in PARENTS}
     return format_bvh(JOINT_NAMES, PARENTS, offsets, channels, np.concatenate(cols, 1), 1 / 30, leaves, precision=9)

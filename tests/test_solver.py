@@ -330,7 +330,7 @@ def test_cli_solve_reports_file_errors(tmp_path, cli, model_path):
 def test_numpy_axis_angle_matches_scipy():
     from scipy.spatial.transform import Rotation
 
-    from smplik.solver import matrix_to_axis_angle_np
+    from smplik.rotations import matrix_to_axis_angle_np
 
     rng = np.random.default_rng(0)
     rv = rng.normal(size=(500, 3))
@@ -342,7 +342,7 @@ def test_numpy_axis_angle_matches_scipy():
     np.testing.assert_allclose(out[5:], rv[5:], atol=1e-9)
     assert matrix_to_axis_angle_np(R.reshape(10, 50, 3, 3)).shape == (10, 50, 3)
     # both branches (the trace/vee formula up to 120 degrees, Shepperd's beyond) agree with Shepperd's
-    from smplik.solver import _axis_angle_shepperd
+    from smplik.rotations import _axis_angle_shepperd
 
     angle = np.linalg.norm(rv, axis=-1)
     assert (angle < 2.0).sum() > 100 and (angle > 2.2).sum() > 100

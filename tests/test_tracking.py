@@ -134,7 +134,7 @@ def test_steamvr_log_reader(tmp_path):
     assert sig.num_frames == 31  # 0.5 s at 60 Hz
     np.testing.assert_allclose(sig.positions[:, 1, 0], -0.3)  # the controller on the user's left
     # the head looks along -z (OpenVR's forward): SMPL's +z axis of the head points to -z in the world
-    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
 
     np.testing.assert_allclose(quaternion_to_matrix_np(sig.rotations[0, 0])[:, 2], [0, 0, -1], atol=1e-6)
     assert sig.has_rotation.tolist() == [True, False, False]
@@ -158,7 +158,7 @@ def test_shapes_and_heading_invariance():
     cfg = TrackingNetConfig(hidden=32, decoder=32, latent=4)
     net = TrackingNet(cfg)
     sig, R, transl, J = synthetic_signals(30)
-    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
 
     p = torch.as_tensor(sig.positions, dtype=torch.float32)
     Rq = torch.as_tensor(quaternion_to_matrix_np(sig.rotations), dtype=torch.float32)
@@ -184,7 +184,7 @@ def test_shapes_and_heading_invariance():
 def test_targets_decode_back_to_the_pose():
     sig, R, transl, J = synthetic_signals(10)
     from smplik.kinematics import forward_kinematics
-    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
     from smplik.tracking.features import NUM_OUT_ROT
 
     Rt = torch.as_tensor(R, dtype=torch.float32)
@@ -224,7 +224,7 @@ def test_streaming_equals_batch(model, fast):
     tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=False, effector_fit=False,
                                                        fast=fast))
     res = track_sequence(tracker, sig)
-    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
 
     x, yaw, origin = tracker_features(torch.as_tensor(sig.positions, dtype=torch.float32),
                                       torch.as_tensor(quaternion_to_matrix_np(sig.rotations), dtype=torch.float32),
@@ -240,7 +240,8 @@ def test_streaming_equals_batch(model, fast):
 def test_tracker_fit_meets_wrists_and_pelvis(model):
     """With ``tracker_fit`` the pelvis lands on its tracker, the wrists on theirs wherever the arm can
     reach them, and the wrists and the head take the trackers' rotations."""
-    from smplik.tracking.fast import fk_np, quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
+    from smplik.tracking.fast import fk_np
 
     sig, *_ = synthetic_signals(30)
     tracker = Tracker.load(config=TrackerRuntimeConfig(foot_lock=False, tracker_fit=True, effector_fit=False))
@@ -462,7 +463,7 @@ def test_shipped_model_beats_a_trivial_baseline_on_held_out_cmu(shared_data, mod
     f64 = torch.float64
     _, p_true = forward_kinematics(torch.as_tensor(R), torch.as_tensor(J), torch.as_tensor(transl))
     _, p_ours = forward_kinematics(torch.as_tensor(res.R_local), torch.as_tensor(J), torch.as_tensor(res.transl))
-    from smplik.tracking.fast import quaternion_to_matrix_np
+    from smplik.rotations import quaternion_to_matrix_np
 
     yaw = heading_yaw(torch.as_tensor(quaternion_to_matrix_np(sig.rotations[:, 0]), dtype=f64))
     R_rest = torch.eye(3, dtype=f64).repeat(len(idx), 24, 1, 1)

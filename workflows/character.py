@@ -57,11 +57,12 @@ from shape_inversion.rigs import RigMap
 from shape_inversion.skeleton_io import Character, Skeleton, prepare_character, read_character
 from smplik.atomic import write_text_atomic
 from smplik.conventions import JOINT_INDEX, NUM_JOINTS, PARENTS, Gender
-from smplik.data.bvh import format_bvh, matrix_to_euler_channels
+from smplik.data.bvh import format_bvh
 from smplik.data.retarget import swing_rotation
 from smplik.kinematics import forward_kinematics, global_to_local
+from smplik.metrics import rigid_align
 from smplik.pose import Pose
-from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_euler_deg_np
 
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
 JOINT_CHANNELS = ("Zrotation", "Yrotation", "Xrotation")
@@ -298,9 +299,9 @@ def _skipping_rotation(char: CustomCharacter, k: int, G_s: np.ndarray, p_s: np.n
         return swing_rotation(G_s[j] @ rest[0], posed[0]) @ G_s[j]
     rest = rest / np.maximum(np.linalg.norm(rest, axis=1, keepdims=True), 1e-12)
     posed = posed / np.maximum(np.linalg.norm(posed, axis=1, keepdims=True), 1e-12)
-    U, _, Vt = np.linalg.svd(posed.T @ rest)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
+    # Kabsch on directions: with each vector's mirror image both sets are centred, so the fit is a pure rotation
+    both_rest, both_posed = np.concatenate([rest, -rest]), np.concatenate([posed, -posed])
+    return rigid_align(torch.as_tensor(both_rest), torch.as_tensor(both_posed), scale=False).R.numpy()
 
 
 def smpl_to_custom(pose: Pose, char: CustomCharacter) -> CustomPose:
@@ -406,7 +407,7 @@ def custom_bvh_text(char: CustomCharacter, poses: Sequence[CustomPose], frame_ti
         R, p = pose.positions(char)
         G = C @ R @ C.T
         local = np.stack([G[k] if par < 0 else G[par].T @ G[k] for k, par in enumerate(char.parents)])
-        euler = matrix_to_euler_channels(local, "ZYX")  # (K, 3)
+        euler = matrix_to_euler_deg_np(local, "ZYX")  # (K, 3)
         row = [s * C @ p[0] - shift, euler[0]] + [euler[k] for k in range(1, K)]
         rows.append(np.concatenate(row))
     offsets = s * char.offsets @ C.T
@@ -428,7 +429,7 @@ def _channel_rows(parents: Sequence[int], channels, offsets: np.ndarray, add: bo
         angles = {}
         if order:
             full = order + "".join(a for a in "XYZ" if a not in order)
-            angles = dict(zip(full, np.moveaxis(matrix_to_euler_channels(local[:, k], full), -1, 0), strict=True))
+            angles = dict(zip(full, np.moveaxis(matrix_to_euler_deg_np(local[:, k], full), -1, 0), strict=True))
         for c in chans:
             axis = "XYZ".index(c[0])
             if c.endswith("position"):

@@ -35,6 +35,7 @@ import numpy as np
 from smplik import limits
 from smplik.atomic import write_text_atomic
 from smplik.limits import BVH_FRAMES, MEMORY_BYTES, TEXT_BYTES, check_array, read_bounded
+from smplik.rotations import euler_deg_to_matrix_np
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
@@ -120,25 +121,6 @@ class BVHMotion:
 
 
 # ----------------------------------------------------------------------------- math
-
-
-def euler_channels_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:
-    """Intrinsic Euler angles in degrees -> matrices. angles (..., len(order)), order e.g. ``"ZYX"`` -> (..., 3, 3)."""
-    shape = angles_deg.shape[:-1]
-    if not order:
-        return np.broadcast_to(np.eye(3), shape + (3, 3)).copy()
-    from scipy.spatial.transform import Rotation  # imported here: the CLI's --help imports this module
-
-    flat = angles_deg.reshape(-1, len(order))
-    return Rotation.from_euler(order.upper(), flat, degrees=True).as_matrix().reshape(shape + (3, 3))
-
-
-def matrix_to_euler_channels(R: np.ndarray, order: str) -> np.ndarray:
-    """Inverse of :func:`euler_channels_to_matrix` for a full 3-axis order. (..., 3, 3) -> (..., 3) degrees."""
-    from scipy.spatial.transform import Rotation
-
-    shape = R.shape[:-2]
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler(order.upper(), degrees=True).reshape(shape + (3,))
 
 
 def bvh_forward_kinematics(
@@ -392,7 +374,7 @@ def parse_bvh(text: str, name: str = "<string>", *, position_mode: PositionMode 
         js = [j for j, _ in items]
         cols = np.asarray([c for _, cs in items for c in cs], dtype=np.int64)
         angles = values[:, cols].reshape(T, len(js), len(order))
-        local_R[:, js] = euler_channels_to_matrix(angles, order)
+        local_R[:, js] = euler_deg_to_matrix_np(angles, order)
     global_R, positions = bvh_forward_kinematics(local_R, local_t, parents)
     return BVHMotion(
         name=name,

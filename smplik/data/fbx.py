@@ -33,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from smplik.data.bvh import BVHError, BVHMotion, bvh_forward_kinematics, matrix_to_euler_channels
+from smplik.data.bvh import BVHError, BVHMotion, bvh_forward_kinematics
 from smplik.limits import DEFAULT_MAX_JOINTS, LimitError, check_input_file
+from smplik.rotations import matrix_to_euler_deg_np
 
 MAX_FBX_BYTES = 1 << 30
 """Largest FBX file read (bytes)."""
@@ -271,16 +272,16 @@ def motion_from_world(name: str, joint_names: list[str], parents: tuple[int, ...
     translated = ~has_parent
     translated[np.flatnonzero(has_parent)[moved]] = True
     t_local[:, has_parent] = np.where(moved[None, :, None], delta, offsets[has_parent])
-    euler = matrix_to_euler_channels(R_local, ROTATION_ORDER)  # (T, J, 3) Z, Y, X degrees
+    euler = matrix_to_euler_deg_np(R_local, ROTATION_ORDER)  # (T, J, 3) Z, Y, X degrees
     rot = tuple(f"{a}rotation" for a in ROTATION_ORDER)
     channels = tuple(("Xposition", "Yposition", "Zposition") + rot if translated[j] else rot for j in range(J))
     columns = [np.concatenate([t_local[:, j], euler[:, j]], axis=1) if translated[j] else euler[:, j]
                for j in range(J)]
     values = np.concatenate(columns, axis=1)
     # the motion as a BVH reader would see it (Euler angles round trip): FK from the channels
-    from smplik.data.bvh import euler_channels_to_matrix
+    from smplik.rotations import euler_deg_to_matrix_np
 
-    R_local = euler_channels_to_matrix(euler, ROTATION_ORDER)
+    R_local = euler_deg_to_matrix_np(euler, ROTATION_ORDER)
     R_world, positions = bvh_forward_kinematics(R_local, t_local, parents)
     leaves = [j for j in range(J) if j not in set(parents)]
     return BVHMotion(name=name, joint_names=tuple(joint_names), parents=tuple(parents), offsets=offsets,

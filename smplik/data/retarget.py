@@ -56,7 +56,7 @@ from scipy.spatial.transform import Rotation
 from smplik.conventions import JOINT_INDEX, JOINT_NAMES, NUM_BETAS, NUM_JOINTS, PARENTS, Gender, unknown_joint
 from smplik.data.bvh import BVHMotion, read_bvh
 from smplik.kinematics import global_to_local
-from smplik.rotations import matrix_to_axis_angle
+from smplik.rotations import matrix_to_axis_angle, quaternion_to_matrix_np
 from smplik.units import UNIT_NAMES
 from smplik.validation import check_betas
 
@@ -287,17 +287,7 @@ def swing_rotation(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         w = np.where(opposite, 0.0, w)
     q = np.concatenate([w[..., None], axis], axis=-1)
     q = np.where((ok_u & ok_v)[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
-    return _quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Unit (w, x, y, z) (..., 4) -> (..., 3, 3)."""
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], axis=-1).reshape(q.shape[:-1] + (3, 3))
+    return quaternion_to_matrix_np(q)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -87,7 +87,8 @@ def signals_from_devices(rec: DeviceRecording, fps: float = 60.0, controller: st
     ``pelvis`` (position) when a waist tracker is present. Left is the controller on the headset's left at the
     first frame (the file's labels are kept when they agree; a swap is corrected)."""
     from smplik.limits import LimitError, check_resampled_frames
-    from smplik.tracking.io import HMD_TO_HEAD_M, TrackerSignals, _matrix_to_quat, _quat_to_matrix
+    from smplik.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
+    from smplik.tracking.io import HMD_TO_HEAD_M, TrackerSignals
 
     span = float(rec.times[-1] - rec.times[0])
     try:
@@ -97,7 +98,7 @@ def signals_from_devices(rec: DeviceRecording, fps: float = 60.0, controller: st
     n = int(np.floor(span * fps + 0.05)) + 1  # a span 5 % of a frame short (timestamps in whole ms) still counts
     out_t = rec.times[0] + np.arange(n) / fps
     p_hmd, q_hmd = _resample(rec.times, out_t, rec.hmd, "headset", rec.source)
-    R_hmd = _quat_to_matrix(q_hmd)
+    R_hmd = quat_wxyz_to_matrix(q_hmd)
     R_head = R_hmd @ np.diag([-1.0, 1.0, -1.0])
     p_head = p_hmd + (R_hmd @ HMD_TO_HEAD_M[:, None])[..., 0]
     if rec.has_controller_rotation and controller not in CONTROLLERS:
@@ -106,14 +107,14 @@ def signals_from_devices(rec: DeviceRecording, fps: float = 60.0, controller: st
     for side, track in (("left", rec.left), ("right", rec.right)):
         p, q = _resample(rec.times, out_t, track, f"{side} controller", rec.source)
         if rec.has_controller_rotation:
-            p = p + (_quat_to_matrix(q) @ controller_offset(controller, side)[:, None])[..., 0]
+            p = p + (quat_wxyz_to_matrix(q) @ controller_offset(controller, side)[:, None])[..., 0]
         wrists[side] = p
     left, right = wrists["left"], wrists["right"]
     if (left[0] - right[0]) @ R_head[0][:, 0] < 0:  # SMPL's head frame has +x to the body's left
         left, right = right, left
     names, P = ["head", "left_wrist", "right_wrist"], [p_head, left, right]
     ident = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
-    Q, has = [_matrix_to_quat(R_head), ident, ident], [True, False, False]
+    Q, has = [matrix_to_quat_wxyz(R_head), ident, ident], [True, False, False]
     if rec.waist is not None:
         names.append("pelvis")
         P.append(_resample(rec.times, out_t, rec.waist, "waist tracker", rec.source)[0])

@@ -209,10 +209,10 @@ def _forward_evidence(times: np.ndarray, hmd: tuple[np.ndarray, np.ndarray, np.n
     per sample whose controllers' midpoint is more than 10 cm in front of or behind the headset (horizontally),
     one per sample where the headset moves faster than 0.5 m/s horizontally. Positions in any length unit: the
     thresholds are scaled by the median headset-to-controller distance (about 0.45 m)."""
-    from smplik.tracking.io import _quat_to_matrix
+    from smplik.rotations import quat_wxyz_to_matrix
 
     P, Q = hmd[0][both], hmd[1][both]
-    fwd = -_quat_to_matrix(Q)[..., :, 2]
+    fwd = -quat_wxyz_to_matrix(Q)[..., :, 2]
     fwd[:, 1] = 0.0
     mid = 0.5 * (left[0][both] + right[0][both]) - P
     unit = float(np.median(np.linalg.norm(mid, axis=1))) / 0.45 or 1.0

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from smplik.conventions import PARENTS
+from smplik.rotations import rot6d_to_matrix_np
 from smplik.tracking.features import NUM_OUT_ROT
 from smplik.tracking.network import TrackingNet
 
@@ -58,16 +59,6 @@ class NumpyTrackingNet:
         return _silu(_silu(a @ W0 + b0) @ W1 + b1) @ W2 + b2
 
 
-def rot6d_to_matrix_np(r: np.ndarray) -> np.ndarray:
-    """(..., 6) -> (..., 3, 3), Gram-Schmidt on the two columns (as :func:`smplik.rotations.rot6d_to_matrix`)."""
-    a1, a2 = r[..., :3], r[..., 3:]
-    b1 = a1 / np.maximum(np.linalg.norm(a1, axis=-1, keepdims=True), 1e-8)
-    a2 = a2 - (b1 * a2).sum(-1, keepdims=True) * b1
-    b2 = a2 / np.maximum(np.linalg.norm(a2, axis=-1, keepdims=True), 1e-8)
-    b3 = b1[..., [1, 2, 0]] * b2[..., [2, 0, 1]] - b1[..., [2, 0, 1]] * b2[..., [1, 2, 0]]
-    return np.stack([b1, b2, b3], axis=-1)
-
-
 def yaw_matrix(yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=np.float32)
@@ -112,23 +103,3 @@ def fk_np(R_local: np.ndarray, J_rest: np.ndarray, transl: np.ndarray) -> tuple[
         G[:, js] = Gp @ R_local[:, js]
         p[:, js] = p[:, ps] + (Gp @ offsets[js][..., None])[..., 0]
     return G, p
-
-
-def axis_angle_np(R: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) -> (..., 3) axis-angle (the log map; adequate away from pi, as the anomaly score needs)."""
-    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(cos)
-    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    s = np.sin(angle)
-    scale = np.where(s > 1e-6, angle / (2.0 * np.maximum(s, 1e-6)), 0.5)
-    return v * scale[..., None]
-
-
-def quaternion_to_matrix_np(q: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z), any non-zero norm -> (..., 3, 3)."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    m = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-                  2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-                  2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)
-    return m.reshape(*q.shape[:-1], 3, 3)

@@ -26,6 +26,7 @@ import numpy as np
 
 from smplik.conventions import JOINT_NAMES, unknown_joint
 from smplik.limits import LimitError, check_rate, check_resampled_frames
+from smplik.rotations import axis_angle_to_matrix_np, matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from smplik.validation import JSONPathError, finite_array, read_text, short_repr
 
 MAX_ABS_TIMESTAMP_S = 1e10
@@ -171,13 +172,11 @@ def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndar
     idx = [JOINT_INDEX[n] for n in names]
     P, R = p[:, idx].numpy(), R_w[:, idx].numpy()
     if noise_m > 0 or noise_deg > 0:
-        from scipy.spatial.transform import Rotation
-
         rng = np.random.default_rng(0) if rng is None else rng
         P = P + rng.normal(0.0, noise_m, P.shape)
         v = rng.normal(0.0, np.deg2rad(noise_deg), P.shape)
-        R = Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(R.shape) @ R
-    return TrackerSignals(float(fps), tuple(names), P, _matrix_to_quat(R), np.ones(len(names), bool), "synthetic")
+        R = axis_angle_to_matrix_np(v) @ R
+    return TrackerSignals(float(fps), tuple(names), P, matrix_to_quat_wxyz(R), np.ones(len(names), bool), "synthetic")
 
 
 # ----------------------------------------------------------------------------- SteamVR JSON lines
@@ -185,21 +184,6 @@ def signals_from_motion(R_local: np.ndarray, transl: np.ndarray, J_rest: np.ndar
 HMD_TO_HEAD_M = np.array([0.0, -0.07, 0.09])
 """The SMPL head joint relative to the headset, in the headset's OpenVR frame (-z forward): 7 cm down,
 9 cm behind the eyes (an average adult; a calibration would measure it)."""
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) (w, x, y, z) -> (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_quat(np.concatenate([q[..., 1:], q[..., :1]], -1).reshape(-1, 4)).as_matrix().reshape(
-        *q.shape[:-1], 3, 3)
-
-
-def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    xyzw = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat().reshape(*R.shape[:-2], 4)
-    return np.concatenate([xyzw[..., 3:], xyzw[..., :3]], -1)
 
 
 def _refuse_constant(name: str) -> Any:
@@ -335,7 +319,7 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0, controller: str = "n
         return p, q / np.linalg.norm(q, axis=-1, keepdims=True)
 
     p_hmd, q_hmd = resample(hmds[0])
-    R_hmd = _quat_to_matrix(q_hmd)
+    R_hmd = quat_wxyz_to_matrix(q_hmd)
     half_turn = np.diag([-1.0, 1.0, -1.0])
     R_head = R_hmd @ half_turn
     p_head = p_hmd + (R_hmd @ HMD_TO_HEAD_M[:, None])[..., 0]
@@ -350,12 +334,13 @@ def read_steamvr_jsonl(path: str | Path, fps: float = 60.0, controller: str = "n
         except ControllerError as exc:
             raise TrackerFileError(f"{path}: {exc}") from None
         oa, ob = offsets if side > 0 else offsets[::-1]
-        pa = pa + (_quat_to_matrix(qa) @ oa[:, None])[..., 0]
-        pb = pb + (_quat_to_matrix(qb) @ ob[:, None])[..., 0]
+        pa = pa + (quat_wxyz_to_matrix(qa) @ oa[:, None])[..., 0]
+        pb = pb + (quat_wxyz_to_matrix(qb) @ ob[:, None])[..., 0]
     left, right = (pa, pb) if side > 0 else (pb, pa)
     names = ["head", "left_wrist", "right_wrist"]
     P = [p_head, left, right]
-    Q = [_matrix_to_quat(R_head), np.tile([1.0, 0, 0, 0], (len(out_t), 1)), np.tile([1.0, 0, 0, 0], (len(out_t), 1))]
+    ident = np.tile([1.0, 0, 0, 0], (len(out_t), 1))
+    Q = [matrix_to_quat_wxyz(R_head), ident, ident.copy()]
     has = [True, False, False]
     if len(generic) == 1:
         names.append("pelvis")

@@ -5,7 +5,7 @@ more of overhead; here each step is one call.
 
 Each kernel is the same arithmetic as its numpy reference, which stays the fallback when numba is absent and which
 ``tests/test_tracking.py`` compares against: :func:`frame_features` (:func:`smplik.tracking.runtime.frame_features`
-with :func:`smplik.tracking.fast.quaternion_to_matrix_np`), :func:`decode_fk` (:func:`smplik.tracking.fast.decode_np`
+with :func:`smplik.rotations.quaternion_to_matrix_np`), :func:`decode_fk` (:func:`smplik.tracking.fast.decode_np`
 then :func:`smplik.tracking.fast.fk_np`), :func:`anomaly_scores` (:func:`smplik.tracking.runtime.anomaly_scores`)
 and :func:`two_bone_ik` (the animation pipeline's :func:`smplik.limb_ik.two_bone_ik`). ``cache=True``
 keeps the compiled code next to this module (or in numba's user cache directory when that is read-only).

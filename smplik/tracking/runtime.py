@@ -36,16 +36,10 @@ import torch
 from torch import Tensor
 
 from smplik.conventions import JOINT_INDEX, PARENTS, Gender
+from smplik.rotations import matrix_to_axis_angle_acos_np, quaternion_to_matrix_np
 from smplik.tracking.config import TrackerRuntimeConfig
 from smplik.tracking.data import body_vector
-from smplik.tracking.fast import (
-    NumpyTrackingNet,
-    axis_angle_np,
-    decode_np,
-    fk_np,
-    quaternion_to_matrix_np,
-    yaw_matrix,
-)
+from smplik.tracking.fast import NumpyTrackingNet, decode_np, fk_np, yaw_matrix
 from smplik.tracking.fit import EffectorFit
 from smplik.tracking.io import TrackerSignals
 from smplik.tracking.model_io import TrackingModel, load_model
@@ -98,7 +92,7 @@ def anomaly_scores(R_local: np.ndarray, p_world: np.ndarray, pose_lo: np.ndarray
     below = np.maximum(floor_y - BELOW_FLOOR_M - p_world[..., 1], 0.0).sum(-1)
     cross = sum(np.maximum(CROSS_MIN_M - np.linalg.norm(p_world[..., a, :] - p_world[..., b, :], axis=-1), 0.0)
                 for a, b in CROSS_PAIRS)
-    aa = axis_angle_np(R_local[..., 1:, :, :])
+    aa = matrix_to_axis_angle_acos_np(R_local[..., 1:, :, :])
     out = (np.maximum(pose_lo[1:] - RANGE_MARGIN_RAD - aa, 0.0)
            + np.maximum(aa - pose_hi[1:] - RANGE_MARGIN_RAD, 0.0)).sum((-1, -2))
     return below + cross + 0.1 * out

@@ -23,6 +23,14 @@ HANG_S = 1200
 """Guard against a hung command only (never a speed check): far above any run on a loaded 2-core machine."""
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Every journey is in the slow tier (``-m "not slow"`` leaves them out): each runs several processes."""
+    here = Path(__file__).resolve().parent
+    for item in items:
+        if here in Path(item.path).resolve().parents:
+            item.add_marker(pytest.mark.slow)
+
+
 @dataclass(frozen=True)
 class Run:
     """A finished ``smplik`` command: exit status and what it printed."""

@@ -69,6 +69,7 @@ from smplik.contacts import height_above_floor as height_above_floor
 from smplik.contacts import stance_noise as stance_noise
 from smplik.conventions import JOINT_INDEX, PARENTS
 from smplik.limb_ik import two_bone_ik
+from smplik.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from smplik.smoothing import savgol_smooth
 
 LEG_CHAINS = ((JOINT_INDEX["left_hip"], JOINT_INDEX["left_knee"], JOINT_INDEX["left_ankle"]),
@@ -297,18 +298,11 @@ def one_euro(x: np.ndarray, fps: float, *, min_cutoff_hz: float = 1.0, beta: flo
 def continuous_quaternions(R: np.ndarray) -> np.ndarray:
     """Rotation matrices (T, J, 3, 3) -> unit quaternions (T, J, 4), scalar first, with q[t] . q[t-1] >= 0."""
     T = R.shape[0]
-    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(T, -1, 4)
+    q = matrix_to_quat_wxyz(R)
     for t in range(1, T):
         flip = (q[t] * q[t - 1]).sum(-1) < 0
         q[t, flip] *= -1.0
     return q
-
-
-def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions, scalar first, any norm -> (..., 3, 3) rotation matrices."""
-    flat = q.reshape(-1, 4)
-    flat = flat / np.linalg.norm(flat, axis=-1, keepdims=True)
-    return Rotation.from_quat(flat[:, [1, 2, 3, 0]]).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
 def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cfg: CleanConfig
@@ -329,7 +323,7 @@ def smooth_motion(R_parent_joint: np.ndarray, transl: np.ndarray, fps: float, cf
         kw = {"min_cutoff_hz": cfg.min_cutoff_hz, "beta": cfg.beta, "d_cutoff_hz": cfg.d_cutoff_hz}
         q_s = one_euro(q, fps, **kw)
         t_s = one_euro(transl, fps, **kw)
-    return quaternions_to_matrices(q_s), t_s
+    return quat_wxyz_to_matrix(q_s / np.linalg.norm(q_s, axis=-1, keepdims=True)), t_s
 
 
 CORRELATION_SLOPE = 100.0
@@ -403,7 +397,8 @@ def denoise_motion(R_parent_joint: np.ndarray, transl: np.ndarray, cfg: CleanCon
     if cfg.motion_trust > 0 and not clean:
         trust = cfg.motion_trust * (WHITE_NOISE_TRUST if rotation_gain < CORRELATED_GAIN else 1.0)
         z = whittaker(y, motion_weights(y, z, noise.sigma, trust), lam)
-    return quaternions_to_matrices(z[:, :4 * J].reshape(T, J, 4)), z[:, 4 * J:]
+    q_s = z[:, :4 * J].reshape(T, J, 4)
+    return quat_wxyz_to_matrix(q_s / np.linalg.norm(q_s, axis=-1, keepdims=True)), z[:, 4 * J:]
 
 
 # ----------------------------------------------------------------------------- plausibility

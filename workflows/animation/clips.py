@@ -39,6 +39,7 @@ from scipy.spatial.transform import Rotation
 from smplik.conventions import Gender
 from smplik.effectors import Effector
 from smplik.pose import Pose
+from smplik.rotations import axis_angle_to_matrix_np, matrix_to_axis_angle_scipy
 from workflows.animation.clean import (
     FOOT_JOINTS,
     CleanConfig,
@@ -514,11 +515,7 @@ def realistic_depth(clip: Clip, camera: CameraInfo | None, fov_deg: float | None
 def axis_angle_to_local(global_orient: np.ndarray, body_pose: np.ndarray) -> np.ndarray:
     """(T, 3), (T, 23, 3) axis-angle -> local rotations (T, 24, 3, 3)."""
     aa = np.concatenate([global_orient[:, None], body_pose], axis=1)
-    return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(aa.shape[:-1] + (3, 3))
-
-
-def _axis_angle(R: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+    return axis_angle_to_matrix_np(aa)
 
 
 def rest_joints(betas: np.ndarray, gender: Gender) -> np.ndarray:
@@ -766,7 +763,7 @@ def animation_from_clip(clip: Clip, solver: TensorSolver, *, fps: float | None =
         keys = select_keyframes(R, transl, J_rest, keyframe_threshold(raw, clean, config.keyframe_threshold_m),
                                 scale=body[2], max_gap=config.max_keyframe_gap,
                                 max_keys=int(config.max_keyframe_share * len(poses)))
-        aa = _axis_angle(R)
+        aa = matrix_to_axis_angle_scipy(R)
         name = f"person_{tid}"
         tracks.append(AnimationTrack(name, tid, body[1], body[0], body[2], skeleton, rows[0][0], aa[:, 0],
                                      aa[:, 1:], transl, (), contacts if config.clean.foot_lock else None,

@@ -17,7 +17,7 @@ the same drag), ``smplik_drop`` (stale effectors deleted instead),
 ``smplik_before`` (the drag before this mechanism: every recovered effector kept exact), ``smplik_net``
 (the network alone on that same set), ``optim`` (200 Adam steps of :class:`~smplik.benchmark.OptimizationIK`
 started from the scene's pose, on the relaxed set of ``smplik``) and ``two_bone`` (the scene's pose with the
-limb's two-bone analytic IK, :func:`smplik.benchmark.two_bone.two_bone_ik`).
+limb's two-bone analytic IK, :func:`smplik.limb_ik.two_bone_ik_pose`).
 """
 
 from __future__ import annotations
@@ -242,11 +242,11 @@ def solve_method(name: str, problems: EditProblems, solver: Any, *, optim: Any =
         use = dataclasses.replace(solver, refine=RefineConfig(iterations=0)) if name == "smplik_net" else solver
         return _poses_to_aa(use.solve_batch(lists, betas=betas, gender=Gender.NEUTRAL))
     if name == "two_bone":
-        from smplik.benchmark.two_bone import two_bone_ik
+        from smplik.limb_ik import two_bone_ik_pose
 
         end_idx = torch.tensor([JOINT_INDEX[e] for e in problems.ends])
         J = problems.J_rest.expand(P, -1, -1)
-        R_local = two_bone_ik(axis_angle_to_matrix(problems.scene_aa), problems.scene_transl, J, end_idx,
+        R_local = two_bone_ik_pose(axis_angle_to_matrix(problems.scene_aa), problems.scene_transl, J, end_idx,
                               problems.targets)
         return matrix_to_axis_angle(R_local), problems.scene_transl.clone()
     if name == "optim":

@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 import viser
-from scipy.spatial.transform import Rotation
 
 from smplik.conventions import JOINT_NAMES, NUM_BETAS, EffectorType, Gender
+from smplik.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from workflows.editor.access import TOKEN_PARAM, AccessGuard, guarded_serve
 from workflows.editor.state import BETA_RANGE, EFFECTOR_TYPES, EditorError, EditorState
 
@@ -42,18 +42,6 @@ MAX_IMAGE_SIDE = 1280
 IMAGE_WXYZ = (0.0, 1.0, 0.0, 0.0)
 """viser draws an image in OpenCV camera axes (rows along -y down, seen from -z); a half turn about x
 puts row 0 at the top, facing the camera at the origin (the estimator's OpenGL camera looks down -z)."""
-
-
-def wxyz_to_matrix(wxyz: Any) -> np.ndarray:
-    """Quaternion ``(w, x, y, z)`` -> rotation matrix (3, 3)."""
-    w, x, y, z = (float(v) for v in wxyz)
-    return Rotation.from_quat([x, y, z, w]).as_matrix()
-
-
-def matrix_to_wxyz(R: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) -> quaternion ``(w, x, y, z)``."""
-    x, y, z, w = Rotation.from_matrix(np.asarray(R, np.float64)).as_quat()
-    return np.array([w, x, y, z])
 
 
 class EditorApp:
@@ -347,7 +335,7 @@ class EditorApp:
                 return
             try:
                 if e.type == EffectorType.ROTATION:
-                    self.state.move_effector(k, rotation=wxyz_to_matrix(wxyz))
+                    self.state.move_effector(k, rotation=quat_wxyz_to_matrix(wxyz))
                 else:
                     self.state.move_effector(k, position=position)
             except EditorError as exc:
@@ -400,7 +388,7 @@ class EditorApp:
             if e.type == EffectorType.ROTATION:
                 g.position = joints[e.joint]
                 if k != skip:
-                    g.wxyz = matrix_to_wxyz(e.value)
+                    g.wxyz = matrix_to_quat_wxyz(e.value)
             else:
                 if k != skip:
                     g.position = np.asarray(e.value)

@@ -1,4 +1,4 @@
-"""GVHMR results: ``hmr4d_results.pt`` (a dict of tensors, ``torch.load(weights_only=True)``) or ``.npz``.
+"""GVHMR results: ``hmr4d_results.pt`` (a dict of tensors, read by :func:`smplik.model_io.read_torch_file`) or ``.npz``.
 
 Written by GVHMR (github.com/zju3dv/GVHMR, ``tools/demo/demo.py``: ``pred = model.predict(data,
 static_cam=...)``, ``torch.save(pred, paths.hmr4d_results)``). GVHMR poses **SMPL-X**

@@ -8,7 +8,7 @@ with numpy float32 arrays: ``bbox (4,)``, ``focal_length ()``, ``pred_keypoints_
 ``shape_params (45,)``, ``expr_params (72,)``, ``mask`` (None without a segmentor),
 ``pred_joint_coords (127, 3)``, ``pred_global_rots (127, 3, 3)``, ``mhr_model_params (204,)``, ``lhand_bbox`` /
 ``rhand_bbox (4,)`` float64. ``demo.py`` only renders; files are saved by the user: this reader takes that
-list (``.pkl`` through the restricted unpickler, ``.pt`` with ``torch.load(weights_only=True)``, or an
+list (``.pkl`` through the restricted unpickler, ``.pt`` through :func:`smplik.model_io.read_torch_file`, or an
 ``.npz`` holding it under one key, ``np.savez(path, outputs=outputs)``), one such dict, or one person per
 ``.npz`` with the dict's keys, the layout of the sample outputs in
 github.com/facebookresearch/MHR ``tools/mhr_smpl_conversion/data/sam3d_body_outputs/img_subj0*.npz``

@@ -310,7 +310,7 @@ def solve_limb_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], p
 
     A dragged wrist or ankle position (:data:`TWO_BONE_ENDS`) is then posed analytically on the ``previous``
     pose: the two-bone IK of shoulder-elbow-wrist or hip-knee-ankle
-    (:func:`smplik.benchmark.two_bone.two_bone_ik`) reaches the target exactly with the fewest joints changed,
+    (:func:`smplik.limb_ik.two_bone_ik_pose`) reaches the target exactly with the fewest joints changed,
     and its swivel (the elbow or knee pole) turns :data:`SWIVEL_SHARE` of the way to the prior's (the network's
     elbow, :data:`NETWORK_SWIVEL_ENDS`, or the prior chain's knee). Every joint outside the limb, the collar
     included, stays exactly where the user left it. Only when that pose misses an effector the user still
@@ -326,9 +326,9 @@ def solve_limb_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], p
         moved_joints: B joint indices, the dragged effectors' joints.
         analytic: False: the prior's chain only (the previous release's drag; the edit benchmark compares).
     """
-    from smplik.benchmark.two_bone import swivel_angle, turn_swivel, two_bone_ik
     from smplik.effectors import pack_effectors
     from smplik.kinematics import forward_kinematics
+    from smplik.limb_ik import swivel_angle, turn_swivel, two_bone_ik_pose
     from smplik.refine import NO_REFINEMENT
     from smplik.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
@@ -373,7 +373,7 @@ def solve_limb_edit(solver: Any, effector_lists: Sequence[Sequence[Effector]], p
             mid, root = par[tip], par[par[tip]]
             J64, R_prev = J_rest[rows].double(), axis_angle_to_matrix(aa_prev[rows].double())
             t_prev = transl_prev[rows].double()
-            R_seed = two_bone_ik(R_prev, t_prev, J64, tip, targets[rows])
+            R_seed = two_bone_ik_pose(R_prev, t_prev, J64, tip, targets[rows])
             _, p_seed = forward_kinematics(R_seed, J64, t_prev)
             arm = torch.tensor([JOINT_NAMES[int(t)] in NETWORK_SWIVEL_ENDS for t in tip.tolist()])
             p_ref = torch.where(arm[:, None, None], net.p_world[rows].double(), joints_out[rows])

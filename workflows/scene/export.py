@@ -36,8 +36,9 @@ from scipy.spatial.transform import Rotation
 from shape_inversion.gltf_io import MESHOPT_EXTENSIONS, node_local_matrix
 from smplik.atomic import write_bytes_atomic, write_text_atomic
 from smplik.conventions import JOINT_NAMES, PARENTS
-from smplik.data.bvh import format_bvh, matrix_to_euler_channels
+from smplik.data.bvh import format_bvh
 from smplik.pose import Pose
+from smplik.rotations import matrix_to_euler_deg_np
 from workflows.character import (
     JOINT_CHANNELS,
     ROOT_CHANNELS,
@@ -245,7 +246,7 @@ def smpl_bvh_text(c: SceneCharacter, frames: Sequence[Pose], frame_time: float =
     J, R, pelvis = _smpl_rest_and_locals(c, frames)
     offsets = np.array([np.zeros(3) if p < 0 else J[k] - J[p] for k, p in enumerate(PARENTS)])
     channels = [ROOT_CHANNELS if p < 0 else JOINT_CHANNELS for p in PARENTS]
-    euler = matrix_to_euler_channels(R, "ZYX")  # (T, 24, 3)
+    euler = matrix_to_euler_deg_np(R, "ZYX")  # (T, 24, 3)
     values = np.concatenate([pelvis, euler.reshape(len(frames), -1)], axis=1)
     return format_bvh(JOINT_NAMES, PARENTS, offsets, channels, values, frame_time)
 

@@ -167,9 +167,10 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
     to ``jitter`` of itself."""
     from scipy.spatial.transform import Rotation
 
+    from smplik.rotations import matrix_to_quat_wxyz
     from smplik.tracking.calibrate import controller_offset
     from smplik.tracking.csv_io import GENERIC, PRODUCERS, TIME_UNITS, UNITS
-    from smplik.tracking.io import HMD_TO_HEAD_M, _matrix_to_quat
+    from smplik.tracking.io import HMD_TO_HEAD_M
 
     prod = next((p for p in PRODUCERS if p.name == producer), None)
     if prod is None or producer not in _DEVICE_PREFIX:
@@ -205,7 +206,7 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
     header, cols = [], []
     for fmt, (p, R) in zip(_DEVICE_PREFIX[producer], devices, strict=True):
         p = p * flip / UNITS[units]
-        q = _matrix_to_quat(R) * qflip
+        q = matrix_to_quat_wxyz(R) * qflip
         for a, i in zip("xyz", range(3), strict=True):
             header.append(fmt.format(k="pos", a=a, A=a.upper()))
             cols.append(p[:, i])

@@ -35,6 +35,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from smplik.rotations import matrix_to_quat_wxyz
 from smplik.tracking.config import TRACKER_SETS
 from workflows.animation.clips import AnimationError
 
@@ -182,15 +183,8 @@ class DeviceFrames:
         p_head, R_head = hmd_to_head(*self.poses[need[0]])
         P = np.stack([p_head, *[self.poses[k][0] for k in need[1:]]])
         Q = np.tile([1.0, 0.0, 0.0, 0.0], (len(need), 1))
-        Q[0] = _matrix_to_wxyz(R_head)
+        Q[0] = matrix_to_quat_wxyz(R_head)
         return P, Q
-
-
-def _matrix_to_wxyz(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
-    return np.array([w, x, y, z])
 
 
 def _vmc_device(args: list[Any]) -> tuple[str, np.ndarray, np.ndarray] | None:

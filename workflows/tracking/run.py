@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from smplik.conventions import Gender
+from smplik.rotations import matrix_to_axis_angle_scipy
 from workflows.animation.clips import Animation, AnimationError, AnimationTrack
 from workflows.animation.run import animation_export_names, export_animation
 
@@ -33,12 +34,6 @@ class TrackOutputs:
     switches: int
     calibration: Any = None
     """:class:`smplik.tracking.calibrate.Calibration` (None with ``calibrate=False`` or a character)."""
-
-
-def _axis_angle(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-2], 3)
 
 
 def track_file(path: str | Path, out_dir: str | Path, *, samples: int = 1, betas: Sequence[float] | None = None,
@@ -121,7 +116,7 @@ def _track_into(stage: Any, path: str | Path, *, samples: int, betas: Sequence[f
                                                        foot_lock=foot_locks != "off",
                                                        offline_lock=foot_locks == "offline"))
     result = track_sequence(tracker, signals)
-    aa = _axis_angle(result.R_local)
+    aa = matrix_to_axis_angle_scipy(result.R_local)
     track = AnimationTrack("person_0", "0", body_gender, body_betas, scale, skeleton, 0, aa[:, 0], aa[:, 1:],
                            result.transl, (), result.contacts.astype(bool))
     animation = Animation((track,), float(signals.fps), str(path), "smplik-trackers", "world", None, None)

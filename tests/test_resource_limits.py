@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from limit_recipes import bvh_text, gltf_rig, run_capped, str_of_list_dag
 
 from smplik.limits import (
     ALL_LIMITS,
@@ -35,28 +36,6 @@ from smplik.limits import (
 from smplik.safe_pickle import UnsafePickleError, loads_restricted
 
 ROOT = Path(__file__).resolve().parents[1]
-CAP = 3 << 30
-
-_WRAPPER = """
-import json, resource, subprocess, sys
-resource.setrlimit(resource.RLIMIT_AS, (int(sys.argv[1]), int(sys.argv[1])))
-proc = subprocess.run(sys.argv[2:], capture_output=True, text=True, timeout=600)
-peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-print(json.dumps({"rc": proc.returncode, "stderr": proc.stderr, "peak_kib": peak_kib}))
-"""
-
-
-def run_capped(*args: str, env: dict[str, str] | None = None) -> tuple[int, list[str], int]:
-    """``smplik ARGS`` under a 3 GiB address-space cap: (exit status, non-empty stderr lines, peak RSS in bytes)."""
-    full_env = {**os.environ, **(env or {})}
-    proc = subprocess.run([sys.executable, "-c", _WRAPPER, str(CAP), sys.executable, "-m", "smplik.cli", *args],
-                          capture_output=True, text=True, cwd=ROOT, env=full_env, timeout=900)
-    assert proc.returncode == 0, proc.stderr
-    out = json.loads(proc.stdout.strip().splitlines()[-1])
-    lines = [ln for ln in out["stderr"].splitlines() if ln.strip()]
-    return out["rc"], lines, out["peak_kib"] * 1024
-
-
 def assert_refused(args: list[str], *needles: str, env: dict[str, str] | None = None) -> str:
     """The command fails with exactly one ``error:`` line holding every needle, exit 1, under 2 GiB."""
     rc, lines, peak = run_capped(*args, env=env)
@@ -68,20 +47,6 @@ def assert_refused(args: list[str], *needles: str, env: dict[str, str] | None = 
 
 
 # ----------------------------------------------------------------------------- pickles
-
-
-def str_of_list_dag(levels: int = 27) -> bytes:
-    """A pickle applying ``builtins.str`` to a list DAG of ``levels`` levels (a few hundred bytes; str() of it
-    would format 2**levels lists)."""
-    node: list = []
-    for _ in range(levels):
-        node = [node, node]
-
-    class Call:
-        def __reduce__(self):
-            return str, (node,)
-
-    return pickle.dumps({"pred_thetas": Call()}, protocol=4)
 
 
 def test_str_of_an_object_is_refused_before_the_call():
@@ -138,6 +103,7 @@ def test_the_str_dag_smpl_model_file_is_one_line(tmp_path):
         read_model_arrays(path)
 
 
+@pytest.mark.slow
 def test_compressed_pickles_are_inflated_with_a_running_cap(tmp_path, monkeypatch):
     from smplik.safe_pickle import load_pickle
 
@@ -288,17 +254,16 @@ def test_images_decode_to_uint8_and_their_render_is_bounded(tmp_path, monkeypatc
         load_image(small)
 
 
-def test_an_8000_pixel_photo_under_scene_render_is_one_line(tmp_path):
+def test_an_8000_pixel_photo_under_scene_render_is_one_line(shipped_solver, tmp_path):
     from PIL import Image
 
     from smplik.conventions import Gender
     from smplik.effectors import Effector
-    from smplik.solver import IKSolver
     from workflows.estimators.base import CameraInfo
     from workflows.scene import Scene, SceneCharacter, save_scene
 
     eff = (Effector.position("pelvis", [0.0, 0.9, -3.0]),)
-    pose = IKSolver.load().solve(list(eff), betas=np.zeros(10), gender="neutral")
+    pose = shipped_solver.solve(list(eff), betas=np.zeros(10), gender="neutral")
     photo = tmp_path / "photo.png"
     Image.new("RGB", (8000, 8000)).save(photo)
     assert photo.stat().st_size < 1 << 20
@@ -329,25 +294,15 @@ def test_devices_pipes_and_links_to_them_are_refused_up_front(tmp_path):
     assert_refused(["invert-shape", str(link), "--out", str(tmp_path / "s.json")], "z.glb", "character device")
 
 
-def _gltf(tmp_path: Path, buffers: list[dict], accessors: list[dict]) -> Path:
-    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
-           "nodes": [{"name": "hips", "children": [1]}, {"name": "spine", "translation": [0, 0.2, 0]}],
-           "skins": [{"joints": [0, 1], "inverseBindMatrices": 0}], "buffers": buffers, "accessors": accessors,
-           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 128}] if buffers else []}
-    path = tmp_path / "rig.gltf"
-    path.write_text(json.dumps(doc))
-    return path
-
-
 def test_a_gltf_buffer_on_a_named_pipe_is_refused_not_waited_for(tmp_path):
     os.mkfifo(tmp_path / "pipe.bin")  # nobody writes to it: opening it would block for ever
-    path = _gltf(tmp_path, [{"uri": "pipe.bin", "byteLength": 128}],
+    path = gltf_rig(tmp_path, [{"uri": "pipe.bin", "byteLength": 128}],
                  [{"bufferView": 0, "componentType": 5126, "count": 2, "type": "MAT4"}])
     assert_refused(["invert-shape", str(path), "--out", str(tmp_path / "s.json")], "pipe.bin", "named pipe (FIFO)")
 
 
 def test_a_skin_accessor_claiming_5e7_matrices_is_refused_before_allocating(tmp_path):
-    path = _gltf(tmp_path, [], [{"componentType": 5126, "count": 50_000_000, "type": "MAT4"}])
+    path = gltf_rig(tmp_path, [], [{"componentType": 5126, "count": 50_000_000, "type": "MAT4"}])
     assert_refused(["invert-shape", str(path), "--out", str(tmp_path / "s.json")], "accessors[0] (MAT4 x 50000000)",
                    "SMPLIK_MAX_ARRAY_ELEMENTS")
 
@@ -363,27 +318,16 @@ def test_an_estimator_json_is_read_under_the_json_limit(tmp_path):
 # ----------------------------------------------------------------------------- work sized by a number
 
 
-def _bvh(joints: int, frames: int, lines: int) -> str:
-    """A chain of ``joints`` joints (3 rotation channels each) declaring ``frames`` frames over ``lines`` lines."""
-    text = "HIERARCHY\nROOT j0\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation " \
-           "Yrotation\n"
-    for j in range(1, joints):
-        text += f"JOINT j{j}\n{{\nOFFSET 0 1 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n"
-    text += "End Site\n{\nOFFSET 0 1 0\n}\n" + "}\n" * joints
-    row = " ".join(["0"] * (3 * joints + 3)) + "\n"
-    return text + f"MOTION\nFrames: {frames}\nFrame Time: 0.008333\n" + row * lines
-
-
 def test_a_bvh_whose_parse_would_pass_the_memory_budget_is_refused_first(tmp_path, monkeypatch):
     from smplik.data.bvh import parse_bvh
 
-    assert parse_bvh(_bvh(31, 20, 20)).num_frames == 20
+    assert parse_bvh(bvh_text(31, 20, 20)).num_frames == 20
     monkeypatch.setenv("SMPLIK_MAX_MEMORY_BYTES", "100K")
     with pytest.raises(LimitError, match=r"20 frames of 31 joints, parsed at 848 bytes.*SMPLIK_MAX_MEMORY_BYTES"):
-        parse_bvh(_bvh(31, 20, 20))
+        parse_bvh(bvh_text(31, 20, 20))
     monkeypatch.delenv("SMPLIK_MAX_MEMORY_BYTES")
     path = tmp_path / "long.bvh"  # 900,000 frames of 31 joints (23 GB parsed) inside the 10**6-frame limit
-    path.write_text(_bvh(31, 900_000, 2))
+    path.write_text(bvh_text(31, 900_000, 2))
     assert_refused(["data", "preview", str(path), "--out", str(tmp_path / "p.png")], "900000 frames of 31 joints",
                    "SMPLIK_MAX_MEMORY_BYTES")
 

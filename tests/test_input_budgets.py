@@ -65,7 +65,8 @@ def problem(result, needle: str) -> str | None:  # noqa: ANN001 - click.testing.
     return None
 
 
-def test_every_round4_budget_case_is_one_error_line_and_keeps_its_input(round4):
+@pytest.mark.slow
+def test_every_budget_case_is_one_error_line_and_keeps_its_input(round4):
     module, cases = round4
     assert {c.reader for c, _ in cases} == {"r4_trackers", "r4_steamvr", "r4_tracking_model", "r4_ik_model",
                                             "r4_animation"}
@@ -262,7 +263,7 @@ def test_a_sparse_preview_plays_at_least_one_frame_a_second():
             shown_frames(Anim(), bad, 1000)
 
 
-def test_every_round4_limit_is_on_the_security_page():
+def test_every_budget_limit_is_on_the_security_page():
     page = (ROOT / "docs" / "security.md").read_text()
     for needle in (OUTPUT_FRAMES.env, TRACK_FRAMES.env, "smplik.limits.MIN_FPS", "MAX_PREVIEW_EVERY",
                    "TRACKING_NET_RANGES", "MAX_ABS_TIMESTAMP_S", "MAX_EFFECTORS", "read_torch_file"):

@@ -65,11 +65,10 @@ def trackers_doc(frames: int = 20) -> dict:
 
 
 @pytest.fixture(scope="module")
-def material(tmp_path_factory) -> dict[str, Path]:
+def material(shipped_solver, tmp_path_factory) -> dict[str, Path]:
     """A trackers file, a Mixamo BVH character and a scene with effectors (files only; nothing solved)."""
     from helpers import demo_scene
 
-    from smplik.solver import IKSolver
     from workflows.layout_examples import smpl_rest, write_mixamo_bvh
     from workflows.scene.document import save_scene
 
@@ -77,7 +76,7 @@ def material(tmp_path_factory) -> dict[str, Path]:
     trackers = folder / "trackers.json"
     trackers.write_text(json.dumps(trackers_doc()))
     bvh = write_mixamo_bvh(folder / "hero.bvh", smpl_rest()[0])
-    scene = save_scene(demo_scene(IKSolver.load()), folder / "scene.json")
+    scene = save_scene(demo_scene(shipped_solver), folder / "scene.json")
     return {"trackers": trackers, "bvh": bvh, "scene": scene}
 
 
@@ -306,6 +305,7 @@ def gvhmr_file(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_scene_animate_export_killed_while_committing_is_all_old_then_all_new(gvhmr_file, tmp_path):
     args = ["scene", "animate", gvhmr_file, "--fps", "30", "--max-effectors", "2", "--export", "bvh,glb",
             "--smoothing", "none"]
@@ -640,18 +640,17 @@ def _raw_status(port: int, request: bytes) -> int:
 
 
 @pytest.fixture(scope="module")
-def running_editor(tmp_path_factory):
+def running_editor(shipped_solver, tmp_path_factory):
     """One editor on a fresh scene for the HTTP tests: ``(port, token, "127.0.0.1:PORT")``."""
     pytest.importorskip("viser")
     import torch
 
-    from smplik.solver import IKSolver
     from workflows.editor.app import EditorApp
     from workflows.editor.state import EditorState, fresh_scene
 
     torch.set_num_threads(1)
     path = tmp_path_factory.mktemp("editor") / "scene.json"
-    editor = EditorApp(EditorState(fresh_scene(), IKSolver.load(), path=path), host="127.0.0.1", port=0)
+    editor = EditorApp(EditorState(fresh_scene(), shipped_solver, path=path), host="127.0.0.1", port=0)
     try:
         yield editor.port, editor.access.token, f"127.0.0.1:{editor.port}"
     finally:

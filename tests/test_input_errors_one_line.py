@@ -52,7 +52,7 @@ def one_error_line(result) -> str | None:  # noqa: ANN001 - click.testing.Result
     return None
 
 
-def test_every_round3_case_is_one_error_line_and_keeps_its_inputs(round3, monkeypatch):
+def test_every_fuzz_case_is_one_error_line_and_keeps_its_inputs(round3, monkeypatch):
     _, cases = round3
     assert {c.reader for c in cases} == {"r3_config", "r3_pose_cache", "r3_estimator", "r3_gltf", "r3_outputs",
                                          "r3_options"}
