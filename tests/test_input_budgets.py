@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def round4(tmp_path_factory):
+def budget_campaign(tmp_path_factory):
     if not packaged_model_path().is_file():
         pytest.skip("no packaged model in this checkout")
     import torch
@@ -45,7 +45,7 @@ def round4(tmp_path_factory):
         module = importlib.import_module("fuzz_round4_budgets")
     finally:
         sys.path.remove(str(ROOT / "benchmarks"))
-    return module, module.round4_budget_cases(tmp_path_factory.mktemp("round4"))
+    return module, module.round4_budget_cases(tmp_path_factory.mktemp("budget_campaign"))
 
 
 def run(args: list[str]):  # noqa: ANN201 - click.testing.Result
@@ -66,8 +66,8 @@ def problem(result, needle: str) -> str | None:  # noqa: ANN001 - click.testing.
 
 
 @pytest.mark.slow
-def test_every_budget_case_is_one_error_line_and_keeps_its_input(round4):
-    module, cases = round4
+def test_every_budget_case_is_one_error_line_and_keeps_its_input(budget_campaign):
+    module, cases = budget_campaign
     assert {c.reader for c, _ in cases} == {"r4_trackers", "r4_steamvr", "r4_tracking_model", "r4_ik_model",
                                             "r4_animation"}
     failures = []
@@ -85,10 +85,10 @@ def test_every_budget_case_is_one_error_line_and_keeps_its_input(round4):
     assert not failures, "\n".join(failures)
 
 
-def test_a_huge_or_tiny_quaternion_is_the_identity_and_a_zero_one_is_named(round4, tmp_path):
+def test_a_huge_or_tiny_quaternion_is_the_identity_and_a_zero_one_is_named(budget_campaign, tmp_path):
     from smplik.tracking.io import TrackerFileError, signals_from_dict
 
-    module, _ = round4
+    module, _ = budget_campaign
     for scale in (1e300, 1e-300, 5e-324):
         sig = signals_from_dict(module.tracker_doc(head_rotation=[[scale, 0, 0, 0]] * 60), "t.json")
         np.testing.assert_allclose(sig.rotations[:, 0], np.tile([1.0, 0, 0, 0], (60, 1)))
@@ -132,7 +132,7 @@ def _peak_mb(fn) -> float:  # noqa: ANN001
     return peak / 2**20
 
 
-def test_resampling_a_recording_is_refused_before_it_is_made(round4):
+def test_resampling_a_recording_is_refused_before_it_is_made(budget_campaign):
     """60 rows at 1 frame/s stretched to 3.5 M frames (the TF hang) and 10^6 rows at 1000 frames/s (the tracker's
     cap, counted on input and output frames): refused with a few MB traced, never the arrays themselves."""
     from smplik.tracking.io import TrackerSignals
@@ -153,10 +153,10 @@ def test_resampling_a_recording_is_refused_before_it_is_made(round4):
     assert P.shape == (5, 1, 3) and Q.shape == (5, 1, 4) and nearest.tolist() == [0, 2, 4]
 
 
-def test_a_steamvr_span_is_refused_before_the_resampling(round4, tmp_path):
+def test_a_steamvr_span_is_refused_before_the_resampling(budget_campaign, tmp_path):
     from smplik.tracking.io import TrackerFileError, read_steamvr_jsonl
 
-    module, _ = round4
+    module, _ = budget_campaign
     path = tmp_path / "log.jsonl"
     path.write_text(module.steamvr_lines(last=1e9))  # 6e10 frames at 60 frames/s: 2.8 TB of positions
     with pytest.raises(TrackerFileError, match="SMPLIK_MAX_OUTPUT_FRAMES"):
@@ -167,11 +167,11 @@ def test_a_steamvr_span_is_refused_before_the_resampling(round4, tmp_path):
     assert sig.names == ("head", "left_wrist", "right_wrist") and sig.num_frames == 60
 
 
-def test_strings_are_not_numbers_in_tracker_files(round4):
+def test_strings_are_not_numbers_in_tracker_files(budget_campaign):
     from smplik.tracking.io import TrackerFileError, signals_from_dict
     from smplik.validation import only_numbers
 
-    module, _ = round4
+    module, _ = budget_campaign
     assert only_numbers([[1, 2.5, np.float32(3)]]) and only_numbers(np.zeros((2, 3)))
     assert not only_numbers([[1, "2", 3]]) and not only_numbers([[1, True, 3]]) and not only_numbers([[1, None, 3]])
     assert not only_numbers(np.asarray(["1"])) and not only_numbers([[1, {}, 3]])
@@ -218,11 +218,11 @@ def test_the_largest_tracking_network_the_ranges_allow_is_small():
         assert size < 100e6, (kind, size)
 
 
-def test_a_model_file_bomb_is_refused_from_the_zip_directory(round4, tmp_path):
+def test_a_model_file_bomb_is_refused_from_the_zip_directory(budget_campaign, tmp_path):
     """The deflated-storage tracking model (MZ) never reaches torch.load: refused with a few MB traced."""
     from smplik.tracking.model_io import read_tracking_file
 
-    _, cases = round4
+    _, cases = budget_campaign
     bomb = next(c for c, _ in cases if c.note.startswith("MZ")).keep
     assert bomb.stat().st_size < 3 << 20  # the shipped model's 2.2 MB and one deflated 80 MB member
     with pytest.raises(LimitError, match="is compressed and inflates to 83886080 bytes"):
@@ -230,12 +230,12 @@ def test_a_model_file_bomb_is_refused_from_the_zip_directory(round4, tmp_path):
     assert _peak_mb(lambda: read_tracking_file(bomb)) < 5
 
 
-def test_keyframe_effectors_are_counted_before_they_are_parsed(round4, monkeypatch):
+def test_keyframe_effectors_are_counted_before_they_are_parsed(budget_campaign, monkeypatch):
     """200,000 effectors in a keyframe: refused before a single one is parsed (the MemoryError at 1.5 GB)."""
     import workflows.animation.files as files
     from workflows.animation.files import AnimationFileError, animation_from_dict
 
-    module, _ = round4
+    module, _ = budget_campaign
     parsed = []
     real = files.parse_effector_dict
     monkeypatch.setattr(files, "parse_effector_dict", lambda *a, **k: parsed.append(1) or real(*a, **k))

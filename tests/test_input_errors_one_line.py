@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def round3(tmp_path_factory):
+def fuzz_campaign(tmp_path_factory):
     if not packaged_model_path().is_file():
         pytest.skip("no packaged model in this checkout")
     import torch
@@ -35,7 +35,7 @@ def round3(tmp_path_factory):
         module = importlib.import_module("fuzz_round3")
     finally:
         sys.path.remove(str(ROOT / "benchmarks"))
-    return module, module.round3_cases(tmp_path_factory.mktemp("round3"))
+    return module, module.round3_cases(tmp_path_factory.mktemp("fuzz_campaign"))
 
 
 def run(args: list[str]):  # noqa: ANN201 - click.testing.Result
@@ -52,8 +52,8 @@ def one_error_line(result) -> str | None:  # noqa: ANN001 - click.testing.Result
     return None
 
 
-def test_every_fuzz_case_is_one_error_line_and_keeps_its_inputs(round3, monkeypatch):
-    _, cases = round3
+def test_every_fuzz_case_is_one_error_line_and_keeps_its_inputs(fuzz_campaign, monkeypatch):
+    _, cases = fuzz_campaign
     assert {c.reader for c in cases} == {"r3_config", "r3_pose_cache", "r3_estimator", "r3_gltf", "r3_outputs",
                                          "r3_options"}
     failures = []
@@ -73,11 +73,11 @@ def test_every_fuzz_case_is_one_error_line_and_keeps_its_inputs(round3, monkeypa
     assert not failures, "\n".join(failures)
 
 
-def test_the_valid_material_of_the_cases_is_accepted(round3, tmp_path):
+def test_the_valid_material_of_the_cases_is_accepted(fuzz_campaign, tmp_path):
     """The cases fail because of their one mutation: the valid cache loads, the valid BVH inverts."""
     from smplik.data.dataset import load_cache
 
-    module, cases = round3
+    module, cases = fuzz_campaign
     np.savez(tmp_path / "cache.npz", **module.valid_pose_cache())
     assert len(load_cache(tmp_path / "cache.npz")) == 4
     hero = next(c.keep for c in cases if c.note == "invert-shape --out hero.bvh")
@@ -128,10 +128,10 @@ def test_effector_counts_must_be_ordered():
         EffectorSamplingConfig(min_effectors=8, max_effectors=4)
 
 
-def test_pose_cache_errors_name_the_key(round3, tmp_path):
+def test_pose_cache_errors_name_the_key(fuzz_campaign, tmp_path):
     from smplik.data.dataset import CacheError, load_cache
 
-    module, _ = round3
+    module, _ = fuzz_campaign
     expected = {"version_1d": "'version'", "version_float": "'version'", "subject_names_scalar": "'subject_names'",
                 "subject_names_numbers": "'subject_names'", "clip_names_short": "'clip_id'", "pose_1e30": "'pose'",
                 "pose_nan": "'pose'", "transl_inf": "'transl'", "frame_negative": "'frame'",

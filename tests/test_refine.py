@@ -137,14 +137,14 @@ SHIPPED = resources.files("smplik") / "checkpoints" / "smplik_cmu.pt"
 
 
 @pytest.mark.skipif(not SHIPPED.is_file(), reason="shipped model smplik/checkpoints/smplik_cmu.pt absent")
-def test_shipped_solver_meets_effectors_the_network_misses():
+def test_shipped_solver_meets_effectors_the_network_misses(shipped_solver):
     """The default solve refines the network's pose onto exact targets; iterations=0 is the network alone.
 
     Targets: the joints of a plausible pose (the network's answer to targets near the rest pose),
     with the hands and feet pulled 4 cm in random directions."""
     from smplik.solver import IKSolver
 
-    solver, network = IKSolver.load(), IKSolver.load(refine=NO_REFINEMENT)
+    solver, network = shipped_solver, IKSolver.load(refine=NO_REFINEMENT)
     g = torch.Generator().manual_seed(5)
     names = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")
     idx = [JOINT_INDEX[n] for n in names]

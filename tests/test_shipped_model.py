@@ -48,12 +48,11 @@ def test_effectors_move_the_pose(model, fixed_set):
     assert model_tracking_mm(model, fixed_set, 0.0) > 40.0
 
 
-def test_refined_solver_keeps_the_tolerance_order(model, fixed_set):
+def test_refined_solver_keeps_the_tolerance_order(shipped_solver, model, fixed_set):
     """With the default refinement, tighter effectors are still met more closely and tracked further,
     also when the 12 cm pulls make some of them unreachable."""
-    from smplik.solver import IKSolver
 
-    solver = IKSolver.load(SHIPPED)
+    solver = shipped_solver
     truth, betas, gender = fixed_set
     targets = pulled(truth)
     base = tracked_joints(solver.solve_tensors, truth, betas, gender, 0.0)

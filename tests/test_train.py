@@ -195,6 +195,7 @@ main()
 """
 
 
+@pytest.mark.slow
 def test_cli_train_sigint_mid_step_exits_130_naming_the_saved_step(tiny_cache, tmp_path, one_thread):
     """`smplik train` in its own process, a real SIGINT inside step 4 (chosen, not timed): exit status
     130, the last stderr line says where it saved, and the resumed run equals an uninterrupted one."""
@@ -221,6 +222,7 @@ def _stop_at(step_to_stop: int):
     return callback
 
 
+@pytest.mark.slow
 def test_real_sigint_from_outside_at_a_random_moment_resumes_bit_exactly(tiny_cache, tmp_path, one_thread):
     """A real SIGINT sent by another process at a random moment of a training run that is far too long
     to finish first: the process exits 130 naming the saved step s; resuming it to step s + 3 gives, bit
@@ -300,6 +302,7 @@ def _free_port():
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_torchrun_two_processes_on_cpu(tiny_cache, tmp_path):
     run = tmp_path / "ddp"
     cfg = config(tiny_cache, run, steps=3, ckpt_every=3, val_every=3)

@@ -13,6 +13,7 @@ from workflows.demo import run_demo
 from workflows.scene import load_scene
 
 
+@pytest.mark.slow
 def test_demo_runs_end_to_end(tmp_path, best_solver, monkeypatch):
     monkeypatch.setenv("PYOPENGL_PLATFORM", os.environ.get("PYOPENGL_PLATFORM") or "egl")
     previews = can_render()

@@ -113,17 +113,16 @@ def test_the_editor_opens_each_scene_the_demo_writes(demo, smplik_process):
             editor.stop()
 
 
-def test_the_editor_draws_each_character_where_the_scene_puts_it(demo):
+def test_the_editor_draws_each_character_where_the_scene_puts_it(shipped_solver, demo):
     """What the editor draws: the posed body at the scene's solved joints, and a custom character's own
     skeleton on that body (the part that crashed)."""
     import torch
 
-    from smplik.solver import IKSolver
     from workflows.editor.state import EditorState
     from workflows.scene import character_joints, load_scene
 
     torch.set_num_threads(1)
-    solver = IKSolver.load()
+    solver = shipped_solver
     for name in ("smpl", "character"):
         path = demo.out / name / "scene.json"
         scene = load_scene(path)
