@@ -73,3 +73,44 @@ def test_batch_jobs_load_the_commands_of_the_table():
         loaded = job_command(job)
         assert (loaded.name, loaded.help, [p.name for p in loaded.params]) == \
             (command.name, command.help, [p.name for p in command.params]), job.name
+
+
+def test_track_train_runs_the_trainer_and_reports_its_refusal_in_one_line(tiny_cache, tmp_path):
+    """The command reaches :func:`smplik.tracking.train.train`: a 30 fps cache is refused by the trainer (the network
+    reads 60 Hz) with one line naming the cache, and no model file is written."""
+    res = CliRunner().invoke(app, ["track-train", str(tiny_cache), str(tmp_path / "o.pt"), "--minutes", "0.01"])
+    assert res.exit_code == 1, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(tiny_cache) in lines[0] and "30 fps" in lines[0] and "60" in lines[0], res.stderr
+    assert not (tmp_path / "o.pt").exists()
+
+
+def test_track_train_trains_with_the_options_given(tmp_path):
+    """A few seconds of training on a 60 Hz toy cache: the model file and its figures are written, and the options
+    reach the trainer's config (network kind, tracker set, batch, rotation weight)."""
+    import json
+
+    import numpy as np
+
+    from smplik.data.dataset import build_cache, find_sources
+
+    rng, clips = np.random.default_rng(0), tmp_path / "clips"
+    clips.mkdir()
+    for c in range(4):  # AMASS-layout clips at 60 Hz: smooth random motion, upright in AMASS's z-up world
+        t = np.linspace(0, 2 * np.pi, 140)[:, None]
+        poses = rng.normal(0, 0.25, 72) + rng.normal(0, 0.3, 72) * np.sin(t + rng.uniform(0, 6, 72))
+        poses[:, :3] = [np.pi / 2, 0, 0]
+        np.savez(clips / f"clip{c}.npz", poses=poses, trans=np.zeros((140, 3)), betas=rng.normal(0, 1, 10),
+                 gender="neutral", mocap_framerate=60.0)
+    split = {"train": {"files": ["clip0.npz", "clip1.npz"]}, "validation": {"files": ["clip2.npz"]},
+             "test": {"files": ["clip3.npz"]}}
+    (clips / "split.json").write_text(json.dumps(split))
+    cache = tmp_path / "c60.npz"
+    build_cache(find_sources(clips, "amass"), fps=60, split=clips / "split.json", out=cache)
+    res = CliRunner().invoke(app, ["track-train", str(cache), str(tmp_path / "m.pt"), "--minutes", "0.005",
+                                   "--kind", "mlp", "--trackers", "3", "--batch", "2", "--rotation-weight", "0.3"])
+    assert res.exit_code == 0, res.output
+    assert "best validation MPJPE" in res.stdout and (tmp_path / "m.pt").stat().st_size > 0
+    info = json.loads((tmp_path / "m.json").read_text())
+    assert info["net"]["kind"] == "mlp" and info["net"]["trackers"] == ["head", "left_wrist", "right_wrist"]
+    assert info["train"]["batch"] == 2 and info["train"]["rotation_weight"] == 0.3 and info["steps"] >= 1

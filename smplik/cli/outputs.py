@@ -1,6 +1,6 @@
 """Outputs that cannot destroy inputs: one guard for every ``smplik`` command that writes.
 
-:func:`guard_outputs` is applied to every command of the tree when it is loaded (``smplik.cli.main``):
+:func:`guard_outputs` is applied to every command of the tree when it is loaded (``smplik.cli.tree.click_command``):
 
 * an output option (:data:`OUTPUT_PARAMS`: ``--out``, ``--render``, ``--preview``, ``--onnx``, ...) given as an
   empty or blank string is a usage error (``Path('')`` would be the current folder: a command would write there
