@@ -75,9 +75,9 @@ def _walk_frames(n: int) -> list[bytes]:
     import torch
     from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
     from pythonosc.osc_message_builder import OscMessageBuilder
-    from scipy.spatial.transform import Rotation
 
     from smplik.body_model import BodyModelSet
+    from smplik.rotations import axis_angle_to_matrix_np, quat_wxyz_to_matrix
     from smplik.tracking import vmc
     from smplik.tracking.config import TRACKER_SETS
     from smplik.tracking.io import signals_from_motion
@@ -90,14 +90,14 @@ def _walk_frames(n: int) -> list[bytes]:
     aa[:, 4, 0], aa[:, 5, 0] = np.maximum(0, -swing), np.maximum(0, swing)
     aa[:, 16, 2], aa[:, 17, 2] = -1.2, 1.2
     aa[:, 18, 1], aa[:, 19, 1] = -0.8, 0.8
-    R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
+    R = axis_angle_to_matrix_np(aa.reshape(-1, 3)).reshape(T, 24, 3, 3)
     transl = np.stack([0.3 * np.sin(np.pi * t), np.zeros(T), 0.3 * np.cos(np.pi * t)], -1)
     J = BodyModelSet.load().rest_joints(torch.zeros(10), torch.tensor(0)).double().numpy()
     sig = signals_from_motion(R, transl, J, TRACKER_SETS["4"], 60.0)
     out = []
     for i in range(n):
         k = i % T
-        R_head = Rotation.from_quat(sig.rotations[k, 0][[1, 2, 3, 0]]).as_matrix()
+        R_head = quat_wxyz_to_matrix(sig.rotations[k, 0])
         p_hmd, _ = vmc.head_to_hmd(sig.positions[k, 0], R_head)
         q_hmd = vmc.smpl_matrix_to_unity_quat(R_head)
         bundle = OscBundleBuilder(IMMEDIATELY)

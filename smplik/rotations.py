@@ -19,9 +19,9 @@ Two twins of every conversion:
   ``rot6d_to_matrix_np``, ``matrix_to_axis_angle_np``, ``axis_rotation_np``); BVH's Euler channels in degrees
   (``euler_deg_to_matrix_np``, ``matrix_to_euler_deg_np``, any axis order, unlike :func:`euler_to_matrix`).
 
-Every function accepts arbitrary leading batch dimensions. The numba kernels
-(:mod:`smplik.tracking.kernels`, :mod:`smplik.tracking.fit`, :mod:`smplik.refine_fast`) keep their own jit-compiled scalar copies, tested
-against these.
+Every function accepts arbitrary leading batch dimensions. The numba kernels (:mod:`smplik.tracking.kernels`,
+:mod:`smplik.tracking.fit`, :mod:`smplik.refine_fast`) keep their own jit-compiled scalar copies, tested against
+these.
 """
 
 from __future__ import annotations

@@ -167,7 +167,7 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
     to ``jitter`` of itself."""
     from scipy.spatial.transform import Rotation
 
-    from smplik.rotations import matrix_to_quat_wxyz
+    from smplik.rotations import matrix_to_quat_wxyz, quat_wxyz_to_xyzw
     from smplik.tracking.calibrate import controller_offset
     from smplik.tracking.csv_io import GENERIC, PRODUCERS, TIME_UNITS, UNITS
     from smplik.tracking.io import HMD_TO_HEAD_M
@@ -190,8 +190,7 @@ def write_device_csv(signals: Any, path: str | Path, producer: str, *, units: st
         p = np.stack([np.interp(t, src_t, signals.positions[:, k, i]) for i in range(3)], -1)
         from scipy.spatial.transform import Slerp
 
-        xyzw = np.concatenate([signals.rotations[:, k, 1:], signals.rotations[:, k, :1]], -1)
-        R = Slerp(src_t, Rotation.from_quat(xyzw))(t).as_matrix()
+        R = Slerp(src_t, Rotation.from_quat(quat_wxyz_to_xyzw(signals.rotations[:, k])))(t).as_matrix()
         return p, R
 
     p_head, R_head = at("head")
