@@ -34,9 +34,6 @@ _T0 = time.process_time()  # the interpreter's start, before any import of this 
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import os  # noqa: E402
-import resource  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -44,12 +41,12 @@ from pathlib import Path  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from _child import child_cpu, child_env  # noqa: E402
 
 SUFFIXES = (".pt", ".pkl", ".pk", ".npz")
 TARGET = 60.0
 ASSUMED_FPS = 30.0
 """Frame rate given to formats that store none (WHAM, PHALP: their demos' video rate; GVHMR's 30 is the reader's)."""
-HIDE_FAST = "import sys\nfor _m in ('numba', 'onnxruntime'):\n    sys.modules[_m] = None\n"
 STAGES = ("start", "model", "read", "clean", "keyframes", "effectors", "other", "export")
 
 
@@ -155,35 +152,13 @@ def child(path: Path, out: Path, fps: float | None, preview: bool) -> None:
     print(json.dumps(row))
 
 
-def _child_cpu(cmd: list[str], env: dict[str, str]) -> tuple[int, float, float, str]:
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    wall = time.perf_counter()
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - wall
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return res.returncode, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall, \
-        res.stdout + res.stderr
-
-
-def child_env(tmp: Path, hide_fast: bool) -> dict[str, str]:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "egl")}
-    paths = [str(ROOT)]
-    if hide_fast:
-        site = tmp / "hide_fast"
-        site.mkdir(exist_ok=True)
-        (site / "sitecustomize.py").write_text(HIDE_FAST)
-        paths.insert(0, str(site))
-    env["PYTHONPATH"] = os.pathsep.join(paths + [env.get("PYTHONPATH", "")])
-    return env
-
-
 def fps_args(fps: float | None) -> list[str]:
     return ["--fps", str(fps)] if fps else []
 
 
 def bench(path: Path, tmp: Path, solver, preview: bool, fast_off: bool) -> dict:
     fps = source_fps(path)
-    rc, _, _, text = _child_cpu([sys.executable, __file__, "--child", str(path), "--out", str(tmp / "stages"),
+    rc, _, _, text = child_cpu([sys.executable, __file__, "--child", str(path), "--out", str(tmp / "stages"),
                                  *(["--child-preview"] if preview else []), *fps_args(fps)], child_env(tmp, False))
     if rc != 0:
         raise RuntimeError(text.strip().splitlines()[-1] if text.strip() else f"exit {rc}")
@@ -196,7 +171,7 @@ def bench(path: Path, tmp: Path, solver, preview: bool, fast_off: bool) -> dict:
     row["cpu_s"] = {k: round(v, 3) if isinstance(v, float) else v for k, v in cpu.items()}
     row["command"] = []
     for hide in (False, True) if fast_off else (False,):
-        rc, c, wall, text = _child_cpu([sys.executable, "-m", "smplik.cli", "scene", "animate", str(path), "--out",
+        rc, c, wall, text = child_cpu([sys.executable, "-m", "smplik.cli", "scene", "animate", str(path), "--out",
                                         str(tmp / f"cmd{int(hide)}"), "--export", "bvh,glb", *fps_args(fps)],
                                        child_env(tmp, hide))
         row["command"].append({"fast_backends": not hide, "exit": rc, "cpu_s": round(c, 2), "wall_s": round(wall, 2),
@@ -274,7 +249,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp_dir:
             for hide in (False, True):
                 out = str(Path(tmp_dir) / f"demo{int(hide)}")
-                rc, c, wall, _ = _child_cpu([sys.executable, "-m", "smplik.cli", "demo", "--out", out],
+                rc, c, wall, _ = child_cpu([sys.executable, "-m", "smplik.cli", "demo", "--out", out],
                                             child_env(Path(tmp_dir), hide))
                 demo.append({"fast_backends": not hide, "exit": rc, "cpu_s": round(c, 2), "wall_s": round(wall, 2)})
                 print(f"smplik demo, {'with' if not hide else 'without'} [fast]: {c:.1f} CPU s (exit {rc}, wall "

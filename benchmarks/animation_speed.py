@@ -23,9 +23,6 @@ Target: at least 60 frames per CPU second for the pipeline plus export on every 
 from __future__ import annotations
 
 import argparse
-import os
-import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -33,6 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from _child import child_cpu, child_env  # noqa: E402
 from _common import save  # noqa: E402
 
 from smplik.paths import real_estimators_dir  # noqa: E402
@@ -41,7 +39,6 @@ SUFFIXES = (".pt", ".pkl", ".pk", ".npz")
 TARGET_FRAMES_PER_CPU_S = 60.0
 ASSUMED_FPS = 30.0
 """Frame rate given to formats that store none (WHAM, PHALP: their demos' video rate)."""
-HIDE_FAST = "import sys\nfor _m in ('numba', 'onnxruntime'):\n    sys.modules[_m] = None\n"
 """A ``sitecustomize`` that makes the ``[fast]`` extra's packages unimportable (the command without ``[fast]``)."""
 
 
@@ -51,28 +48,11 @@ def _cpu(fn):
     return out, time.process_time() - start, time.perf_counter() - wall
 
 
-def _child_cpu(cmd: list[str], env: dict[str, str]) -> tuple[int, float, float]:
-    """Run ``cmd``; its exit status, CPU seconds (user + system of the child) and wall seconds."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    rc = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, check=False).returncode
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return rc, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
-
-
 def fresh_process(path: Path, frames: int, hide_fast: bool, tmp: Path, fps: float | None) -> dict:
     """The whole command in a new process (startup included), with or without the ``[fast]`` backends."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "egl")}
-    paths = [str(ROOT)]
-    if hide_fast:
-        site = tmp / "hide_fast"
-        site.mkdir(exist_ok=True)
-        (site / "sitecustomize.py").write_text(HIDE_FAST)
-        paths.insert(0, str(site))
-    env["PYTHONPATH"] = os.pathsep.join(paths + [env.get("PYTHONPATH", "")])
+    env = child_env(tmp, hide_fast)
     out = tmp / ("fresh_nofast" if hide_fast else "fresh")
-    rc, cpu, wall = _child_cpu([sys.executable, "-m", "smplik.cli", "scene", "animate", str(path), "--out", str(out),
+    rc, cpu, wall, _ = child_cpu([sys.executable, "-m", "smplik.cli", "scene", "animate", str(path), "--out", str(out),
                                 "--export", "bvh,glb", *(["--fps", str(fps)] if fps else [])], env)
     return {"fast_backends": not hide_fast, "exit": rc, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2),
             "frames_per_cpu_s": round(frames / cpu, 1) if rc == 0 else None}

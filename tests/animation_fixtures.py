@@ -122,3 +122,19 @@ def walking_joints(T: int = 40, seed: int = 0, scale: float = 1.0, betas: np.nda
     transl = np.stack([np.zeros(T), np.full(T, -J_rest[:, 1].min() + 0.0), 0.05 * np.arange(T)], 1)
     R = Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
     return joints_of(R, transl, J_rest) * scale
+
+
+def humanml3d_features(P: np.ndarray) -> np.ndarray:
+    """(T, 263) HumanML3D features of joints P (T, 22, 3) facing +z, in the layout HumanML3D's
+    ``process_file`` writes: root angular velocity 0 (none here), root xz velocity 1-2 (per frame), root height 3, ric
+    (joints relative to the root's xz) 4:67; no rotation data."""
+    T = len(P)
+    feats = np.zeros((T, 263))
+    feats[:, 3] = P[:, 0, 1]
+    rel = P[:, 1:].copy()
+    rel[..., 0] -= P[:, :1, 0]
+    rel[..., 2] -= P[:, :1, 2]
+    feats[:, 4:67] = rel.reshape(T, -1)
+    feats[:-1, 1] = P[1:, 0, 0] - P[:-1, 0, 0]
+    feats[:-1, 2] = P[1:, 0, 2] - P[:-1, 0, 2]
+    return feats

@@ -231,15 +231,23 @@ def write_mediapipe_bvh(path: str | Path, P: np.ndarray, fps: float = 30.0, unit
 
     P (T, 22, 3): SMPL joints (y up, metres) the motion follows; written in ``unit`` metres (centimetres).
     """
+    return write_rotation_only_bvh(path, P, _MEDIAPIPE, fps=fps, unit=unit)
+
+
+def write_rotation_only_bvh(path: str | Path, P: np.ndarray, joints: tuple[tuple[str, str | None, int | None], ...],
+                            fps: float = 30.0, unit: float = 0.01) -> Path:
+    """A BVH of the skeleton ``joints`` ((name, parent, SMPL joint or None for a zero-OFFSET helper), parents first,
+    the root named ``Hips``) whose every OFFSET is ``0 L 0`` (the layout MediaPipe-to-BVH tools write): the body
+    lives only in the rotations. P (T, 22, 3): SMPL joints (y up, metres); written in ``unit`` metres."""
     path = Path(path)
     T = len(P)
-    names = [n for n, _, _ in _MEDIAPIPE]
-    parent = {n: p for n, p, _ in _MEDIAPIPE}
+    names = [n for n, _, _ in joints]
+    parent = {n: p for n, p, _ in joints}
     pos: dict[str, np.ndarray] = {}
-    for n, p, j in _MEDIAPIPE:
+    for n, p, j in joints:
         pos[n] = P[:, j] if j is not None else pos[p]
-    children = {n: [c for c, q, _ in _MEDIAPIPE if q == n] for n in names}
-    length = {n: 0.0 if p is None else float(np.linalg.norm(pos[n][0] - pos[p][0])) for n, p, _ in _MEDIAPIPE}
+    children = {n: [c for c, q, _ in joints if q == n] for n in names}
+    length = {n: 0.0 if p is None else float(np.linalg.norm(pos[n][0] - pos[p][0])) for n, p, _ in joints}
     G: dict[str, np.ndarray] = {}
     for n in names:
         real = [c for c in children[n] if length[c] > 1e-9]
@@ -247,9 +255,9 @@ def write_mediapipe_bvh(path: str | Path, P: np.ndarray, fps: float = 30.0, unit
             G[n] = _from_up(pos[real[0]] - pos[n])
         else:
             G[n] = G[parent[n]] if parent[n] else np.broadcast_to(np.eye(3), (T, 3, 3))
-    joints = [(n, p, (0.0, length[n] / unit, 0.0)) for n, p, _ in _MEDIAPIPE]
-    lines, order = _write_hierarchy(joints, {n: (0.0, 1.0, 0.0) for n in names},
-                                    lambda n: ("6 Xposition Yposition Zposition " if n == "Hips" else "3 ")
+    table = [(n, p, (0.0, length[n] / unit, 0.0)) for n, p, _ in joints]
+    lines, order = _write_hierarchy(table, {n: (0.0, 1.0, 0.0) for n in names},
+                                    lambda n: ("6 Xposition Yposition Zposition " if parent[n] is None else "3 ")
                                     + "Zrotation Yrotation Xrotation")
     rows = []
     for t in range(T):

@@ -7,21 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from animation_fixtures import walking_joints
-
-
-def _features(P: np.ndarray) -> np.ndarray:
-    """(T, 263) HumanML3D features of joints P (T, 22, 3) facing +z: root velocity, height, ric (no rotation data)."""
-    T = len(P)
-    feats = np.zeros((T, 263))
-    feats[:, 3] = P[:, 0, 1]
-    rel = P[:, 1:].copy()
-    rel[..., 0] -= P[:, :1, 0]
-    rel[..., 2] -= P[:, :1, 2]
-    feats[:, 4:67] = rel.reshape(T, -1)
-    feats[:-1, 1] = P[1:, 0, 0] - P[:-1, 0, 0]
-    feats[:-1, 2] = P[1:, 0, 2] - P[:-1, 0, 2]
-    return feats
+from animation_fixtures import humanml3d_features, walking_joints
 
 
 def _glb_frames(path: Path) -> dict[str, int]:
@@ -45,7 +31,7 @@ def test_humanml3d_to_bvh_and_glb_on_smpl_keeps_every_frame(animate_shipped, tmp
 
     T = 33
     P = walking_joints(T)[:, :22]
-    data = P.astype(np.float32) if kind == "joints" else _features(P).astype(np.float32)
+    data = P.astype(np.float32) if kind == "joints" else humanml3d_features(P).astype(np.float32)
     np.save(tmp_path / "motion.npy", data)
     res = animate_shipped(tmp_path / "motion.npy", "--out", tmp_path / "out", "--export", "bvh,glb")
     assert res.exit_code == 0, res.output
@@ -67,7 +53,7 @@ def test_humanml3d_to_bvh_and_glb_on_a_character_keeps_every_frame(animate_shipp
 
     T = 27
     P = walking_joints(T)[:, :22]
-    data = P.astype(np.float32) if kind == "joints" else _features(P).astype(np.float32)
+    data = P.astype(np.float32) if kind == "joints" else humanml3d_features(P).astype(np.float32)
     np.save(tmp_path / "motion.npy", data)
     write_mixamo_bvh(tmp_path / "hero.bvh", rest_joints(np.zeros(10), "neutral") * 1.15)
     res = animate_shipped(tmp_path / "motion.npy", "--out", tmp_path / "out", "--character", tmp_path / "hero.bvh",

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from animation_fixtures import walking_joints
+from animation_fixtures import humanml3d_features, walking_joints
+from bvh_producers import write_rotation_only_bvh
 from scipy.spatial.transform import Rotation
 
 from workflows.animation.clips import joints_of, rest_joints
@@ -107,15 +108,7 @@ def test_humanml3d_features_with_mean_std(animate_shipped, tmp_path):
     from workflows.animation.files import load_animation
 
     P = walking_joints(30)[:, :22]
-    T = len(P)
-    feats = np.zeros((T, 263))  # root without rotation: ric = joints relative to the root's xz, root height
-    feats[:, 3] = P[:, 0, 1]
-    rel = P[:, 1:].copy()
-    rel[..., 0] -= P[:, :1, 0]
-    rel[..., 2] -= P[:, :1, 2]
-    feats[:, 4:67] = rel.reshape(T, -1)
-    feats[:-1, 1] = P[1:, 0, 0] - P[:-1, 0, 0]
-    feats[:-1, 2] = P[1:, 0, 2] - P[:-1, 0, 2]
+    feats = humanml3d_features(P)  # root without rotation: ric = joints relative to the root's xz, root height
     assert np.allclose(recover_from_ric(feats)[:, :, [0, 2]] + P[0, 0, [0, 2]], P[..., [0, 2]], atol=1e-9)
     mean, std = np.linspace(-1, 1, 263), np.linspace(0.5, 2, 263)
     np.save(tmp_path / "Mean.npy", mean)
@@ -195,68 +188,6 @@ _BVH_JOINTS = (  # (name, parent, SMPL joint or None for a zero-OFFSET helper), 
     ("RightArm", "RightShoulder", 17), ("RightForeArm", "RightArm", 19), ("RightHand", "RightForeArm", 21))
 
 
-def _from_up(d: np.ndarray) -> np.ndarray:
-    """(T, 3, 3): the smallest rotations taking +y onto the directions d (T, 3)."""
-    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    axis = np.cross([0.0, 1.0, 0.0], d)
-    s, c = np.linalg.norm(axis, axis=-1), d[:, 1]
-    rotvec = axis / np.maximum(s, 1e-12)[:, None] * np.arctan2(s, c)[:, None]
-    return Rotation.from_rotvec(rotvec).as_matrix()
-
-
-def write_rotation_only_bvh(path, P: np.ndarray, fps: float = 30.0) -> None:
-    """The layout MediaPipe-to-BVH tools write: every OFFSET along one "up" vector (+y, its bone's length; helper
-    joints zero), the body only in the rotations. P (T, 22, 3): SMPL joints, metres."""
-    T = len(P)
-    names = [n for n, _, _ in _BVH_JOINTS]
-    parent = {n: p for n, p, _ in _BVH_JOINTS}
-    pos = {}
-    for n, p, j in _BVH_JOINTS:
-        pos[n] = P[:, j] if j is not None else pos[p]
-    children = {n: [c for c, q, _ in _BVH_JOINTS if q == n] for n in names}
-    length = {n: 0.0 if p is None else float(np.linalg.norm(pos[n][0] - pos[p][0])) for n, p, _ in _BVH_JOINTS}
-    G = {}
-    for n in names:
-        real = [c for c in children[n] if length[c] > 1e-9]
-        if len(real) == 1:
-            G[n] = _from_up(pos[real[0]] - pos[n])
-        else:
-            G[n] = G[parent[n]] if parent[n] else np.broadcast_to(np.eye(3), (T, 3, 3))
-    lines = ["HIERARCHY"]
-
-    def emit(n: str, depth: int) -> None:
-        pad = "  " * depth
-        head = "ROOT" if parent[n] is None else "JOINT"
-        lines.append(f"{pad}{head} {n}")
-        lines.append(f"{pad}{{")
-        lines.append(f"{pad}  OFFSET 0 {length[n] / _UNIT:.6f} 0")
-        chans = "6 Xposition Yposition Zposition" if parent[n] is None else "3"
-        lines.append(f"{pad}  CHANNELS {chans} Zrotation Yrotation Xrotation")
-        for c in children[n]:
-            emit(c, depth + 1)
-        if not children[n]:
-            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 1 0", f"{pad}  }}"])
-        lines.append(f"{pad}}}")
-
-    emit("Hips", 0)
-    lines += ["MOTION", f"Frames: {T}", f"Frame Time: {1 / fps:.6f}"]
-    order = []
-
-    def walk(n: str) -> None:
-        order.append(n)
-        for c in children[n]:
-            walk(c)
-
-    walk("Hips")
-    for t in range(T):
-        row = list(P[t, 0] / _UNIT)
-        for n in order:
-            R_local = G[n][t] if parent[n] is None else G[parent[n]][t].T @ G[n][t]
-            row += list(Rotation.from_matrix(R_local).as_euler("ZYX", degrees=True))
-        lines.append(" ".join(f"{v:.6f}" for v in row))
-    path.write_text("\n".join(lines) + "\n")
-
-
 def test_bvh_whose_body_is_in_its_rotations(animate_shipped, tmp_path):
     """Every OFFSET along +y (MediaPipe-to-BVH): read by forward kinematics as joint positions, no options."""
     from smplik.data.bvh import read_bvh
@@ -264,7 +195,7 @@ def test_bvh_whose_body_is_in_its_rotations(animate_shipped, tmp_path):
     from workflows.animation.joint_motion import offsets_share_one_direction
 
     P = walking_joints(30)[:, :22]
-    write_rotation_only_bvh(tmp_path / "mp.bvh", P)
+    write_rotation_only_bvh(tmp_path / "mp.bvh", P, _BVH_JOINTS, unit=_UNIT)
     motion = read_bvh(tmp_path / "mp.bvh")
     names = list(motion.joint_names)
     fk = motion.positions[:, [names.index(n) for n, _, j in _BVH_JOINTS if j is not None]] * _UNIT
